@@ -1,0 +1,284 @@
+"""The `graphkit` command line.
+
+Exit codes: 0 success, 2 bad graph / bad input / bad usage, 1 a node failed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from pathlib import Path
+
+from .errors import GraphkitError, UsageError
+
+DEFAULT_CACHE = ".graphkit-cache"
+
+
+def _cache_arg(p):
+    p.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", DEFAULT_CACHE),
+                   help="cache folder or fsspec URL (default: $GRAPHKIT_CACHE or ./.graphkit-cache)")
+
+
+def _graph_args(p):
+    p.add_argument("graph", help="graph file (YAML)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a graph param (repeatable)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="graphkit", description="Run typed node graphs with a content-hash cache.")
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run a graph")
+    _graph_args(p)
+    _cache_arg(p)
+    p.add_argument("--out", default="out", help="folder for the outputs and manifest.json (default: out)")
+    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+    p.add_argument("--jobs", "-j", type=int, default=os.cpu_count() or 1, help="nodes run at once")
+    p.add_argument("--executor", choices=("local", "dask"), default="local")
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--output", action="append", default=[], metavar="NAME",
+                   help="only compute these outputs (repeatable)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only notices and errors")
+
+    p = sub.add_parser("validate", help="check a graph without running it")
+    _graph_args(p)
+
+    p = sub.add_parser("show", help="print the graph as mermaid or DOT")
+    _graph_args(p)
+    p.add_argument("--format", choices=("mermaid", "dot"), default="mermaid")
+
+    p = sub.add_parser("explain", help="say why a node would (not) re-run")
+    _graph_args(p)
+    p.add_argument("node")
+    _cache_arg(p)
+
+    p = sub.add_parser("nodes", help="list node types (or describe one)")
+    p.add_argument("name", nargs="?")
+    p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("schema", help="print the JSON Schema of graph files")
+    p.add_argument("-o", "--output", default=None)
+
+    p = sub.add_parser("cache", help="inspect or trim the cache")
+    csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
+    for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
+        cp = csub.add_parser(name, help=hlp)
+        _cache_arg(cp)
+        if name == "gc":
+            cp.add_argument("--max-size", required=True, help="e.g. 500M, 2G")
+        if name == "verify":
+            cp.add_argument("--repair", action="store_true", help="remove what is corrupt")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        return _dispatch(args)
+    except GraphkitError as e:
+        from .errors import GraphError
+
+        print(str(e) if isinstance(e, GraphError) else f"graphkit: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("graphkit: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - a bug in graphkit itself: one line, not a traceback
+        if os.environ.get("GRAPHKIT_TRACEBACK"):
+            raise
+        print(f"graphkit: internal error: {type(e).__name__}: {e} (set GRAPHKIT_TRACEBACK=1 for details)",
+              file=sys.stderr)
+        return 1
+
+
+def _registry():
+    from .registry import default_registry
+
+    reg = default_registry()
+    for msg in reg.problems:
+        print(f"warning: {msg}", file=sys.stderr)
+    return reg
+
+
+def _load(args, check_backends=True):
+    from .graphfile import load_graph, parse_set
+
+    return load_graph(args.graph, _registry(), parse_set(args.set), check_backends=check_backends)
+
+
+def _dispatch(args) -> int:
+    if args.cmd == "run":
+        return cmd_run(args)
+    if args.cmd == "validate":
+        g = _load(args)
+        print(f"{args.graph}: ok ({len(g.nodes)} nodes, outputs: {', '.join(g.outputs)})")
+        return 0
+    if args.cmd == "show":
+        print(show(_load(args, check_backends=False), args.format))
+        return 0
+    if args.cmd == "explain":
+        from .explain import explain
+
+        print(explain(_load(args), _store(args.cache), args.node))
+        return 0
+    if args.cmd == "nodes":
+        return cmd_nodes(args)
+    if args.cmd == "schema":
+        from .schema import graph_schema
+
+        text = json.dumps(graph_schema(_registry()), indent=1)
+        if args.output:
+            Path(args.output).write_text(text + "\n")
+        else:
+            print(text)
+        return 0
+    if args.cmd == "cache":
+        return cmd_cache(args)
+    raise UsageError(f"unknown command {args.cmd}")
+
+
+def _store(location):
+    from .store import Store
+
+    return Store(location).open()
+
+
+def cmd_run(args) -> int:
+    from .executor import export_outputs, record_last_run, run_local
+    from .progress import make_progress
+    from .runner import Session
+
+    graph = _load(args)
+    if args.jobs < 1:
+        raise UsageError("--jobs must be at least 1")
+    targets = list(graph.outputs)
+    if args.output:
+        unknown = [o for o in args.output if o not in graph.outputs]
+        if unknown:
+            raise UsageError(f"unknown output(s) {', '.join(unknown)}; the graph's outputs: {', '.join(graph.outputs)}")
+        graph.outputs = {k: v for k, v in graph.outputs.items() if k in args.output}
+    store = _store(args.cache)
+    progress = make_progress(args.quiet)
+    order = [b.strip() for b in args.backend.split(",") if b.strip()]
+    session = Session(graph, _registry(), store, order, notice=progress.notice, report=progress.report)
+    ok = False
+    try:
+        node_targets = sorted({n for n, _ in graph.outputs.values()})
+        if args.executor == "dask":
+            from .dask_executor import run_dask
+
+            result = run_dask(session, node_targets, args.scheduler, args.jobs, progress)
+        else:
+            result = run_local(session, node_targets, args.jobs, progress)
+        ok = True
+    finally:
+        progress.finish(ok)
+    record_last_run(session, result)
+    written = export_outputs(session, result, args.out, {"set": args.set, "targets": targets})
+    n_run, n_hit = len(result.computed), len(result.cached)
+    if not args.quiet:
+        print(f"{graph.name}: {n_run} computed, {n_hit} cached, {result.seconds:.2f}s; "
+              f"{len(written)} files in {args.out}/", file=sys.stderr)
+    return 0
+
+
+def cmd_nodes(args) -> int:
+    import inspect
+
+    reg = _registry()
+    names = [args.name] if args.name else reg.node_names()
+    if args.name and args.name not in reg.nodes:
+        from .graphfile import did_you_mean
+
+        raise UsageError(f"unknown node type '{args.name}'{did_you_mean(args.name, reg.nodes)}")
+    rows = []
+    for n in names:
+        try:
+            cls = reg.node_class(n)
+        except GraphkitError as e:
+            print(f"warning: {e}", file=sys.stderr)
+            continue
+        rows.append({
+            "type": n, "version": cls.version, "provider": reg.nodes[n].provider,
+            "doc": inspect.getdoc(cls) or "",
+            "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "doc": p.doc} for p in cls.in_ports.values()},
+            "outputs": {p.name: {"type": p.type.name, "doc": p.doc} for p in cls.out_ports.values()},
+            "params": {k: {"type": str(f.annotation).replace("typing.", ""), "default": repr(f.default), "doc": f.description or ""}
+                       for k, f in cls.Params.model_fields.items()},
+            "backends": reg.backend_names(n),
+        })
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    for r in rows:
+        if not args.name:
+            print(f"{r['type']:<24} {r['doc'].splitlines()[0] if r['doc'] else ''}")
+            continue
+        print(f"{r['type']} (version {r['version']}, from {r['provider']}; backends: {', '.join(r['backends'])})\n")
+        print(r["doc"] + "\n")
+        for title, key in (("inputs", "inputs"), ("outputs", "outputs")):
+            print(f"{title}:")
+            for pn, p in r[key].items():
+                opt = " (optional)" if p.get("optional") else ""
+                print(f"  {pn}: {p['type']}{opt}  {p['doc']}")
+        print("params:")
+        for pn, p in r["params"].items():
+            print(f"  {pn}: {p['type']} = {p['default']}  {p['doc']}")
+    return 0
+
+
+def _parse_size(s: str) -> int:
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", s)
+    if not m:
+        raise UsageError(f"--max-size: cannot read {s!r} (examples: 500M, 2G, 100000)")
+    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    return int(float(m.group(1)) * mult)
+
+
+def cmd_cache(args) -> int:
+    store = _store(args.cache)
+    if args.cache_cmd == "ls":
+        rows = store.ls()
+        total = sum(r["bytes"] for r in rows)
+        for r in rows:
+            flag = "  CORRUPT" if r.get("corrupt") else ""
+            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {r['bytes'] / 1e6:10.3f} MB{flag}")
+        print(f"{len(rows)} entries, {total / 1e6:.3f} MB in {store.location}")
+        return 0
+    if args.cache_cmd == "gc":
+        info = store.gc(_parse_size(args.max_size))
+        print(f"removed {info['removed_records']} records and {info['removed_objects']} objects; "
+              f"{info['bytes'] / 1e6:.3f} MB left in {store.location}")
+        return 0
+    problems = store.verify(repair=args.repair)
+    for p in problems:
+        print(p)
+    print(f"{len(problems)} problems" + (" (repaired)" if args.repair and problems else "") + f" in {store.location}")
+    return 0 if not problems or args.repair else 1
+
+
+def show(graph, fmt: str) -> str:
+    if fmt == "dot":
+        lines = [f'digraph "{graph.name}" {{', "  rankdir=LR;", "  node [shape=box];"]
+        for n, g in graph.nodes.items():
+            lines.append(f'  "{n}" [label="{n}\\n{g.type}"];')
+        for n, g in graph.nodes.items():
+            for port, (src, sport) in g.inputs.items():
+                lines.append(f'  "{src}" -> "{n}" [label="{sport}→{port}"];')
+        lines.append("}")
+        return "\n".join(lines)
+    lines = ["flowchart LR"]
+    for n, g in graph.nodes.items():
+        lines.append(f'  {n}["{n}<br/><small>{g.type}</small>"]')
+    for n, g in graph.nodes.items():
+        for port, (src, sport) in g.inputs.items():
+            lines.append(f"  {src} -->|{sport}→{port}| {n}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

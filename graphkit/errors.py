@@ -1,0 +1,106 @@
+"""Errors the engine reports to users.
+
+Every user-facing failure is one of these; the CLI prints ``str(err)`` (never a traceback) and
+exits with ``err.exit_code``: 2 for a bad graph or bad input, 1 for a node that failed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class GraphkitError(Exception):
+    """Base of all errors that the CLI reports as one clear message."""
+
+    exit_code = 2
+
+
+@dataclass
+class Diagnostic:
+    """One problem at a place in a graph file."""
+
+    file: str
+    line: int  # 1-based
+    col: int  # 1-based
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}:{self.col}: error: {self.message}"
+
+
+class GraphError(GraphkitError):
+    """A graph file that cannot be loaded or does not validate (exit 2)."""
+
+    def __init__(self, diagnostics: list[Diagnostic] | Diagnostic):
+        if isinstance(diagnostics, Diagnostic):
+            diagnostics = [diagnostics]
+        self.diagnostics = diagnostics
+        super().__init__("\n".join(str(d) for d in diagnostics))
+
+    def __reduce__(self):
+        return (GraphError, (self.diagnostics,))
+
+
+class UsageError(GraphkitError):
+    """Bad command-line use or environment (missing file, bad --set, unwritable cache)."""
+
+
+class BadInput(GraphkitError):
+    """Raised by a node when an input value (or a param) is unusable: exit 2.
+
+    ``port`` names the input port (or param) at fault; the engine adds the node's name and type.
+    """
+
+    def __init__(self, port: str | None, message: str):
+        self.port = port
+        self.message = message
+        self.node: str | None = None
+        self.node_type: str | None = None
+        super().__init__(message)
+
+    def __reduce__(self):  # keep the port and node across processes (Dask workers)
+        return (_rebuild_bad_input, (self.port, self.message, self.node, self.node_type))
+
+    def __str__(self) -> str:
+        where = []
+        if self.node:
+            where.append(f"node '{self.node}' ({self.node_type})")
+        if self.port:
+            where.append(f"port '{self.port}'")
+        prefix = ", ".join(where)
+        return f"bad input: {prefix}: {self.message}" if prefix else f"bad input: {self.message}"
+
+
+class NodeFailed(GraphkitError):
+    """A node's compute raised an unexpected exception (exit 1)."""
+
+    exit_code = 1
+
+    def __init__(self, node: str, node_type: str, cause: BaseException):
+        self.node, self.node_type, self.cause = node, node_type, cause
+        super().__init__(
+            f"node '{node}' ({node_type}) failed: {type(cause).__name__}: {cause}"
+        )
+
+    def __reduce__(self):
+        cause = self.cause
+        try:
+            import pickle
+
+            pickle.dumps(cause)
+        except Exception:  # noqa: BLE001 - an unpicklable cause travels as its text
+            cause = RuntimeError(f"{type(self.cause).__name__}: {self.cause}")
+        return (NodeFailed, (self.node, self.node_type, cause))
+
+
+class CacheError(GraphkitError):
+    """The cache store cannot be used (read-only, full, corrupt): exit 2."""
+
+
+class CanonicalError(GraphkitError):
+    """A value that has no canonical encoding (so it cannot be part of a cache key)."""
+
+
+def _rebuild_bad_input(port, message, node, node_type):
+    e = BadInput(port, message)
+    e.node, e.node_type = node, node_type
+    return e

@@ -1,0 +1,96 @@
+"""`graphkit explain GRAPH NODE`: which part of a node's cache key changed since the last run."""
+from __future__ import annotations
+
+from .executor import graph_id
+from .graphfile import Graph
+from .hashing import key_digest
+from .runner import Session, readable_params
+from .store import Store
+from .errors import UsageError
+
+
+def _flat(d, prefix=""):
+    out = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
+    else:
+        out[prefix] = d
+    return out
+
+
+def explain(graph: Graph, store: Store, node: str) -> str:
+    from .graphfile import did_you_mean
+    from .registry import default_registry
+
+    if node not in graph.nodes:
+        raise UsageError(f"no node named '{node}' in {graph.path}{did_you_mean(node, graph.nodes)}")
+    session = Session(graph, default_registry(), store)
+    last = store.last_run(graph_id(graph)) or {}
+    state: dict[str, dict] = {}  # name -> {"key", "cached", "outputs" | None, "parts"}
+    for n in graph.upstream([node]):
+        g = graph.nodes[n]
+        ins, unknown = {}, []
+        for port, (src, sport) in g.inputs.items():
+            outs = state[src]["outputs"]
+            if outs is None:
+                unknown.append(src)
+            else:
+                ins[port] = outs[sport]
+        if unknown:
+            state[n] = {"key": None, "cached": False, "outputs": None, "parts": None, "waits": unknown}
+            continue
+        parts = session.key_parts(g, ins)
+        key = key_digest(parts)
+        rec = store.get_record(key)
+        state[n] = {"key": key, "cached": rec is not None,
+                    "outputs": {p: o["digest"] for p, o in rec["outputs"].items()} if rec else None,
+                    "parts": {**parts, "params": readable_params(g.params)}}
+
+    lines = []
+    s = state[node]
+    g = graph.nodes[node]
+    if s["cached"]:
+        lines.append(f"{node} ({g.type}) is cached: a run would not recompute it (key {s['key'][:16]}).")
+    else:
+        lines.append(f"{node} ({g.type}) would be computed.")
+    prev = last.get(node)
+    if prev is None:
+        lines.append("  no earlier run of this graph recorded for it in this cache.")
+        return "\n".join(lines)
+    if s["key"] == prev["key"]:
+        lines.append("  its key is the same as at the last run.")
+        return "\n".join(lines)
+    if s["parts"] is None:
+        waits = ", ".join(s["waits"])
+        lines.append(f"  its inputs are not known yet: upstream {waits} would be computed first.")
+    else:
+        lines.extend(_diff(s["parts"], prev["parts"], graph, node))
+    # the upstream nodes whose own key parts changed (the root causes)
+    for n in graph.upstream([node])[:-1]:
+        p, cur = last.get(n), state[n]
+        if p is None or cur["parts"] is None:
+            continue
+        own = {k: v for k, v in cur["parts"].items() if k != "inputs"}
+        own_prev = {k: v for k, v in p["parts"].items() if k != "inputs"}
+        if _flat(own) != _flat(own_prev):
+            lines.append(f"  upstream {n} ({graph.nodes[n].type}) changed:")
+            lines.extend("  " + x for x in _diff(cur["parts"], p["parts"], graph, n, inputs=False))
+    return "\n".join(lines)
+
+
+def _diff(cur: dict, prev: dict, graph: Graph, node: str, inputs: bool = True) -> list[str]:
+    a, b = _flat(cur), _flat(prev)
+    out = []
+    for k in sorted(set(a) | set(b)):
+        if not inputs and k.startswith("inputs."):
+            continue
+        if a.get(k, "<absent>") != b.get(k, "<absent>"):
+            if k.startswith("inputs."):
+                port = k.split(".", 1)[1]
+                src = graph.nodes[node].inputs.get(port, ("?", "?"))
+                out.append(f"  input '{port}' changed (from {src[0]}.{src[1]}): "
+                           f"{str(b.get(k))[:12]} → {str(a.get(k))[:12]}")
+            else:
+                out.append(f"  {k}: {b.get(k, '<absent>')!r} → {a.get(k, '<absent>')!r}")
+    return out

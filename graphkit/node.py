@@ -1,0 +1,197 @@
+"""The node API.
+
+A node type is a class with typed ports, pydantic ``Params``, a ``version`` and a pure
+``compute``::
+
+    class RatioImage(Node):
+        \"\"\"a / max(b, eps), per channel (Paris 2003 §3).\"\"\"
+        version = "1"
+        inputs = {"a": In(Image, "numerator"), "b": In(Image, "denominator")}
+        outputs = {"ratio": Image}
+
+        class Params(Node.Params):
+            eps: float = Field(1e-4, gt=0, description="floor of the denominator")
+
+        def compute(self, a, b):
+            return {"ratio": Image(a.pixels / np.maximum(b.pixels, self.params.eps))}
+
+``compute`` receives input values as keyword arguments and returns a dict of output values
+(or the bare value when there is one output).  It must depend only on its params and inputs:
+the engine caches its result by their content.  Raise :class:`BadInput` for unusable inputs.
+
+Alternative implementations are :class:`Backend` subclasses naming the node type they serve;
+the node's own ``compute`` is always the ``numpy`` reference backend.
+"""
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Callable, ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+from .errors import BadInput
+from .types import PortType, port_type
+
+
+@dataclass(frozen=True)
+class In:
+    """An input port declaration."""
+
+    type: Any
+    doc: str = ""
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class Out:
+    """An output port declaration."""
+
+    type: Any
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Port:
+    name: str
+    type: PortType
+    doc: str = ""
+    optional: bool = False
+
+
+class _InputFileMarker:
+    """Marks a ``str`` param as the path of an input file: the cache key uses its content."""
+
+
+InputFile = Annotated[str, _InputFileMarker()]
+
+
+@dataclass
+class Context:
+    """What a running node may know about its run (all of it deterministic)."""
+
+    node: str = ""
+    node_type: str = ""
+    key: str = ""  # the cache key of this computation
+    graph_name: str = ""
+    recipe_digest: str = ""  # digest of the part of the graph this node's result depends on
+    base_dir: str = "."  # folder of the graph file (relative input paths start here)
+    report: Callable[[float, str], None] = field(default=lambda frac, msg: None)
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Report progress of a long compute (0…1); shown by the CLI."""
+        self.report(fraction, message)
+
+
+class _Computable:
+    """Shared machinery of Node and Backend: params + context, calling compute."""
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def __init__(self, params: BaseModel | None = None, ctx: Context | None = None):
+        self.params = params if params is not None else self.Params()
+        self.ctx = ctx or Context()
+
+    def bad_input(self, port: str | None, message: str) -> BadInput:
+        """Build a BadInput error for ``port``; use as ``raise self.bad_input(...)``."""
+        return BadInput(port, message)
+
+
+class Node(_Computable):
+    """Base class of node types (see the module docstring)."""
+
+    version: ClassVar[str] = "1"
+    inputs: ClassVar[dict[str, Any]] = {}
+    outputs: ClassVar[dict[str, Any]] = {}
+    #: per-node tolerances for the backend conformance harness
+    tolerance: ClassVar[dict[str, float]] = {"rtol": 1e-5, "atol": 1e-6}
+    #: True when the result embeds provenance (the run's recipe digest and key)
+    provenance: ClassVar[bool] = False
+
+    # filled by __init_subclass__
+    type_name: ClassVar[str]
+    in_ports: ClassVar[dict[str, Port]]
+    out_ports: ClassVar[dict[str, Port]]
+
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        cls.type_name = cls.__dict__.get("type_name", cls.__name__)
+        cls.in_ports = {}
+        for name, decl in cls.inputs.items():
+            d = decl if isinstance(decl, In) else In(decl)
+            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional)
+        cls.out_ports = {}
+        for name, decl in cls.outputs.items():
+            d = decl if isinstance(decl, Out) else Out(decl)
+            cls.out_ports[name] = Port(name, port_type(d.type), d.doc)
+        if "Params" in cls.__dict__:
+            p = cls.Params
+            if p.model_config.get("extra") != "forbid":
+                p.model_config["extra"] = "forbid"
+                p.model_rebuild(force=True)
+
+    def compute(self, **inputs) -> Any:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    @classmethod
+    def examples(cls) -> list[tuple[dict, dict]]:
+        """(params, inputs) cases for the backend conformance harness."""
+        return []
+
+    @classmethod
+    def resolve_file(cls, param: str, value: str, base_dir: str) -> str:
+        """Turn an ``InputFile`` param into a real path (override for schemes like builtin:)."""
+        import os
+
+        return value if os.path.isabs(value) else os.path.join(base_dir, value)
+
+    @classmethod
+    def input_file_params(cls) -> list[str]:
+        out = []
+        for name, f in cls.Params.model_fields.items():
+            if any(isinstance(m, _InputFileMarker) for m in f.metadata):
+                out.append(name)
+        return out
+
+    @classmethod
+    def summary(cls) -> str:
+        return (inspect.getdoc(cls) or "").split("\n")[0]
+
+
+class Backend(_Computable):
+    """An alternative implementation of one node type's compute.
+
+    Set ``node`` (the node type name), ``name`` and ``version``; ``Params`` is taken from the
+    node type.  ``available()`` returns True when the backend can run here; when it returns
+    False or raises, the text of ``why_unavailable()`` (or the exception) is shown to users.
+    """
+
+    node: ClassVar[str]
+    name: ClassVar[str]
+    version: ClassVar[str] = "1"
+
+    @classmethod
+    def available(cls) -> bool:
+        return True
+
+    @classmethod
+    def why_unavailable(cls) -> str:
+        return "available() returned False"
+
+    def compute(self, **inputs) -> Any:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+def probe(backend: type[Backend]) -> str | None:
+    """None when ``backend`` is available, else the reason it is not."""
+    try:
+        ok = backend.available()
+    except Exception as e:  # noqa: BLE001 - any failure of a probe means "not available"
+        return f"{type(e).__name__}: {e}"
+    return None if ok else backend.why_unavailable()
+
+
+def reference_backend(node_cls: type[Node]) -> type:
+    """The node's own compute, seen as the ``numpy`` backend."""
+    return node_cls

@@ -1,0 +1,195 @@
+"""Running one node: backend choice, cache key, lookup, compute, store.
+
+:class:`Session` holds what one run shares (graph, registry, store, backend order, in-memory
+values).  :meth:`Session.run_node` is the unit both executors call — the local thread pool
+and Dask workers — so every executor produces the same keys and the same bytes.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from .errors import BadInput, GraphkitError, NodeFailed
+from .graphfile import GNode, Graph
+from .hashing import RECIPE_VERSION, file_digest, key_digest
+from .node import Context, probe
+from .registry import NUMPY, Registry
+from .store import Store, value_parts
+
+
+@dataclass
+class NodeOutcome:
+    name: str
+    type: str
+    key: str
+    hit: bool
+    seconds: float
+    backend: str
+    backend_version: str
+    outputs: dict[str, str]  # port -> value digest
+    parts: dict = field(default_factory=dict)
+
+
+def readable_params(params) -> Any:
+    try:
+        return params.model_dump(mode="json")
+    except Exception:  # noqa: BLE001 - params with arrays etc.: show their repr
+        return {k: repr(getattr(params, k)) for k in type(params).model_fields}
+
+
+class Session:
+    """Shared state of one run."""
+
+    def __init__(self, graph: Graph, registry: Registry, store: Store,
+                 backend_order: list[str] | None = None,
+                 notice: Callable[[str], None] = lambda msg: None,
+                 report: Callable[[str, float, str], None] = lambda node, frac, msg: None):
+        self.graph, self.registry, self.store = graph, registry, store
+        self.backend_order = list(backend_order or [NUMPY])
+        if NUMPY not in self.backend_order:
+            self.backend_order.append(NUMPY)
+        self.notice = notice
+        self.report = report
+        self.memo: dict[str, Any] = {}  # digest -> value, for values made or loaded in this process
+        self._memo_lock = threading.Lock()
+        self._backends: dict[str, tuple[str, type, str]] = {}
+        self._noticed: set[tuple[str, str]] = set()
+        self._files: dict[str, str] = {}
+
+    # -- backends ------------------------------------------------------------------------
+    def backend_for(self, g: GNode) -> tuple[str, type, str]:
+        """(name, class, version) of the backend that computes node ``g``."""
+        if g.name in self._backends:
+            return self._backends[g.name]
+        reg = self.registry
+        if g.backend:
+            choice = g.backend  # pinned: validated (and probed) when the graph was loaded
+        else:
+            choice = NUMPY
+            for b in self.backend_order:
+                if b == NUMPY:
+                    break
+                if b not in reg.backends.get(g.type, {}):
+                    continue
+                why = probe(reg.backend_class(g.type, b))
+                if why is None:
+                    choice = b
+                    break
+                if (g.type, b) not in self._noticed:
+                    self._noticed.add((g.type, b))
+                    self.notice(f"notice: backend '{b}' for {g.type} is not available here ({why}); using numpy")
+        cls = reg.backend_class(g.type, choice)
+        version = cls.version
+        self._backends[g.name] = (choice, cls, version)
+        return self._backends[g.name]
+
+    # -- keys ------------------------------------------------------------------------------
+    def key_parts(self, g: GNode, input_digests: dict[str, str]) -> dict:
+        bname, _, bver = self.backend_for(g)
+        parts = {
+            "recipe": RECIPE_VERSION,
+            "node_type": g.type,
+            "node_version": g.cls.version,
+            "backend": bname,
+            "backend_version": bver,
+            "params": g.params,
+            "inputs": dict(sorted(input_digests.items())),
+        }
+        if g.files:
+            parts["files"] = {p: self.file_digest(path) for p, path in sorted(g.files.items())}
+        if g.cls.provenance:
+            parts["recipe_digest"] = self.graph.recipe_digest(g.name)
+        return parts
+
+    def file_digest(self, path: str) -> str:
+        if path not in self._files:
+            try:
+                self._files[path] = file_digest(path, self.store.memo_file)
+            except OSError as e:
+                raise GraphkitError(f"cannot read input file {path}: {e.strerror or e}") from None
+        return self._files[path]
+
+    # -- values ----------------------------------------------------------------------------
+    def value(self, digest: str, ptype) -> Any:
+        with self._memo_lock:
+            if digest in self.memo:
+                return self.memo[digest]
+        v = self.store.load_value(digest, ptype)
+        with self._memo_lock:
+            self.memo[digest] = v
+        return v
+
+    # -- the unit of work ------------------------------------------------------------------
+    def run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
+        g = self.graph.nodes[name]
+        bname, bcls, bver = self.backend_for(g)
+        parts = self.key_parts(g, input_digests)
+        key = key_digest(parts)
+        t0 = time.perf_counter()
+        rec = self.store.get_record(key)
+        if rec is None:
+            with self.store.key_lock(key):
+                rec = self.store.get_record(key)  # another process may have made it meanwhile
+                if rec is None:
+                    outputs = self._compute(g, bcls, key, parts, input_digests)
+                    return NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver,
+                                       outputs, parts)
+        self.store.touch_record(key)
+        outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
+        return NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts)
+
+    def _compute(self, g: GNode, bcls: type, key: str, parts: dict, input_digests: dict[str, str]) -> dict[str, str]:
+        inputs = {}
+        for port, d in input_digests.items():
+            inputs[port] = self.value(d, g.cls.in_ports[port].type)
+        ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
+                      recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
+                      report=lambda frac, msg: self.report(g.name, frac, msg))
+        t0 = time.perf_counter()
+        try:
+            inst = bcls(g.params, ctx)
+            result = inst.compute(**inputs)
+        except BadInput as e:
+            e.node, e.node_type = g.name, g.type
+            raise
+        except GraphkitError:
+            raise
+        except Exception as e:  # noqa: BLE001 - any other failure is the node's
+            raise NodeFailed(g.name, g.type, e) from e
+        seconds = time.perf_counter() - t0
+        outs = g.cls.out_ports
+        if not isinstance(result, dict) or (len(outs) == 1 and set(result) != set(outs)):
+            if len(outs) == 1:
+                result = {next(iter(outs)): result}
+        if not isinstance(result, dict) or set(result) != set(outs):
+            got = sorted(result) if isinstance(result, dict) else type(result).__name__
+            raise NodeFailed(g.name, g.type, TypeError(f"compute returned {got}, expected outputs {sorted(outs)}"))
+        digests, rec_out, staged = {}, {}, []
+        for port, p in outs.items():
+            v = result[port]
+            problem = p.type.check(v)
+            if problem:
+                raise NodeFailed(g.name, g.type, TypeError(f"output '{port}': {problem}"))
+            vp = value_parts(p.type, v)
+            for a in vp[1]:  # consumers share the value: make accidental in-place edits fail
+                with contextlib.suppress(ValueError):
+                    a.flags.writeable = False
+            staged.append((port, p, v, vp))
+        for port, p, v, vp in staged:
+            d = self.store.put_value(p.type, v, vp)
+            digests[port] = d
+            rec_out[port] = {"digest": d, "type": p.type.name}
+            with self._memo_lock:
+                self.memo[d] = v
+        record = {
+            "key": key, "node": g.name,
+            "parts": {**parts, "params": readable_params(g.params)},
+            "outputs": rec_out,
+            "seconds": round(seconds, 6) if math.isfinite(seconds) else 0.0,
+        }
+        self.store.put_record(key, record)
+        return digests

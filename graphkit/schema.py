@@ -1,0 +1,79 @@
+"""JSON Schema of graph files, generated from the installed node types.
+
+Editors that speak the YAML language server use it through a first line
+``# yaml-language-server: $schema=graph.schema.json``.
+"""
+from __future__ import annotations
+
+from .registry import Registry
+
+REF = r"^[A-Za-z_][A-Za-z0-9_\-]*\.[A-Za-z_][A-Za-z0-9_]*$"
+PARAM_REF = r"\$\{params\.[A-Za-z_][A-Za-z0-9_]*\}"
+
+
+def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
+    cls = reg.node_class(name)
+    params = cls.Params.model_json_schema()
+    defs = params.pop("$defs", {})
+    params["additionalProperties"] = False
+    for k, v in params.get("properties", {}).items():  # any param may be a ${params.NAME}
+        params["properties"][k] = {"anyOf": [v, {"type": "string", "pattern": PARAM_REF}],
+                                   "description": v.get("description", "")}
+    s = {
+        "type": "object",
+        "description": (cls.__doc__ or "").strip(),
+        "properties": {
+            "type": {"const": name},
+            "doc": {"type": "string"},
+            "backend": {"enum": reg.backend_names(name)},
+            "inputs": {
+                "type": "object",
+                "additionalProperties": False,
+                "properties": {p: {"type": "string", "pattern": REF, "description": f"{port.type}: {port.doc}"}
+                               for p, port in cls.in_ports.items()},
+                "required": [p for p, port in cls.in_ports.items() if not port.optional],
+            },
+            "params": params,
+        },
+        "required": ["type"],
+        "additionalProperties": False,
+    }
+    return s, defs
+
+
+def graph_schema(reg: Registry) -> dict:
+    variants, all_defs = [], {}
+    for name in reg.node_names():
+        try:
+            s, defs = node_schema(reg, name)
+        except Exception:  # noqa: BLE001 - a broken plugin node is left out of the schema
+            continue
+        all_defs.update(defs)
+        variants.append({"if": {"properties": {"type": {"const": name}}, "required": ["type"]}, "then": s})
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "graphkit graph file (format 1)",
+        "type": "object",
+        "required": ["graphkit", "nodes"],
+        "additionalProperties": False,
+        "properties": {
+            "graphkit": {"const": 1},
+            "name": {"type": "string", "pattern": r"^[A-Za-z_][A-Za-z0-9_\-]*$"},
+            "description": {"type": "string"},
+            "params": {"type": "object"},
+            "outputs": {"oneOf": [
+                {"type": "array", "items": {"type": "string", "pattern": REF}},
+                {"type": "object", "additionalProperties": {"type": "string", "pattern": REF}},
+            ]},
+            "nodes": {
+                "type": "object",
+                "additionalProperties": {
+                    "type": "object",
+                    "properties": {"type": {"enum": reg.node_names()}},
+                    "required": ["type"],
+                    "allOf": variants,
+                },
+            },
+        },
+        "$defs": all_defs,
+    }

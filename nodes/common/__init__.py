@@ -1,0 +1,1 @@
+"""Maths shared by several papers' nodes (one implementation each)."""
