@@ -1,0 +1,97 @@
+"""Microfacet specular shared by the skin (Jimenez) and cosmetics (Huang) nodes.
+
+One implementation of:
+
+* :func:`beckmann_D` — the normalised Beckmann normal distribution function (NDF),
+* :func:`schlick_fresnel` — Schlick's approximation of the Fresnel reflectance,
+* :func:`kelemen_specular` — the Kelemen/Szirmay-Kalos specular term as used for skin by
+  d'Eon & Luebke, *Advanced Techniques for Realistic Real-Time Skin Rendering*, GPU Gems 3
+  ch. 14 (§14.3, ``KS_Skin_Specular``) and by Huang et al. 2013 §3.3, eq. 5.
+
+Conventions (all angles in radians, vectors are unit length, last axis of size 3):
+
+``m`` is the Beckmann roughness in the form ``D ∝ exp(-tan²θ_h / m²)``.  It is the 2-D RMS
+slope of the microfacets, sqrt(E[s_x² + s_y²]); the RMS slope along one tangent axis is
+m/√2.  Mitsuba 3's ``MicrofacetDistribution(MicrofacetType.Beckmann, alpha)`` uses the same
+formula with ``alpha = m`` (checked in tests/test_microfacet.py against ``mi.MicrofacetDistribution.eval``),
+i.e. Mitsuba's alpha = √2 × the per-axis RMS slope.  GPU Gems 3's ``m`` (0.3 … 0.35 for skin)
+is this same ``m``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["beckmann_D", "schlick_fresnel", "kelemen_specular", "kelemen_brdf"]
+
+
+def beckmann_D(cos_theta_h, m):
+    """Normalised Beckmann NDF  D(θ_h) = exp(−tan²θ_h / m²) / (π m² cos⁴θ_h).
+
+    ``cos_theta_h`` = N·H (scalar or array), ``m`` = RMS slope (unitless, > 0; see the
+    module docstring).  Normalised so that ∫ D(ω_h) cos θ_h dω_h = 1 over the hemisphere.
+    Returns 0 where cos θ_h ≤ 0 (back-facing microfacets).
+    """
+    c = np.asarray(cos_theta_h, dtype=np.float64)
+    m = np.asarray(m, dtype=np.float64)
+    c2 = c * c
+    pos = c > 0
+    c2s = np.where(pos, c2, 1.0)
+    tan2 = (1.0 - c2s) / c2s
+    m2 = m * m
+    d = np.exp(-tan2 / m2) / (np.pi * m2 * c2s * c2s)
+    return np.where(pos, d, 0.0)
+
+
+def schlick_fresnel(cos_theta, f0):
+    """Schlick's Fresnel approximation  F = f0 + (1 − f0)(1 − cos θ)⁵.
+
+    ``cos_theta`` is the cosine between the view (or light) direction and the half vector
+    (clipped to [0, 1]); ``f0`` is the reflectance at normal incidence (0.028 for skin,
+    i.e. n ≈ 1.4).  Unitless.
+    """
+    c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
+    e = (1.0 - c) ** 5
+    return e + np.asarray(f0, dtype=np.float64) * (1.0 - e)
+
+
+def kelemen_brdf(n, l, v, m, f0=0.028):
+    """Kelemen/Szirmay-Kalos specular BRDF  f_r = D(H) F(H·L) / |L + V|²  (sr⁻¹).
+
+    This is Huang 2013 eq. 5, f_r = P_H(H) F(H·L) / (2(1 + L·V)), since |L + V|² = 2(1 + L·V),
+    with P_H the normalised Beckmann NDF :func:`beckmann_D`.  ``n``, ``l``, ``v`` are unit
+    vectors (…, 3) (l towards the light, v towards the viewer); returns (…).  Zero where
+    N·L ≤ 0 or L = −V.
+    """
+    n = np.asarray(n, dtype=np.float64)
+    l = np.asarray(l, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    h = l + v
+    hh = np.sum(h * h, axis=-1)
+    ok = (hh > 1e-12) & (np.sum(n * l, axis=-1) > 0)
+    hh_s = np.where(ok, hh, 1.0)
+    H = h / np.sqrt(hh_s)[..., None]
+    ndoth = np.sum(n * H, axis=-1)
+    hdotl = np.sum(H * l, axis=-1)
+    f = beckmann_D(ndoth, m) * schlick_fresnel(hdotl, f0) / hh_s
+    return np.where(ok, np.maximum(f, 0.0), 0.0)
+
+
+def kelemen_specular(n, l, v, m, rho_s, f0=0.028):
+    """Kelemen/Szirmay-Kalos specular term as in GPU Gems 3 ch. 14 (``KS_Skin_Specular``).
+
+    Returns ``rho_s · π · f_r(L, V) · max(N·L, 0)`` with f_r = :func:`kelemen_brdf`, i.e.
+    exactly d'Eon & Luebke's ``ndotl * rho_s * PH * F / dot(h, h)`` where their ``PH`` is the
+    Beckmann NDF without the 1/π factor.  This is the reflected radiance per unit light in the
+    GPU Gems convention where a white Lambertian surface returns max(N·L, 0) (diffuse =
+    albedo · N·L, no 1/π), so it adds directly to such a diffuse term.
+
+    ``n``, ``l``, ``v``: unit vectors (…, 3) — normal, direction to the light, direction to the
+    viewer; ``m``: Beckmann RMS slope (unitless; 0.3 … 0.35 for skin); ``rho_s``: specular
+    intensity (unitless; ≈ 0.18 for skin in GPU Gems 3); ``f0``: Fresnel reflectance at normal
+    incidence (0.028 for skin).  ``m``, ``rho_s``, ``f0`` may be arrays broadcasting with (…).
+    Returns (…) float64.
+    """
+    n = np.asarray(n, dtype=np.float64)
+    l = np.asarray(l, dtype=np.float64)
+    ndotl = np.maximum(np.sum(n * l, axis=-1), 0.0)
+    return np.asarray(rho_s, dtype=np.float64) * np.pi * kelemen_brdf(n, l, v, m, f0) * ndotl
