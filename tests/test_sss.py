@@ -1,0 +1,57 @@
+"""Screen-space SSS (nodes/common/sss.py): d'Eon 2007 six-Gaussian skin profile."""
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from nodes.common.sss import SKIN_PROFILE, sss_blur
+
+
+def _reference(img, mpp):
+    out = np.zeros_like(img, dtype=np.float64)
+    for var, rgb in SKIN_PROFILE:
+        sd_px = np.sqrt(var) / mpp
+        for ch in range(3):
+            if rgb[ch]:
+                out[..., ch] += rgb[ch] * gaussian_filter(img[..., ch].astype(np.float64), sd_px)
+    return out
+
+
+def test_profile_weights_sum_to_one_per_channel():
+    w = np.array([rgb for _, rgb in SKIN_PROFILE])
+    assert len(SKIN_PROFILE) == 6
+    np.testing.assert_allclose(w.sum(0), 1.0, atol=1e-3)  # d'Eon 2007 table is normalised
+
+
+@pytest.mark.parametrize("mpp", [0.35, 0.12])
+def test_flat_depth_equals_weighted_gaussian_filters(mpp):
+    rng = np.random.default_rng(0)
+    img = rng.random((48, 61, 3)).astype(np.float32)
+    img[20:25, 30:33] = 8.0  # a bright spot: the red tail must spread further than blue
+    depth = np.full((48, 61), 500.0)
+    got = sss_blur(img, mpp, depth=depth)
+    np.testing.assert_allclose(got, _reference(img, mpp), atol=1e-5, rtol=0)
+    np.testing.assert_allclose(sss_blur(img, mpp), got, atol=1e-6)  # no depth = flat depth
+
+
+def test_energy_conserving_and_red_scatters_furthest():
+    img = np.zeros((81, 81, 3), np.float32)
+    img[40, 40] = 1.0
+    out = sss_blur(img, 0.2)
+    np.testing.assert_allclose(out.sum((0, 1)), 1.0, atol=1e-4)
+    r = np.hypot(*np.mgrid[-40:41, -40:41])
+    spread = [(out[..., c] * r ** 2).sum() for c in range(3)]
+    assert spread[0] > spread[1] > spread[2]
+
+
+def test_depth_gradient_narrows_kernel_and_mask_blocks_bleeding():
+    rng = np.random.default_rng(1)
+    img = rng.random((40, 40, 3)).astype(np.float32)
+    flat = sss_blur(img, 0.3, depth=np.full((40, 40), 400.0))
+    tilted = sss_blur(img, 0.3, depth=400.0 + 0.9 * np.arange(40)[None, :] * np.ones((40, 1)))
+    # foreshortened along x: less blur there, so closer to the input
+    assert np.abs(tilted - img).mean() < np.abs(flat - img).mean()
+    mask = np.zeros((40, 40)); mask[:, :20] = 1
+    img2 = img.copy(); img2[:, 20:] = 100.0  # bright background must not bleed into the skin
+    out = sss_blur(img2, 0.3, mask=mask)
+    assert out[:, :20].max() < 1.5
+    np.testing.assert_array_equal(out[:, 20:], img2[:, 20:])
