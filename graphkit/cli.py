@@ -267,7 +267,7 @@ def show(graph, fmt: str) -> str:
         for n, g in graph.nodes.items():
             lines.append(f'  "{n}" [label="{n}\\n{g.type}"];')
         for n, g in graph.nodes.items():
-            for port, (src, sport) in g.inputs.items():
+            for port, src, sport in g.edges():
                 lines.append(f'  "{src}" -> "{n}" [label="{sport}→{port}"];')
         lines.append("}")
         return "\n".join(lines)
@@ -275,7 +275,7 @@ def show(graph, fmt: str) -> str:
     for n, g in graph.nodes.items():
         lines.append(f'  {n}["{n}<br/><small>{g.type}</small>"]')
     for n, g in graph.nodes.items():
-        for port, (src, sport) in g.inputs.items():
+        for port, src, sport in g.edges():
             lines.append(f"  {src} -->|{sport}→{port}| {n}")
     return "\n".join(lines)
 

@@ -37,7 +37,7 @@ def _dask_node(token, graph, store_location, backend_order, name, dep_names, *de
     session = _worker_session(token, graph, store_location, backend_order)
     outs = dict(zip(dep_names, dep_outcomes))
     g = graph.nodes[name]
-    digests = {port: outs[src].outputs[sport] for port, (src, sport) in g.inputs.items()}
+    digests = g.map_inputs(lambda src, sport: outs[src].outputs[sport])
     return session.run_node(name, digests)
 
 
@@ -65,7 +65,7 @@ def run_dask(session: Session, targets: list[str], scheduler: str | None = None,
         gfut = client.scatter(graph, broadcast=True)
         futs = {}
         for n in order:
-            deps = sorted({s for s, _ in graph.nodes[n].inputs.values()})
+            deps = sorted(graph.nodes[n].sources())
             futs[n] = client.submit(_dask_node, token, gfut, loc, session.backend_order, n, deps,
                                     *[futs[d] for d in deps], key=f"{n}-{token}", pure=False)
         names = {f.key: n for n, f in futs.items()}

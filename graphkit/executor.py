@@ -55,7 +55,7 @@ class Progress:
 
 def input_digests(session: Session, name: str, outcomes: dict[str, NodeOutcome]) -> dict[str, str]:
     g = session.graph.nodes[name]
-    return {port: outcomes[src].outputs[sport] for port, (src, sport) in g.inputs.items()}
+    return g.map_inputs(lambda src, sport: outcomes[src].outputs[sport])
 
 
 def run_local(session: Session, targets: list[str], jobs: int = 1,
@@ -83,7 +83,7 @@ def run_local(session: Session, targets: list[str], jobs: int = 1,
 def _run_pool(session: Session, order: list[str], jobs: int, progress: Progress, result: RunResult) -> None:
     graph = session.graph
     wanted = set(order)
-    waiting = {n: {s for s, _ in graph.nodes[n].inputs.values()} & wanted for n in order}
+    waiting = {n: graph.nodes[n].sources() & wanted for n in order}
     dependants: dict[str, list[str]] = {n: [] for n in order}
     for n in order:
         for s in waiting[n]:

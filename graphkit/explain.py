@@ -30,13 +30,9 @@ def explain(graph: Graph, store: Store, node: str) -> str:
     state: dict[str, dict] = {}  # name -> {"key", "cached", "outputs" | None, "parts"}
     for n in graph.upstream([node]):
         g = graph.nodes[n]
-        ins, unknown = {}, []
-        for port, (src, sport) in g.inputs.items():
-            outs = state[src]["outputs"]
-            if outs is None:
-                unknown.append(src)
-            else:
-                ins[port] = outs[sport]
+        unknown = sorted(s for s in g.sources() if state[s]["outputs"] is None)
+        if not unknown:
+            ins = g.map_inputs(lambda src, sport: state[src]["outputs"][sport])
         if unknown:
             state[n] = {"key": None, "cached": False, "outputs": None, "parts": None, "waits": unknown}
             continue
@@ -88,8 +84,8 @@ def _diff(cur: dict, prev: dict, graph: Graph, node: str, inputs: bool = True) -
         if a.get(k, "<absent>") != b.get(k, "<absent>"):
             if k.startswith("inputs."):
                 port = k.split(".", 1)[1]
-                src = graph.nodes[node].inputs.get(port, ("?", "?"))
-                out.append(f"  input '{port}' changed (from {src[0]}.{src[1]}): "
+                srcs = [f"{s}.{sp}" for p, s, sp in graph.nodes[node].edges() if p == port] or ["?"]
+                out.append(f"  input '{port}' changed (from {', '.join(srcs)}): "
                            f"{str(b.get(k))[:12]} → {str(a.get(k))[:12]}")
             else:
                 out.append(f"  {k}: {b.get(k, '<absent>')!r} → {a.get(k, '<absent>')!r}")

@@ -53,11 +53,28 @@ class GNode:
     type: str
     cls: type[Node]
     params: BaseModel
-    inputs: dict[str, tuple[str, str]]  # port -> (source node, source port)
+    # port -> (source node, source port); a variadic port holds a list of them
+    inputs: dict[str, tuple[str, str] | list[tuple[str, str]]]
     backend: str | None  # pinned backend, if any
     files: dict[str, str]  # InputFile param -> resolved path
     line: int = 0
     col: int = 0
+
+    def edges(self) -> list[tuple[str, str, str]]:
+        """Every connection into this node as (port, source node, source port)."""
+        out = []
+        for port, ref in self.inputs.items():
+            for src, sport in (ref if isinstance(ref, list) else [ref]):
+                out.append((port, src, sport))
+        return out
+
+    def sources(self) -> set[str]:
+        return {src for _, src, _ in self.edges()}
+
+    def map_inputs(self, fn) -> dict:
+        """{port: fn(src, sport)} (a list of those for variadic ports)."""
+        return {port: [fn(*r) for r in ref] if isinstance(ref, list) else fn(*ref)
+                for port, ref in self.inputs.items()}
 
 
 @dataclass
@@ -79,21 +96,21 @@ class Graph:
             if n in need:
                 continue
             need.add(n)
-            stack.extend(src for src, _ in self.nodes[n].inputs.values())
+            stack.extend(self.nodes[n].sources())
         return [n for n in self.order() if n in need]
 
     def order(self) -> list[str]:
         if "_order" not in self.__dict__:
             from graphlib import TopologicalSorter
 
-            ts = TopologicalSorter({n: sorted({s for s, _ in g.inputs.values()}) for n, g in self.nodes.items()})
+            ts = TopologicalSorter({n: sorted(g.sources()) for n, g in self.nodes.items()})
             self.__dict__["_order"] = list(ts.static_order())
         return self.__dict__["_order"]
 
     def consumers(self) -> dict[str, list[str]]:
         out: dict[str, list[str]] = {n: [] for n in self.nodes}
         for n, g in self.nodes.items():
-            for src, _ in g.inputs.values():
+            for src in g.sources():
                 out[src].append(n)
         return out
 
@@ -104,7 +121,7 @@ class Graph:
             self._recipes[name] = key_digest({
                 "type": g.type, "version": g.cls.version,
                 "params": g.params.model_dump(mode="json"),
-                "inputs": {p: [self.recipe_digest(s), sp] for p, (s, sp) in g.inputs.items()},
+                "inputs": g.map_inputs(lambda s, sp: [self.recipe_digest(s), sp]),
             })
         return self._recipes[name]
 
@@ -377,15 +394,27 @@ def _validate(doc: _Doc, data: dict, path: str, reg: Registry, overrides: dict,
     # connections, now that every node is known
     for nname, port, ref in pending_inputs:
         where = ("nodes", nname, "inputs", port)
-        src = _parse_ref(doc, where, ref, nodes, f"node '{nname}', input '{port}'")
-        if src is None:
+        pdecl = nodes[nname].cls.in_ports[port]
+        if pdecl.variadic:
+            refs = ref if isinstance(ref, list) else [ref]
+            wheres = [where + (i,) for i in range(len(refs))] if isinstance(ref, list) else [where]
+        elif isinstance(ref, list):
+            doc.at(where, f"node '{nname}', input '{port}' takes one connection, not a list")
             continue
-        want = nodes[nname].cls.in_ports[port].type
-        have = nodes[src[0]].cls.out_ports[src[1]].type
-        if not want.accepts(have):
-            doc.at(where, f"node '{nname}', input '{port}' takes {want} but {src[0]}.{src[1]} gives {have}")
-            continue
-        nodes[nname].inputs[port] = src
+        else:
+            refs, wheres = [ref], [where]
+        srcs = []
+        for r, w in zip(refs, wheres):
+            src = _parse_ref(doc, w, r, nodes, f"node '{nname}', input '{port}'")
+            if src is None:
+                continue
+            have = nodes[src[0]].cls.out_ports[src[1]].type
+            if not pdecl.type.accepts(have):
+                doc.at(w, f"node '{nname}', input '{port}' takes {pdecl.type} but {src[0]}.{src[1]} gives {have}")
+                continue
+            srcs.append(src)
+        if len(srcs) == len(refs):
+            nodes[nname].inputs[port] = srcs if pdecl.variadic else srcs[0]
 
     outputs: dict[str, tuple[str, str]] = {}
     outs_raw = data.get("outputs")
@@ -410,7 +439,7 @@ def _validate(doc: _Doc, data: dict, path: str, reg: Registry, overrides: dict,
     if doc.diags:
         raise GraphError(doc.diags)
     if not outputs:  # default: every output of every node nobody consumes
-        used = {n for g in nodes.values() for n, _ in g.inputs.values()}
+        used = {n for g in nodes.values() for n in g.sources()}
         for n, g in nodes.items():
             if n not in used:
                 for p in g.cls.out_ports:
@@ -494,7 +523,7 @@ def _check_cycles(doc, nodes):
     # importing networkx costs ~0.2 s; networkx serves `show` and analysis.
     from graphlib import CycleError, TopologicalSorter
 
-    ts = TopologicalSorter({n: sorted({s for s, _ in g.inputs.values()}) for n, g in nodes.items()})
+    ts = TopologicalSorter({n: sorted(g.sources()) for n, g in nodes.items()})
     try:
         ts.prepare()
     except CycleError as e:
@@ -511,7 +540,7 @@ def graph_to_networkx(graph: Graph):
     for n, gn in graph.nodes.items():
         g.add_node(n, type=gn.type)
     for n, gn in graph.nodes.items():
-        for port, (src, sport) in gn.inputs.items():
+        for port, src, sport in gn.edges():
             g.add_edge(src, n, ports=f"{sport}→{port}")
     return g
 

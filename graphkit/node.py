@@ -41,6 +41,7 @@ class In:
     type: Any
     doc: str = ""
     optional: bool = False
+    variadic: bool = False  # takes a list of connections; compute gets a list
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ class Port:
     type: PortType
     doc: str = ""
     optional: bool = False
+    variadic: bool = False
 
 
 class _InputFileMarker:
@@ -120,7 +122,7 @@ class Node(_Computable):
         cls.in_ports = {}
         for name, decl in cls.inputs.items():
             d = decl if isinstance(decl, In) else In(decl)
-            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional)
+            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional, d.variadic)
         cls.out_ports = {}
         for name, decl in cls.outputs.items():
             d = decl if isinstance(decl, Out) else Out(decl)

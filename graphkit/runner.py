@@ -145,7 +145,8 @@ class Session:
     def _compute(self, g: GNode, bcls: type, key: str, parts: dict, input_digests: dict[str, str]) -> dict[str, str]:
         inputs = {}
         for port, d in input_digests.items():
-            inputs[port] = self.value(d, g.cls.in_ports[port].type)
+            ptype = g.cls.in_ports[port].type
+            inputs[port] = [self.value(x, ptype) for x in d] if isinstance(d, list) else self.value(d, ptype)
         ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
                       recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
                       report=lambda frac, msg: self.report(g.name, frac, msg))
