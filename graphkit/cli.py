@@ -148,41 +148,21 @@ def _store(location):
 
 
 def cmd_run(args) -> int:
-    from .executor import export_outputs, record_last_run, run_local
+    from .api import run_graph
+    from .graphfile import parse_set
     from .progress import make_progress
-    from .runner import Session
 
-    graph = _load(args)
     if args.jobs < 1:
         raise UsageError("--jobs must be at least 1")
-    targets = list(graph.outputs)
-    if args.output:
-        unknown = [o for o in args.output if o not in graph.outputs]
-        if unknown:
-            raise UsageError(f"unknown output(s) {', '.join(unknown)}; the graph's outputs: {', '.join(graph.outputs)}")
-        graph.outputs = {k: v for k, v in graph.outputs.items() if k in args.output}
-    store = _store(args.cache)
     progress = make_progress(args.quiet)
-    order = [b.strip() for b in args.backend.split(",") if b.strip()]
-    session = Session(graph, _registry(), store, order, notice=progress.notice, report=progress.report)
-    ok = False
-    try:
-        node_targets = sorted({n for n, _ in graph.outputs.values()})
-        if args.executor == "dask":
-            from .dask_executor import run_dask
-
-            result = run_dask(session, node_targets, args.scheduler, args.jobs, progress)
-        else:
-            result = run_local(session, node_targets, args.jobs, progress)
-        ok = True
-    finally:
-        progress.finish(ok)
-    record_last_run(session, result)
-    written = export_outputs(session, result, args.out, {"set": args.set, "targets": targets})
-    n_run, n_hit = len(result.computed), len(result.cached)
+    reg = _registry()
+    run = run_graph(args.graph, cache=args.cache, out=args.out, overrides=parse_set(args.set),
+                    backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                    jobs=args.jobs, outputs=args.output or None, executor=args.executor,
+                    scheduler=args.scheduler, registry=reg, progress=progress)
     if not args.quiet:
-        print(f"{graph.name}: {n_run} computed, {n_hit} cached, {result.seconds:.2f}s; "
-              f"{len(written)} files in {args.out}/", file=sys.stderr)
+        print(f"{run.graph.name}: {len(run.computed)} computed, {len(run.cached)} cached, "
+              f"{run.result.seconds:.2f}s; {len(run.files)} files in {args.out}/", file=sys.stderr)
     return 0
 
 

@@ -19,13 +19,13 @@ def _flat(d, prefix=""):
     return out
 
 
-def explain(graph: Graph, store: Store, node: str) -> str:
+def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
     from .graphfile import did_you_mean
     from .registry import default_registry
 
     if node not in graph.nodes:
         raise UsageError(f"no node named '{node}' in {graph.path}{did_you_mean(node, graph.nodes)}")
-    session = Session(graph, default_registry(), store)
+    session = Session(graph, registry or default_registry(), store)
     last = store.last_run(graph_id(graph)) or {}
     state: dict[str, dict] = {}  # name -> {"key", "cached", "outputs" | None, "parts"}
     for n in graph.upstream([node]):

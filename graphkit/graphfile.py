@@ -177,7 +177,7 @@ def _to_py(doc: _Doc, n: yaml.Node, path: tuple, ctor) -> Any:
             if not isinstance(kn, yaml.ScalarNode) or kn.tag not in _PLAIN_TAGS:
                 doc.diags.append(Diagnostic(doc.file, *_mark(kn), "mapping keys must be plain scalars"))
                 continue
-            k = str(ctor.construct_object(kn))
+            k = str(kn.value)  # keys are names: take their text (YAML 1.1 would make `off` False)
             if kn.value == "<<":
                 doc.diags.append(Diagnostic(doc.file, *_mark(kn), "YAML merge keys ('<<') are not supported"))
                 continue
@@ -495,7 +495,10 @@ def _node_params(doc, npath, nname, cls, raw, gparams):
     if not isinstance(raw, dict):
         doc.at(ppath, f"node '{nname}': 'params' must be a mapping, got {_kind(raw)}")
         return None
+    n_diags = len(doc.diags)
     raw = _substitute(doc, ppath, raw, gparams)
+    if len(doc.diags) > n_diags:  # an unknown ${params.X}: already reported
+        return None
     try:
         return cls.Params.model_validate(raw)
     except ValidationError as e:

@@ -1,0 +1,73 @@
+"""Running graphs from Python (what `graphkit run` does, as a function)."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import UsageError
+from .executor import Progress, RunResult, export_outputs, record_last_run, run_local
+from .graphfile import Graph, load_graph
+from .registry import Registry, default_registry
+from .runner import Session
+from .store import Store
+
+
+@dataclass
+class Run:
+    """The result of :func:`run_graph`: per-node outcomes plus the files written."""
+
+    graph: Graph
+    result: RunResult
+    session: Session
+    files: list[Path] = field(default_factory=list)
+
+    @property
+    def computed(self) -> list[str]:
+        return self.result.computed
+
+    @property
+    def cached(self) -> list[str]:
+        return self.result.cached
+
+    def value(self, output: str):
+        """The value of a graph output (by output name) or of ``node.port``."""
+        node, port = self.graph.outputs.get(output) or tuple(output.rsplit(".", 1))
+        o = self.result.outcomes[node]
+        return self.session.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type)
+
+
+def run_graph(path: str | os.PathLike, *, cache: str | os.PathLike = ".graphkit-cache",
+              out: str | os.PathLike | None = None, overrides: dict | None = None,
+              backends: list[str] | None = None, jobs: int = 1, outputs: list[str] | None = None,
+              executor: str = "local", scheduler: str | None = None,
+              registry: Registry | None = None, progress: Progress | None = None) -> Run:
+    """Load, validate and run a graph file; write its outputs into ``out`` when given."""
+    registry = registry or default_registry()
+    graph = load_graph(path, registry, overrides or {})
+    if outputs:
+        unknown = [o for o in outputs if o not in graph.outputs]
+        if unknown:
+            raise UsageError(f"unknown output(s) {', '.join(unknown)}; the graph's outputs: "
+                             + ", ".join(graph.outputs))
+        graph.outputs = {k: v for k, v in graph.outputs.items() if k in outputs}
+    store = Store(cache).open()
+    progress = progress or Progress()
+    session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)
+    targets = sorted({n for n, _ in graph.outputs.values()})
+    ok = False
+    try:
+        if executor == "dask":
+            from .dask_executor import run_dask
+
+            result = run_dask(session, targets, scheduler, jobs, progress)
+        else:
+            result = run_local(session, targets, jobs, progress)
+        ok = True
+    finally:
+        progress.finish(ok)
+    record_last_run(session, result)
+    run = Run(graph, result, session)
+    if out is not None:
+        run.files = export_outputs(session, result, out, {"targets": list(graph.outputs)})
+    return run
