@@ -1,0 +1,330 @@
+"""A z-buffered triangle rasteriser in numpy, shared by every node that renders.
+
+One implementation (CONTRIBUTING: one copy of each piece of maths).  It samples every pixel at
+its centre (integer + 0.5, the :class:`graphkit.Camera` convention), keeps the nearest
+triangle per pixel (z-buffer) and returns, per pixel, the camera-space depth, the coverage,
+the triangle id and **perspective-correct** barycentric coordinates, so any node can shade
+with :func:`interpolate`.  Shared edges follow a tie-breaking rule (a pixel centre exactly on
+an edge shared by two triangles belongs to exactly one of them), so the covered pixel count of
+a mesh equals its projected area up to boundary sampling.
+
+Work is vectorised over (triangle, pixel-of-its-bounding-box) pairs, in batches that bound the
+memory; there is no per-pixel Python loop.  Triangles with a vertex at or behind the near plane
+are dropped (no clipping: meshes here lie in front of the camera).
+
+Shadow maps (Williams 1978, used by Paris 2003 §5 "Cast shadows") are built on the same
+rasteriser: :func:`shadow_map` renders depth from a directional (orthographic) or point
+(perspective) light and :meth:`ShadowMap.visibility` tests points against it with a slope
+bias and percentage-closer filtering.
+
+Units: whatever the mesh uses (depth is in mesh units along the camera's +z axis).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: candidate (triangle, pixel) pairs evaluated at once; bounds the temporary memory (~100 B each)
+BATCH_PAIRS = 1 << 21
+
+
+@dataclass
+class Raster:
+    """Per-pixel result of :func:`rasterize` (H×W arrays)."""
+
+    depth: np.ndarray  # float64, camera-space z (inf where uncovered)
+    coverage: np.ndarray  # bool
+    tri: np.ndarray  # int64 triangle index, -1 where uncovered
+    bary: np.ndarray  # float64 H×W×3 perspective-correct barycentrics (0 where uncovered)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.coverage.shape
+
+
+def project_vertices(vertices: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """World vertices → (pixel xy N×2, camera-space z N) with a :class:`graphkit.Camera`."""
+    xy, z = camera.project(np.asarray(vertices, np.float64))
+    return xy, z
+
+
+def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "none",
+              near: float = 1e-6) -> Raster:
+    """Rasterise a triangle mesh (world coordinates) through a pinhole ``camera``.
+
+    ``cull``: "none", "back" (drop triangles seen from behind, counter-clockwise = front in
+    OpenCV image axes for outward-facing, right-handed meshes) or "front".
+    """
+    xy, z = project_vertices(vertices, camera)
+    return rasterize_screen(xy, z, faces, camera.width, camera.height, perspective=True,
+                            cull=cull, near=near)
+
+
+def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
+                     *, perspective: bool = True, cull: str = "none",
+                     near: float = 1e-6) -> Raster:
+    """Rasterise triangles given vertex screen positions (pixels) and depths.
+
+    With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
+    (linear in 1/z); without it (orthographic views) linearly in screen space.
+    """
+    xy = np.asarray(xy, np.float64)
+    z = np.asarray(z, np.float64)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    H, W = int(height), int(width)
+    depth = np.full(H * W, np.inf)
+    tri = np.full(H * W, -1, np.int64)
+    bary = np.zeros((H * W, 3))
+    if len(faces) == 0:
+        return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
+                      bary.reshape(H, W, 3))
+
+    p = xy[faces]  # F×3×2
+    fz = z[faces]  # F×3
+    ok = np.all(np.isfinite(p), axis=(1, 2)) & np.all(np.isfinite(fz), axis=1)
+    if perspective:
+        ok &= np.all(fz > near, axis=1)
+    x0, y0 = p[:, 0, 0], p[:, 0, 1]
+    x1, y1 = p[:, 1, 0], p[:, 1, 1]
+    x2, y2 = p[:, 2, 0], p[:, 2, 1]
+    area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)  # >0: clockwise on screen (y down)
+    ok &= area != 0
+    if cull == "back":
+        ok &= area < 0
+    elif cull == "front":
+        ok &= area > 0
+    # pixel index range whose centres (i + 0.5) may fall inside the triangle
+    with np.errstate(invalid="ignore"):
+        xmin = np.maximum(np.ceil(p[..., 0].min(1) - 0.5), 0)
+        xmax = np.minimum(np.floor(p[..., 0].max(1) - 0.5), W - 1)
+        ymin = np.maximum(np.ceil(p[..., 1].min(1) - 0.5), 0)
+        ymax = np.minimum(np.floor(p[..., 1].max(1) - 0.5), H - 1)
+    ok &= (xmax >= xmin) & (ymax >= ymin)
+    ids = np.nonzero(ok)[0]
+    if len(ids) == 0:
+        return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
+                      bary.reshape(H, W, 3))
+    bw = (xmax[ids] - xmin[ids] + 1).astype(np.int64)
+    bh = (ymax[ids] - ymin[ids] + 1).astype(np.int64)
+    npix = bw * bh
+    # batches of triangles with at most BATCH_PAIRS candidate pixels (a single huge triangle
+    # forms its own batch)
+    csum = np.cumsum(npix)
+    starts = [0]
+    while starts[-1] < len(ids):
+        base = csum[starts[-1] - 1] if starts[-1] else 0
+        nxt = int(np.searchsorted(csum, base + BATCH_PAIRS, side="right"))
+        starts.append(max(nxt, starts[-1] + 1))
+    for a, b in zip(starts[:-1], starts[1:]):
+        _batch(ids[a:b], bw[a:b], bh[a:b], npix[a:b], xmin, ymin, p, fz, area, perspective,
+               W, depth, tri, bary)
+    cov = tri >= 0
+    return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
+                  bary.reshape(H, W, 3))
+
+
+def _owns_edge(ax, ay, bx, by, sign):
+    """Tie rule for a pixel centre exactly on edge a→b (of a triangle with orientation sign).
+
+    Antisymmetric under reversing the edge, so of two consistently oriented triangles sharing
+    the edge exactly one owns the pixel."""
+    dx, dy = (bx - ax) * sign, (by - ay) * sign
+    return (dy > 0) | ((dy == 0) & (dx < 0))
+
+
+def _batch(ids, bw, bh, npix, xmin, ymin, p, fz, area, perspective, W, depth, tri, bary):
+    n = int(npix.sum())
+    owner = np.repeat(np.arange(len(ids)), npix)
+    first = np.cumsum(npix) - npix
+    local = np.arange(n) - first[owner]
+    t = ids[owner]
+    px = xmin[t] + local % bw[owner] + 0.5
+    py = ymin[t] + local // bw[owner] + 0.5
+    P = p[t]  # n×3×2
+    s = np.sign(area[t])
+    x0, y0, x1, y1, x2, y2 = P[:, 0, 0], P[:, 0, 1], P[:, 1, 0], P[:, 1, 1], P[:, 2, 0], P[:, 2, 1]
+    # edge functions (weights of the vertex opposite each edge), made positive inside
+    e0 = ((x2 - x1) * (py - y1) - (y2 - y1) * (px - x1)) * s
+    e1 = ((x0 - x2) * (py - y2) - (y0 - y2) * (px - x2)) * s
+    e2 = ((x1 - x0) * (py - y0) - (y1 - y0) * (px - x0)) * s
+    inside = ((e0 > 0) | ((e0 == 0) & _owns_edge(x1, y1, x2, y2, s))) \
+        & ((e1 > 0) | ((e1 == 0) & _owns_edge(x2, y2, x0, y0, s))) \
+        & ((e2 > 0) | ((e2 == 0) & _owns_edge(x0, y0, x1, y1, s)))
+    if not inside.any():
+        return
+    k = np.nonzero(inside)[0]
+    absa = np.abs(area[t[k]])
+    b = np.stack([e0[k], e1[k], e2[k]], 1) / absa[:, None]  # screen-space barycentrics
+    Z = fz[t[k]]
+    if perspective:
+        bz = b / Z
+        inv = bz.sum(1)
+        zk = 1.0 / inv
+        b = bz * zk[:, None]
+    else:
+        zk = (b * Z).sum(1)
+    pix = (py[k] - 0.5).astype(np.int64) * W + (px[k] - 0.5).astype(np.int64)
+    # nearest candidate per pixel within the batch, then against the buffer
+    order = np.lexsort((t[k], zk, pix))
+    pix_o = pix[order]
+    firsts = np.ones(len(order), bool)
+    firsts[1:] = pix_o[1:] != pix_o[:-1]
+    sel = order[firsts]
+    pp = pix[sel]
+    better = zk[sel] < depth[pp]
+    sel, pp = sel[better], pp[better]
+    depth[pp] = zk[sel]
+    tri[pp] = t[k][sel]
+    bary[pp] = b[sel]
+
+
+def interpolate(r: Raster, faces: np.ndarray, attr: np.ndarray, fill: float = 0.0) -> np.ndarray:
+    """Per-vertex attribute (N×C or N) → per-pixel values (H×W×C or H×W), perspective-correct."""
+    attr = np.asarray(attr)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    squeeze = attr.ndim == 1
+    a = attr[:, None] if squeeze else attr
+    H, W = r.shape
+    out = np.full((H, W, a.shape[1]), fill, dtype=np.float64)
+    cov = r.coverage
+    f = faces[r.tri[cov]]  # M×3
+    b = r.bary[cov]  # M×3
+    out[cov] = (a[f] * b[..., None]).sum(1)
+    return out[..., 0] if squeeze else out
+
+
+def world_points(r: Raster, faces: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """World position of the visible surface at each pixel (H×W×3; NaN where uncovered)."""
+    return interpolate(r, faces, np.asarray(vertices, np.float64), fill=np.nan)
+
+
+# ----------------------------------------------------------------------------------------------
+# shadow maps
+
+
+@dataclass
+class ShadowMap:
+    """Depth of the nearest surface seen from a light (Williams 1978).
+
+    ``kind`` "directional": orthographic along ``-direction``; "point": perspective from
+    ``position``.  ``to_light`` is the 4×4 world → light-view matrix (OpenCV axes, +z away
+    from the light), ``scale``/``offset`` map light-view coordinates to shadow-map pixels.
+    """
+
+    kind: str
+    depth: np.ndarray
+    to_light: np.ndarray
+    scale: np.ndarray  # (sx, sy): pixels per unit (ortho) or focal lengths (point)
+    offset: np.ndarray  # (ox, oy) pixels
+    texel: float  # world size of one texel at the mesh (for the bias)
+
+    def _project(self, pts):
+        q = pts @ self.to_light[:3, :3].T + self.to_light[:3, 3]
+        if self.kind == "directional":
+            xy = q[:, :2] * self.scale + self.offset
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xy = q[:, :2] / q[:, 2:3] * self.scale + self.offset
+        return xy, q[:, 2]
+
+    def visibility(self, points: np.ndarray, normals: np.ndarray | None = None,
+                   bias: float = 1.5, pcf: int = 1) -> np.ndarray:
+        """Fraction (0…1) of the light reaching each world point (N×3).
+
+        ``bias`` is in shadow-map texels (scaled up at grazing angles when ``normals`` are
+        given); ``pcf`` is the half-width of the percentage-closer filter (1 → 3×3 taps).
+        """
+        pts = np.asarray(points, np.float64)
+        out = np.ones(len(pts))
+        good = np.all(np.isfinite(pts), axis=1)
+        if not good.any():
+            return out
+        pts = pts[good]
+        xy, d = self._project(pts)
+        b = np.full(len(pts), bias * self.texel)
+        if normals is not None:
+            n = np.asarray(normals, np.float64)[good]
+            ldir = self.light_dirs(pts)
+            cos = np.clip(np.abs((n * ldir).sum(1)), 0.05, 1.0)
+            b = b * np.minimum(np.sqrt(1 - cos ** 2) / cos + 1.0, 10.0)
+        if self.kind == "point":
+            b = b * np.maximum(d, 1e-9) / self._ref_dist
+        H, W = self.depth.shape
+        acc = np.zeros(len(pts))
+        taps = 0
+        for dy in range(-pcf, pcf + 1):
+            for dx in range(-pcf, pcf + 1):
+                ix = np.floor(xy[:, 0]).astype(np.int64) + dx
+                iy = np.floor(xy[:, 1]).astype(np.int64) + dy
+                inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+                occl = np.full(len(pts), np.inf)
+                occl[inside] = self.depth[iy[inside], ix[inside]]
+                acc += d - b <= occl
+                taps += 1
+        out[good] = acc / taps
+        return out
+
+    def light_dirs(self, pts: np.ndarray) -> np.ndarray:
+        """Unit directions from points towards the light."""
+        inv = np.linalg.inv(self.to_light)
+        if self.kind == "directional":
+            d = -inv[:3, 2]
+            return np.broadcast_to(d / np.linalg.norm(d), pts.shape)
+        v = inv[:3, 3] - pts
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    _ref_dist: float = 1.0
+
+
+def _look_frame(forward: np.ndarray) -> np.ndarray:
+    """3×3 rotation whose rows are the light-view x, y, z axes (z = forward)."""
+    f = forward / np.linalg.norm(forward)
+    up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(up, f)
+    x /= np.linalg.norm(x)
+    y = np.cross(f, x)
+    return np.stack([x, y, f])
+
+
+def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
+               margin: float = 0.02) -> ShadowMap:
+    """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
+
+    Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
+    perspective view from the light's position whose field of view fits the mesh.
+    """
+    V = np.asarray(vertices, np.float64)
+    if light.kind == "directional":
+        d = np.asarray(light.direction, np.float64)
+        R = _look_frame(-d)
+        q = V @ R.T
+        lo, hi = q[:, :2].min(0), q[:, :2].max(0)
+        ext = float(max(hi - lo)) * (1 + 2 * margin) or 1.0
+        centre = (lo + hi) / 2
+        M = np.eye(4)
+        M[:3, :3] = R
+        scale = np.array([size / ext, size / ext])
+        offset = size / 2 - centre * scale
+        sm_xy = q[:, :2] * scale + offset
+        r = rasterize_screen(sm_xy, q[:, 2], faces, size, size, perspective=False)
+        return ShadowMap("directional", r.depth, M, scale, offset, ext / size)
+    pos = np.asarray(light.position, np.float64)
+    c = V.mean(0)
+    R = _look_frame(c - pos)
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = -R @ pos
+    q = V @ R.T + M[:3, 3]
+    if np.any(q[:, 2] <= 1e-9):
+        raise ValueError("point light inside or in front of the mesh's bounds: no shadow map")
+    t = np.abs(q[:, :2] / q[:, 2:3]).max() * (1 + 2 * margin)
+    f = size / (2 * t)
+    scale = np.array([f, f])
+    offset = np.array([size / 2, size / 2])
+    r = rasterize_screen(q[:, :2] / q[:, 2:3] * scale + offset, q[:, 2], faces, size, size,
+                         perspective=True)
+    dref = float(np.linalg.norm(c - pos))
+    sm = ShadowMap("point", r.depth, M, scale, offset, dref / f)
+    sm._ref_dist = dref
+    return sm
