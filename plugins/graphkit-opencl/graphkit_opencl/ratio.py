@@ -34,7 +34,7 @@ class RatioImageOpenCL(Backend):
         from nodes.paris.ratio import check_ratio_inputs
 
         check_ratio_inputs(a, b)
-        return {"ratio": Image(ratio_opencl(a.pixels, b.pixels, self.params.eps), a.colorspace)}
+        return Image(ratio_opencl(a.pixels, b.pixels, self.params.eps), a.colorspace)
 
 
 def _probe() -> str | None:
