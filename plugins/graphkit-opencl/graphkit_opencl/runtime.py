@@ -45,6 +45,11 @@ class Runtime:
     programs: dict[str, Any] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
+    @property
+    def host_memory(self) -> bool:
+        """True for CPU devices: buffers can wrap host arrays without copying."""
+        return bool(self.device.type & self.cl.device_type.CPU)
+
     def describe(self) -> str:
         return f"{self.device.platform.name.strip()} / {self.device.name.strip()}"
 
