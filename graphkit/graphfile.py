@@ -204,9 +204,14 @@ def _to_py(doc: _Doc, n: yaml.Node, path: tuple, ctor) -> Any:
 
 def parse_yaml(text: str, file: str) -> _Doc:
     doc = _Doc(file)
-    loader = yaml.SafeLoader(text)
+    loader = None
     try:
+        loader = yaml.SafeLoader(text)
         root = loader.get_single_node()
+    except yaml.reader.ReaderError as e:  # a character YAML does not allow
+        before = text[: e.position]
+        line, col = before.count("\n") + 1, len(before) - (before.rfind("\n") + 1) + 1
+        raise GraphError(Diagnostic(file, line, col, f"malformed YAML: character {e.character!r} is not allowed")) from None
     except yaml.MarkedYAMLError as e:
         m = e.problem_mark or e.context_mark
         line, col = (m.line + 1, m.column + 1) if m else (1, 1)
@@ -214,8 +219,11 @@ def parse_yaml(text: str, file: str) -> _Doc:
         raise GraphError(Diagnostic(file, line, col, f"malformed YAML: {msg}")) from None
     except yaml.YAMLError as e:
         raise GraphError(Diagnostic(file, 1, 1, f"malformed YAML: {e}")) from None
+    except RecursionError:
+        raise GraphError(Diagnostic(file, 1, 1, "malformed YAML: nested too deeply")) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     if root is None:
         raise GraphError(Diagnostic(file, 1, 1, "the graph file is empty"))
     doc.data = _to_py(doc, root, (), yaml.constructor.SafeConstructor())
