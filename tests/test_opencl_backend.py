@@ -192,3 +192,20 @@ def test_bad_input_same_as_reference():
     out = backend(node.Params()).compute(a=a, b=Image(np.full((8, 8, 1), 2, np.float32)))
     assert out.colorspace == "acescg" and out.pixels.dtype == np.float32
     np.testing.assert_array_equal(out.pixels, np.full((8, 8, 3), 0.5, np.float32))
+
+
+def test_copying_path_used_for_gpus(monkeypatch):
+    # CPU devices wrap host memory; other devices copy in and out.  pocl is a CPU device, so
+    # force the copying path to check it too.
+    from graphkit import Image
+    from graphkit_opencl.runtime import Runtime
+
+    node, backend = _backend()
+    monkeypatch.setattr(Runtime, "host_memory", property(lambda self: False))
+    rng = np.random.default_rng(11)
+    a = Image(rng.random((33, 65, 3), dtype=np.float32))
+    for bc in (1, 3):
+        b = Image(rng.random((33, 65, bc), dtype=np.float32))
+        p = node.Params(eps=0.3)
+        np.testing.assert_allclose(backend(p).compute(a=a, b=b).pixels, node(p).compute(a=a, b=b).pixels,
+                                   rtol=1e-5, atol=1e-6)
