@@ -11,6 +11,14 @@ REF = r"^[A-Za-z_][A-Za-z0-9_\-]*\.[A-Za-z_][A-Za-z0-9_]*$"
 PARAM_REF = r"\$\{params\.[A-Za-z_][A-Za-z0-9_]*\}"
 
 
+def _port_schema(port) -> dict:
+    one = {"type": "string", "pattern": REF}
+    desc = f"{port.type}: {port.doc}"
+    if port.variadic:
+        return {"oneOf": [one, {"type": "array", "items": one}], "description": desc}
+    return {**one, "description": desc}
+
+
 def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
     cls = reg.node_class(name)
     params = cls.Params.model_json_schema()
@@ -29,8 +37,7 @@ def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
             "inputs": {
                 "type": "object",
                 "additionalProperties": False,
-                "properties": {p: {"type": "string", "pattern": REF, "description": f"{port.type}: {port.doc}"}
-                               for p, port in cls.in_ports.items()},
+                "properties": {p: _port_schema(port) for p, port in cls.in_ports.items()},
                 "required": [p for p, port in cls.in_ports.items() if not port.optional],
             },
             "params": params,
