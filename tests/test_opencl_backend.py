@@ -84,7 +84,7 @@ def graph_dir(tmp_path_factory):
 
 
 def run_cli(graph, out, cache, *args, env=None):
-    e = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHKIT_")}
+    e = {k: v for k, v in os.environ.items() if k not in ("GRAPHKIT_OPENCL_DISABLE", "GRAPHKIT_CACHE")}
     e.update(env or {})
     return subprocess.run([sys.executable, "-m", "graphkit", "run", str(graph), "--cache", str(cache),
                            "--out", str(out), "-q", *args],
