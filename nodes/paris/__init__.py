@@ -2,4 +2,5 @@
 
 NODES = {
     "RatioImage": "nodes.paris.ratio:RatioImage",
+    "SkinSegment": "nodes.paris.skin:SkinSegment",
 }
