@@ -12,7 +12,7 @@ import threading
 import time
 import uuid
 
-from .errors import UsageError
+from .errors import GraphkitError, UsageError
 from .executor import Progress, RunResult
 from .runner import NodeOutcome, Session
 
@@ -33,12 +33,25 @@ def _worker_session(token, graph, store_location, backend_order) -> Session:
         return s
 
 
-def _dask_node(token, graph, store_location, backend_order, name, dep_names, *dep_outcomes) -> NodeOutcome:
-    session = _worker_session(token, graph, store_location, backend_order)
-    outs = dict(zip(dep_names, dep_outcomes))
-    g = graph.nodes[name]
-    digests = g.map_inputs(lambda src, sport: outs[src].outputs[sport])
-    return session.run_node(name, digests)
+class _Failed:
+    """A node's GraphkitError carried back as a value (so workers do not log tracebacks)."""
+
+    def __init__(self, error: GraphkitError):
+        self.error = error
+
+
+def _dask_node(token, graph, store_location, backend_order, name, dep_names, *dep_outcomes):
+    for o in dep_outcomes:
+        if isinstance(o, _Failed):
+            return o
+    try:
+        session = _worker_session(token, graph, store_location, backend_order)
+        outs = dict(zip(dep_names, dep_outcomes))
+        g = graph.nodes[name]
+        digests = g.map_inputs(lambda src, sport: outs[src].outputs[sport])
+        return session.run_node(name, digests)
+    except GraphkitError as e:
+        return _Failed(e)
 
 
 def run_dask(session: Session, targets: list[str], scheduler: str | None = None, jobs: int = 2,
@@ -69,8 +82,10 @@ def run_dask(session: Session, targets: list[str], scheduler: str | None = None,
             futs[n] = client.submit(_dask_node, token, gfut, loc, session.backend_order, n, deps,
                                     *[futs[d] for d in deps], key=f"{n}-{token}", pure=False)
         names = {f.key: n for n, f in futs.items()}
-        for fut in as_completed(list(futs.values())):
-            o = fut.result()  # re-raises the worker's GraphkitError
+        for fut in as_completed(list(futs.values()), loop=client.loop):
+            o = fut.result()
+            if isinstance(o, _Failed):
+                raise o.error
             result.outcomes[names[fut.key]] = o
             progress.done(o)
     finally:

@@ -188,6 +188,11 @@ def discover() -> Registry:
         except Exception as exc:  # noqa: BLE001
             reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}' failed to import: {type(exc).__name__}: {exc}")
             continue
-        reg.add_provider("nodes", f"GRAPHKIT_PLUGINS:{spec}", obj)
-        reg.add_provider("backends", f"GRAPHKIT_PLUGINS:{spec}", obj)
+        provider = f"GRAPHKIT_PLUGINS:{spec}"
+        if isinstance(obj, dict):  # "NodeType/backend" keys are backends, plain names node types
+            reg.add_provider("nodes", provider, {k: v for k, v in obj.items() if "/" not in k})
+            reg.add_provider("backends", provider, {k: v for k, v in obj.items() if "/" in k})
+        else:
+            reg.add_provider("nodes", provider, obj)
+            reg.add_provider("backends", provider, obj)
     return reg

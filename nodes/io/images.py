@@ -76,6 +76,7 @@ def encode_image(pixels: np.ndarray, ext: str, bits: int = 16, metadata: dict | 
         data, fmt = np.ascontiguousarray(pixels, np.float32), "float"
     spec = oiio.ImageSpec(w, h, c, fmt)
     spec.attribute("Software", "relightkit graphkit")
+    spec.attribute("DateTime", "")  # OpenEXR would stamp the clock: same inputs must give same bytes
     if ext == ".exr":
         spec.attribute("compression", "zip")
     for k, v in (metadata or {}).items():
@@ -142,7 +143,7 @@ class SaveImage(Node):
     result) and ``graphkit:recipe`` (digest of the part of the graph that produced it).
     """
 
-    version = "1"
+    version = "2"  # 2: no DateTime stamp (reproducible bytes)
     provenance = True
     inputs = {"image": Image}
     outputs = {"file": File}
