@@ -1,0 +1,343 @@
+"""Kubelka–Munk maths for cosmetic layers (Huang et al. 2013 §3.1 eqs. 1–4, §4 eqs. 6–7).
+
+The one implementation used by every node in ``nodes.huang``.  Units: scattering S and
+absorption K in **mm⁻¹**, thicknesses X, D in **mm**, wavelengths in **nm**; reflectances and
+transmittances are unitless fractions of diffuse (hemispherical) flux.
+
+Single layer (eqs. 1–2), with a = 1 + K/S, b = √(a² − 1)::
+
+    R0 = sinh(bSX) / (a sinh(bSX) + b cosh(bSX)),   T = b / (a sinh(bSX) + b cosh(bSX))
+
+evaluated here with β = bS = √(K(K + 2S)) (mm⁻¹) and y = βX, dividing through by cosh y::
+
+    t  = X · tanh(y)/y                  (→ X as y → 0, → 1/β as X → ∞)
+    R0 = S / (S + K + 1/t)              (K = 0: SX/(1 + SX);  X → ∞: R∞ = S/(S + K + β))
+    T  = sech(y) / (1 + (S + K) t)      (S = 0: exp(−KX);  X → 0: 1)
+
+so no sinh/cosh overflows, and the K = 0, S → 0, X → 0 and X → ∞ limits are exact.
+
+Layering (eqs. 3–4; note eq. 3 as printed has a typo: T1 R1 T1 must read T1 R2 T1).  A KM layer
+is symmetric, but a stack is not: we keep (Rt, Rb, T) = reflectance seen from above, from below,
+and the (symmetric) diffuse transmittance.  Layer 1 over layer 2::
+
+    Rt = Rt1 + T1² Rt2 / (1 − Rb1 Rt2),  Rb = Rb2 + T2² Rb1 / (1 − Rb1 Rt2),  T = T1 T2 / (1 − Rb1 Rt2)
+
+and a stack over an opaque background Rg: R = Rt + T² Rg / (1 − Rb Rg).
+
+Inversion (§4 eqs. 6–7), a = ½(1/R∞ + R∞), b = √(a² − 1)::
+
+    S = [arcoth((a − R)/b) − arcoth((a − Rg)/b)] / (bD),   K = S (a − 1)
+
+written with arcoth(x) = ½ ln((x + 1)/(x − 1)) and a ± b = R∞^∓1 as
+S = ln[(1 − R R∞)(R∞ − Rg) / ((R∞ − R)(1 − Rg R∞))] / (2bD), b = (1 − R∞²)/(2R∞).
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+#: wavelengths of the cosmetics library and the default grid (nm): 380–780 nm every 5 nm,
+#: the grid of Huang 2013 §4 (CS-2000 measurements) and of colour-science's ColorChecker data.
+WAVELENGTHS = np.arange(380.0, 780.0 + 1e-9, 5.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# one layer
+
+
+def _tanhc(y: np.ndarray) -> np.ndarray:
+    """tanh(y)/y, exact to double precision for every y ≥ 0 (including 0 and ∞)."""
+    y = np.asarray(y, dtype=np.float64)
+    small = y < 1e-4
+    ys = np.where(small, 1.0, y)
+    with np.errstate(invalid="ignore"):
+        big = np.tanh(ys) / ys
+    y2 = y * y
+    return np.where(small, 1.0 - y2 / 3.0 + 2.0 * y2 * y2 / 15.0, big)
+
+
+def _sech(y: np.ndarray) -> np.ndarray:
+    """1/cosh(y) for y ≥ 0 without overflow."""
+    e = np.exp(-np.asarray(y, dtype=np.float64))
+    return 2.0 * e / (1.0 + e * e)
+
+
+def layer_R0_T(S, K, X):
+    """Reflectance R0 (over black) and transmittance T of one KM layer (Huang 2013 eqs. 1–2).
+
+    S, K: scattering and absorption coefficients (mm⁻¹, ≥ 0); X: thickness (mm, ≥ 0, may be
+    ``np.inf``).  Arrays broadcast.  Returns (R0, T) as float64 arrays.  Exact at the limits
+    K = 0 (R0 = SX/(1+SX)), S = 0 (R0 = 0, T = e^(−KX)), X = 0 (R0 = 0, T = 1) and X = ∞
+    (R0 = R∞, T = 0; with S = K = 0: R0 = 0, T = 1).
+    """
+    S = np.asarray(S, dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    X = np.asarray(X, dtype=np.float64)
+    beta = np.sqrt(K * (K + 2.0 * S))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        y = beta * X
+        y = np.where(np.isnan(y), 0.0, y)  # β = 0, X = ∞
+        t = X * _tanhc(y)                   # X → ∞ with β > 0: tanhc → 0, X·tanhc → 1/β
+        t = np.where(np.isinf(X) & (beta > 0), 1.0 / np.where(beta > 0, beta, 1.0), t)
+        inv_t = 1.0 / t                      # X = 0 → ∞ (R0 = 0);  X = ∞, β = 0 → 0
+        SK = S + K
+        R0 = S / (SK + inv_t)
+        T = _sech(y) / (1.0 + SK * t)
+    vac = SK == 0
+    R0 = np.where(vac | (X == 0), 0.0, R0)
+    T = np.where(vac | (X == 0), 1.0, T)
+    return R0, T
+
+
+def r_infinity(S, K):
+    """Reflectance of an opaque layer R∞ = a − b = S / (S + K + √(K(K+2S))) (no cancellation).
+
+    S, K in mm⁻¹ (≥ 0, not both 0).  R∞ = 1 where K = 0.
+    """
+    S = np.asarray(S, dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    return S / (S + K + np.sqrt(K * (K + 2.0 * S)))
+
+
+def reflectance_over(S, K, X, Rg):
+    """One layer over an opaque background of reflectance Rg: R0 + T² Rg / (1 − R0 Rg)."""
+    R0, T = layer_R0_T(S, K, X)
+    return over_background(R0, R0, T, Rg)
+
+
+# ---------------------------------------------------------------------------------------------
+# stacks
+
+
+def compose(top, bottom):
+    """Layer (or stack) ``top`` = (Rt, Rb, T) placed over ``bottom`` = (Rt, Rb, T) (eqs. 3–4).
+
+    Returns the (Rt, Rb, T) of the combination: geometric series of the inter-reflections
+    between the two.  Arrays broadcast.
+    """
+    Rt1, Rb1, T1 = top
+    Rt2, Rb2, T2 = bottom
+    inv = 1.0 / (1.0 - Rb1 * Rt2)
+    return Rt1 + T1 * T1 * Rt2 * inv, Rb2 + T2 * T2 * Rb1 * inv, T1 * T2 * inv
+
+
+def stack(S_list, K_list, X_list):
+    """(Rt, Rb, T) of layers listed **bottom first** (the first is nearest the skin).
+
+    S_list, K_list: per-layer coefficients (mm⁻¹), X_list: per-layer thickness (mm); all
+    broadcast together (e.g. (…, n_λ) spectra with (…, 1) thicknesses).  An empty list is
+    vacuum: (0, 0, 1).
+    """
+    acc = None
+    for S, K, X in zip(S_list, K_list, X_list):
+        R0, T = layer_R0_T(S, K, X)
+        lay = (R0, R0, T)
+        acc = lay if acc is None else compose(lay, acc)
+    if acc is None:
+        return np.zeros(1), np.zeros(1), np.ones(1)
+    return acc
+
+
+def over_background(Rt, Rb, T, Rg):
+    """A stack (Rt, Rb, T) over an opaque background of reflectance Rg: Rt + T² Rg/(1 − Rb Rg)."""
+    return Rt + T * T * Rg / (1.0 - Rb * Rg)
+
+
+# ---------------------------------------------------------------------------------------------
+# inversion (§4)
+
+
+def invert(R, Rg, Rinf, D):
+    """S and K (mm⁻¹) from a thin-layer measurement (Huang 2013 §4, eqs. 6–7).
+
+    R: reflectance of a layer of thickness D (mm) over a background of reflectance Rg;
+    Rinf: reflectance of an opaque layer.  All reflectances in [0, 1]; needs R strictly between
+    Rg and R∞ (R < R∞ over a black background) and 0 < R∞.  Where R∞ = 1 (no absorption) the
+    K = 0 limit SD = (R − Rg)/((1 − R)(1 − Rg)) is used.  Arrays broadcast; returns (S, K).
+    Callers check the ranges first (see :func:`check_invert_inputs`).
+    """
+    R = np.asarray(R, dtype=np.float64)
+    Rg = np.asarray(Rg, dtype=np.float64)
+    Ri = np.asarray(Rinf, dtype=np.float64)
+    D = np.asarray(D, dtype=np.float64)
+    white = Ri >= 1.0
+    Ris = np.where(white, 0.5, Ri)
+    b = (1.0 - Ris * Ris) / (2.0 * Ris)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        num = (1.0 - R * Ris) * (Ris - Rg)
+        den = (Ris - R) * (1.0 - Rg * Ris)
+        S = np.log(num / den) / (2.0 * b * D)
+        K = S * (1.0 - Ris) ** 2 / (2.0 * Ris)  # a − 1 = (1 − R∞)²/(2R∞)
+        S0 = (R - Rg) / ((1.0 - R) * (1.0 - Rg) * D)
+    return np.where(white, S0, S), np.where(white, 0.0, K)
+
+
+def check_invert_inputs(R, Rg, Rinf) -> tuple[str, str] | None:
+    """None if (R, Rg, R∞) can be inverted, else (port, message) naming the first bad wavelength."""
+    for name, v in (("R", R), ("Rg", Rg), ("Rinf", Rinf)):
+        v = np.asarray(v, dtype=np.float64)
+        bad = ~((v >= 0) & (v <= 1))
+        if bad.any():
+            i = int(np.argmax(bad))
+            return name, f"reflectance {name} must lie in [0, 1]; value {float(v.flat[i])!r} at index {i}"
+    R, Rg, Ri = (np.broadcast_arrays(*(np.asarray(x, np.float64) for x in (R, Rg, Rinf))))
+    if (Ri <= 0).any():
+        i = int(np.argmax(Ri <= 0))
+        return "Rinf", f"R∞ must be > 0 (an opaque layer reflects something); 0 at index {i}"
+    black = Rg == 0
+    bad = black & (Ri <= R)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return "R", (f"over a black background the thin layer must reflect less than the opaque one "
+                     f"(R < R∞); R = {R[i]:.6g}, R∞ = {Ri[i]:.6g} at index {i}")
+    lo, hi = np.minimum(Rg, Ri), np.maximum(Rg, Ri)
+    bad = ~black & ~((R > lo) & (R < hi)) & (Ri < 1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return "R", (f"R must lie strictly between Rg and R∞ for the inversion (eq. 6); R = {R[i]:.6g}, "
+                     f"Rg = {Rg[i]:.6g}, R∞ = {Ri[i]:.6g} at index {i}")
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# spectral → linear RGB
+
+
+@functools.lru_cache(maxsize=32)
+def _rgb_weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
+    import warnings
+
+    import colour
+
+    warnings.filterwarnings("ignore", message='"Matplotlib" related API features are not available')
+    wl = np.array(wl_key, dtype=np.float64)
+    n = wl.size
+    # colour.sd_to_XYZ (ASTM E308 / integration) is linear in the reflectance: its weights are
+    # the XYZ of the unit basis spectra, computed in one call with msds_to_XYZ.
+    msds = colour.MultiSpectralDistributions(np.eye(n), wl)
+    illum = colour.SDS_ILLUMINANTS[illuminant]
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    W = np.asarray(colour.msds_to_XYZ(msds, cmfs=cmfs, illuminant=illum), dtype=np.float64) / 100.0
+    M = xyz_to_linear_srgb_matrix(illuminant)
+    return W @ M.T  # (n_λ, 3)
+
+
+@functools.lru_cache(maxsize=32)
+def xyz_to_linear_srgb_matrix(illuminant: str = "D65") -> np.ndarray:
+    """3×3 matrix: XYZ (white under ``illuminant`` at Y = 1) → linear sRGB (D65), CAT02 adaptation."""
+    import colour
+
+    xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"][illuminant]
+    M = np.stack([colour.XYZ_to_sRGB(e, illuminant=xy, chromatic_adaptation_transform="CAT02",
+                                     apply_cctf_encoding=False) for e in np.eye(3)], axis=1)
+    return np.asarray(M, dtype=np.float64)
+
+
+def rgb_weights(wavelengths, illuminant: str = "D65") -> np.ndarray:
+    """(n_λ, 3) weights W with linear sRGB = spectrum @ W (reflectance under ``illuminant``).
+
+    Equals colour-science's ``sd_to_XYZ`` (CIE 1931 2°, the illuminant's SPD, Y of the perfect
+    reflector = 1) followed by ``XYZ_to_sRGB`` with CAT02 adaptation from the illuminant's white
+    to D65, without the cctf encoding: a perfect white reflector maps to (1, 1, 1).
+    ``wavelengths`` in nm, uniformly spaced.
+    """
+    wl = tuple(float(w) for w in np.asarray(wavelengths, dtype=np.float64))
+    return _rgb_weights_cached(wl, illuminant)
+
+
+def spectral_to_rgb(spectra, wavelengths, illuminant: str = "D65") -> np.ndarray:
+    """Reflectance/transmittance spectra (…, n_λ) → linear sRGB (…, 3) under ``illuminant``."""
+    return np.asarray(spectra, dtype=np.float64) @ rgb_weights(wavelengths, illuminant)
+
+
+# ---------------------------------------------------------------------------------------------
+# per-pixel stacks through a thickness lookup table
+
+
+def thickness_grid(maxima, size: int) -> list[np.ndarray]:
+    """Per-layer uniform thickness grids 0 … max (mm) with ``size`` nodes (1 node if max = 0)."""
+    return [np.linspace(0.0, m, size) if m > 0 else np.zeros(1) for m in maxima]
+
+
+def stack_table(S, K, grids, wavelengths, illuminant="D65", background=None):
+    """Linear-RGB stack quantities on the grid of layer thicknesses.
+
+    S, K: (n_layers, n_λ) in mm⁻¹, bottom layer first; ``grids``: one 1-D thickness grid (mm)
+    per layer.  Returns an array (*grid sizes, C) with C = 3 (RGB of R over the spectral
+    ``background``) when ``background`` (n_λ reflectance) is given, else C = 9: RGB of Rt, of Rb
+    and of T (the stack alone).  The spectral work happens here, once per grid node.
+    """
+    n = len(grids)
+    shape = tuple(len(g) for g in grids)
+    W = rgb_weights(wavelengths, illuminant)
+    mesh = np.meshgrid(*grids, indexing="ij") if n else []
+    Xs = [m.reshape(shape + (1,)) for m in mesh]
+    Rt, Rb, T = stack([S[i] for i in range(n)], [K[i] for i in range(n)], Xs)
+    Rt, Rb, T = (np.broadcast_to(a, shape + (len(wavelengths),)) for a in (Rt, Rb, T))
+    if background is not None:
+        return over_background(Rt, Rb, T, np.asarray(background, np.float64)) @ W
+    return np.concatenate([Rt @ W, Rb @ W, T @ W], axis=-1)
+
+
+def lookup(table, grids, thickness: np.ndarray):
+    """Multilinear interpolation of ``table`` (*grid sizes, C) at per-pixel thicknesses.
+
+    ``thickness``: (H, W, n_layers) in mm, ≥ 0 (values above a grid's end are clamped to it).
+    Pixels whose thicknesses all fall on grid nodes (e.g. binary masks times a thickness) are a
+    single gather and get the table value exactly; only the others are interpolated (2^n
+    corners).  ``table`` may be a list of tables on the same grid: a list of float32 (H, W, C_k)
+    is returned then, else one float32 (H, W, C).
+    """
+    tables = table if isinstance(table, (list, tuple)) else [table]
+    h, w, n = thickness.shape
+    flats = [np.ascontiguousarray(tb.reshape(-1, tb.shape[-1]), dtype=np.float32) for tb in tables]
+    P = h * w
+    t = thickness.reshape(P, n)
+    sizes = [len(g) for g in grids]
+    strides = [int(np.prod(sizes[i + 1:], dtype=np.int64)) for i in range(n)]
+    base = None
+    frac_any = None
+    axes = []
+    for i in range(n):
+        g = grids[i]
+        N = sizes[i]
+        if N == 1:
+            continue
+        f = np.multiply(t[:, i], np.float32((N - 1) / (g[-1] - g[0])), dtype=np.float32)
+        np.minimum(f, np.float32(N - 1), out=f)
+        i0 = f.astype(np.int32)
+        f -= i0  # now the weight of node i0 + 1
+        nz = f != 0
+        frac_any = nz if frac_any is None else np.logical_or(frac_any, nz, out=frac_any)
+        if strides[i] != 1:
+            i0s = np.multiply(i0, np.int32(strides[i]), dtype=np.int32)
+        else:
+            i0s = i0
+        base = i0s.copy() if base is None else np.add(base, i0s, out=base)
+        axes.append((i0, f, strides[i], N))
+    if base is None:
+        outs = [np.broadcast_to(fl[0], (P, fl.shape[1])).copy() for fl in flats]
+    else:
+        outs = [np.take(fl, base, axis=0) for fl in flats]
+        idx = np.flatnonzero(frac_any)
+        if idx.size:
+            b = base[idx]
+            accs = [np.zeros((idx.size, fl.shape[1]), np.float32) for fl in flats]
+            sub = [(i0[idx], wt[idx], st, N) for i0, wt, st, N in axes]
+            for corner in range(1 << len(sub)):
+                off = b.copy()
+                wc = None
+                for j, (i0, wt, st, N) in enumerate(sub):
+                    if corner >> j & 1:
+                        off += np.where(i0 < N - 1, st, 0).astype(np.int32)
+                        wj = wt
+                    else:
+                        wj = 1.0 - wt
+                    wc = wj if wc is None else wc * wj
+                for acc, fl in zip(accs, flats):
+                    acc += fl[off] * wc[:, None]
+            for o, acc in zip(outs, accs):
+                o[idx] = acc
+    outs = [o.reshape(h, w, -1) for o in outs]
+    return outs if isinstance(table, (list, tuple)) else outs[0]

@@ -1,0 +1,149 @@
+"""CosmeticShade — made-up skin: KM layers + skin SSS + per-layer specular (Huang et al. 2013 §3)."""
+from __future__ import annotations
+
+import numpy as np
+
+from graphkit import BadInput, Field, Image, In, Light, Mask, Node, Out
+
+from . import km
+from .layer import _thickness_map
+from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
+from .stack import check_reflectance_image, pixel_stack
+
+
+class CosmeticShade(Node):
+    """Skin under cosmetic layers: diffuse through the layers + SSS, plus layered specular (Huang 2013 §3, Fig. 1).
+
+    Diffuse (§3.1–3.2): the irradiance E (``irradiance`` input; else from ``normals`` and a
+    directional ``light``: colour·intensity·max(N·L, 0) + ambient; else 1) is partly reflected by
+    the layers (Rt·E) and partly transmitted into the skin, with the inter-reflections between
+    skin (albedo ρ) and layers: E_skin = T·E / (1 − Rb·ρ).  E_skin is scattered in the skin with
+    the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile, ``mm_per_pixel``
+    mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
+    leaves through the layers (RGB(T²)/RGB(T))::
+
+        diffuse = Rt·E + (T²/T)·ρ·SSS(T·E / (1 − Rb·ρ))
+
+    which equals KMStack over the background ρ times E where the lighting is uniform.
+    Specular (§3.3, eq. 5): Kelemen/Szirmay-Kalos (Beckmann NDF, Schlick Fresnel;
+    ``nodes.common.microfacet``) of the skin, then for each layer bottom to top: the specular so
+    far is attenuated by the layer's transmittance T_i and the layer's own specular is added,
+    weighted by its coverage min(1, d_i / ``cover_mm``).  Needs ``normals`` and a directional
+    ``light`` (else zero).  ``view`` is the direction to the viewer in the normals' frame.
+    Units: thickness mm, mm_per_pixel mm, depth mm, S/K mm⁻¹, wavelengths nm.
+    """
+
+    version = "1"
+    inputs = {
+        "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
+        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
+        "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
+        "irradiance": In(Image, "diffuse irradiance, linear RGB (or 1 channel)", optional=True),
+        "normals": In(Image, "unit surface normals H×W×3 (same frame as light and view)", optional=True),
+        "light": In(Light, "a directional light (for E and the specular)", optional=True),
+        "depth": In(Image, "camera depth in mm (SSS kernel width)", optional=True),
+        "skin": In(Mask, "where the skin is (SSS stays inside)", optional=True),
+    }
+    outputs = {"image": Out(Image, "linear RGB radiance: diffuse + specular"),
+               "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
+    tolerance = {"rtol": 1e-4, "atol": 1e-5}
+
+    class Params(Node.Params):
+        cosmetics: list[str] = Field(default_factory=list, description="library cosmetics, bottom layer first")
+        illuminant: str = Field("D65", description="CIE illuminant for spectral → RGB (colour-science name)")
+        lut_size: int = Field(17, ge=2, le=257, description="thickness grid nodes per layer")
+        sss: bool = Field(True, description="scatter the transmitted light in the skin (nodes.common.sss)")
+        mm_per_pixel: float = Field(0.5, gt=0, description="skin surface size of a pixel, mm")
+        view: tuple[float, float, float] = Field((0.0, 0.0, -1.0), description="unit direction to the viewer (OpenCV camera: −z)")
+        skin_m: float = Field(0.35, gt=0, description="skin Beckmann RMS slope (GPU Gems 3 ch. 14)")
+        skin_rho_s: float = Field(0.18, ge=0, description="skin specular intensity")
+        skin_f0: float = Field(0.028, ge=0, le=1, description="skin Fresnel reflectance at normal incidence")
+        cover_mm: float = Field(0.005, gt=0, description="thickness (mm) at which a layer's own specular is fully on")
+
+    def compute(self, albedo: Image, thickness: Image, layers=None, irradiance=None, normals=None,
+                light: Light | None = None, depth=None, skin: Mask | None = None):
+        from nodes.common.microfacet import kelemen_specular
+        from nodes.common.sss import sss_blur
+
+        p = self.params
+        check_illuminant(p.illuminant)
+        specs = resolve_layers(layers, p.cosmetics)
+        wl, S, K = layer_arrays(specs)
+        rho = check_reflectance_image(albedo, "albedo").astype(np.float32)
+        h, w = rho.shape[:2]
+        t = _thickness_map(thickness, "thickness", (h, w), len(specs))
+        n = None
+        if normals is not None:
+            n = np.asarray(normals.pixels, np.float64)
+            if n.shape != (h, w, 3):
+                raise BadInput("normals", f"normals must be {w}×{h}×3, got {normals.size_str()}")
+            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        if light is not None and light.kind != "directional":
+            raise BadInput("light", "CosmeticShade takes a directional light (no surface positions here)")
+        lcol = None if light is None else np.asarray(light.color, np.float32) * np.float32(light.intensity)
+        ldir = None if light is None else np.asarray(light.direction, np.float64)
+        if ldir is not None:
+            ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
+        if irradiance is not None:
+            E = np.asarray(irradiance.pixels, np.float32)
+            if E.shape[:2] != (h, w) or E.shape[2] not in (1, 3):
+                raise BadInput("irradiance", f"irradiance must be {w}×{h} with 1 or 3 channels, got {irradiance.size_str()}")
+            if not np.isfinite(E).all() or (E < 0).any():
+                raise BadInput("irradiance", "irradiance must be finite and ≥ 0")
+            E = np.broadcast_to(E, (h, w, 3))
+        elif light is not None:
+            cos = 1.0 if n is None else np.maximum(n @ ldir, 0.0)[..., None]
+            E = (np.asarray(cos, np.float32) * lcol + np.asarray(light.ambient, np.float32)).astype(np.float32)
+            E = np.broadcast_to(E, (h, w, 3))
+        else:
+            E = np.ones((h, w, 3), np.float32)
+        dmap = None
+        if depth is not None:
+            dmap = np.asarray(depth.pixels, np.float64)
+            if dmap.shape[:2] != (h, w) or dmap.shape[2] != 1:
+                raise BadInput("depth", f"depth must be {w}×{h}×1 (mm), got {depth.size_str()}")
+            dmap = dmap[..., 0]
+        smask = None
+        if skin is not None:
+            if skin.alpha.shape != (h, w):
+                raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the albedo is {w}×{h}")
+            smask = skin.alpha
+
+        # §3.1: the stack's reflectance and transmittance per pixel (spectral, through the table)
+        q = pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
+        Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
+        # §3.2: light entering the skin (with skin ↔ layer inter-reflections), scattered, leaving
+        pre = T * E / (1.0 - Rb * rho)
+        if p.sss:
+            pre = sss_blur(pre, p.mm_per_pixel, dmap, mask=smask)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_exit = np.where(T > 1e-12, T2 / T, 0.0)
+        diffuse = (Rt * E + t_exit * rho * pre).astype(np.float32)
+
+        # §3.3: specular, bottom to top
+        spec = np.zeros((h, w, 3), np.float32)
+        if n is not None and ldir is not None:
+            v = np.asarray(p.view, np.float64)
+            v = v / max(np.linalg.norm(v), 1e-12)
+            s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
+            W = km.rgb_weights(wl, p.illuminant)
+            for i, L in enumerate(specs):
+                grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
+                _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
+                Ti = km.lookup(Tg @ W, grid, t[..., i:i + 1]).astype(np.float64)
+                cover = np.clip(t[..., i] / p.cover_mm, 0.0, 1.0)[..., None]
+                s = s * Ti + cover * kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None]
+            spec = (s * lcol).astype(np.float32)
+        return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
+
+    @classmethod
+    def examples(cls):
+        h, w = 24, 32
+        yy, xx = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
+        t = np.stack([0.03 * (xx > 0.3), 0.05 * (yy > 0.5)], -1)
+        nrm = np.stack([xx - 0.5, yy - 0.5, -np.ones_like(xx)], -1)
+        nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+        rho = np.full((h, w, 3), [0.6, 0.4, 0.3])
+        light = Light(direction=(0.3, -0.2, -1.0), intensity=2.0, ambient=(0.1, 0.1, 0.1))
+        return [({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 1.0},
+                 {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm), "light": light})]
