@@ -3,4 +3,5 @@
 NODES = {
     "RatioImage": "nodes.paris.ratio:RatioImage",
     "SkinSegment": "nodes.paris.skin:SkinSegment",
+    "ProbeLight": "nodes.paris.probe:ProbeLight",
 }

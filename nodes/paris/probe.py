@@ -1,0 +1,322 @@
+"""ProbeLight — the flash and the ambient light from a mirror-ball photo (Paris 2003 §4.1, Fig. 7)."""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from graphkit import BadInput, Field, Image, In, Light, Node, Out
+
+#: linear sRGB → luminance Y (Rec. 709 / sRGB primaries, D65)
+_Y = np.array([0.2126, 0.7152, 0.0722])
+#: colours of the classification image (linear RGB)
+CLASS_COLOURS = {"outside": (0.0, 0.0, 0.0), "ball": (0.18, 0.18, 0.18), "saturated": (1.0, 0.0, 0.0),
+                 "halo": (1.0, 0.75, 0.0), "ambient": (0.0, 0.35, 1.0)}
+
+
+class ProbeLight(Node):
+    """Mirror-ball probe photo → the flash as a directional Light (Paris 2003 §4.1, Fig. 7).
+
+    * **Ball**: ``centre_x``, ``centre_y``, ``radius`` (pixels, continuous coordinates, pixel
+      centres at +0.5) or found automatically (Hough circle, then a sub-pixel least-squares
+      fit of the strongest radial edge).
+    * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
+      view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
+      ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
+      elevation about the view axis, is the same doubling on the axes); ``fov_deg`` = None
+      means an orthographic (distant) camera, otherwise the exact perspective rays of a pinhole
+      with that vertical field of view are reflected.  The flash direction is the normalised
+      mean of the directions of the saturated pixels: the orthographic mirror ball maps image
+      area to solid angle uniformly, so this is the centre of the highlight on the sphere of
+      directions.  It is returned in the probe camera's frame (OpenCV: x right, y down,
+      z forward), pointing towards the light.  A light on the far side of the subject
+      (direction with z > 0, away from the camera) is refused.
+    * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
+      ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
+      value": the flash is the unit of the photo) unless a ``white`` matte-ball photo of the
+      same flash is given (taken in place of the mirror ball: an image of the probe's size
+      uses the probe's circle, otherwise the white ball is found): then intensity = k / ``white_albedo`` where k fits the white ball's
+      luminance as k·max(n·l, 0) + a (Phong diffuse with the flash direction).
+    * **Ambient**: robust mean of the probe in a ring (``ring_deg`` wide, in directions)
+      around the halo, divided by ``ball_reflectance``: linear RGB radiance in probe units.
+
+    The ``classes`` output shows the classification (Fig. 7): red saturated, orange halo, blue
+    ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
+    """
+
+    version = "1"
+    inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
+              "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
+                          optional=True)}
+    outputs = {"light": Out(Light, "the flash: directional, camera frame, hue, intensity, ambient"),
+               "classes": Out(Image, "saturated / halo / ambient classification of the probe pixels (Fig. 7)")}
+
+    class Params(Node.Params):
+        centre_x: Optional[float] = Field(None, description="ball centre x in pixels (default: found)")
+        centre_y: Optional[float] = Field(None, description="ball centre y in pixels (default: found)")
+        radius: Optional[float] = Field(None, gt=0, description="ball radius in pixels (default: found)")
+        saturation: float = Field(0.98, gt=0, le=1, description="saturated: a channel ≥ saturation × the ball's brightest value")
+        fov_deg: Optional[float] = Field(None, gt=0, lt=170, description="vertical field of view of the probe photo (degrees); None = orthographic")
+        ring_deg: float = Field(15.0, gt=0, description="width of the ambient ring, in degrees of direction")
+        halo_level: float = Field(0.01, gt=0, lt=1, description="the halo ends where the excess over ambient falls below this fraction of the saturation level")
+        max_saturated: float = Field(0.3, gt=0, le=1, description="refuse probes saturated over more than this fraction of the ball")
+        ball_reflectance: float = Field(1.0, gt=0, description="reflectance of the mirror ball (ambient is divided by it)")
+        white_albedo: float = Field(1.0, gt=0, description="albedo of the white calibration ball")
+        refine_with_halo: bool = Field(True, description="refine the direction with the halo's excess-weighted mean")
+        edge_margin: float = Field(0.97, gt=0, le=1, description="use ball pixels within this fraction of the radius")
+
+    def compute(self, probe: Image, white: Image | None = None):
+        p = self.params
+        px = _rgb(probe, "probe")
+        h, w = px.shape[:2]
+        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius)
+        yy, xx = np.mgrid[0:h, 0:w]
+        u, v = xx + 0.5, yy + 0.5
+        inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
+        if inside.sum() < 50:
+            raise BadInput("probe", f"the ball (centre {cx:.1f}, {cy:.1f}, radius {r:.1f} px) covers too few pixels")
+        dirs = reflected_directions(u, v, cx, cy, r, w, h, p.fov_deg)
+        peak = px[inside].max()
+        if peak <= 0:
+            raise BadInput("probe", "the ball is black: no highlight")
+        sat = inside & (px.max(-1) >= p.saturation * peak)
+        lum = px @ _Y
+        med = float(np.median(lum[inside]))
+        if sat.sum() > p.max_saturated * inside.sum():
+            raise BadInput("probe", f"the probe is saturated over {100 * sat.sum() / inside.sum():.0f}% of the "
+                                    "ball: no highlight can be told apart (lower the exposure)")
+        if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
+            raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
+                                    "(is the flash reflected in the ball?)")
+        sat = _largest_component(sat)
+        ldir = dirs[sat].mean(0)
+        ldir /= np.linalg.norm(ldir)
+        if ldir[2] > 0:
+            theta = np.degrees(np.arccos(np.clip(-ldir[2], -1, 1)))
+            raise BadInput("probe", f"the flash is behind the subject ({theta:.0f}° from the camera axis, "
+                                    "light direction pointing away from the camera); Paris 2003 needs a "
+                                    "flash on the camera side")
+        delta = np.degrees(np.arccos(np.clip(dirs @ ldir, -1, 1)))
+        rho_s = float(np.percentile(delta[sat], 95)) if sat.sum() > 1 else 0.5
+        unsat = inside & ~sat
+        far = unsat & (delta > rho_s + 20) & (delta <= rho_s + 20 + p.ring_deg)
+        if far.sum() < 10:
+            far = unsat & (delta > rho_s + 5)
+        if far.sum() < 10:
+            raise BadInput("probe", "the ball shows too little around the highlight to measure ambient light")
+        base = float(np.median(lum[far]))
+        rho_h = _halo_edge(delta, lum, unsat, rho_s, base, p.halo_level * p.saturation * peak)
+        halo = unsat & (delta > rho_s) & (delta <= rho_h)
+        if p.refine_with_halo:
+            # refine: the halo's excess is symmetric about the highlight on the sphere of directions,
+            # so the excess-weighted mean direction over highlight + halo is less quantised
+            core = sat | halo
+            wgt = np.clip(lum[core] - base, 0, None)
+            if wgt.sum() > 0:
+                ref = (dirs[core] * wgt[:, None]).sum(0)
+                ldir = ref / np.linalg.norm(ref)
+        ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
+        if ring.sum() < 10:
+            raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
+                                    "falls outside the ball")
+        ambient_refl = robust_mean(px[ring])
+        excess = np.clip(px[halo] - ambient_refl, 0, None).sum(0) if halo.any() else np.zeros(3)
+        if (excess @ _Y) <= 0:
+            raise BadInput("probe", "no unsaturated halo around the highlight: the flash's hue cannot be measured")
+        color = excess / float(excess @ _Y)
+        intensity = 1.0
+        if white is not None:
+            intensity = self._white_intensity(white, ldir, (cx, cy, r) if white.pixels.shape[:2] == (h, w) else None)
+        light = Light(kind="directional", direction=tuple(float(x) for x in ldir),
+                      color=tuple(float(x) for x in color), intensity=float(intensity),
+                      ambient=tuple(float(x) for x in ambient_refl / p.ball_reflectance))
+        cls = np.zeros((h, w, 3), np.float32)
+        circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
+        for name, m in (("ball", circle), ("ambient", ring), ("halo", halo), ("saturated", sat)):
+            cls[m] = CLASS_COLOURS[name]
+        return {"light": light, "classes": Image(cls)}
+
+    def _ball(self, px, port, cx, cy, r):
+        given = [x is not None for x in (cx, cy, r)]
+        if all(given):
+            return float(cx), float(cy), float(r)
+        if any(given):
+            raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
+                           "give all of centre_x, centre_y and radius, or none (the ball is then found)")
+        found = find_ball(px)
+        if found is None:
+            raise BadInput(port, "no ball found in the image; give centre_x, centre_y and radius (pixels)")
+        return found
+
+    def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None) -> float:
+        p = self.params
+        px = _rgb(white, "white")
+        h, w = px.shape[:2]
+        found = circle if circle is not None else find_ball(px)
+        if found is None:
+            raise BadInput("white", "no ball found in the white-ball calibration image")
+        cx, cy, r = found
+        yy, xx = np.mgrid[0:h, 0:w]
+        u, v = xx + 0.5, yy + 0.5
+        inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
+        n = ball_normals(u[inside], v[inside], cx, cy, r, w, h, p.fov_deg)
+        ndl = n @ ldir
+        lit = ndl > 0.05  # the lit side: Phong diffuse k·(n·l) + ambient a
+        ndl, lum = ndl[lit], px[inside][lit] @ _Y
+        if np.ptp(ndl) < 0.1:
+            raise BadInput("white", "the white ball shows too little variation of the flash's incidence")
+        a = np.column_stack([ndl, np.ones_like(ndl)])
+        k, _ = np.linalg.lstsq(a, lum, rcond=None)[0]
+        if k <= 0:
+            raise BadInput("white", "the white ball is not lit by the flash found on the probe")
+        return float(k / p.white_albedo)
+
+
+def _rgb(img: Image, port: str) -> np.ndarray:
+    px = np.asarray(img.pixels, np.float64)
+    if px.shape[2] == 1:
+        px = np.repeat(px, 3, 2)
+    if px.shape[2] < 3:
+        raise BadInput(port, f"needs an RGB image, got {img.channels} channels")
+    px = px[..., :3]
+    if not np.isfinite(px).all():
+        raise BadInput(port, "the image holds NaN or Inf values")
+    return px
+
+
+def robust_mean(x: np.ndarray) -> np.ndarray:
+    """Mean of the rows of x whose luminance is within 3 robust sigmas of the median."""
+    y = x @ _Y
+    med = np.median(y)
+    mad = 1.4826 * np.median(np.abs(y - med))
+    keep = np.abs(y - med) <= 3 * mad + 1e-12
+    return x[keep].mean(0)
+
+
+def _largest_component(m: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    lab, n = ndimage.label(m)
+    if n <= 1:
+        return m
+    sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
+    return lab == (1 + int(np.argmax(sizes)))
+
+
+def _halo_edge(delta, lum, unsat, rho_s, base, level):
+    """Smallest angle beyond the highlight where the median excess luminance (1° bins) < level."""
+    edges = np.arange(rho_s, rho_s + 60.0, 1.0)
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = unsat & (delta > a) & (delta <= b)
+        if sel.sum() >= 3 and np.median(lum[sel]) - base < level:
+            return float(a) if a > rho_s else float(b)
+    return float(edges[-1])
+
+
+def ball_normals(u, v, cx, cy, r, w, h, fov_deg=None):
+    """Unit normals (…, 3) of the ball at pixels (u, v), camera frame (OpenCV axes)."""
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    if fov_deg is None:
+        x, y = (u - cx) / r, (v - cy) / r
+        z = -np.sqrt(np.clip(1 - x * x - y * y, 0, None))
+        n = np.stack([x, y, z], -1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+    d, c = _rays_and_centre(u, v, cx, cy, r, w, h, fov_deg)
+    p = _hit(d, c)
+    return p - c
+
+
+def reflected_directions(u, v, cx, cy, r, w, h, fov_deg=None):
+    """Direction seen in the mirror ball at pixels (u, v) (unit, camera frame), i.e. the view
+    ray reflected about the ball's normal: (θ_l, φ_l) = (2θ_h, φ_h) for a distant camera."""
+    n = ball_normals(u, v, cx, cy, r, w, h, fov_deg)
+    if fov_deg is None:
+        view = np.array([0.0, 0.0, -1.0])  # towards the camera
+        return 2 * (n @ view)[..., None] * n - view
+    d, _ = _rays_and_centre(u, v, cx, cy, r, w, h, fov_deg)
+    view = -d
+    return 2 * np.sum(n * view, -1, keepdims=True) * n - view
+
+
+def _rays_and_centre(u, v, cx, cy, r, w, h, fov_deg):
+    f = 0.5 * h / np.tan(np.radians(fov_deg) / 2)
+    d = np.stack([(u - 0.5 * w) / f, (v - 0.5 * h) / f, np.ones_like(u)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    cdir = np.array([(cx - 0.5 * w) / f, (cy - 0.5 * h) / f, 1.0])
+    dist = np.linalg.norm(cdir)
+    cdir /= dist
+    # the silhouette's angular radius α: tan α ≈ r / (distance of the centre pixel from the
+    # pinhole, in pixels); a unit ball is then at 1 / sin α
+    alpha = np.arctan(r / (f * dist))
+    return d, cdir / np.sin(alpha)
+
+
+def _hit(d, c):
+    b = d @ c
+    disc = np.clip(b * b - (c @ c - 1.0), 0, None)
+    t = b - np.sqrt(disc)
+    return t[..., None] * d
+
+
+def find_ball(px: np.ndarray) -> tuple[float, float, float] | None:
+    """Find the largest bright-edged circle: Hough circle on the luminance, then a robust
+    least-squares circle through sub-pixel radial edge points. → (cx, cy, r) in pixels."""
+    import cv2
+
+    lum = px @ _Y
+    h, w = lum.shape
+    lo, hi = np.percentile(lum, [1, 99])
+    g = np.clip((lum - lo) / max(hi - lo, 1e-12), 0, 1)
+    img8 = np.round(np.sqrt(g) * 255).astype(np.uint8)
+    img8 = cv2.GaussianBlur(img8, (5, 5), 1.2)
+    m = min(h, w)
+    circles = None
+    for p2 in (30, 20, 12):
+        circles = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=m, param1=60, param2=p2,
+                                   minRadius=int(0.08 * m), maxRadius=int(0.55 * m))
+        if circles is not None:
+            break
+    if circles is None:
+        return None
+    x0, y0, r0 = (float(c) for c in circles[0][0])
+    x0, y0 = x0 + 0.5, y0 + 0.5  # OpenCV pixel centres are integers
+    return refine_circle(lum, x0, y0, r0)
+
+
+def refine_circle(lum, x0, y0, r0, n_rays=360):
+    """Sub-pixel circle from the strongest radial edge near radius r0 (bilinear profiles,
+    parabolic peak of the gradient), fitted by least squares with outlier rejection."""
+    from scipy import ndimage
+
+    h, w = lum.shape
+    ang = np.arange(n_rays) * 2 * np.pi / n_rays
+    ts = np.linspace(0.75 * r0, 1.25 * r0, int(max(40, r0)))
+    ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    xs, ys = x0 + ts[None] * ca, y0 + ts[None] * sa
+    prof = ndimage.map_coordinates(lum, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
+    grad = np.abs(np.gradient(prof, axis=1))
+    k = np.argmax(grad, axis=1)
+    k = np.clip(k, 1, len(ts) - 2)
+    gm, g0, gp = (grad[np.arange(n_rays), k + o] for o in (-1, 0, 1))
+    den = gm - 2 * g0 + gp
+    off = np.where(np.abs(den) > 1e-12, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
+    t = ts[k] + np.clip(off, -1, 1) * (ts[1] - ts[0])
+    ok = (xs[:, 0] > -1) & (g0 > 0)
+    ex, ey = x0 + t * ca[:, 0], y0 + t * sa[:, 0]
+    strength = g0
+    keep = ok & (strength > 0.2 * np.median(strength[ok]))
+    if keep.sum() < 10:
+        return x0, y0, r0
+    for _ in range(5):
+        a = np.column_stack([ex[keep], ey[keep], np.ones(keep.sum())])
+        b = ex[keep] ** 2 + ey[keep] ** 2
+        sol = np.linalg.lstsq(a, b, rcond=None)[0]
+        cx, cy = sol[0] / 2, sol[1] / 2
+        r = np.sqrt(sol[2] + cx * cx + cy * cy)
+        res = np.abs(np.hypot(ex - cx, ey - cy) - r)
+        mad = 1.4826 * np.median(res[keep]) + 1e-3
+        new = ok & (res < 3 * mad)
+        if new.sum() < 10 or np.array_equal(new, keep):
+            break
+        keep = new
+    return float(cx), float(cy), float(r)
