@@ -55,3 +55,25 @@ def test_depth_gradient_narrows_kernel_and_mask_blocks_bleeding():
     out = sss_blur(img2, 0.3, mask=mask)
     assert out[:, :20].max() < 1.5
     np.testing.assert_array_equal(out[:, 20:], img2[:, 20:])
+
+
+def test_per_pixel_path_equals_scipy_for_constant_sigma():
+    from scipy.ndimage import gaussian_filter1d
+
+    from nodes.common.sss import _blur_axis
+
+    rng = np.random.default_rng(2)
+    img = rng.random((30, 47, 3)).astype(np.float32)
+    for axis, s in ((0, 1.7), (1, 3.2)):
+        got = _blur_axis(img, np.full((30, 47), s, np.float32), axis, None)
+        ref = gaussian_filter1d(img.astype(np.float64), s, axis=axis, mode="reflect", truncate=4.0)
+        np.testing.assert_allclose(got, ref, atol=1e-5)
+
+
+def test_spatially_varying_scale_matches_each_region():
+    rng = np.random.default_rng(3)
+    img = rng.random((40, 120, 3)).astype(np.float32)
+    mpp = np.where(np.arange(120)[None, :] < 60, 0.2, 0.5) * np.ones((40, 1))
+    got = sss_blur(img, mpp)
+    np.testing.assert_allclose(got[:, 5:20], _reference(img, 0.2)[:, 5:20], atol=1e-5)
+    np.testing.assert_allclose(got[:, 100:115], _reference(img, 0.5)[:, 100:115], atol=1e-5)

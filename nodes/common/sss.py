@@ -12,7 +12,9 @@ only* (post-scatter texturing: the albedo is multiplied in afterwards), and adap
 width per pixel from the depth gradient so that a kernel covers the same surface distance on
 foreshortened skin and stops at silhouettes.
 
-Here each Gaussian is applied separably (x then y).  At a pixel the standard deviation in
+Here each Gaussian is applied separably (y then x).  Where σ is the same at every pixel the
+blur is scipy's ``gaussian_filter1d``; otherwise a per-pixel gather of the same truncated,
+normalised kernel (float32 for a spatially varying σ).  At a pixel the standard deviation in
 pixels along an image axis is
 
     σ_px = √v_i / ℓ,     ℓ = √(mm_per_pixel² + (∂depth/∂axis)²)   [mm per pixel step on the surface]
@@ -55,6 +57,21 @@ def _pixel_step_mm(mm_per_pixel, depth, shape) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(mpp ** 2 + gx ** 2), np.sqrt(mpp ** 2 + gy ** 2)
 
 
+def _blur_axis_uniform(img: np.ndarray, sigma: float, axis: int, valid: np.ndarray | None) -> np.ndarray:
+    """Same as :func:`_blur_axis` for a σ that is the same at every pixel (scipy, O(r) taps)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    if sigma <= 0 or int(TRUNCATE * sigma + 0.5) == 0:
+        return img.copy()
+    if valid is None:
+        return gaussian_filter1d(img, sigma, axis=axis, mode="reflect", truncate=TRUNCATE)
+    num = gaussian_filter1d(img * valid[..., None], sigma, axis=axis, mode="reflect", truncate=TRUNCATE)
+    den = gaussian_filter1d(valid, sigma, axis=axis, mode="reflect", truncate=TRUNCATE)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = num / den[..., None]
+    return np.where(den[..., None] > 1e-12, out, img)
+
+
 def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray | None) -> np.ndarray:
     """Gaussian blur along ``axis`` (0 = y, 1 = x) with a per-pixel σ (pixels).
 
@@ -66,31 +83,39 @@ def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray 
     R = int(rmap.max()) if rmap.size else 0
     if R == 0:
         return img.copy()
+    dt = img.dtype
     pad = [(0, 0)] * 3
     pad[axis] = (R, R)
     src = np.pad(img, pad, mode="symmetric")
-    vsrc = None if valid is None else np.pad(valid, pad[:2], mode="symmetric")
+    vsrc = None if valid is None else np.pad(valid.astype(dt), pad[:2], mode="symmetric")
     with np.errstate(divide="ignore"):
-        inv = np.where(sigma > 0, 0.5 / np.maximum(sigma, 1e-30) ** 2, 0.0)
+        inv = np.where(sigma > 0, 0.5 / np.maximum(sigma, 1e-30) ** 2, 0.0).astype(dt)
     n = img.shape[axis]
-    acc = np.zeros(img.shape, np.float64)
-    wsum = np.zeros(img.shape[:2], np.float64)
+    acc = np.zeros(img.shape, dt)
+    wsum = np.zeros(img.shape[:2], dt)
     for k in range(-R, R + 1):
         wk = np.exp(-(k * k) * inv)
         if k != 0:
-            wk = wk * (np.abs(k) <= rmap)
+            wk *= np.abs(k) <= rmap
         sl = slice(R + k, R + k + n)
         if axis == 0:
             s, vs = src[sl], (None if vsrc is None else vsrc[sl])
         else:
             s, vs = src[:, sl], (None if vsrc is None else vsrc[:, sl])
         if vs is not None:
-            wk = wk * vs
+            wk *= vs
         acc += wk[..., None] * s
         wsum += wk
     with np.errstate(invalid="ignore", divide="ignore"):
         out = acc / wsum[..., None]
     return np.where(wsum[..., None] > 0, out, img)
+
+
+def _blur(img, sigma, axis, valid):
+    flat = sigma.ravel()
+    if flat.size and np.all(flat == flat[0]):
+        return _blur_axis_uniform(img, float(flat[0]), axis, valid)
+    return _blur_axis(img, sigma, axis, valid)
 
 
 def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np.ndarray | None = None,
@@ -108,7 +133,7 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
                  light into skin nor are changed.
     Returns float32 (H, W, C).
     """
-    img = np.asarray(irradiance, dtype=np.float64)
+    img = np.asarray(irradiance, dtype=np.float32)
     squeeze = img.ndim == 2
     if squeeze:
         img = img[:, :, None]
@@ -128,7 +153,7 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
             raise ValueError(f"mask must be {(h, w)}, got {np.shape(mask)}")
         valid = (np.asarray(mask) > 0.5).astype(np.float64)
     step_x, step_y = _pixel_step_mm(mpp, depth, (h, w))
-    out = np.zeros_like(img)
+    out = np.zeros(img.shape, np.float64)
     for var, rgb in profile:
         wts = np.zeros(c)
         wts[: min(c, 3)] = np.asarray(rgb, np.float64)[: min(c, 3)]
@@ -137,8 +162,8 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
         if not np.any(wts):
             continue
         sd = float(np.sqrt(var))
-        b = _blur_axis(img, sd / step_y, 0, valid)
-        b = _blur_axis(b, sd / step_x, 1, valid)
+        b = _blur(img, sd / step_y, 0, valid)
+        b = _blur(b, sd / step_x, 1, valid)
         out += b * wts
     if valid is not None:
         out = np.where(valid[..., None] > 0, out, img)

@@ -1,0 +1,114 @@
+"""SkinShade — real-time skin shading of Jimenez et al. 2010 §6.
+
+albedo from the skin colour LUT (eq. 7) · screen-space subsurface-scattered diffuse light
+(d'Eon 2007 sum of Gaussians, kernel width from depth; nodes/common/sss.py) + Kelemen /
+Szirmay-Kalos specular (Beckmann + Schlick; nodes/common/microfacet.py).  Post-scatter
+texturing: only the diffuse irradiance is blurred, the albedo multiplies afterwards, so the
+chromophore maps (already blurred by acquisition, §3) are not blurred twice.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from graphkit import BadInput, Field, Image, In, Light, Mask, Node, Out
+
+
+class SkinShade(Node):
+    """Shade skin from melanin/hemoglobin maps (Jimenez 2010 §6, eq. 7, figure 9).
+
+    albedo = LUT(u = ∛C_m, v = ∛C_hd) (bilinear); diffuse = sss_blur(E) with
+    E = light·max(N·L, 0) + ambient (GPU Gems convention: a white Lambertian surface returns
+    N·L); specular = ρ_s·π·f_r·N·L with f_r the Kelemen/Szirmay-Kalos BRDF (Beckmann RMS slope
+    ``roughness``, Schlick F₀ = ``f0``); image = albedo·diffuse + specular·light.
+    Normals are camera-space unit vectors (OpenCV axes; default facing the camera), the viewer
+    is along −z (orthographic view).  ``depth`` is in mm, ``mm_per_pixel`` the pixel footprint
+    on the skin in mm.  Maps are volume fractions (table 1 ranges).
+    """
+
+    version = "1"
+    inputs = {"melanin": In(Image, "C_m map (volume fraction)"),
+              "hemoglobin": In(Image, "C_hd map (volume fraction)"),
+              "lut": In(Image, "SkinColorLUT table"),
+              "light": In(Light, "directional light"),
+              "normals": In(Image, "camera-space unit normals (3 channels)", optional=True),
+              "depth": In(Image, "camera depth in mm (1 channel)", optional=True),
+              "mask": In(Mask, "skin: where light scatters", optional=True)}
+    outputs = {"image": Out(Image, "shaded skin, linear RGB"),
+               "albedo": Out(Image, "LUT albedo"),
+               "diffuse": Out(Image, "scattered diffuse irradiance (before the albedo)"),
+               "specular": Out(Image, "specular term (before the light colour)")}
+    tolerance = {"rtol": 1e-4, "atol": 1e-5}
+
+    class Params(Node.Params):
+        mm_per_pixel: float = Field(0.25, gt=0, description="pixel footprint on the skin (mm)")
+        roughness: float = Field(0.35, gt=0, le=1, description="Beckmann RMS slope m (skin: 0.3–0.35)")
+        specular: float = Field(0.18, ge=0, description="ρ_s, specular intensity (skin ≈ 0.18)")
+        f0: float = Field(0.028, ge=0, le=1, description="Fresnel reflectance at normal incidence")
+        scatter: bool = Field(True, description="apply subsurface scattering to the diffuse term")
+
+    def compute(self, melanin: Image, hemoglobin: Image, lut: Image, light: Light,
+                normals: Image | None = None, depth: Image | None = None, mask: Mask | None = None):
+        from nodes.common.microfacet import kelemen_specular
+        from nodes.common.sss import sss_blur
+
+        from .skinlut import lut_lookup
+
+        p = self.params
+        shp = melanin.pixels.shape[:2]
+        maps = {}
+        for port, img in (("melanin", melanin), ("hemoglobin", hemoglobin)):
+            if img.pixels.shape[:2] != shp:
+                raise BadInput(port, f"map sizes differ: melanin is {melanin.width}×{melanin.height}, "
+                                     f"{port} is {img.width}×{img.height}")
+            if img.channels != 1:
+                raise BadInput(port, f"{port} must be a one-channel map, got {img.channels} channels")
+            a = img.pixels[:, :, 0].astype(np.float64)
+            if not np.isfinite(a).all():
+                raise BadInput(port, f"{port} holds NaN or Inf values")
+            if (a < 0).any():
+                raise BadInput(port, f"{port} holds negative concentrations (min {a.min():.4g})")
+            maps[port] = a
+        if lut.channels != 3 or min(lut.height, lut.width) < 2:
+            raise BadInput("lut", f"expected an RGB table of at least 2×2 entries, got {lut.size_str()}")
+        if light.kind != "directional":
+            raise BadInput("light", "SkinShade needs a directional light (no positions are known per pixel)")
+        for port, opt, ch in (("normals", normals, 3), ("depth", depth, 1)):
+            if opt is not None and (opt.pixels.shape[:2] != shp or opt.channels != ch):
+                raise BadInput(port, f"{port} must be {shp[1]}×{shp[0]}×{ch}, got {opt.size_str()}")
+        if mask is not None and mask.alpha.shape != shp:
+            raise BadInput("mask", f"mask is {mask.width}×{mask.height}, maps are {shp[1]}×{shp[0]}")
+
+        albedo = lut_lookup(lut.pixels.astype(np.float64), maps["melanin"], maps["hemoglobin"])
+        if normals is None:
+            n = np.zeros(shp + (3,))
+            n[..., 2] = -1.0
+        else:
+            n = normals.pixels.astype(np.float64)
+            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        ldir = np.asarray(light.direction, np.float64)
+        ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
+        l = np.broadcast_to(ldir, n.shape)
+        v = np.broadcast_to(np.array([0.0, 0.0, -1.0]), n.shape)
+        ndotl = np.maximum((n * l).sum(-1), 0.0)
+        col = np.asarray(light.color, np.float64) * light.intensity
+        irr = ndotl[..., None] * col + np.asarray(light.ambient, np.float64)
+        if p.scatter:
+            self.ctx.progress(0.2, "subsurface scattering")
+            irr = sss_blur(irr.astype(np.float32), p.mm_per_pixel,
+                           None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
+                           mask=None if mask is None else mask.alpha).astype(np.float64)
+        spec = kelemen_specular(n, l, v, p.roughness, p.specular, p.f0)
+        img = albedo * irr + spec[..., None] * col
+        return {"image": Image(img.astype(np.float32)), "albedo": Image(albedo.astype(np.float32)),
+                "diffuse": Image(irr.astype(np.float32)), "specular": Image(spec.astype(np.float32))}
+
+    @classmethod
+    def examples(cls):
+        from .skinlut import SkinColorLUT
+
+        rng = np.random.default_rng(7)
+        lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
+        m = Image(rng.random((24, 32, 1), dtype=np.float32) * 0.2)
+        h = Image(rng.random((24, 32, 1), dtype=np.float32) * 0.1)
+        return [({"mm_per_pixel": 0.5}, {"melanin": m, "hemoglobin": h, "lut": lut,
+                                         "light": Light(direction=(0.3, -0.2, -1.0))})]

@@ -1,0 +1,214 @@
+"""Spectral two-layer skin model and the skin colour lookup table (Jimenez et al. 2010 §6,
+table 1, eq. 7; spectral model after Donner & Jensen 2006 / Donner et al. 2008).
+
+Units (all lengths in **mm**, wavelengths λ in **nm**, absorption/scattering in **mm⁻¹**):
+
+* eumelanin   σa_em(λ) = 6.6·10¹⁰ · λ^−3.33 mm⁻¹   (Jacques' 6.6·10¹¹ λ^−3.33 cm⁻¹; 67.9 mm⁻¹ at 500 nm)
+* pheomelanin σa_pm(λ) = 2.9·10¹³ · λ^−4.75 mm⁻¹   (Donner & Jensen's 2.9·10¹⁴, read as cm⁻¹ like the above)
+* baseline    σa_base(λ) = 0.0244 + 8.53 · exp(−(λ − 154)/66.2) mm⁻¹ (Jacques, bloodless tissue)
+* hemoglobin  σa_hb(λ) = ln(10) · ε(λ) · 150 g/L / 64 500 g/mol, ε in cm⁻¹/M from Prahl's table
+  (data/hemoglobin_prahl.csv), ÷10 to mm⁻¹; blood oxygenation γ = 0.75 mixes HbO₂ and Hb.
+* reduced scattering σs′_epi(λ) = 14.74 λ^−0.22 + 2.2·10¹¹ λ^−4 mm⁻¹, dermis half of it.
+
+Volume fractions (unitless): C_m melanin, β_m eumelanin share of melanin, C_he and C_hd
+hemoglobin in epidermis and dermis.  Table 1 ranges: C_m 0–0.5, β_m 0–1, C_he 0–0.1,
+C_hd 0–0.32; the table uses C_he = 0.25 C_hd (§6).
+
+Total diffuse reflectance: the dermis is a semi-infinite scattering medium (Jensen et al.
+2001 dipole, integrated over the surface).  The epidermis (thickness ``d_epi`` mm) is by
+default a thin absorbing filter crossed twice by diffuse light (Beer–Lambert with a mean path
+of 2·d_epi, as in the Cotton & Claridge model behind the paper's acquisition, §3); a
+``multipole`` option models it as a scattering slab (Donner & Jensen 2005 multipole,
+integrated over the surface) added to the dermis as R₁ + T₁² R₂ / (1 − R₁ R₂).  The filter
+form keeps melanin's spectral slope visible in RGB and fits measured skin colours better
+(tests/oracles/test_jimenez_lut.py).  Spectra → CIE XYZ (D65, CIE 1931 2°) → linear sRGB with
+colour-science.
+"""
+from __future__ import annotations
+
+import functools
+import os
+from typing import Literal
+
+import numpy as np
+
+from graphkit import BadInput, Field, Image, Node, Out, Vector, Array
+
+CM_MAX = 0.5    # table 1
+CHD_MAX = 0.32  # table 1
+WL = np.arange(380.0, 781.0, 5.0)  # nm
+
+
+@functools.lru_cache(maxsize=1)
+def prahl_table() -> np.ndarray:
+    """(n, 3): wavelength nm, ε(HbO₂), ε(Hb) in cm⁻¹/M (Prahl, omlc.org; via MNE-Python)."""
+    path = os.path.join(os.path.dirname(__file__), "data", "hemoglobin_prahl.csv")
+    return np.loadtxt(path, delimiter=",", comments="#", skiprows=7)
+
+
+def eumelanin_absorption(wl_nm):
+    """σa of eumelanin, mm⁻¹ (λ in nm)."""
+    return 6.6e10 * np.asarray(wl_nm, np.float64) ** -3.33
+
+
+def pheomelanin_absorption(wl_nm):
+    """σa of pheomelanin, mm⁻¹ (λ in nm)."""
+    return 2.9e13 * np.asarray(wl_nm, np.float64) ** -4.75
+
+
+def baseline_absorption(wl_nm):
+    """σa of bloodless, melanin-free skin, mm⁻¹ (λ in nm)."""
+    return 0.0244 + 8.53 * np.exp(-(np.asarray(wl_nm, np.float64) - 154.0) / 66.2)
+
+
+def hemoglobin_absorption(wl_nm, oxygenation: float = 0.75):
+    """σa of whole blood (150 g/L hemoglobin), mm⁻¹, from Prahl's molar extinction table."""
+    t = prahl_table()
+    wl = np.asarray(wl_nm, np.float64)
+    hbo2 = np.interp(wl, t[:, 0], t[:, 1])
+    hb = np.interp(wl, t[:, 0], t[:, 2])
+    eps = oxygenation * hbo2 + (1 - oxygenation) * hb  # cm⁻¹/M
+    return np.log(10.0) * eps * 150.0 / 64500.0 / 10.0
+
+
+def reduced_scattering_epidermis(wl_nm):
+    """σs′ of the epidermis, mm⁻¹ (dermis: half of it)."""
+    wl = np.asarray(wl_nm, np.float64)
+    return 14.74 * wl ** -0.22 + 2.2e11 * wl ** -4.0
+
+
+def _A(eta: float) -> float:
+    fdr = -1.440 / eta ** 2 + 0.710 / eta + 0.668 + 0.0636 * eta
+    return (1 + fdr) / (1 - fdr)
+
+
+def _slab_RT(sa, ss, d, eta=1.4, n_pairs=6):
+    """Total diffuse R and T of a slab of thickness d (mm): r-integrated multipole."""
+    st = sa + ss
+    alpha = ss / st
+    D = 1.0 / (3.0 * st)
+    sigtr = np.sqrt(sa / D)
+    zb = 2.0 * _A(eta) * D
+    l = 1.0 / st
+    R = np.zeros(np.broadcast(sa, d).shape)
+    T = np.zeros_like(R)
+    for i in range(-n_pairs, n_pairs + 1):
+        zr = 2 * i * (d + 2 * zb) + l
+        zv = 2 * i * (d + 2 * zb) - l - 2 * zb
+        R += np.sign(zr) * np.exp(-sigtr * np.abs(zr)) - np.sign(zv) * np.exp(-sigtr * np.abs(zv))
+        T += (np.sign(d - zr) * np.exp(-sigtr * np.abs(d - zr))
+              - np.sign(d - zv) * np.exp(-sigtr * np.abs(d - zv)))
+    return np.clip(alpha / 2 * R, 0, 1), np.clip(alpha / 2 * T, 0, 1)
+
+
+def _semi_infinite_R(sa, ss, eta=1.4):
+    """Total diffuse reflectance of a semi-infinite medium (r-integrated dipole)."""
+    st = sa + ss
+    alpha = ss / st
+    x = np.sqrt(3 * (1 - alpha))
+    return alpha / 2 * (1 + np.exp(-4.0 / 3.0 * _A(eta) * x)) * np.exp(-x)
+
+
+def skin_reflectance(c_m, c_hd, beta_m=0.61, c_he=None, wl=WL, d_epi=None, oxygenation=0.75,
+                     epidermis: str = "filter"):
+    """Total diffuse reflectance (…, n_wl) of two-layer skin for volume fractions C_m, C_hd.
+
+    ``c_he`` defaults to 0.25·C_hd (§6).  ``d_epi`` in mm (default 0.1 for ``filter``, 0.25
+    for ``multipole``), ``wl`` in nm.  ``epidermis``:
+
+    * ``"filter"`` (default): the thin epidermis is an absorbing filter crossed twice by
+      diffuse light, T = exp(−2 σa_epi d_epi) per crossing (mean diffuse path 2d), over a
+      semi-infinite dermis (dipole, σs′ as the epidermis): R = T² R_derm.
+    * ``"multipole"``: the epidermis is a scattering multipole slab (σs′_epi), the dermis a
+      dipole with half that scattering, added as R₁ + T₁² R₂ / (1 − R₁R₂) (Donner & Jensen).
+    """
+    c_m = np.asarray(c_m, np.float64)[..., None]
+    c_hd = np.asarray(c_hd, np.float64)[..., None]
+    c_he = 0.25 * c_hd if c_he is None else np.asarray(c_he, np.float64)[..., None]
+    wl = np.asarray(wl, np.float64)
+    mel = beta_m * eumelanin_absorption(wl) + (1 - beta_m) * pheomelanin_absorption(wl)
+    hem = hemoglobin_absorption(wl, oxygenation)
+    base = baseline_absorption(wl)
+    sa_epi = c_m * mel + c_he * hem + (1 - c_m - c_he) * base
+    sa_derm = c_hd * hem + (1 - c_hd) * base
+    ss = reduced_scattering_epidermis(wl)
+    if epidermis == "filter":
+        d = 0.1 if d_epi is None else d_epi
+        T = np.exp(-2.0 * sa_epi * d)
+        return T * T * _semi_infinite_R(sa_derm, ss)
+    if epidermis != "multipole":
+        raise ValueError(f"unknown epidermis model {epidermis!r}")
+    d = 0.25 if d_epi is None else d_epi
+    R1, T1 = _slab_RT(sa_epi, ss, d)
+    R2 = _semi_infinite_R(sa_derm, 0.5 * ss)
+    return R1 + T1 * T1 * R2 / (1 - R1 * R2)
+
+
+def reflectance_to_linear_srgb(refl: np.ndarray, wl=WL) -> np.ndarray:
+    """Reflectance spectra (…, n_wl) → linear sRGB under D65 (colour-science, CIE 1931 2°)."""
+    import colour
+
+    from nodes.common.color import srgb_to_linear  # noqa: F401  (keeps colour's warning filter)
+
+    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    flat = np.asarray(refl, np.float64).reshape(-1, len(wl))
+    xyz = colour.msds_to_XYZ(flat, cmfs, ill, method="Integration", shape=shape) / 100.0
+    rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
+    return np.asarray(rgb).reshape(np.shape(refl)[:-1] + (3,))
+
+
+def lut_axes(size_u: int, size_v: int) -> tuple[np.ndarray, np.ndarray]:
+    """C_m along u and C_hd along v sampled cubically (eq. 7: u = ∛C_m, v = ∛C_hd)."""
+    u = np.linspace(0.0, np.cbrt(CM_MAX), size_u)
+    v = np.linspace(0.0, np.cbrt(CHD_MAX), size_v)
+    return u ** 3, v ** 3
+
+
+def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of an (n_v, n_u, C) table at volume fractions (eq. 7)."""
+    nv, nu = lut.shape[:2]
+    fu = np.clip(np.cbrt(np.clip(c_m, 0, CM_MAX)) / np.cbrt(CM_MAX), 0, 1) * (nu - 1)
+    fv = np.clip(np.cbrt(np.clip(c_hd, 0, CHD_MAX)) / np.cbrt(CHD_MAX), 0, 1) * (nv - 1)
+    u0 = np.minimum(np.floor(fu).astype(np.int64), nu - 2 if nu > 1 else 0)
+    v0 = np.minimum(np.floor(fv).astype(np.int64), nv - 2 if nv > 1 else 0)
+    u1 = np.minimum(u0 + 1, nu - 1)
+    v1 = np.minimum(v0 + 1, nv - 1)
+    a = (fu - u0)[..., None]
+    b = (fv - v0)[..., None]
+    return ((1 - a) * (1 - b) * lut[v0, u0] + a * (1 - b) * lut[v0, u1]
+            + (1 - a) * b * lut[v1, u0] + a * b * lut[v1, u1])
+
+
+class SkinColorLUT(Node):
+    """Skin colour lookup table (Jimenez 2010 §6, table 1, eq. 7, figure 9).
+
+    Each entry is the total diffuse reflectance of the two-layer spectral skin model (module
+    docstring: melanin mm⁻¹, Prahl hemoglobin, an epidermis of ``epidermis_mm`` mm over a
+    semi-infinite dermis, C_he = 0.25 C_hd) converted to linear sRGB (D65) with colour-science.  Columns
+    (u, width) sample melanin C_m ∈ [0, 0.5] as u = ∛C_m, rows (v, height) sample dermal
+    hemoglobin C_hd ∈ [0, 0.32] as v = ∛C_hd (eq. 7).  ``reflectance`` holds the spectra
+    (rows × columns × wavelengths) at ``wavelengths`` (nm).
+    """
+
+    version = "1"
+    outputs = {"lut": Out(Image, "linear sRGB albedo, rows = ∛C_hd, columns = ∛C_m"),
+               "reflectance": Out(Array, "spectral reflectance, (rows, columns, wavelengths)"),
+               "wavelengths": Out(Vector, "wavelengths of the spectra (nm)")}
+
+    class Params(Node.Params):
+        size: int = Field(64, ge=2, le=512, description="entries per axis")
+        melanin_blend: float = Field(0.61, ge=0, le=1, description="β_m: eumelanin share of melanin (figure 9: 0.61)")
+        epidermis_mm: float = Field(0.1, gt=0, le=2, description="epidermis thickness (mm)")
+        oxygenation: float = Field(0.75, ge=0, le=1, description="blood oxygen saturation")
+        epidermis: Literal["filter", "multipole"] = Field("filter", description="epidermis model (module docstring)")
+
+    def compute(self):
+        p = self.params
+        cm, chd = lut_axes(p.size, p.size)
+        refl = skin_reflectance(cm[None, :], chd[:, None], p.melanin_blend, d_epi=p.epidermis_mm,
+                                oxygenation=p.oxygenation, epidermis=p.epidermis)
+        rgb = reflectance_to_linear_srgb(refl)
+        return {"lut": Image(rgb.astype(np.float32)), "reflectance": refl,
+                "wavelengths": WL.copy()}
