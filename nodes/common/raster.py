@@ -116,9 +116,22 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         base = csum[starts[-1] - 1] if starts[-1] else 0
         nxt = int(np.searchsorted(csum, base + BATCH_PAIRS, side="right"))
         starts.append(max(nxt, starts[-1] + 1))
+    # edge functions e_i = A_i x + B_i y + C_i (weight of vertex i), positive inside, and the
+    # tie rule per edge; computed once per triangle
+    sg = np.sign(area)
+    A = np.empty((len(faces), 3))
+    B = np.empty((len(faces), 3))
+    C = np.empty((len(faces), 3))
+    own = np.empty((len(faces), 3), bool)
+    for i in range(3):
+        a, b = p[:, (i + 1) % 3], p[:, (i + 2) % 3]
+        A[:, i] = -(b[:, 1] - a[:, 1]) * sg
+        B[:, i] = (b[:, 0] - a[:, 0]) * sg
+        C[:, i] = ((b[:, 1] - a[:, 1]) * a[:, 0] - (b[:, 0] - a[:, 0]) * a[:, 1]) * sg
+        own[:, i] = _owns_edge(a[:, 0], a[:, 1], b[:, 0], b[:, 1], sg)
     for a, b in zip(starts[:-1], starts[1:]):
-        _batch(ids[a:b], bw[a:b], bh[a:b], npix[a:b], xmin, ymin, p, fz, area, perspective,
-               W, depth, tri, bary)
+        _batch(ids[a:b], bw[a:b], bh[a:b], npix[a:b], xmin, ymin, A, B, C, own, fz, area,
+               perspective, W, depth, tri, bary)
     cov = tri >= 0
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
@@ -133,24 +146,27 @@ def _owns_edge(ax, ay, bx, by, sign):
     return (dy > 0) | ((dy == 0) & (dx < 0))
 
 
-def _batch(ids, bw, bh, npix, xmin, ymin, p, fz, area, perspective, W, depth, tri, bary):
+def _batch(ids, bw, bh, npix, xmin, ymin, A, B, C, own, fz, area, perspective, W, depth, tri,
+           bary):
     n = int(npix.sum())
     owner = np.repeat(np.arange(len(ids)), npix)
     first = np.cumsum(npix) - npix
     local = np.arange(n) - first[owner]
+    bwo = bw[owner]
     t = ids[owner]
-    px = xmin[t] + local % bw[owner] + 0.5
-    py = ymin[t] + local // bw[owner] + 0.5
-    P = p[t]  # n×3×2
-    s = np.sign(area[t])
-    x0, y0, x1, y1, x2, y2 = P[:, 0, 0], P[:, 0, 1], P[:, 1, 0], P[:, 1, 1], P[:, 2, 0], P[:, 2, 1]
-    # edge functions (weights of the vertex opposite each edge), made positive inside
-    e0 = ((x2 - x1) * (py - y1) - (y2 - y1) * (px - x1)) * s
-    e1 = ((x0 - x2) * (py - y2) - (y0 - y2) * (px - x2)) * s
-    e2 = ((x1 - x0) * (py - y0) - (y1 - y0) * (px - x0)) * s
-    inside = ((e0 > 0) | ((e0 == 0) & _owns_edge(x1, y1, x2, y2, s))) \
-        & ((e1 > 0) | ((e1 == 0) & _owns_edge(x2, y2, x0, y0, s))) \
-        & ((e2 > 0) | ((e2 == 0) & _owns_edge(x0, y0, x1, y1, s)))
+    px = xmin[t] + local % bwo + 0.5
+    py = ymin[t] + local // bwo + 0.5
+    e = [A[t, i] * px + B[t, i] * py + C[t, i] for i in range(3)]
+    inside = np.ones(n, bool)
+    for i in range(3):
+        inside &= e[i] >= 0
+    ties = inside & ((e[0] == 0) | (e[1] == 0) | (e[2] == 0))
+    if ties.any():
+        ti = np.nonzero(ties)[0]
+        for i in range(3):
+            z = e[i][ti] == 0
+            inside[ti[z]] &= own[t[ti[z]], i]
+    e0, e1, e2 = e
     if not inside.any():
         return
     k = np.nonzero(inside)[0]
@@ -165,16 +181,14 @@ def _batch(ids, bw, bh, npix, xmin, ymin, p, fz, area, perspective, W, depth, tr
     else:
         zk = (b * Z).sum(1)
     pix = (py[k] - 0.5).astype(np.int64) * W + (px[k] - 0.5).astype(np.int64)
-    # nearest candidate per pixel within the batch, then against the buffer
-    order = np.lexsort((t[k], zk, pix))
-    pix_o = pix[order]
-    firsts = np.ones(len(order), bool)
-    firsts[1:] = pix_o[1:] != pix_o[:-1]
-    sel = order[firsts]
+    # z-buffer: scatter-min of the depths, then the winners (ties: lowest triangle id)
+    np.minimum.at(depth, pix, zk)
+    wi = np.nonzero(zk == depth[pix])[0]
+    tk = t[k][wi]
+    best = np.full(len(depth), np.iinfo(np.int64).max)
+    np.minimum.at(best, pix[wi], tk)
+    sel = wi[tk == best[pix[wi]]]
     pp = pix[sel]
-    better = zk[sel] < depth[pp]
-    sel, pp = sel[better], pp[better]
-    depth[pp] = zk[sel]
     tri[pp] = t[k][sel]
     bary[pp] = b[sel]
 

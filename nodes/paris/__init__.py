@@ -4,4 +4,8 @@ NODES = {
     "RatioImage": "nodes.paris.ratio:RatioImage",
     "SkinSegment": "nodes.paris.skin:SkinSegment",
     "ProbeLight": "nodes.paris.probe:ProbeLight",
+    "ReflectanceMap": "nodes.paris.reflectance:ReflectanceMap",
+    "FitSkinPhong": "nodes.paris.fit:FitSkinPhong",
+    "ShadeFace": "nodes.paris.render:ShadeFace",
+    "Render": "nodes.paris.render:Render",
 }

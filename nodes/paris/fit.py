@@ -1,0 +1,185 @@
+"""FitSkinPhong — the skin parameters of Paris, Sillion, Quan 2003 §4.2."""
+from __future__ import annotations
+
+import numpy as np
+
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
+
+from .models import PhongMaterial
+
+
+class FitSkinPhong(Node):
+    """Skin colour (r, g, b) and specular intensity i_s, then the ambient intensity (§4.1–4.2).
+
+    The mesh is rendered in the photo's pose with the Phong model of §4 (shininess s given,
+    found separately by ShininessFromSaturation) under the flash ``light``; the parameters
+    minimise the L2 distance in CIE L*u*v* (colour-science, D65) between the photo and the
+    render over the skin pixels:  sqrt(Σ_skin ΔL² + Δu² + Δv²).
+
+    Minimisation: a varying-step descent (Levenberg–Marquardt steps whose damping is divided on
+    success and multiplied on failure), coarse to fine over growing subsets of the skin pixels
+    (1/16, 1/4, all, up to ``max_pixels``), from ``starts`` random starting points drawn with
+    ``seed``; the best end point is kept.  Then the ambient intensity relative to the flash is
+    optimised with the skin parameters (the probe's ambient colour, or the flash colour when the
+    light has no ambient), as in §4.1.  Outputs the material (with the residual), the light with
+    its ambient rescaled, and the fitted render.  Units: linear RGB relative to the flash.
+    """
+
+    version = "1"
+    inputs = {"image": In(Image, "the flash photo (linear RGB)"),
+              "skin": In(Mask, "skin pixels"),
+              "mesh": In(Mesh, "face mesh registered to the photo"),
+              "camera": In(Camera, "the photo camera"),
+              "light": In(Light, "the flash (ProbeLight.light)"),
+              "shininess": In(Scalar, "Phong exponent s (ShininessFromSaturation)")}
+    outputs = {"material": Out(PhongMaterial, "skin material and residual"),
+               "light": Out(Light, "the flash with the fitted ambient"),
+               "rendered": Out(Image, "the Phong render of the fitted parameters (photo pose)")}
+
+    class Params(Node.Params):
+        seed: int = Field(0, description="seed of the random starting points")
+        starts: int = Field(4, ge=1, le=1000, description="random starting points")
+        max_pixels: int = Field(6000, ge=100, description="skin pixels used at the finest level")
+        fit_ambient: bool = Field(True, description="optimise the ambient intensity afterwards (§4.1)")
+        iterations: int = Field(60, ge=1, description="descent iterations per level")
+        skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
+
+    def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light, shininess):
+        from .render import check_camera_matches, light_vectors, surface
+        from . import phong
+
+        p = self.params
+        check_camera_matches(camera, image)
+        if skin.alpha.shape != image.pixels.shape[:2]:
+            raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
+                                   f"{image.width}×{image.height}")
+        if not (np.isfinite(shininess) and shininess > 0):
+            raise BadInput("shininess", f"the Phong exponent must be > 0, got {shininess}")
+        sk = skin.alpha >= p.skin_threshold
+        if not sk.any():
+            raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+        s = surface(mesh, camera, min_pixels=1)
+        use = sk[s.coverage]
+        if use.sum() < 20:
+            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
+        ldir, L = light_vectors(light, s.points, inverse_square=False)
+        diff, spec = phong.lobes(s.normals, ldir, s.view, float(shininess))
+        if not (diff[use] > 0).any():
+            raise BadInput("light", f"the light (direction {light.direction}) is behind the "
+                                    "face: it lights none of the skin pixels")
+        photo = image.pixels[s.coverage][:, :3].astype(np.float64)
+        idx = np.nonzero(use)[0]
+        if len(idx) > p.max_pixels:  # deterministic even subsample
+            idx = idx[np.linspace(0, len(idx) - 1, p.max_pixels).round().astype(np.int64)]
+        amb_base = np.asarray(light.ambient, np.float64)
+        if not amb_base.any() and p.fit_ambient:
+            # no probe ambient: fit a grey (flash-coloured) ambient, starting small
+            amb_base = np.asarray(light.color, np.float64) * 0.01
+        prob = _Problem(photo[idx], diff[idx], spec[idx], L[idx], amb_base)
+        rng = np.random.default_rng(p.seed)
+        best = None
+        for i in range(p.starts):
+            x0 = np.concatenate([rng.uniform(0.05, 1.0, 3), rng.uniform(0.0, 1.0, 1), [1.0]])
+            x = prob.descend(x0, free=[0, 1, 2, 3], iters=p.iterations)
+            e = prob.energy(x)
+            if best is None or e < best[1]:
+                best = (x, e)
+            self.ctx.progress((i + 1) / p.starts, f"start {i + 1}/{p.starts}")
+        x = best[0]
+        if p.fit_ambient and amb_base.any():
+            x = prob.descend(x, free=[4], iters=p.iterations)
+            x = prob.descend(x, free=[0, 1, 2, 3, 4], iters=p.iterations)
+        amb_rgb = amb_base * x[4]
+        # residual over all skin pixels
+        full = _Problem(photo[use], diff[use], spec[use], L[use], amb_base)
+        e_all = full.energy(x)
+        n = int(use.sum())
+        mat = PhongMaterial(diffuse=tuple(float(v) for v in x[:3]), specular=float(x[3]),
+                            shininess=float(shininess), ambient_scale=1.0,
+                            residual=float(np.sqrt(e_all)), rms_luv=float(np.sqrt(e_all / n)),
+                            pixels=n)
+        out_light = light.model_copy(update={"ambient": tuple(float(v) for v in amb_rgb)})
+        ren = np.zeros((camera.height, camera.width, 3), np.float32)
+        ren[s.coverage] = phong.shade(x[:3], x[3], amb_rgb, L, diff, spec)
+        return {"material": mat, "light": out_light, "rendered": Image(ren)}
+
+
+class _Problem:
+    """E(x) = Σ ||Luv(model(x)) − Luv(photo)||², x = (r, g, b, i_s, ambient scale)."""
+
+    def __init__(self, photo, diff, spec, L, amb_base):
+        from nodes.common.color import linear_srgb_to_luv
+
+        self.luv = linear_srgb_to_luv
+        self.photo = photo
+        self.target = linear_srgb_to_luv(np.clip(photo, 0, None))
+        self.diff, self.spec, self.L, self.amb = diff, spec, L, amb_base
+
+    def model(self, x, sel=slice(None)):
+        kd = x[:3]
+        return (kd * (self.amb * x[4] + self.L[sel] * self.diff[sel, None])
+                + x[3] * self.L[sel] * self.spec[sel, None])
+
+    def dmodel(self, x, sel):
+        """d model / d x: (n, 3, 5)."""
+        n = len(self.diff[sel])
+        J = np.zeros((n, 3, 5))
+        base = self.amb * x[4] + self.L[sel] * self.diff[sel, None]
+        for c in range(3):
+            J[:, c, c] = base[:, c]
+        J[:, :, 3] = self.L[sel] * self.spec[sel, None]
+        J[:, :, 4] = x[:3] * self.amb
+        return J
+
+    def residual(self, x, sel=slice(None)):
+        return self.luv(np.clip(self.model(x, sel), 1e-9, None)) - self.target[sel]
+
+    def energy(self, x, sel=slice(None)):
+        r = self.residual(x, sel)
+        return float(np.sum(r * r))
+
+    def luv_jacobian(self, rgb):
+        """d Luv / d rgb per pixel (n, 3, 3) by central differences through colour-science."""
+        rgb = np.clip(rgb, 1e-6, None)
+        J = np.empty((len(rgb), 3, 3))
+        for c in range(3):
+            h = np.maximum(rgb[:, c] * 1e-4, 1e-7)
+            a, b = rgb.copy(), rgb.copy()
+            a[:, c] += h
+            b[:, c] = np.maximum(b[:, c] - h, 1e-9)
+            J[:, :, c] = (self.luv(a) - self.luv(b)) / (a[:, c] - b[:, c])[:, None]
+        return J
+
+    def descend(self, x, free, iters=60):
+        """Varying-step descent, coarse to fine over pixel subsets (see FitSkinPhong)."""
+        x = np.array(x, np.float64)
+        n = len(self.diff)
+        levels = [s for s in (16, 4, 1) if n // s >= 50] or [1]
+        for step in levels:
+            sel = slice(0, n, step)
+            lam = 1e-3
+            e = self.energy(x, sel)
+            for _ in range(iters):
+                r = self.residual(x, sel).reshape(-1)
+                J = np.einsum("nij,njk->nik", self.luv_jacobian(self.model(x, sel)),
+                              self.dmodel(x, sel))[:, :, free].reshape(-1, len(free))
+                g = J.T @ r
+                A = J.T @ J
+                improved = False
+                for _try in range(12):
+                    dx = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+                    xn = x.copy()
+                    xn[free] = np.maximum(x[free] + dx, 0.0)
+                    en = self.energy(xn, sel)
+                    if en < e:
+                        lam = max(lam / 4, 1e-9)
+                        improved = True
+                        break
+                    lam *= 8
+                if not improved:
+                    break
+                rel = (e - en) / max(e, 1e-300)
+                x, e = xn, en
+                if rel < 1e-10:
+                    break
+        return x

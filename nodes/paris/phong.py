@@ -1,0 +1,38 @@
+"""The Phong model of Paris, Sillion, Quan 2003 §4 (one copy, used by FitSkinPhong and Render).
+
+    I_X(v) = X_l^A X_m^A + X_l^D X_m^D (l·n) + X_l^S X_m^S (r·v)^s        (§4)
+
+with, for skin (§4.2), ambient colour = diffuse colour = (r, g, b)_skin and specular colour
+(i_s, i_s, i_s).  Directions are unit vectors from the surface: n normal, l towards the light,
+v towards the viewer, r = 2 (n·l) n − l the mirror direction of l.  The specular term is zero
+where the light is behind the surface (n·l ≤ 0).  Unitless (linear RGB relative to the flash).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """Normalise vectors along the last axis (zero vectors stay zero)."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v, dtype=np.float64), where=n > 0)
+
+
+def lobes(n: np.ndarray, l: np.ndarray, v: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Diffuse factor max(n·l, 0) and specular factor max(r·v, 0)^s (both (...,))."""
+    nl = np.sum(n * l, axis=-1)
+    r = 2.0 * nl[..., None] * n - l
+    rv = np.clip(np.sum(r * v, axis=-1), 0.0, None)
+    lit = nl > 0
+    diff = np.where(lit, nl, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore", under="ignore"):
+        spec = np.where(lit & (rv > 0), rv ** float(s), 0.0)
+    return diff, spec
+
+
+def shade(kd: np.ndarray, i_s: float, ambient: np.ndarray, light_rgb: np.ndarray,
+          diff: np.ndarray, spec: np.ndarray) -> np.ndarray:
+    """Phong radiance (..., 3) from the lobes of one light: kd·(A + L·diff) + i_s·L·spec."""
+    kd = np.asarray(kd, np.float64)
+    L = np.asarray(light_rgb, np.float64)
+    return kd * (np.asarray(ambient, np.float64) + L * diff[..., None]) + i_s * L * spec[..., None]

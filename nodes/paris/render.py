@@ -1,0 +1,348 @@
+"""ShadeFace and Render — the rendering side of Paris, Sillion, Quan 2003 (§3 shaded face, §5).
+
+Both rasterise the mesh with the shared numpy z-buffer (``nodes.common.raster``): per pixel the
+nearest triangle, perspective-correct barycentrics, world position and a smooth (vertex-
+interpolated) normal.  Normals are turned towards the viewer (two-sided lighting), so meshes
+with either winding render the same.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, Optional
+
+import numpy as np
+
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
+
+from .models import PhongMaterial
+
+# mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
+MP_EYES = (
+    (263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398),
+    (33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173),
+)
+INTEROCULAR_MM = 63.0  # mean adult distance between the eye centres (mm)
+
+
+# ----------------------------------------------------------------------------------------------
+# shared helpers (also used by ReflectanceMap and FitSkinPhong)
+
+
+@dataclass
+class Surface:
+    """The visible surface of a mesh through a camera, per pixel."""
+
+    raster: object
+    coverage: np.ndarray  # H×W bool
+    points: np.ndarray  # M×3 world positions of covered pixels (row-major order)
+    normals: np.ndarray  # M×3 unit world normals, turned towards the camera
+    view: np.ndarray  # M×3 unit directions towards the camera centre
+
+
+def check_mesh(mesh, port: str = "mesh") -> None:
+    if mesh is None or len(mesh.faces) == 0:
+        raise BadInput(port, "the mesh has no triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise BadInput(port, "the mesh has NaN or infinite vertex coordinates")
+
+
+def check_camera_matches(camera: Camera, image: Image | Mask, port: str = "camera",
+                         what: str = "image") -> None:
+    """BadInput unless the camera's image size is the photo's."""
+    h, w = (image.pixels.shape[:2] if isinstance(image, Image) else image.alpha.shape)
+    if (camera.width, camera.height) != (w, h):
+        raise BadInput(port, f"camera is {camera.width}×{camera.height} but the {what} is "
+                             f"{w}×{h}: the camera must be the one that took the photo")
+
+
+def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Surface:
+    """Rasterise ``mesh`` through ``camera``; BadInput when it covers < ``min_pixels`` pixels."""
+    from nodes.common import raster
+
+    from .phong import unit
+
+    check_mesh(mesh, port)
+    faces = np.asarray(mesh.faces, np.int64)
+    V = np.asarray(mesh.vertices, np.float64)
+    r = raster.rasterize(V, faces, camera)
+    cov = r.coverage
+    if cov.sum() < min_pixels:
+        raise BadInput(port, f"the mesh covers {int(cov.sum())} pixels of the {camera.width}×"
+                             f"{camera.height} camera image: it does not match the camera "
+                             "(wrong pose, units or image size?)")
+    vn = vertex_normals(mesh)
+    f = faces[r.tri[cov]]
+    b = r.bary[cov][..., None]
+    P = (V[f] * b).sum(1)
+    N = unit((vn[f] * b).sum(1))
+    Vd = unit(camera.position[None, :] - P)
+    flip = np.sum(N * Vd, axis=1) < 0
+    N[flip] *= -1
+    return Surface(r, cov, P, N, Vd)
+
+
+def vertex_normals(mesh) -> np.ndarray:
+    """Unit vertex normals: the mesh's own ``vertex_normals`` (trimesh, face-area weighted)."""
+    n = np.asarray(mesh.vertex_normals, np.float64)
+    return n
+
+
+def light_vectors(light: Light, P: np.ndarray, inverse_square: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(unit directions towards the light M×3, light RGB per point M×3) for surface points."""
+    from .phong import unit
+
+    rgb = np.asarray(light.color, np.float64) * light.intensity
+    if light.kind == "directional":
+        d = unit(np.asarray(light.direction, np.float64))
+        return np.broadcast_to(d, P.shape), np.broadcast_to(rgb, P.shape)
+    v = np.asarray(light.position, np.float64)[None, :] - P
+    dist = np.linalg.norm(v, axis=1, keepdims=True)
+    L = rgb[None, :] / np.maximum(dist, 1e-12) ** 2 if inverse_square else np.broadcast_to(rgb, P.shape)
+    return unit(v), L
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of H×W×C ``img`` at pixel coordinates (centres at +0.5), edge-clamped."""
+    H, W = img.shape[:2]
+    fx = np.clip(x - 0.5, 0, W - 1)
+    fy = np.clip(y - 0.5, 0, H - 1)
+    x0 = np.floor(fx).astype(np.int64)
+    y0 = np.floor(fy).astype(np.int64)
+    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
+    tx, ty = (fx - x0)[:, None], (fy - y0)[:, None]
+    return (img[y0, x0] * (1 - tx) * (1 - ty) + img[y0, x1] * tx * (1 - ty)
+            + img[y1, x0] * (1 - tx) * ty + img[y1, x1] * tx * ty)
+
+
+def projective_texture(detail: Image, tex_cam: Camera, mesh, P: np.ndarray,
+                       occlusion: bool = True) -> np.ndarray:
+    """Detail texture values (M×C) at world points P, by projective texture coordinates from
+    the photo camera (§3).  Points outside the photo or hidden from it get 1 (neutral)."""
+    from nodes.common import raster
+
+    xy, z = tex_cam.project(P)
+    H, W = detail.pixels.shape[:2]
+    ok = (z > 0) & (xy[:, 0] >= 0) & (xy[:, 0] < W) & (xy[:, 1] >= 0) & (xy[:, 1] < H)
+    out = np.ones((len(P), detail.channels))
+    if occlusion and ok.any():
+        r = raster.rasterize(mesh.vertices, mesh.faces, tex_cam)
+        ix = np.clip(xy[ok, 0].astype(np.int64), 0, W - 1)
+        iy = np.clip(xy[ok, 1].astype(np.int64), 0, H - 1)
+        dz = r.depth[iy, ix]
+        # a point is seen when it is (about) the nearest surface at its pixel
+        scale = np.median(np.ptp(np.asarray(mesh.vertices), axis=0)) or 1.0
+        vis = np.isfinite(dz) & (z[ok] <= dz + 0.02 * scale)
+        idx = np.nonzero(ok)[0]
+        ok[idx[~vis]] = False
+    out[ok] = _bilinear(detail.pixels.astype(np.float64), xy[ok, 0], xy[ok, 1])
+    return out
+
+
+def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
+                protrude_mm: float, towards: np.ndarray):
+    """Centres (2×3), outward axes (2×3) and radius (mesh units) of the cornea hemispheres.
+
+    ``eyes``: explicit 2×3 eye-opening centres (world), else the mediapipe eye contours.
+    The sphere's cap sticks ``protrude_mm`` out of the eye opening along its outward axis.
+    """
+    from .phong import unit
+
+    V = np.asarray(mesh.vertices, np.float64)
+    if eyes is not None:
+        cen = np.asarray(eyes, np.float64).reshape(2, 3)
+        vn = vertex_normals(mesh)
+        near = np.argmin(np.linalg.norm(V[None] - cen[:, None], axis=2), axis=1)
+        axes = vn[near]
+    elif len(V) in (468, 478):
+        cen = np.stack([V[list(ids)].mean(0) for ids in MP_EYES])
+        vn = vertex_normals(mesh)
+        axes = np.stack([vn[list(ids)].mean(0) for ids in MP_EYES])
+    else:
+        return None
+    axes = unit(axes)
+    for i in range(2):  # outward = towards the camera that sees the face
+        if np.dot(axes[i], towards - cen[i]) < 0:
+            axes[i] = -axes[i]
+    if mm_per_unit is None:
+        d = float(np.linalg.norm(cen[0] - cen[1]))
+        mm_per_unit = INTEROCULAR_MM / d if d > 0 else 1.0
+    R = cornea_mm / mm_per_unit
+    centres = cen - axes * (R - protrude_mm / mm_per_unit)
+    return centres, axes, R
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+class ShadeFace(Node):
+    """The "shaded face" of Paris 2003 §3: the mesh rendered in the photo's pose with the skin
+    reflectance map.
+
+    Each covered pixel looks up the map (``nodes.paris.sphere`` lat-long convention, normals in
+    the photo camera's frame) at its interpolated normal.  The photo divided by this image is
+    the detail texture (RatioImage).  Uncovered pixels are 0.  Units: linear RGB.
+    """
+
+    version = "1"
+    inputs = {"mesh": In(Mesh, "face mesh in world coordinates"),
+              "camera": In(Camera, "the photo camera"),
+              "map": In(Image, "reflectance map (ReflectanceMap.map)")}
+    outputs = {"image": Out(Image, "shaded face, the photo's size"),
+               "coverage": Out(Mask, "pixels covered by the mesh")}
+
+    class Params(Node.Params):
+        res_deg: float = Field(1.0, gt=0, le=10, description="map resolution (degrees/pixel)")
+
+    def compute(self, mesh, camera: Camera, map: Image):
+        from . import sphere
+
+        rows, cols = sphere.shape(self.params.res_deg)
+        if map.pixels.shape[:2] != (rows, cols):
+            raise BadInput("map", f"map is {map.size_str()}, a {self.params.res_deg}° map is "
+                                  f"{cols}×{rows}")
+        s = surface(mesh, camera)
+        Ncam = s.normals @ camera.pose[:3, :3].T
+        vals = sphere.sample(map.pixels.astype(np.float64), Ncam, self.params.res_deg)
+        out = np.zeros((camera.height, camera.width, map.channels), np.float32)
+        out[s.coverage] = vals
+        return {"image": Image(out), "coverage": Mask(s.coverage.astype(np.float32))}
+
+
+class Render(Node):
+    """Paris 2003 §5 rendering engine: Phong (ambient + diffuse + specular, §4) × detail texture.
+
+    * Phong per light: kd·(A + L (n·l)) + i_s·L·(r·v)^s with the skin material of
+      FitSkinPhong; L = light colour × intensity (point lights optionally fall off as 1/d²,
+      d in mesh units); A = the light's ambient × the material's ambient scale.
+    * Detail texture multiplied in (GL_MODULATE), carried on the mesh by projective texture
+      coordinates from ``texture_camera`` (the photo camera, §3); no [0, 2ⁿ] range limit.
+    * ``exposure`` multiplies the light; the result is clamped to [0, 1] *after* the texture
+      (§5 "Camera sensitivity": over-exposure when exposure > 1).
+    * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``.
+    * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
+      exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
+    Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
+    """
+
+    version = "1"
+    inputs = {"mesh": In(Mesh, "face mesh (world coordinates)"),
+              "camera": In(Camera, "the camera to render from"),
+              "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),
+              "lights": In(Light, "light sources (any number)", variadic=True),
+              "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
+              "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
+                                   optional=True)}
+    outputs = {"image": Out(Image, "rendered image (linear RGB)"),
+               "depth": Out(Image, "camera-space depth, mesh units, 0 where uncovered"),
+               "coverage": Out(Mask, "pixels covered by the mesh")}
+
+    class Params(Node.Params):
+        exposure: float = Field(1.0, gt=0, description="multiplier on the light (>1 over-exposes)")
+        clamp: bool = Field(True, description="sensor saturation: clamp to [0, 1] after the texture")
+        shadows: bool = Field(True, description="cast shadows with shadow maps")
+        shadow_map_size: int = Field(1024, ge=16, le=8192, description="shadow-map pixels per side")
+        inverse_square: bool = Field(False, description="point lights fall off as 1/d² (d in mesh units)")
+        background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="linear RGB")
+        eye_highlights: Literal["auto", "on", "off"] = Field(
+            "auto", description="auto: on when the eyes are known (mediapipe mesh or `eyes`)")
+        eyes: Optional[list[list[float]]] = Field(None, description="2×3 world centres of the eye openings")
+        cornea_radius_mm: float = Field(7.8, gt=0, description="cornea radius (mm), §5 / Wyszecki–Stiles")
+        eye_protrusion_mm: float = Field(1.5, ge=0, description="how far the cornea cap stands out of the eye opening (mm)")
+        eye_shininess: float = Field(80.0, gt=0, description="Phong exponent of the cornea")
+        eye_specular: float = Field(1.0, ge=0, description="specular intensity of the cornea")
+        mm_per_unit: Optional[float] = Field(None, gt=0, description="mesh unit in mm; default from a 63 mm interocular distance")
+
+    def compute(self, mesh, camera: Camera, material: PhongMaterial, lights,
+                detail: Image | None = None, texture_camera: Camera | None = None):
+        from nodes.common import raster
+
+        from . import phong
+
+        lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
+        if not lights:
+            raise BadInput("lights", "no light connected")
+        if detail is not None and texture_camera is None:
+            raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
+        if detail is not None:
+            check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
+        p = self.params
+        s = surface(mesh, camera, min_pixels=0)
+        H, W = camera.height, camera.width
+        M = len(s.points)
+        kd = np.asarray(material.diffuse, np.float64)
+        col = np.zeros((M, 3))
+        amb = np.zeros(3)
+        for i, light in enumerate(lights):
+            ldir, L = light_vectors(light, s.points, p.inverse_square)
+            diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
+            if M and not (diff > 0).any():
+                raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
+                                         f"position {light.position}) is behind the face: it "
+                                         f"lights none of the {M} visible pixels")
+            if p.shadows and M:
+                try:
+                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size)
+                    vis = sm.visibility(s.points, s.normals)
+                except ValueError as e:
+                    raise BadInput("lights", f"light {i}: {e}") from None
+                diff, spec = diff * vis, spec * vis
+            col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
+            amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
+        col += kd * amb
+        if detail is not None and M:
+            col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
+        if M and p.eye_highlights != "off":
+            col += self._eyes(mesh, camera, s, lights, H, W)
+        col *= p.exposure
+        if p.clamp:
+            col = np.clip(col, 0.0, 1.0)
+        img = np.empty((H, W, 3))
+        img[:] = np.asarray(p.background)
+        img[s.coverage] = col
+        depth = np.where(s.coverage, s.raster.depth, 0.0)
+        return {"image": Image(img.astype(np.float32)),
+                "depth": Image(depth.astype(np.float32)),
+                "coverage": Mask(s.coverage.astype(np.float32))}
+
+    def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
+        """Additive specular of the two cornea hemispheres at the covered pixels (M×3)."""
+        from . import phong
+
+        p = self.params
+        info = eye_spheres(mesh, p.eyes, p.cornea_radius_mm, p.mm_per_unit,
+                           p.eye_protrusion_mm, camera.position)
+        if info is None:
+            if p.eye_highlights == "on":
+                raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
+                                       "is not a mediapipe face mesh; set the `eyes` param")
+            return 0.0
+        centres, axes, R = info
+        out = np.zeros((len(s.points), 3))
+        cov_idx = np.nonzero(s.coverage.ravel())[0]
+        o = camera.position
+        # rays through the covered pixel centres
+        yy, xx = np.divmod(cov_idx, W)
+        Kinv = np.linalg.inv(camera.K)
+        dcam = np.stack([xx + 0.5, yy + 0.5, np.ones_like(xx, dtype=np.float64)], 1) @ Kinv.T
+        d = phong.unit(dcam @ camera.pose[:3, :3])  # world ray directions
+        depth = s.raster.depth.ravel()[cov_idx]
+        fwd = np.linalg.inv(camera.pose)[:3, 2]
+        for c, a in zip(centres, axes):
+            oc = o - c
+            bq = np.sum(d * oc, 1)
+            disc = bq ** 2 - (np.dot(oc, oc) - R * R)
+            hit = disc > 0
+            t = -bq - np.sqrt(np.where(hit, disc, 0))
+            X = o + d * t[:, None]
+            hit &= (t > 0) & (np.sum((X - c) * a, 1) >= 0)
+            zc = t * np.sum(d * fwd, 1)
+            hit &= zc <= depth + R * 0.35  # the cap shows where it is not behind the eyelids
+            if not hit.any():
+                continue
+            n = (X[hit] - c) / R
+            v = -d[hit]
+            for light in lights:
+                ldir, L = light_vectors(light, X[hit], p.inverse_square)
+                _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
+                out[hit] += p.eye_specular * L * spec[:, None]
+        return out
