@@ -74,7 +74,7 @@ def layer_R0_T(S, K, X):
     S = np.asarray(S, dtype=np.float64)
     K = np.asarray(K, dtype=np.float64)
     X = np.asarray(X, dtype=np.float64)
-    beta = np.sqrt(K * (K + 2.0 * S))
+    beta = np.sqrt(K) * np.sqrt(K + 2.0 * S)  # no overflow of K(K + 2S)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         y = beta * X
         y = np.where(np.isnan(y), 0.0, y)  # β = 0, X = ∞
@@ -140,8 +140,15 @@ def stack(S_list, K_list, X_list):
 
 
 def over_background(Rt, Rb, T, Rg):
-    """A stack (Rt, Rb, T) over an opaque background of reflectance Rg: Rt + T² Rg/(1 − Rb Rg)."""
-    return Rt + T * T * Rg / (1.0 - Rb * Rg)
+    """A stack (Rt, Rb, T) over an opaque background of reflectance Rg: Rt + T² Rg/(1 − Rb Rg).
+
+    Where T = 0 (an opaque stack) the background does not show, even when Rb·Rg = 1.
+    """
+    T = np.asarray(T)
+    den = 1.0 - Rb * Rg
+    with np.errstate(divide="ignore", invalid="ignore"):
+        term = T * T * Rg / den
+    return Rt + np.where(T == 0, 0.0, term)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,7 +188,7 @@ def check_invert_inputs(R, Rg, Rinf) -> tuple[str, str] | None:
         if bad.any():
             i = int(np.argmax(bad))
             return name, f"reflectance {name} must lie in [0, 1]; value {float(v.flat[i])!r} at index {i}"
-    R, Rg, Ri = (np.broadcast_arrays(*(np.asarray(x, np.float64) for x in (R, Rg, Rinf))))
+    R, Rg, Ri = (np.atleast_1d(a) for a in np.broadcast_arrays(*(np.asarray(x, np.float64) for x in (R, Rg, Rinf))))
     if (Ri <= 0).any():
         i = int(np.argmax(Ri <= 0))
         return "Rinf", f"R∞ must be > 0 (an opaque layer reflects something); 0 at index {i}"

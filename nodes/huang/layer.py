@@ -189,17 +189,20 @@ class CosmeticMap(Node):
 
     ``regions`` (one Mask per layer, bottom layer first) times ``thickness_mm`` (mm, one per
     layer) gives an H×W×n Image of thicknesses in mm (channel i = layer i), as KMStack and
-    CosmeticShade take.
+    CosmeticShade take; ``feather_px`` softens the region edges (Gaussian σ in pixels).  Where the optional ``exclude`` mask is 1 (e.g. the eyes) every layer
+    is removed: thickness × (1 − exclude).
     """
 
     version = "1"
-    inputs = {"regions": In(Mask, "one region per layer, bottom layer first", variadic=True)}
+    inputs = {"regions": In(Mask, "one region per layer, bottom layer first", variadic=True),
+              "exclude": In(Mask, "no cosmetic here (e.g. eyes)", optional=True)}
     outputs = {"thickness": Out(Image, "H×W×n layer thicknesses, mm")}
 
     class Params(Node.Params):
         thickness_mm: list[float] = Field(description="thickness of each layer where its mask is 1, mm")
+        feather_px: float = Field(0.0, ge=0, le=100, description="Gaussian blur (σ, pixels) of the region edges")
 
-    def compute(self, regions: list[Mask]):
+    def compute(self, regions: list[Mask], exclude: Mask | None = None):
         p = self.params
         if not regions:
             raise BadInput("regions", "no regions")
@@ -212,5 +215,18 @@ class CosmeticMap(Node):
             if m.alpha.shape != shape:
                 raise BadInput("regions", f"region {i} is {m.alpha.shape[1]}×{m.alpha.shape[0]} px, region 0 is "
                                f"{shape[1]}×{shape[0]} px")
-        t = np.stack([np.clip(m.alpha, 0, 1) * np.float32(d) for m, d in zip(regions, p.thickness_mm)], axis=-1)
+        def soft(a):
+            a = np.clip(a, 0, 1).astype(np.float32)
+            if p.feather_px > 0:
+                import cv2
+
+                a = cv2.GaussianBlur(a, (0, 0), p.feather_px, borderType=cv2.BORDER_REFLECT)
+            return a
+
+        t = np.stack([soft(m.alpha) * np.float32(d) for m, d in zip(regions, p.thickness_mm)], axis=-1)
+        if exclude is not None:
+            if exclude.alpha.shape != shape:
+                raise BadInput("exclude", f"exclude mask is {exclude.width}×{exclude.height} px, the regions are "
+                               f"{shape[1]}×{shape[0]} px")
+            t *= (1 - np.clip(exclude.alpha, 0, 1))[..., None]
         return Image(t, "thickness_mm")
