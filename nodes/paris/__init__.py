@@ -4,6 +4,7 @@ NODES = {
     "RatioImage": "nodes.paris.ratio:RatioImage",
     "SkinSegment": "nodes.paris.skin:SkinSegment",
     "ProbeLight": "nodes.paris.probe:ProbeLight",
+    "ShininessFromSaturation": "nodes.paris.shininess:ShininessFromSaturation",
     "ReflectanceMap": "nodes.paris.reflectance:ReflectanceMap",
     "FitSkinPhong": "nodes.paris.fit:FitSkinPhong",
     "ShadeFace": "nodes.paris.render:ShadeFace",
