@@ -225,7 +225,9 @@ def _rgb_weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     msds = colour.MultiSpectralDistributions(np.eye(n), wl)
     illum = colour.SDS_ILLUMINANTS[illuminant]
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    W = np.asarray(colour.msds_to_XYZ(msds, cmfs=cmfs, illuminant=illum), dtype=np.float64) / 100.0
+    with warnings.catch_warnings():  # colour says it aligns/trims shapes: the same as sd_to_XYZ does
+        warnings.simplefilter("ignore")
+        W = np.asarray(colour.msds_to_XYZ(msds, cmfs=cmfs, illuminant=illum), dtype=np.float64) / 100.0
     M = xyz_to_linear_srgb_matrix(illuminant)
     return W @ M.T  # (n_λ, 3)
 

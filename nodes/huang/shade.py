@@ -126,11 +126,12 @@ class CosmeticShade(Node):
             v = np.asarray(p.view, np.float64)
             v = v / max(np.linalg.norm(v), 1e-12)
             s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
-            W = km.rgb_weights(wl, p.illuminant)
+            Wf = km.rgb_weights(wl, p.illuminant)
+            Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
             for i, L in enumerate(specs):
                 grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
                 _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
-                Ti = km.lookup(Tg @ W, grid, t[..., i:i + 1]).astype(np.float64)
+                Ti = km.lookup(Tg @ Wf, grid, t[..., i:i + 1]).astype(np.float64)
                 cover = np.clip(t[..., i] / p.cover_mm, 0.0, 1.0)[..., None]
                 s = s * Ti + cover * kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None]
             spec = (s * lcol).astype(np.float32)

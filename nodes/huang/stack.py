@@ -32,7 +32,8 @@ def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=17, background_s
     interpolate multilinearly in thickness (exact where thicknesses are grid nodes, e.g. binary
     masks times a thickness).  Returns a dict of float32 (H, W, 3) arrays: ``R`` (over the
     spectral background, when given), else ``Rt``, ``Rb``, ``T`` and ``T2`` (RGB of the spectral
-    T², used to put the stack over an RGB background); always ``T``.
+    T², used to put the stack over an RGB background); always ``T``.  ``Rb``, ``T``, ``T2`` are
+    RGB filters: RGB(x)/RGB(1), so that zero thickness gives exactly 0, 1, 1.
     """
     n = S.shape[0]
     grids = km.thickness_grid([float(thickness[..., i].max()) for i in range(n)], lut_size)
@@ -61,10 +62,13 @@ def _stack_table(S, K, wl, grids, illuminant, bg):
     full = shape + (wl.size,)
     Rt, Rb, T = (np.broadcast_to(a, full) for a in (Rt, Rb, T))
     W = km.rgb_weights(wl, illuminant)
+    # quantities that multiply light (T, T², Rb·Rg) are RGB filters: divided by the RGB of the
+    # spectrally flat 1, so that no layer gives exactly 1 (the white's RGB is 1 ± 1e-4)
+    Wf = W / W.sum(axis=0)
     if bg is not None:
-        tab = [km.over_background(Rt, Rb, T, bg) @ W, T @ W]
+        tab = [km.over_background(Rt, Rb, T, bg) @ W, T @ Wf]
     else:
-        tab = [Rt @ W, Rb @ W, T @ W, (T * T) @ W]
+        tab = [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
     tab = [np.ascontiguousarray(x, np.float32) for x in tab]
     if len(_TABLES) > 64:
         _TABLES.clear()

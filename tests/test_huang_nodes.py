@@ -1,0 +1,356 @@
+"""Huang 2013 nodes: KMLayer, KMInvert, CosmeticMap, KMStack, CosmeticShade; library; bad input."""
+from __future__ import annotations
+
+import csv
+import inspect
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graphkit import BadInput, Context, Image, Light, Mask, Spectrum
+from nodes.common.microfacet import kelemen_specular
+from nodes.huang import km
+from nodes.huang.layer import CosmeticMap, KMInvert, KMLayer
+from nodes.huang.library import cosmetic_names, get_cosmetic, layer_arrays, load_library, skin_spectrum
+from nodes.huang.shade import CosmeticShade
+from nodes.huang.stack import KMStack
+
+pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
+DATA = Path(__file__).resolve().parents[1] / "nodes" / "huang" / "data"
+SET3 = ["foundation_light", "blush_rose", "lipstick_red"]
+
+
+def run(cls, inputs=None, ctx=None, **params):
+    return cls(cls.Params(**params), ctx or Context()).compute(**(inputs or {}))
+
+
+# --------------------------------------------------------------------------------------------
+# library
+
+
+def test_library_is_documented_examples_derived_by_kminvert():
+    lib = load_library()
+    assert "not measured products" in lib["description"].lower() or "examples" in lib["description"].lower()
+    import colour
+
+    shape = colour.SpectralShape(380, 780, 5)
+    for name in cosmetic_names():
+        c = lib["cosmetics"][name]
+        csv_path = DATA / "samples" / f"{name}.csv"
+        # the library's S, K are what KMInvert gives for the sample CSV
+        res = run(KMInvert, path=str(csv_path), thickness_mm=lib["sample_thickness_mm"])
+        np.testing.assert_allclose(c["S_per_mm"], res["S"].values, rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(c["K_per_mm"], res["K"].values, rtol=1e-9, atol=1e-11)
+        # and an opaque layer of it reflects the measured ColorChecker spectrum (outside data)
+        patch = c["source"].split("'")[1]
+        rinf = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"][patch].copy().align(shape).values
+        np.testing.assert_allclose(km.r_infinity(np.array(c["S_per_mm"]), np.array(c["K_per_mm"])), rinf, rtol=1e-9)
+
+
+def test_unknown_cosmetic_is_bad_input():
+    with pytest.raises(BadInput) as e:
+        get_cosmetic("lipstik_red")
+    assert e.value.port == "cosmetics" and "lipstick_red" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": Image(np.zeros((2, 2, 1)))}, cosmetics=["nope"])
+    assert e.value.port == "cosmetics" and "unknown cosmetic 'nope'" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, cosmetic="nope")
+    assert e.value.port == "cosmetic"
+
+
+# --------------------------------------------------------------------------------------------
+# KMLayer / KMInvert
+
+
+def test_kmlayer_outputs():
+    res = run(KMLayer, cosmetic="lipstick_red", thickness_mm=0.04)
+    spec = get_cosmetic("lipstick_red")
+    R0, T = km.layer_R0_T(np.array(spec.S), np.array(spec.K), 0.04)
+    np.testing.assert_array_equal(res["R0"].values, R0)
+    np.testing.assert_array_equal(res["T"].values, T)
+    np.testing.assert_allclose(res["R0_rgb"].pixels[0, 0], km.spectral_to_rgb(R0, res["R0"].wavelengths), atol=1e-6)
+    assert res["layer"].thickness_mm == 0.04 and res["layer"].name == "lipstick_red"
+    # thickness map: per pixel, exact at grid nodes (0 and max) and close in between
+    t = np.array([[0.0, 0.01, 0.04]], np.float32)[..., None]
+    res = run(KMLayer, {"thickness": Image(t)}, cosmetic="lipstick_red", illuminant="A")
+    for x, d in enumerate((0.0, 0.01, 0.04)):
+        R0, T = km.layer_R0_T(np.array(spec.S), np.array(spec.K), float(np.float32(d)))
+        np.testing.assert_allclose(res["T_rgb"].pixels[0, x], km.spectral_to_rgb(T, km.WAVELENGTHS, "A"), atol=1e-4)
+    np.testing.assert_allclose(res["T_rgb"].pixels[0, 0], km.spectral_to_rgb(np.ones(81), km.WAVELENGTHS, "A"), atol=1e-6)
+
+
+def test_kmlayer_from_spectra_and_bad_coefficients():
+    wl = np.arange(400.0, 701.0, 10.0)
+    S, K = Spectrum(wl, np.full(wl.size, 5.0)), Spectrum(wl, np.linspace(0.1, 2, wl.size))
+    res = run(KMLayer, {"S": S, "K": K}, thickness_mm=0.1, name="mine")
+    np.testing.assert_array_equal(res["R0"].values, km.layer_R0_T(5.0, K.values, 0.1)[0])
+    assert res["layer"].name == "mine"
+    bad = Spectrum(wl, np.where(wl == 550, -0.5, 1.0))
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, {"S": bad, "K": K})
+    assert e.value.port == "S" and "≥ 0" in e.value.message and "550" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, {"S": S, "K": Spectrum(wl, -K.values)})
+    assert e.value.port == "S" and "K must be ≥ 0" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, {"S": S})
+    assert e.value.port == "K"
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, cosmetic="lipstick_red", illuminant="D66")
+    assert e.value.port == "illuminant"
+
+
+def _write_csv(path, wl, R, Rg, Ri):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["wavelength", "R", "Rg", "Rinf"])
+        for row in zip(wl, R, Rg, Ri):
+            w.writerow([repr(float(x)) for x in row])
+
+
+def test_kminvert_round_trips_from_csv_and_spectra(tmp_path):
+    rng = np.random.default_rng(11)
+    wl = km.WAVELENGTHS
+    S, K = rng.uniform(1, 40, wl.size), rng.uniform(0.05, 8, wl.size)
+    D = 0.15
+    for Rg in (np.zeros(wl.size), rng.uniform(0.05, 0.6, wl.size)):
+        R, Ri = km.reflectance_over(S, K, D, Rg), km.r_infinity(S, K)
+        _write_csv(tmp_path / "m.csv", wl, R, Rg, Ri)
+        res = run(KMInvert, path="m.csv", thickness_mm=D, ctx=Context(base_dir=str(tmp_path)))
+        np.testing.assert_allclose(res["S"].values, S, rtol=1e-9)
+        np.testing.assert_allclose(res["K"].values, K, rtol=1e-9)
+        res2 = run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, Rg), "Rinf": Spectrum(wl, Ri)}, thickness_mm=D)
+        np.testing.assert_allclose(res2["K"].values, K, rtol=1e-9)
+        # and the layer goes back through KMLayer to the same R over the background
+        lay = run(KMLayer, {"S": res["S"], "K": res["K"]}, thickness_mm=D)
+        np.testing.assert_allclose(km.over_background(lay["R0"].values, lay["R0"].values, lay["T"].values, Rg), R,
+                                   rtol=1e-12)
+
+
+def test_kminvert_bad_measurements(tmp_path):
+    wl = km.WAVELENGTHS
+    Ri = np.full(wl.size, 0.4)
+    z = np.zeros(wl.size)
+    # R∞ ≤ R over a black background
+    R = np.full(wl.size, 0.3)
+    R[10] = 0.45
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl, Ri)})
+    assert e.value.port == "R" and "R < R∞" in e.value.message
+    # reflectance outside [0, 1], from a CSV: the path param is named
+    R2 = R.copy()
+    R2[3] = 1.3
+    _write_csv(tmp_path / "bad.csv", wl, R2, z, Ri)
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, path=str(tmp_path / "bad.csv"))
+    assert e.value.port == "path" and "[0, 1]" in e.value.message
+    (tmp_path / "cols.csv").write_text("wavelength,R,Rinf\n400,0.1,0.2\n410,0.1,0.2\n")
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, path=str(tmp_path / "cols.csv"))
+    assert "no column 'rg'" in e.value.message
+    with pytest.raises(BadInput):
+        run(KMInvert, path=str(tmp_path / "missing.csv"))
+
+
+# --------------------------------------------------------------------------------------------
+# CosmeticMap / KMStack
+
+
+def test_cosmetic_map():
+    a = np.zeros((4, 5), np.float32)
+    a[1:3, 1:4] = 1
+    b = np.ones((4, 5), np.float32) * 0.5
+    ex = np.zeros((4, 5), np.float32)
+    ex[0, 0] = 1
+    t = run(CosmeticMap, {"regions": [Mask(a), Mask(b)], "exclude": Mask(ex)}, thickness_mm=[0.02, 0.04])
+    assert t.pixels.shape == (4, 5, 2)
+    np.testing.assert_allclose(t.pixels[..., 0], a * 0.02, rtol=1e-6)
+    assert t.pixels[0, 0, 1] == 0 and t.pixels[3, 4, 1] == pytest.approx(0.02)
+    with pytest.raises(BadInput) as e:
+        run(CosmeticMap, {"regions": [Mask(a), Mask(np.ones((3, 5)))]}, thickness_mm=[0.02, 0.04])
+    assert e.value.port == "regions"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticMap, {"regions": [Mask(a)]}, thickness_mm=[0.02, 0.04])
+    assert e.value.port == "thickness_mm"
+
+
+def test_kmstack_equals_spectral_stack_and_limits():
+    wl, S, K = layer_arrays([get_cosmetic(n) for n in SET3])
+    skin = skin_spectrum(wl)
+    t = np.array([[[0.0, 0.0, 0.0], [0.03, 0.0, 0.0], [0.03, 0.02, 0.0], [0.03, 0.02, 0.05]]], np.float32)
+    out = run(KMStack, {"thickness": Image(t)}, cosmetics=SET3)
+    for x in range(4):
+        Rt, Rb, T = km.stack(list(S), list(K), [float(v) for v in t[0, x]])
+        np.testing.assert_allclose(out["reflectance"].pixels[0, x],
+                                   km.spectral_to_rgb(km.over_background(Rt, Rb, T, skin), wl), atol=2e-6)
+        white = km.spectral_to_rgb(np.ones(wl.size), wl)
+        np.testing.assert_allclose(out["transmittance"].pixels[0, x], km.spectral_to_rgb(T, wl) / white, atol=2e-6)
+    # no makeup = the skin; the layers from KMLayer nodes = the same as by name
+    np.testing.assert_allclose(out["reflectance"].pixels[0, 0], km.spectral_to_rgb(skin, wl), atol=2e-6)
+    layers = [run(KMLayer, cosmetic=n)["layer"] for n in SET3]
+    out2 = run(KMStack, {"thickness": Image(t), "layers": layers})
+    np.testing.assert_array_equal(out2["reflectance"].pixels, out["reflectance"].pixels)
+    # a very thick top layer hides everything below: R = RGB of its R∞
+    t_thick = np.array([[[0.03, 0.02, 50.0]]], np.float32)
+    out = run(KMStack, {"thickness": Image(t_thick)}, cosmetics=SET3)
+    np.testing.assert_allclose(out["reflectance"].pixels[0, 0], km.spectral_to_rgb(km.r_infinity(S[2], K[2]), wl), atol=2e-6)
+    assert np.abs(out["transmittance"].pixels).max() < 1e-6
+
+
+def test_kmstack_rgb_background_formula():
+    t = np.zeros((3, 4, 3), np.float32)
+    t[1:, :, 0] = 0.03
+    t[:, 2:, 2] = 0.05
+    rho = np.random.default_rng(2).uniform(0.1, 0.8, (3, 4, 3)).astype(np.float32)
+    out = run(KMStack, {"thickness": Image(t), "background": Image(rho)}, cosmetics=SET3)
+    np.testing.assert_array_equal(out["reflectance"].pixels[0, :2], rho[0, :2])  # bare skin stays, exactly
+    wl, S, K = layer_arrays([get_cosmetic(n) for n in SET3])
+    W = km.rgb_weights(wl)
+    white = km.spectral_to_rgb(np.ones(wl.size), wl)
+    Rt, Rb, T = km.stack(list(S), list(K), [float(v) for v in t[2, 3]])
+    want = Rt @ W + ((T * T) @ W / white) * rho[2, 3] / (1 - (Rb @ W / white) * rho[2, 3])
+    np.testing.assert_allclose(out["reflectance"].pixels[2, 3], want, atol=2e-6)
+
+
+def test_kmstack_bad_input():
+    t = Image(np.zeros((4, 5, 3), np.float32))
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": t, "background": Image(np.zeros((4, 6, 3)))}, cosmetics=SET3)
+    assert e.value.port == "thickness" and "5×4" in e.value.message and "6×4" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": t}, cosmetics=SET3[:2])
+    assert e.value.port == "thickness" and "3 channels but there are 2 layers" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": Image(-np.ones((4, 5, 3)))}, cosmetics=SET3)
+    assert e.value.port == "thickness" and "≥ 0" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": t, "background": Image(np.full((4, 5, 3), 1.5))}, cosmetics=SET3)
+    assert e.value.port == "background" and "[0, 1]" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": t, "background_spectrum": Spectrum(km.WAVELENGTHS, np.full(81, -0.1))},
+            cosmetics=SET3)
+    assert e.value.port == "background_spectrum"
+    nan = np.zeros((4, 5, 3), np.float32)
+    nan[1, 1, 1] = np.nan
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": Image(nan)}, cosmetics=SET3)
+    assert "NaN" in e.value.message
+
+
+# --------------------------------------------------------------------------------------------
+# CosmeticShade
+
+
+def test_cosmetic_shade_uses_the_shared_sss_and_microfacet():
+    src = inspect.getsource(CosmeticShade.compute)
+    assert "from nodes.common.sss import sss_blur" in src
+    assert "from nodes.common.microfacet import kelemen_specular" in src
+
+
+def test_cosmetic_shade_uniform_light_equals_kmstack():
+    h, w = 12, 14
+    t = np.zeros((h, w, 3), np.float32)
+    t[..., 0] = 0.03
+    t[..., 1] = 0.02
+    rho = np.full((h, w, 3), [0.55, 0.38, 0.3], np.float32)
+    E = np.full((h, w, 3), [2.0, 1.5, 1.0], np.float32)
+    ref = run(KMStack, {"thickness": Image(t), "background": Image(rho)}, cosmetics=SET3)["reflectance"].pixels
+    for sss in (False, True):  # SSS of a uniform irradiance is the identity
+        out = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "irradiance": Image(E)},
+                  cosmetics=SET3, sss=sss, mm_per_pixel=0.5)
+        np.testing.assert_allclose(out["diffuse"].pixels, ref * E, rtol=1e-5, atol=1e-6)
+        assert (out["specular"].pixels == 0).all()
+
+
+def test_cosmetic_shade_sss_blurs_only_the_transmitted_light():
+    h, w = 24, 40
+    t = np.zeros((h, w, 1), np.float32)
+    t[:, w // 2:, 0] = 0.05  # lipstick on the right half
+    rho = np.full((h, w, 3), 0.5, np.float32)
+    a = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t)}, cosmetics=["lipstick_red"], sss=False)
+    b = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t)}, cosmetics=["lipstick_red"], sss=True,
+            mm_per_pixel=2.0)  # widest profile Gaussian: σ = 2.7 mm = 1.4 px
+    d = np.abs(a["diffuse"].pixels - b["diffuse"].pixels).max(axis=(0, 2))
+    assert d[: w // 2 - 12].max() < 1e-5 and d[w // 2 + 12:].max() < 1e-5  # far from the edge: unchanged
+    assert d[w // 2 - 2: w // 2 + 2].max() > 1e-3                           # at the edge: light bleeds
+
+
+def test_cosmetic_shade_specular_bottom_to_top():
+    h, w = 3, 4
+    rng = np.random.default_rng(9)
+    n = rng.normal(size=(h, w, 3)) * 0.2 + [0, 0, -1]
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    light = Light(direction=(0.2, -0.3, -1.0), intensity=1.5, color=(1.0, 0.9, 0.8))
+    l = np.array(light.direction) / np.linalg.norm(light.direction)
+    v = np.array([0.0, 0.0, -1.0])
+    rho = np.full((h, w, 3), 0.5, np.float32)
+    t = np.zeros((h, w, 2), np.float32)
+    t[:, 2:, 0] = 0.03
+    t[1:, :, 1] = 0.05
+    names = ["foundation_light", "lipstick_red"]
+    out = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "normals": Image(n), "light": light},
+              cosmetics=names, cover_mm=0.005)
+    specs = [get_cosmetic(x) for x in names]
+    wl, S, K = layer_arrays(specs)
+    W = km.rgb_weights(wl)
+    lc = np.array(light.color) * light.intensity
+    for y in range(h):
+        for x in range(w):
+            s = kelemen_specular(n[y, x], l, v, 0.35, 0.18, 0.028) * np.ones(3)
+            for i, L in enumerate(specs):
+                d = float(t[y, x, i])
+                Ti = km.layer_R0_T(S[i], K[i], d)[1] @ W / W.sum(axis=0)
+                s = s * Ti + min(1.0, d / 0.005) * kelemen_specular(n[y, x], l, v, L.m, L.rho_s, L.f0)
+            np.testing.assert_allclose(out["specular"].pixels[y, x], s * lc, rtol=1e-5, atol=1e-7)
+    # irradiance from normals and light: E = colour·intensity·max(N·L, 0) + ambient
+    bare = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(np.zeros((h, w, 2), np.float32)),
+                               "normals": Image(n), "light": light}, cosmetics=names, sss=False)
+    E = np.maximum(n @ l, 0)[..., None] * lc
+    np.testing.assert_allclose(bare["diffuse"].pixels, rho * E, rtol=1e-5, atol=1e-6)
+
+
+def test_cosmetic_shade_bad_input():
+    rho = Image(np.full((4, 5, 3), 0.5, np.float32))
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 4, 1)))}, cosmetics=["lipstick_red"])
+    assert e.value.port == "thickness"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(np.full((4, 5, 3), 2.0)), "thickness": Image(np.zeros((4, 5, 1)))},
+            cosmetics=["lipstick_red"])
+    assert e.value.port == "albedo"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1))), "light": Light(kind="point")},
+            cosmetics=["lipstick_red"])
+    assert e.value.port == "light"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1)))}, cosmetics=["lipstick"])
+    assert e.value.port == "cosmetics"
+
+
+# --------------------------------------------------------------------------------------------
+# through the CLI: a clear message naming node and port, exit 2, no traceback
+
+
+def test_cli_bad_cosmetic_name(tmp_path):
+    from conftest import graphkit
+
+    g = tmp_path / "g.yaml"
+    g.write_text("""graphkit: 1
+name: bad
+nodes:
+  layer:
+    type: KMLayer
+    params: {cosmetic: lipstik_red}
+outputs:
+  r0: layer.R0
+""")
+    import os
+
+    env = dict(os.environ)
+    env.pop("GRAPHKIT_TRACEBACK", None)
+    r = graphkit("run", g, "--out", tmp_path / "out", "--cache", tmp_path / "cache", env=env)
+    assert r.returncode == 2, r.stderr
+    assert "layer" in r.stderr and "cosmetic" in r.stderr and "lipstick_red" in r.stderr
+    assert "Traceback" not in r.stderr
