@@ -9,4 +9,7 @@ NODES = {
     "FitSkinPhong": "nodes.paris.fit:FitSkinPhong",
     "ShadeFace": "nodes.paris.render:ShadeFace",
     "Render": "nodes.paris.render:Render",
+    "MakeLight": "nodes.paris.render:MakeLight",
+    "LoadCameraJson": "nodes.paris.render:LoadCameraJson",
+    "FrameFace": "nodes.paris.render:FrameFace",
 }

@@ -31,7 +31,8 @@ class FitSkinPhong(Node):
               "mesh": In(Mesh, "face mesh registered to the photo"),
               "camera": In(Camera, "the photo camera"),
               "light": In(Light, "the flash (ProbeLight.light)"),
-              "shininess": In(Scalar, "Phong exponent s (ShininessFromSaturation)")}
+              "shininess": In(Scalar, "Phong exponent s (ShininessFromSaturation); "
+                                      "default: the `shininess` param", optional=True)}
     outputs = {"material": Out(PhongMaterial, "skin material and residual"),
                "light": Out(Light, "the flash with the fitted ambient"),
                "rendered": Out(Image, "the Phong render of the fitted parameters (photo pose)")}
@@ -43,12 +44,16 @@ class FitSkinPhong(Node):
         fit_ambient: bool = Field(True, description="optimise the ambient intensity afterwards (§4.1)")
         iterations: int = Field(60, ge=1, description="descent iterations per level")
         skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
+        shininess: float = Field(10.0, gt=0, description="Phong exponent used when the input is not connected")
 
-    def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light, shininess):
+    def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
+                shininess=None):
         from .render import check_camera_matches, light_vectors, surface
         from . import phong
 
         p = self.params
+        if shininess is None:
+            shininess = p.shininess
         check_camera_matches(camera, image)
         if skin.alpha.shape != image.pixels.shape[:2]:
             raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "

@@ -12,7 +12,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, InputFile, Light, Mask, Mesh, Node, Out
 
 from .models import PhongMaterial
 
@@ -79,6 +79,43 @@ def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Su
     flip = np.sum(N * Vd, axis=1) < 0
     N[flip] *= -1
     return Surface(r, cov, P, N, Vd)
+
+
+def close_holes(mesh):
+    """The mesh with its inner holes closed (eyes, mouth of a face mask), the outer boundary
+    (the longest boundary loop) kept: each hole gets a fan of triangles around its centroid,
+    wound like its neighbours.  Returns the mesh itself when there is no inner hole."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(mesh.faces, np.int64)
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    bnd = e[cnt[inv.ravel()] == 1]
+    if len(bnd) == 0:
+        return mesh
+    nv = len(mesh.vertices)
+    g = coo_matrix((np.ones(len(bnd)), (bnd[:, 0], bnd[:, 1])), shape=(nv, nv))
+    ncomp, lab = connected_components(g, directed=False)
+    comp = lab[bnd[:, 0]]
+    ids, sizes = np.unique(comp, return_counts=True)
+    if len(ids) < 2:
+        return mesh
+    outer = ids[np.argmax(sizes)]
+    V = np.asarray(mesh.vertices, np.float64)
+    newV, newF = [V], [F]
+    n = nv
+    for c in ids:
+        if c == outer:
+            continue
+        loop = bnd[comp == c]
+        centre = V[np.unique(loop)].mean(0)
+        newV.append(centre[None])
+        newF.append(np.stack([loop[:, 1], loop[:, 0], np.full(len(loop), n)], 1))
+        n += 1
+    return trimesh.Trimesh(np.vstack(newV), np.vstack(newF), process=False)
 
 
 def vertex_normals(mesh) -> np.ndarray:
@@ -192,6 +229,7 @@ class ShadeFace(Node):
 
     class Params(Node.Params):
         res_deg: float = Field(1.0, gt=0, le=10, description="map resolution (degrees/pixel)")
+        fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) as Render does")
 
     def compute(self, mesh, camera: Camera, map: Image):
         from . import sphere
@@ -200,7 +238,8 @@ class ShadeFace(Node):
         if map.pixels.shape[:2] != (rows, cols):
             raise BadInput("map", f"map is {map.size_str()}, a {self.params.res_deg}° map is "
                                   f"{cols}×{rows}")
-        s = surface(mesh, camera)
+        check_mesh(mesh)
+        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera)
         Ncam = s.normals @ camera.pose[:3, :3].T
         vals = sphere.sample(map.pixels.astype(np.float64), Ncam, self.params.res_deg)
         out = np.zeros((camera.height, camera.width, map.channels), np.float32)
@@ -231,7 +270,9 @@ class Render(Node):
               "lights": In(Light, "light sources (any number)", variadic=True),
               "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
               "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
-                                   optional=True)}
+                                   optional=True),
+              "ambient": In(Light, "a light whose ambient term is added (e.g. FitSkinPhong.light); "
+                                   "its direct part is ignored", optional=True)}
     outputs = {"image": Out(Image, "rendered image (linear RGB)"),
                "depth": Out(Image, "camera-space depth, mesh units, 0 where uncovered"),
                "coverage": Out(Mask, "pixels covered by the mesh")}
@@ -251,9 +292,12 @@ class Render(Node):
         eye_shininess: float = Field(80.0, gt=0, description="Phong exponent of the cornea")
         eye_specular: float = Field(1.0, ge=0, description="specular intensity of the cornea")
         mm_per_unit: Optional[float] = Field(None, gt=0, description="mesh unit in mm; default from a 63 mm interocular distance")
+        fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) so the detail texture covers them")
+        ambient_gain: float = Field(1.0, ge=0, description="multiplier on the ambient of the `ambient` input")
 
     def compute(self, mesh, camera: Camera, material: PhongMaterial, lights,
-                detail: Image | None = None, texture_camera: Camera | None = None):
+                detail: Image | None = None, texture_camera: Camera | None = None,
+                ambient: Light | None = None):
         from nodes.common import raster
 
         from . import phong
@@ -266,6 +310,10 @@ class Render(Node):
         if detail is not None:
             check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
         p = self.params
+        eye_mesh = mesh
+        check_mesh(mesh)
+        if p.fill_holes:
+            mesh = close_holes(mesh)
         s = surface(mesh, camera, min_pixels=0)
         H, W = camera.height, camera.width
         M = len(s.points)
@@ -288,24 +336,26 @@ class Render(Node):
                 diff, spec = diff * vis, spec * vis
             col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
+        if ambient is not None:
+            amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
         col += kd * amb
         if detail is not None and M:
             col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
-        if M and p.eye_highlights != "off":
-            col += self._eyes(mesh, camera, s, lights, H, W)
-        col *= p.exposure
-        if p.clamp:
-            col = np.clip(col, 0.0, 1.0)
         img = np.empty((H, W, 3))
         img[:] = np.asarray(p.background)
         img[s.coverage] = col
+        if M and p.eye_highlights != "off":
+            img += self._eyes(eye_mesh, camera, s, lights, H, W).reshape(H, W, 3)
+        img *= p.exposure
+        if p.clamp:
+            img = np.clip(img, 0.0, 1.0)
         depth = np.where(s.coverage, s.raster.depth, 0.0)
         return {"image": Image(img.astype(np.float32)),
                 "depth": Image(depth.astype(np.float32)),
                 "coverage": Mask(s.coverage.astype(np.float32))}
 
     def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
-        """Additive specular of the two cornea hemispheres at the covered pixels (M×3)."""
+        """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
         from . import phong
 
         p = self.params
@@ -317,8 +367,8 @@ class Render(Node):
                                        "is not a mediapipe face mesh; set the `eyes` param")
             return 0.0
         centres, axes, R = info
-        out = np.zeros((len(s.points), 3))
-        cov_idx = np.nonzero(s.coverage.ravel())[0]
+        out = np.zeros((H * W, 3))
+        cov_idx = np.arange(H * W)
         o = camera.position
         # rays through the covered pixel centres
         yy, xx = np.divmod(cov_idx, W)
@@ -346,3 +396,108 @@ class Render(Node):
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
                 out[hit] += p.eye_specular * L * spec[:, None]
         return out
+
+
+class MakeLight(Node):
+    """A light source from params (Paris 2003 §4: the flash, or a light to relight with).
+
+    The direction (towards the light, camera frame, OpenCV axes) is given either as a vector
+    or by ``azimuth_deg`` (positive: towards the image's right) and ``elevation_deg``
+    (positive: up) around the axis pointing back at the camera; 0, 0 is a frontal light.
+    Units: degrees; ``position`` in mesh units (point lights).
+    """
+
+    version = "1"
+    outputs = {"light": Out(Light, "the light")}
+
+    class Params(Node.Params):
+        kind: Literal["directional", "point"] = Field("directional", description="light kind")
+        azimuth_deg: float = Field(0.0, ge=-180, le=180, description="left/right angle from the camera axis (degrees, + = right)")
+        elevation_deg: float = Field(0.0, ge=-90, le=90, description="up/down angle (degrees, + = up)")
+        direction: Optional[tuple[float, float, float]] = Field(None, description="explicit direction towards the light (overrides the angles)")
+        position: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="point-light position (mesh units)")
+        color: tuple[float, float, float] = Field((1.0, 1.0, 1.0), description="linear RGB hue")
+        intensity: float = Field(1.0, ge=0, description="scale on the colour (1 = the flash of the photo)")
+        ambient: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ambient radiance, linear RGB")
+
+    def compute(self):
+        p = self.params
+        if p.direction is not None:
+            d = np.asarray(p.direction, np.float64)
+            if not np.linalg.norm(d) > 0:
+                raise BadInput("direction", "the light direction is the zero vector")
+            d = d / np.linalg.norm(d)
+        else:
+            a, e = np.radians(p.azimuth_deg), np.radians(p.elevation_deg)
+            d = np.array([np.sin(a) * np.cos(e), -np.sin(e), -np.cos(a) * np.cos(e)])
+        return Light(kind=p.kind, direction=tuple(float(v) for v in d), position=p.position,
+                     color=p.color, intensity=p.intensity, ambient=p.ambient)
+
+
+class LoadCameraJson(Node):
+    """Read a :class:`graphkit.Camera` (pinhole intrinsics in pixels + 4×4 world→camera pose,
+    OpenCV axes) from a JSON file with the Camera's fields (Paris 2003 §1: the calibrated
+    photograph's projection)."""
+
+    version = "1"
+    outputs = {"camera": Out(Camera, "the camera")}
+
+    class Params(Node.Params):
+        path: InputFile = Field(description="JSON file with width, height, fx, fy, cx, cy, world_to_camera")
+
+    def compute(self):
+        import json
+
+        path = self.resolve_file("path", self.params.path, self.ctx.base_dir)
+        try:
+            with open(path) as f:
+                data = json.load(f)
+            return Camera.model_validate(data)
+        except (OSError, ValueError) as e:
+            raise BadInput("path", f"cannot read a camera from {path}: {e}") from None
+
+
+class FrameFace(Node):
+    """A camera framing the mesh: the same pose as ``camera``, intrinsics zoomed so the mesh's
+    projection fills a ``size``² image with a margin; with ``image`` (taken by ``camera``)
+    also that image resampled into the new view (bilinear).  For close-ups of a face that is
+    small in its photo (Render takes the camera; the photo keeps its own camera as
+    ``texture_camera``).  Units: pixels.
+    """
+
+    version = "1"
+    inputs = {"mesh": In(Mesh, "the mesh to frame"),
+              "camera": In(Camera, "the original camera"),
+              "image": In(Image, "an image taken by `camera`, to resample", optional=True)}
+    outputs = {"camera": Out(Camera, "the framing camera"),
+               "image": Out(Image, "the image in the framing camera (black if no image)")}
+
+    class Params(Node.Params):
+        size: int = Field(256, ge=8, le=8192, description="output width and height (pixels)")
+        margin: float = Field(0.12, ge=0, lt=2, description="margin around the mesh, fraction of its size")
+
+    def compute(self, mesh, camera: Camera, image: Image | None = None):
+        check_mesh(mesh)
+        if image is not None:
+            check_camera_matches(camera, image, "image", "image")
+        xy, z = camera.project(np.asarray(mesh.vertices, np.float64))
+        ok = z > 0
+        if not ok.any():
+            raise BadInput("mesh", "the mesh is behind the camera")
+        lo, hi = xy[ok].min(0), xy[ok].max(0)
+        side = float(max(hi - lo)) * (1 + 2 * self.params.margin)
+        if not side > 0:
+            raise BadInput("mesh", "the mesh projects to a point")
+        n = self.params.size
+        k = n / side  # new pixels per old pixel
+        c = (lo + hi) / 2
+        cam = Camera(width=n, height=n, fx=camera.fx * k, fy=camera.fy * k,
+                     cx=(camera.cx - c[0]) * k + n / 2, cy=(camera.cy - c[1]) * k + n / 2,
+                     world_to_camera=camera.world_to_camera)
+        out = np.zeros((n, n, image.channels if image is not None else 3), np.float32)
+        if image is not None:
+            yy, xx = np.mgrid[0:n, 0:n]
+            u = (xx.ravel() + 0.5 - n / 2) / k + c[0]
+            v = (yy.ravel() + 0.5 - n / 2) / k + c[1]
+            out = _bilinear(image.pixels.astype(np.float64), u, v).reshape(n, n, -1).astype(np.float32)
+        return {"camera": cam, "image": Image(out)}
