@@ -365,7 +365,7 @@ class Render(Node):
             if p.eye_highlights == "on":
                 raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                        "is not a mediapipe face mesh; set the `eyes` param")
-            return 0.0
+            return np.zeros((H * W, 3))
         centres, axes, R = info
         out = np.zeros((H * W, 3))
         cov_idx = np.arange(H * W)

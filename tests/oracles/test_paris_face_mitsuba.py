@@ -75,8 +75,8 @@ def run():
         notes.append("ProbeLight not installed: the known flash direction is used")
     rmap = ReflectanceMap().compute(image=photo, mesh=m, camera=cam, skin=skin)
     if "ShininessFromSaturation" in reg.node_names():
-        s = float(reg.node_class("ShininessFromSaturation")().compute(
-            reflectance=rmap["map"], light=flash)["shininess"])
+        res = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash)
+        s = float(res["shininess"] if isinstance(res, dict) else res)
         notes.append(f"ShininessFromSaturation: s = {s:.1f}")
     else:
         s = mc.phong_exponent_of_beckmann()
