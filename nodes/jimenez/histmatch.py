@@ -1,7 +1,7 @@
 """Approximate local histogram matching and the appearance rig (Jimenez et al. 2010 §4.1, §4.2).
 
 Local statistics under a disc of radius r (eq. 1) are computed with FFT convolution
-(scipy.fft, float32 on mean-centred data): the cost per pixel is O(log(N + r)), i.e. it does not grow with r while
+(scipy.fft; float32 on mean-centred data, float64 with a mask): the cost per pixel is O(log(N + r)), i.e. it does not grow with r while
 r ≪ N, and r beyond the image diagonal short-cuts to global statistics.  The disc is the set of
 integer offsets with dx² + dy² ≤ r²; statistics use only pixels inside the image (and inside
 the optional mask): μ = (H·M ∗ f)/(M ∗ f), which equals ``cv2.filter2D`` with the normalised
@@ -27,11 +27,11 @@ def disc_kernel(r: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _kernel_fft(r: float, ph: int, pw: int) -> np.ndarray:
+def _kernel_fft(r: float, ph: int, pw: int, dtype: str = "float32") -> np.ndarray:
     import scipy.fft as sf
 
     R = int(np.floor(r))
-    k = np.zeros((ph, pw), np.float32)
+    k = np.zeros((ph, pw), dtype)
     y, x = np.nonzero(disc_kernel(r))
     k[(y - R) % ph, (x - R) % pw] = 1.0
     f = sf.rfft2(k, workers=-1)
@@ -48,20 +48,20 @@ def fft_shape(H: int, W: int, r: float) -> tuple[int, int]:
     return sf.next_fast_len(H + R, real=True), sf.next_fast_len(W + R, real=True)
 
 
-def disc_sums(maps: np.ndarray, r: float, workers: int | None = -1) -> np.ndarray:
+def disc_sums(maps: np.ndarray, r: float, workers: int | None = -1, dtype=np.float32) -> np.ndarray:
     """Sums of each (…, H, W) map over the disc of radius r (pixels) around every pixel.
 
-    Pixels outside the image count as 0.  Linear convolution by single-precision FFT
-    (``scipy.fft``); callers centre their data so that the float32 round-off stays ~1e-7 of
-    the data's spread.
+    Pixels outside the image count as 0.  Linear convolution by FFT (``scipy.fft``) in
+    ``dtype`` (float32 by default: callers centre their data so that the round-off stays
+    ~1e-7 of the data's spread).
     """
     import scipy.fft as sf
 
-    maps = np.asarray(maps, np.float32)
+    maps = np.asarray(maps, dtype)
     H, W = maps.shape[-2:]
     ph, pw = fft_shape(H, W, r)
     fm = sf.rfft2(maps, s=(ph, pw), workers=workers)
-    fm *= _kernel_fft(float(r), ph, pw)
+    fm *= _kernel_fft(float(r), ph, pw, np.dtype(dtype).name)
     return sf.irfft2(fm, s=(ph, pw), workers=workers)[..., :H, :W]
 
 
@@ -111,8 +111,10 @@ def local_mean_std(h: np.ndarray, r: float, mask: np.ndarray | None = None,
             sd[i] = np.sqrt(var)
         return (mu[0], sd[0], wsum) if single else (mu, sd, wsum)
     k = 2 * n + (0 if m is None else 1)
-    stack = np.empty((k, H, W), np.float32)
-    m32 = None if m is None else m.astype(np.float32)
+    # with a mask, few pixels may fall under the disc: divide by small counts in float64
+    dt = np.float32 if m is None else np.float64
+    stack = np.empty((k, H, W), dt)
+    m32 = None if m is None else m.astype(dt)
     for i, x in enumerate(hs):
         d = stack[i]
         np.subtract(x, c[i], out=d, casting="same_kind")
@@ -122,10 +124,10 @@ def local_mean_std(h: np.ndarray, r: float, mask: np.ndarray | None = None,
             stack[n + i] *= m32
     if m32 is not None:
         stack[-1] = m32
-    sums = disc_sums(stack, r, workers)
+    sums = disc_sums(stack, r, workers, dt)
     wsum = disc_counts(H, W, r) if m is None else sums[-1].astype(np.float64)
     ok = wsum > 1e-6 * max(float(wsum.max()), 1e-300)
-    inv = (1.0 / np.where(ok, wsum, 1.0)).astype(np.float32)
+    inv = (1.0 / np.where(ok, wsum, 1.0)).astype(dt)
     mu_d = sums[:n] * inv
     var = sums[n:2 * n] * inv
     var -= mu_d * mu_d
@@ -201,7 +203,7 @@ class LocalHistMatch(Node):
     pixel does not grow with r (FFT convolution; r beyond the image diagonal = global match).
     """
 
-    version = "1"
+    version = "2"
     inputs = {"neutral": In(Image, "neutral map H_n (one channel, volume fraction)"),
               "target": In(Image, "target map H of the same size"),
               "mask": In(Mask, "where statistics are taken (skin)", optional=True)}
@@ -230,8 +232,9 @@ class LocalHistMatch(Node):
         self.ctx.progress(0.8, "statistics done")
         out = np.where(w > 0, match(hn, mu_n, sd_n, mu, sd, p.eps), hn)
         scale = np.where(w > 0, sd / np.maximum(sd_n, p.eps), 1.0)
-        bias = np.where(w > 0, mu, hn)
-        mu_n = np.where(w > 0, mu_n, hn)
+        # means of non-negative maps are ≥ 0; clip the float32 FFT round-off (~1e-7)
+        bias = np.maximum(np.where(w > 0, mu, hn), 0.0)
+        mu_n = np.maximum(np.where(w > 0, mu_n, hn), 0.0)
         if m is not None:  # outside the skin nothing changes
             out = np.where(m > 0, out, hn)
         shp = stats_shape(hn.shape, p.stats_size)

@@ -144,15 +144,23 @@ def skin_reflectance(c_m, c_hd, beta_m=0.61, c_he=None, wl=WL, d_epi=None, oxyge
     return R1 + T1 * T1 * R2 / (1 - R1 * R2)
 
 
+@functools.lru_cache(maxsize=4)
+def _cmfs_and_illuminant(start: float, end: float, interval: float):
+    import colour
+
+    from nodes.common import color as _color  # noqa: F401  (keeps colour's warning filter)
+
+    shape = colour.SpectralShape(start, end, interval)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    return shape, cmfs, ill
+
+
 def reflectance_to_linear_srgb(refl: np.ndarray, wl=WL) -> np.ndarray:
     """Reflectance spectra (…, n_wl) → linear sRGB under D65 (colour-science, CIE 1931 2°)."""
     import colour
 
-    from nodes.common.color import srgb_to_linear  # noqa: F401  (keeps colour's warning filter)
-
-    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
-    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    shape, cmfs, ill = _cmfs_and_illuminant(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
     flat = np.asarray(refl, np.float64).reshape(-1, len(wl))
     xyz = colour.msds_to_XYZ(flat, cmfs, ill, method="Integration", shape=shape) / 100.0
     rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
