@@ -77,7 +77,7 @@ def test_directions_ambient_hue(record_property):
         amb_errs.append(float(np.max(np.abs(np.array(light.ambient) / ENV - 1))))
         np.testing.assert_allclose(light.color, hue, rtol=0.02)
     print("ProbeLight direction errors (deg):", np.round(errs, 2).tolist())
-    print("ProbeLight ambient max relative errors:", np.round(amb_errs, 4).tolist())
+    print("ProbeLight ambient max relative errors:", [f"{e:.1e}" for e in amb_errs])
     record_property("direction_errors_deg", errs)
     record_property("ambient_rel_errors", amb_errs)
     assert max(errs) <= 1.0, errs
