@@ -1,0 +1,157 @@
+"""Jimenez 2010 nodes: the appearance rig (eqs. 4–6), SkinShade (§6), bad input, blush graph."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, graphkit
+from graphkit import BadInput, Image, Light, Mask
+from nodes.jimenez.histmatch import AppearanceRig, FlushTarget, LocalHistMatch
+from nodes.jimenez.shade import SkinShade
+from nodes.jimenez.skinlut import SkinColorLUT, lut_axes
+
+
+def _maps(seed=0, shape=(48, 64)):
+    rng = np.random.default_rng(seed)
+    a = (rng.random(shape + (1,)) * 0.1).astype(np.float32)
+    b = (rng.random(shape + (1,)) * 0.2 + 0.02).astype(np.float32)
+    return Image(a), Image(b)
+
+
+def test_rig_full_weight_on_a_basis_entry_reproduces_local_histogram_matching():
+    hn, ht = _maps(1)
+    lhm = LocalHistMatch(LocalHistMatch.Params(radius=6.0, stats_size=0)).compute(neutral=hn, target=ht)
+    rig = AppearanceRig(AppearanceRig.Params(weights=[0.0, 1.0]))
+    h = rig.compute(neutral=hn, neutral_mean=lhm["neutral_mean"], scales=[lhm["scale"]], biases=[lhm["bias"]])
+    np.testing.assert_allclose(h.pixels, lhm["matched"].pixels, atol=1e-6)
+    # w_0 = 1: the neutral map comes back unchanged; global scale multiplies
+    rig0 = AppearanceRig(AppearanceRig.Params(weights=[1.0, 0.0], hemoglobin_scale=1.27))
+    h0 = rig0.compute(neutral=hn, neutral_mean=lhm["neutral_mean"], scales=[lhm["scale"]], biases=[lhm["bias"]])
+    np.testing.assert_allclose(h0.pixels, 1.27 * hn.pixels, atol=1e-6)
+
+
+def test_rig_is_eq6_affine_blend():
+    hn, _ = _maps(2)
+    rng = np.random.default_rng(3)
+    mu = Image(np.full((48, 64, 1), 0.05, np.float32))
+    s = [Image((rng.random((48, 64, 1)) + 0.5).astype(np.float32)) for _ in range(2)]
+    b = [Image((rng.random((48, 64, 1)) * 0.1).astype(np.float32)) for _ in range(2)]
+    w = [0.2, 0.5, 0.3]
+    h = AppearanceRig(AppearanceRig.Params(weights=w)).compute(neutral=hn, neutral_mean=mu, scales=s, biases=b)
+    H0 = hn.pixels - 0.05
+    ref = (w[0] * 0.05 + w[1] * b[0].pixels + w[2] * b[1].pixels) + H0 * (w[0] + w[1] * s[0].pixels + w[2] * s[1].pixels)
+    np.testing.assert_allclose(h.pixels, np.maximum(ref, 0), atol=1e-6)
+
+
+def test_stats_are_downsampled_and_upsampled_back():
+    hn, ht = _maps(4, (200, 300))
+    lhm = LocalHistMatch(LocalHistMatch.Params(radius=20.0, stats_size=64)).compute(neutral=hn, target=ht)
+    assert lhm["scale"].pixels.shape == (43, 64, 1) and lhm["bias"].pixels.shape == (43, 64, 1)
+    h = AppearanceRig(AppearanceRig.Params(weights=[0.0, 1.0])).compute(
+        neutral=hn, neutral_mean=lhm["neutral_mean"], scales=[lhm["scale"]], biases=[lhm["bias"]])
+    # low-frequency statistics survive 256²-style storage (§4.2): close to the full-size result
+    err = np.abs(h.pixels - lhm["matched"].pixels)
+    assert np.median(err) < 0.1 * ht.pixels.std()
+
+
+def test_bad_inputs_have_clear_messages():
+    hn, ht = _maps(5)
+    small = Image(np.zeros((10, 10, 1), np.float32))
+    with pytest.raises(BadInput, match="sizes differ"):
+        LocalHistMatch().compute(neutral=hn, target=small)
+    with pytest.raises(BadInput, match="negative"):
+        LocalHistMatch().compute(neutral=Image(hn.pixels - 1), target=ht)
+    for r in (0.0, -3.0):
+        with pytest.raises(BadInput, match="radius must be > 0"):
+            LocalHistMatch(LocalHistMatch.Params(radius=r)).compute(neutral=hn, target=ht)
+    lhm = LocalHistMatch(LocalHistMatch.Params(radius=4.0)).compute(neutral=hn, target=ht)
+    args = dict(neutral=hn, neutral_mean=lhm["neutral_mean"], scales=[lhm["scale"]], biases=[lhm["bias"]])
+    with pytest.raises(BadInput, match="sum to one"):
+        AppearanceRig(AppearanceRig.Params(weights=[0.5, 0.6])).compute(**args)
+    with pytest.raises(BadInput, match="2 weights|give 2"):
+        AppearanceRig(AppearanceRig.Params(weights=[1.0])).compute(**args)
+    with pytest.raises(BadInput, match="negative"):
+        AppearanceRig(AppearanceRig.Params(weights=[1.0, 0.0])).compute(**{**args, "neutral": Image(hn.pixels - 1)})
+    lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
+    with pytest.raises(BadInput, match="sizes differ"):
+        SkinShade().compute(melanin=hn, hemoglobin=small, lut=lut, light=Light())
+    with pytest.raises(BadInput, match="negative"):
+        SkinShade().compute(melanin=Image(-hn.pixels), hemoglobin=ht, lut=lut, light=Light())
+    with pytest.raises(BadInput, match="empty"):
+        LocalHistMatch().compute(neutral=hn, target=ht, mask=Mask(np.zeros((48, 64), np.float32)))
+    with pytest.raises(BadInput, match="mask is"):
+        FlushTarget().compute(hemoglobin=hn, regions=Mask(np.ones((5, 5), np.float32)))
+
+
+def test_skinshade_post_scatter_texturing_and_specular():
+    from nodes.common.microfacet import kelemen_specular
+
+    lut = SkinColorLUT(SkinColorLUT.Params(size=16)).compute()["lut"]
+    cm, chd = lut_axes(16, 16)
+    H, W = 32, 40
+    # a checkerboard of two grid entries: post-scatter texturing must keep it sharp
+    mel = np.where((np.indices((H, W)).sum(0) % 2) == 0, cm[3], cm[9]).astype(np.float32)[..., None]
+    hem = np.full((H, W, 1), chd[7], np.float32)
+    light = Light(direction=(0.0, 0.0, -1.0), color=(1.0, 0.9, 0.8), intensity=2.0, ambient=(0.05, 0.05, 0.05))
+    out = SkinShade(SkinShade.Params(mm_per_pixel=0.1)).compute(melanin=Image(mel), hemoglobin=Image(hem), lut=lut, light=light)
+    table = lut.pixels.astype(np.float64)
+    alb = np.where(((np.indices((H, W)).sum(0) % 2) == 0)[..., None], table[7, 3], table[7, 9])
+    np.testing.assert_allclose(out["albedo"].pixels, alb, atol=1e-6)
+    irr = np.array([2.0, 1.8, 1.6]) + 0.05  # uniform light: scattering leaves it unchanged
+    np.testing.assert_allclose(out["diffuse"].pixels, np.broadcast_to(irr, (H, W, 3)), rtol=1e-5)
+    n = np.array([0.0, 0.0, -1.0])
+    spec = kelemen_specular(n, n, n, 0.35, 0.18, 0.028)
+    np.testing.assert_allclose(out["image"].pixels, alb * irr + spec * np.array([2.0, 1.8, 1.6]), rtol=1e-5)
+
+
+def test_skinshade_scatters_a_shadow_edge_red_furthest():
+    lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
+    H, W = 16, 80
+    nrm = np.zeros((H, W, 3), np.float32)
+    nrm[..., 2] = -1.0
+    nrm[:, W // 2:, 0] = 1.0  # right half faces away from the light: shadow edge
+    nrm[:, W // 2:, 2] = 0.0
+    z = Image(np.zeros((H, W, 1), np.float32))
+    out = SkinShade(SkinShade.Params(mm_per_pixel=0.1)).compute(
+        melanin=z, hemoglobin=z, lut=lut, light=Light(direction=(0.0, 0.0, -1.0)), normals=Image(nrm))
+    d = out["diffuse"].pixels[H // 2]
+    bleed = d[W // 2 + 2]  # light scattered into the shadow
+    assert bleed[0] > bleed[1] > bleed[2] > 0
+
+
+def _need_facemesh():
+    from graphkit.registry import default_registry
+
+    if "FaceMesh" not in default_registry().nodes:
+        pytest.skip(reason="FaceMesh (plugins/graphkit-mediapipe + mediapipe 0.10.14) is not installed; `make` installs it")
+
+
+def test_blush_graph_runs(tmp_path):
+    _need_facemesh()
+    import OpenImageIO as oiio
+
+    env = dict(os.environ)
+    env.pop("GRAPHKIT_TRACEBACK", None)
+    out = tmp_path / "out"
+    r = graphkit("run", ROOT / "graphs" / "blush.yaml", "--out", out, "--cache", tmp_path / "cache", "-q",
+                 env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    from graphkit import Context
+    from nodes.io.images import LoadImage
+
+    photo = LoadImage(LoadImage.Params(path="builtin:astronaut"), Context()).compute().pixels
+    w0 = np.asarray(oiio.ImageBuf(str(out / "blush" / "w_flush_0.exr")).get_pixels(oiio.FLOAT))
+    w1 = np.asarray(oiio.ImageBuf(str(out / "blush" / "w_flush_100.exr")).get_pixels(oiio.FLOAT))
+    np.testing.assert_allclose(w0, photo, atol=2e-3 * (1 + photo.max()))  # w = [1, 0]: the photo (half-float EXR)
+    changed = np.abs(w1 - photo).max(-1) > 0.01
+    ys, xs = np.nonzero(changed)
+    assert 0.001 < changed.mean() < 0.2 and 100 < ys.mean() < 300 and 150 < xs.mean() < 330  # the face
+    # more blood: red rises relative to green where it changed
+    ratio = (w1[changed] + 1e-4) / (photo[changed] + 1e-4)
+    assert np.median(ratio[:, 0] / ratio[:, 1]) > 1.0
+    assert (out / "blush" / "contact_sheet.png").is_file()
+    bad = graphkit("run", ROOT / "graphs" / "blush.yaml", "--out", tmp_path / "o2", "--cache", tmp_path / "cache",
+                   "-q", "--set", "weights=[0.5, 0.6]", env=env, timeout=300)
+    assert bad.returncode == 2 and "sum to one" in bad.stderr
