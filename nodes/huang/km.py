@@ -339,13 +339,14 @@ def lookup(table, grids, thickness: np.ndarray):
                 wc = None
                 for j, (i0, wt, st, N) in enumerate(sub):
                     if corner >> j & 1:
-                        off += np.where(i0 < N - 1, st, 0).astype(np.int32)
+                        off += np.where(i0 < N - 1, np.int32(st), np.int32(0))
                         wj = wt
                     else:
-                        wj = 1.0 - wt
+                        wj = np.float32(1.0) - wt
                     wc = wj if wc is None else wc * wj
+                wc = wc[:, None]
                 for acc, fl in zip(accs, flats):
-                    acc += fl[off] * wc[:, None]
+                    acc += np.take(fl, off, axis=0) * wc
             for o, acc in zip(outs, accs):
                 o[idx] = acc
     outs = [o.reshape(h, w, -1) for o in outs]

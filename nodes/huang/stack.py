@@ -24,7 +24,7 @@ def check_reflectance_image(img: Image, port: str) -> np.ndarray:
     return px
 
 
-def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=17, background_spectrum=None):
+def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=25, background_spectrum=None):
     """Per-pixel linear-RGB stack quantities for layers (bottom first) and a thickness map (mm).
 
     The spectral KM work (eqs. 1–4 per wavelength) is done on a grid of layer thicknesses
@@ -112,7 +112,7 @@ class KMStack(Node):
         illuminant: str = Field("D65", description="CIE illuminant for spectral → RGB (colour-science name)")
         background: Literal["skin_tcs13", "black", "white"] = Field(
             "skin_tcs13", description="spectral background when no background input is connected")
-        lut_size: int = Field(17, ge=2, le=257, description="thickness grid nodes per layer")
+        lut_size: int = Field(25, ge=2, le=257, description="thickness grid nodes per layer (25: ΔE00 < 0.06 from the exact spectral result between nodes)")
 
     def compute(self, thickness: Image, layers: list | None = None, background: Image | None = None,
                 background_spectrum: Spectrum | None = None):
