@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import deque
 import platform
 import socket
 import sys
@@ -88,13 +89,13 @@ def _run_pool(session: Session, order: list[str], jobs: int, progress: Progress,
     for n in order:
         for s in waiting[n]:
             dependants[s].append(n)
-    ready = [n for n in order if not waiting[n]]
+    ready = deque(n for n in order if not waiting[n])
     running: dict[Any, str] = {}
     error: BaseException | None = None
     with ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="graphkit") as pool:
         while ready or running:
             while ready and error is None and len(running) < jobs:
-                n = ready.pop(0)
+                n = ready.popleft()
                 progress.running(n, graph.nodes[n].type)
                 fut = pool.submit(session.run_node, n, input_digests(session, n, result.outcomes))
                 running[fut] = n
@@ -227,13 +228,10 @@ def build_manifest(session: Session, result: RunResult, extra: dict | None = Non
 
 def record_last_run(session: Session, result: RunResult) -> None:
     """Remember each node's key parts so `graphkit explain` can say what changed."""
-    from .runner import readable_params
-
     data = {}
     for n, o in result.outcomes.items():
-        parts = dict(o.parts)
-        parts["params"] = readable_params(session.graph.nodes[n].params)
-        data[n] = {"key": o.key, "parts": parts, "outputs": o.outputs}
+        data[n] = {"key": o.key, "parts": session.readable_parts(session.graph.nodes[n], o.parts),
+                   "outputs": o.outputs}
     session.store.save_run(graph_id(session.graph), data)
 
 

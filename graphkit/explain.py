@@ -3,8 +3,7 @@ from __future__ import annotations
 
 from .executor import graph_id
 from .graphfile import Graph
-from .hashing import key_digest
-from .runner import Session, readable_params
+from .runner import Session
 from .store import Store
 from .errors import UsageError
 
@@ -36,12 +35,11 @@ def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
         if unknown:
             state[n] = {"key": None, "cached": False, "outputs": None, "parts": None, "waits": unknown}
             continue
-        parts = session.key_parts(g, ins)
-        key = key_digest(parts)
+        key, parts = session.key(g, ins)
         rec = store.get_record(key)
         state[n] = {"key": key, "cached": rec is not None,
                     "outputs": {p: o["digest"] for p, o in rec["outputs"].items()} if rec else None,
-                    "parts": {**parts, "params": readable_params(g.params)}}
+                    "parts": session.readable_parts(g, parts)}
 
     lines = []
     s = state[node]

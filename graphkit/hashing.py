@@ -32,62 +32,117 @@ RECIPE_VERSION = "1"  # bump when the key recipe changes: every key changes with
 def canonical(value: Any) -> bytes:
     """Encode ``value`` canonically (same value → same bytes on any machine)."""
     out: list[bytes] = []
-    _enc(value, out, "params")
+    try:
+        _enc(value, out)
+    except CanonicalError:
+        _find_bad(value, "params")  # re-walk to name the offending place
+        raise
     return b"".join(out)
 
 
-def _enc(v: Any, out: list[bytes], path: str) -> None:
-    if v is None:
+def _enc(v: Any, out: list[bytes]) -> None:
+    t = type(v)
+    if t is str:
+        b = v.encode("utf-8")
+        out.append(b"s%d:" % len(b))
+        out.append(b)
+    elif t is float:
+        out.append(b"f" + v.hex().encode() + b";")
+    elif t is bool:
+        out.append(b"T" if v else b"F")
+    elif t is int:
+        out.append(b"i%d;" % v)
+    elif v is None:
         out.append(b"N")
-    elif v is True:
-        out.append(b"T")
-    elif v is False:
-        out.append(b"F")
+    elif t is dict:
+        out.append(b"d%d{" % len(v))
+        try:
+            keys = sorted(v)
+        except TypeError:
+            raise CanonicalError("dict keys must be strings") from None
+        for k in keys:
+            if type(k) is not str:
+                raise CanonicalError("dict keys must be strings")
+            _enc(k, out)
+            _enc(v[k], out)
+        out.append(b"}")
+    elif t is list or t is tuple:
+        out.append(b"l%d[" % len(v))
+        for x in v:
+            _enc(x, out)
+        out.append(b"]")
+    elif isinstance(v, BaseModel):
+        _enc(f"{t.__module__}.{t.__qualname__}", out)
+        _enc({k: getattr(v, k) for k in t.model_fields}, out)
     elif isinstance(v, enum.Enum):
-        _enc(v.value, out, path)
+        _enc(v.value, out)
+    elif isinstance(v, bool):
+        out.append(b"T" if v else b"F")
     elif isinstance(v, int):
         out.append(b"i%d;" % v)
     elif isinstance(v, float):
         out.append(b"f" + float(v).hex().encode() + b";")
     elif isinstance(v, str):
-        b = v.encode("utf-8")
-        out.append(b"s%d:" % len(b) + b)
+        _enc(str(v), out)
     elif isinstance(v, bytes):
-        out.append(b"b%d:" % len(v) + v)
-    elif isinstance(v, (list, tuple)):
-        out.append(b"l%d[" % len(v))
-        for i, x in enumerate(v):
-            _enc(x, out, f"{path}[{i}]")
-        out.append(b"]")
-    elif isinstance(v, dict):
-        for k in v:
-            if not isinstance(k, str):
-                raise CanonicalError(f"{path}: dict keys must be strings, got {type(k).__name__}")
-        out.append(b"d%d{" % len(v))
-        for k in sorted(v):
-            _enc(k, out, path)
-            _enc(v[k], out, f"{path}.{k}")
-        out.append(b"}")
-    elif isinstance(v, BaseModel):
-        cls = type(v)
-        _enc(f"{cls.__module__}.{cls.__qualname__}", out, path)
-        _enc({k: getattr(v, k) for k in type(v).model_fields}, out, path)
+        out.append(b"b%d:" % len(v) + bytes(v))
     elif isinstance(v, np.ndarray):
         out.append(b"a" + array_digest(v).encode())
     elif isinstance(v, np.generic):
-        _enc(v.item(), out, path)
-    elif isinstance(v, (set, frozenset)):
-        raise CanonicalError(f"{path}: sets have no canonical order; use a sorted list")
+        _enc(v.item(), out)
+    elif isinstance(v, (list, tuple)):
+        _enc(list(v), out)
+    elif isinstance(v, dict):
+        _enc(dict(v), out)
     else:
-        raise CanonicalError(
-            f"{path}: cannot encode a value of type {type(v).__module__}.{type(v).__qualname__} "
-            "canonically (cache keys fail closed on unknown types)"
-        )
+        raise CanonicalError(_cannot(v))
+
+
+def _cannot(v: Any) -> str:
+    if isinstance(v, (set, frozenset)):
+        return "sets have no canonical order; use a sorted list"
+    return (f"cannot encode a value of type {type(v).__module__}.{type(v).__qualname__} "
+            "canonically (cache keys fail closed on unknown types)")
+
+
+def _find_bad(v: Any, path: str) -> None:
+    """Raise CanonicalError naming the path of the first value that cannot be encoded."""
+    if isinstance(v, dict):
+        for k, x in v.items():
+            if not isinstance(k, str):
+                raise CanonicalError(f"{path}: dict keys must be strings, got {type(k).__name__}")
+            _find_bad(x, f"{path}.{k}")
+    elif isinstance(v, (list, tuple)):
+        for i, x in enumerate(v):
+            _find_bad(x, f"{path}[{i}]")
+    elif isinstance(v, BaseModel):
+        for k in type(v).model_fields:
+            _find_bad(getattr(v, k), f"{path}.{k}")
+    else:
+        try:
+            _enc(v, [])
+        except CanonicalError as e:
+            raise CanonicalError(f"{path}: {e}") from None
 
 
 def key_digest(parts: dict) -> str:
     """Cache key: BLAKE2b-128 of the canonical encoding of the key parts."""
     return hashlib.blake2b(canonical(parts), digest_size=16).hexdigest()
+
+
+def canonical_items(parts: dict) -> dict[str, bytes]:
+    """Encode each entry of a dict on its own (for :func:`canonical_merge`)."""
+    out = {}
+    for k, v in parts.items():
+        out[k] = canonical(k) + canonical(v)
+    return out
+
+
+def canonical_merge(static: dict[str, bytes], varying: dict) -> bytes:
+    """Canonical encoding of a dict whose entries are partly pre-encoded (see canonical_items)."""
+    items = dict(static)
+    items.update(canonical_items(varying))
+    return b"d%d{" % len(items) + b"".join(items[k] for k in sorted(items)) + b"}"
 
 
 def _update_array(h, a: np.ndarray) -> None:

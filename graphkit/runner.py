@@ -7,6 +7,7 @@ and Dask workers — so every executor produces the same keys and the same bytes
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import threading
 import time
@@ -15,7 +16,7 @@ from typing import Any, Callable
 
 from .errors import BadInput, GraphkitError, NodeFailed
 from .graphfile import GNode, Graph
-from .hashing import RECIPE_VERSION, file_digest, key_digest
+from .hashing import RECIPE_VERSION, canonical_items, canonical_merge, file_digest
 from .node import Context, probe
 from .registry import NUMPY, Registry
 from .store import Store, value_parts
@@ -59,6 +60,8 @@ class Session:
         self._backends: dict[str, tuple[str, type, str]] = {}
         self._noticed: set[tuple[str, str]] = set()
         self._files: dict[str, str] = {}
+        self._static: dict[str, tuple[dict, dict[str, bytes]]] = {}  # per node: key parts that never vary
+        self._readable: dict[str, Any] = {}
 
     # -- backends ------------------------------------------------------------------------
     def backend_for(self, g: GNode) -> tuple[str, type, str]:
@@ -88,22 +91,41 @@ class Session:
         return self._backends[g.name]
 
     # -- keys ------------------------------------------------------------------------------
-    def key_parts(self, g: GNode, input_digests: dict[str, str]) -> dict:
-        bname, _, bver = self.backend_for(g)
-        parts = {
-            "recipe": RECIPE_VERSION,
-            "node_type": g.type,
-            "node_version": g.cls.version,
-            "backend": bname,
-            "backend_version": bver,
-            "params": g.params,
-            "inputs": dict(sorted(input_digests.items())),
-        }
-        if g.files:
-            parts["files"] = {p: self.file_digest(path) for p, path in sorted(g.files.items())}
-        if g.cls.provenance:
-            parts["recipe_digest"] = self.graph.recipe_digest(g.name)
-        return parts
+    def static_parts(self, g: GNode) -> tuple[dict, dict[str, bytes]]:
+        """The key parts of ``g`` that do not depend on its inputs, and their encoding."""
+        if g.name not in self._static:
+            bname, _, bver = self.backend_for(g)
+            parts = {
+                "recipe": RECIPE_VERSION,
+                "node_type": g.type,
+                "node_version": g.cls.version,
+                "backend": bname,
+                "backend_version": bver,
+                "params": g.params,
+            }
+            if g.files:
+                parts["files"] = {p: self.file_digest(path) for p, path in sorted(g.files.items())}
+            if g.cls.provenance:
+                parts["recipe_digest"] = self.graph.recipe_digest(g.name)
+            self._static[g.name] = (parts, canonical_items(parts))
+        return self._static[g.name]
+
+    def key(self, g: GNode, input_digests: dict) -> tuple[str, dict]:
+        """(cache key, key parts) of node ``g`` given the digests of its inputs.
+
+        key = BLAKE2b-128(canonical(parts)), parts = recipe version, node type and version,
+        backend name and version, params, input digests, input-file digests and, for nodes that
+        embed provenance, the recipe digest.
+        """
+        static, encoded = self.static_parts(g)
+        inputs = {"inputs": dict(sorted(input_digests.items()))}
+        key = hashlib.blake2b(canonical_merge(encoded, inputs), digest_size=16).hexdigest()
+        return key, {**static, **inputs}
+
+    def readable_parts(self, g: GNode, parts: dict) -> dict:
+        if g.name not in self._readable:
+            self._readable[g.name] = readable_params(g.params)
+        return {**parts, "params": self._readable[g.name]}
 
     def file_digest(self, path: str) -> str:
         if path not in self._files:
@@ -127,9 +149,8 @@ class Session:
     def run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
         g = self.graph.nodes[name]
         bname, bcls, bver = self.backend_for(g)
-        parts = self.key_parts(g, input_digests)
-        key = key_digest(parts)
         t0 = time.perf_counter()
+        key, parts = self.key(g, input_digests)
         rec = self.store.get_record(key)
         if rec is None:
             with self.store.key_lock(key):
@@ -188,7 +209,7 @@ class Session:
                 self.memo[d] = v
         record = {
             "key": key, "node": g.name,
-            "parts": {**parts, "params": readable_params(g.params)},
+            "parts": self.readable_parts(g, parts),
             "outputs": rec_out,
             "seconds": round(seconds, 6) if math.isfinite(seconds) else 0.0,
         }

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import itertools
 import json
 import os
 import struct
@@ -35,6 +36,8 @@ from .hashing import parts_digest
 from .types import BUILTIN_PORT_TYPES, PortType
 
 MAGIC = b"GKOBJ1\n\0"
+_counter = itertools.count()
+_TOKEN = uuid.uuid4().hex[:12]  # with the pid, thread and counter: unique temp names on a shared folder
 ALIGN = 64
 
 
@@ -103,6 +106,7 @@ class LocalFS:
 
     def __init__(self, root: str):
         self.root = Path(root).absolute()
+        self._prefix = str(self.root) + os.sep
 
     def describe(self) -> str:
         return str(self.root)
@@ -110,35 +114,41 @@ class LocalFS:
     def _p(self, rel: str) -> Path:
         return self.root / rel
 
+    def _s(self, rel: str) -> str:  # plain-string path for the hot paths (pathlib is slow)
+        return self._prefix + rel
+
     def ensure(self) -> None:
         for d in ("objects", "keys", "locks", "runs", "tmp"):
             self._p(d).mkdir(parents=True, exist_ok=True)
 
     def read(self, rel: str) -> bytes | None:
         try:
-            with open(self._p(rel), "rb") as f:
+            with open(self._s(rel), "rb") as f:
                 return f.read()
         except FileNotFoundError:
             return None
 
     def exists(self, rel: str) -> bool:
-        return self._p(rel).exists()
+        return os.path.exists(self._s(rel))
 
     def write_atomic(self, rel: str, chunks, sync: bool = True) -> None:
-        dest = self._p(rel)
-        tmp = self._p(f"tmp/{uuid.uuid4().hex}")
+        dest = self._s(rel)
+        tmp = self._s(f"tmp/{_TOKEN}-{os.getpid()}-{threading.get_ident()}-{next(_counter)}")
         try:
-            dest.parent.mkdir(parents=True, exist_ok=True)
             with open(tmp, "wb") as f:
                 for c in chunks:
                     f.write(c)
                 f.flush()
                 if sync:
                     os.fsync(f.fileno())
-            os.replace(tmp, dest)
+            try:
+                os.replace(tmp, dest)
+            except FileNotFoundError:  # first write into this shard folder
+                os.makedirs(os.path.dirname(dest), exist_ok=True)
+                os.replace(tmp, dest)
         except BaseException:
             with contextlib.suppress(OSError):
-                tmp.unlink()
+                os.unlink(tmp)
             raise
 
     def remove(self, rel: str) -> None:
@@ -147,7 +157,7 @@ class LocalFS:
 
     def touch(self, rel: str) -> None:
         with contextlib.suppress(OSError):
-            os.utime(self._p(rel))
+            os.utime(self._s(rel))
 
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
         base = self._p(rel)
@@ -306,12 +316,11 @@ class Store:
             return None
         try:
             rec = json.loads(raw)
-            outs = rec["outputs"]
+            rec["outputs"]
         except (ValueError, KeyError, TypeError):
             return None  # unreadable record: a miss; `cache verify` reports and removes it
-        for o in outs.values():  # objects are written before records; guard against gc races
-            if not self.fs.exists(self._orel(o["digest"])):
-                return None
+        # objects are written before their record, and gc (exclusive store lock) never runs
+        # beside a run (shared lock), so a readable record's objects exist
         return rec
 
     def touch_record(self, key: str) -> None:
@@ -319,7 +328,7 @@ class Store:
 
     def put_record(self, key: str, record: dict) -> None:
         with self._errors("write a cache record"):
-            data = json.dumps(record, sort_keys=True, indent=1).encode()
+            data = json.dumps(record, sort_keys=True, separators=(",", ":")).encode()
             self.fs.write_atomic(self._krel(key), [data], self.sync)
 
     # -- objects -------------------------------------------------------------------------

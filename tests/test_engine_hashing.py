@@ -60,3 +60,17 @@ def test_file_digest_memo(tmp_path):
     p.write_bytes(b"y" * 1001)
     assert file_digest(p, memo) != d1
     assert key_digest({"a": d1}) != key_digest({"a": file_digest(p, memo)})
+
+
+def test_split_key_equals_plain_key(tmp_path, engine_registry):
+    """The per-node pre-encoded key parts give exactly key_digest(all parts)."""
+    from graphkit.graphfile import load_graph
+    from graphkit.runner import Session
+    from graphkit.store import Store
+
+    g = tmp_path / "g.yaml"
+    g.write_text("graphkit: 1\nnodes:\n  c: {type: Const, params: {value: 2}}\n  d: {type: Add, inputs: {a: c.out}}\n")
+    s = Session(load_graph(g, engine_registry, {}), engine_registry, Store(tmp_path / "c"))
+    key, parts = s.key(s.graph.nodes["d"], {"a": "0" * 32})
+    assert key == key_digest(parts)
+    assert key != s.key(s.graph.nodes["d"], {"a": "1" * 32})[0]

@@ -1,0 +1,160 @@
+"""Engine overhead, all-cached re-run and hashing throughput (issue 2).
+
+(a) a 1000-node no-op chain and a 1000-node wide graph through graphkit vs ``dask.get`` (the
+    synchronous scheduler) in the same process: per-node overhead and the ratio;
+(b) an all-cached re-run of the demo graph, wall time including interpreter start;
+(c) array hashing throughput (GB/s).
+
+Run:  .venv/bin/python benchmarks/bench_engine.py
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "support"))
+N = 1000
+
+
+def chain_yaml(n):
+    lines = ["graphkit: 1", "name: chain", "nodes:", "  n0: {type: Noop}"]
+    lines += [f"  n{i}: {{type: Noop, inputs: {{x: n{i-1}.out}}, params: {{i: {i}}}}}" for i in range(1, n)]
+    lines.append(f"outputs: [n{n-1}.out]")
+    return "\n".join(lines) + "\n"
+
+
+def wide_yaml(n):
+    lines = ["graphkit: 1", "name: wide", "nodes:", "  src: {type: Noop}"]
+    lines += [f"  n{i}: {{type: Noop, inputs: {{x: src.out}}, params: {{i: {i}}}}}" for i in range(1, n - 1)]
+    lines.append("  sink: {type: Sum, inputs: {xs: [" + ", ".join(f"n{i}.out" for i in range(1, n - 1)) + "]}}")
+    lines.append("outputs: [sink.out]")
+    return "\n".join(lines) + "\n"
+
+
+def noop(x=None):
+    return x if x is not None else np.zeros(1)
+
+
+def total(*xs):
+    return np.sum(xs, axis=0)
+
+
+def dask_graphs(n):
+    chain = {"n0": (noop,)}
+    chain.update({f"n{i}": (noop, f"n{i-1}") for i in range(1, n)})
+    wide = {"src": (noop,)}
+    wide.update({f"n{i}": (noop, "src") for i in range(1, n - 1)})
+    wide["sink"] = (total, *[f"n{i}" for i in range(1, n - 1)])
+    return (chain, f"n{n-1}"), (wide, "sink")
+
+
+def best(fn, repeat=5):
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times), statistics.median(times)
+
+
+def bench_overhead():
+    import dask
+
+    import enginenodes
+    from graphkit.executor import run_local
+    from graphkit.graphfile import load_graph
+    from graphkit.registry import discover
+    from graphkit.runner import Session
+    from graphkit.store import Store
+
+    reg = discover()
+    reg.add_provider("nodes", "bench", enginenodes)
+    print(f"(a) engine overhead per node, {N}-node no-op graphs, same process (best of 5)")
+    rows = {}
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        (chain_dsk, chain_key), (wide_dsk, wide_key) = dask_graphs(N)
+        for name, text, (dsk, key) in (("chain", chain_yaml(N), (chain_dsk, chain_key)),
+                                       ("wide", wide_yaml(N), (wide_dsk, wide_key))):
+            g = d / f"{name}.yaml"
+            g.write_text(text)
+            t_dask, _ = best(lambda: dask.get(dsk, key))
+            t_load, _ = best(lambda: load_graph(g, reg, {}))
+            graph = load_graph(g, reg, {})
+            target = [chain_key if name == "chain" else "sink"]
+            counter = iter(range(10**6))
+
+            def cold(kind):
+                loc = d / f"{kind}-{name}-{next(counter)}"
+                store = Store(loc, sync=(kind == "fsync")).open()
+                t = time.perf_counter()
+                run_local(Session(graph, reg, store), target)
+                return time.perf_counter() - t
+
+            def timed(fn, repeat):
+                return min(fn() for _ in range(repeat))
+
+            t_cold_sync = timed(lambda: cold("fsync"), 3)
+            t_cold = timed(lambda: cold("nosync"), 3)
+            warm = Store(d / f"fsync-{name}-0").open()
+            t_hit, _ = best(lambda: run_local(Session(graph, reg, warm), target))
+            for label, t in (("dask.get, synchronous scheduler", t_dask),
+                             ("graphkit load + validate (YAML)", t_load),
+                             ("graphkit run, all cached", t_hit),
+                             ("graphkit run, cold, write+rename", t_cold),
+                             ("graphkit run, cold, write+fsync+rename", t_cold_sync)):
+                rows[(name, label)] = t
+                print(f"  {name:5} {label:40} {t * 1e3:8.1f} ms {t / N * 1e6:7.1f} µs/node  ×{t / t_dask:6.2f} dask")
+    return rows
+
+
+def bench_cached_demo():
+    print("(b) all-cached re-run of graphs/demo.yaml, wall time incl. interpreter start")
+    exe = ROOT / ".venv" / "bin" / "graphkit"
+    with tempfile.TemporaryDirectory() as d:
+        cmd = [str(exe), "run", str(ROOT / "graphs" / "demo.yaml"), "--cache", f"{d}/c", "--out", f"{d}/o", "-q"]
+        subprocess.run(cmd, check=True)
+        times = []
+        for _ in range(7):
+            t = time.perf_counter()
+            subprocess.run(cmd, check=True)
+            times.append(time.perf_counter() - t)
+        bare = []
+        for _ in range(5):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-c", "pass"], check=True)
+            bare.append(time.perf_counter() - t)
+    print(f"  median {statistics.median(times):.3f} s, best {min(times):.3f} s (goal < 0.6 s); "
+          f"bare interpreter {statistics.median(bare):.3f} s")
+    return statistics.median(times)
+
+
+def bench_hashing():
+    from graphkit.hashing import array_digest
+
+    print("(c) array hashing throughput (xxh3-128 over dtype, shape, bytes)")
+    out = {}
+    for mb in (16, 256):
+        a = np.random.default_rng(0).random(mb * (1 << 20) // 8)
+        array_digest(a)
+        t, med = best(lambda: array_digest(a), repeat=7)
+        copy_t, _ = best(lambda: a.copy(), repeat=7)
+        out[mb] = a.nbytes / t / 1e9
+        print(f"  {mb:4d} MB: {a.nbytes / t / 1e9:6.1f} GB/s best, {a.nbytes / med / 1e9:6.1f} GB/s median "
+              f"(goal ≥ 5); memcpy of the same array {a.nbytes / copy_t / 1e9:5.1f} GB/s")
+    return out
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("GRAPHKIT_PLUGINS", "")
+    bench_hashing()
+    bench_cached_demo()
+    bench_overhead()
