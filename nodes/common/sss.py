@@ -91,21 +91,38 @@ def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray 
     with np.errstate(divide="ignore"):
         inv = np.where(sigma > 0, 0.5 / np.maximum(sigma, 1e-30) ** 2, 0.0).astype(dt)
     n = img.shape[axis]
-    acc = np.zeros(img.shape, dt)
-    wsum = np.zeros(img.shape[:2], dt)
-    for k in range(-R, R + 1):
-        wk = np.exp(-(k * k) * inv)
-        if k != 0:
-            wk *= np.abs(k) <= rmap
+
+    def tap(k):
         sl = slice(R + k, R + k + n)
         if axis == 0:
-            s, vs = src[sl], (None if vsrc is None else vsrc[sl])
+            return src[sl], (None if vsrc is None else vsrc[sl])
+        return src[:, sl], (None if vsrc is None else vsrc[:, sl])
+
+    # k = 0, then the pairs ±k share one weight; w_k = exp(−k²a) by the recurrence
+    # w_k = w_{k−1}·g_k, g_k = g_{k−1}·exp(−2a) (two products per tap instead of an exp)
+    s0, v0 = tap(0)
+    if v0 is None:
+        acc = s0.astype(dt, copy=True)
+        wsum = np.ones(img.shape[:2], dt)
+    else:
+        acc = v0[..., None] * s0
+        wsum = v0.astype(dt, copy=True)
+    e2 = np.exp(-2.0 * inv)
+    g = np.exp(-inv)  # g_1
+    w = np.ones(img.shape[:2], dt)
+    for k in range(1, R + 1):
+        w *= g
+        g *= e2
+        wk = np.where(k <= rmap, w, 0).astype(dt, copy=False)
+        sp, vp = tap(k)
+        sm, vm = tap(-k)
+        if vp is None:
+            acc += wk[..., None] * (sp + sm)
+            wsum += 2 * wk
         else:
-            s, vs = src[:, sl], (None if vsrc is None else vsrc[:, sl])
-        if vs is not None:
-            wk *= vs
-        acc += wk[..., None] * s
-        wsum += wk
+            wp, wm = wk * vp, wk * vm
+            acc += wp[..., None] * sp + wm[..., None] * sm
+            wsum += wp + wm
     with np.errstate(invalid="ignore", divide="ignore"):
         out = acc / wsum[..., None]
     return np.where(wsum[..., None] > 0, out, img)
