@@ -16,7 +16,7 @@ from nodes.huang.library import cosmetic_names, get_cosmetic, layer_arrays, load
 from nodes.huang.shade import CosmeticShade
 from nodes.huang.stack import KMStack
 
-pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
+pytestmark = pytest.mark.filterwarnings("ignore:Aligning:Warning", "ignore:Trimming:Warning", "ignore::UserWarning")
 DATA = Path(__file__).resolve().parents[1] / "nodes" / "huang" / "data"
 SET3 = ["foundation_light", "blush_rose", "lipstick_red"]
 

@@ -315,16 +315,15 @@ def lookup(table, grids, thickness: np.ndarray):
             continue
         f = np.multiply(t[:, i], np.float32((N - 1) / (g[-1] - g[0])), dtype=np.float32)
         np.minimum(f, np.float32(N - 1), out=f)
-        i0 = f.astype(np.int32)
-        f -= i0  # now the weight of node i0 + 1
-        nz = f != 0
+        fl0 = np.floor(f)
+        nz = f != fl0  # off the grid nodes along this axis
         frac_any = nz if frac_any is None else np.logical_or(frac_any, nz, out=frac_any)
         if strides[i] != 1:
-            i0s = np.multiply(i0, np.int32(strides[i]), dtype=np.int32)
-        else:
-            i0s = i0
-        base = i0s.copy() if base is None else np.add(base, i0s, out=base)
-        axes.append((i0, f, strides[i], N))
+            fl0 *= np.float32(strides[i])  # exact: table sizes stay far below 2**24
+        base = fl0 if base is None else np.add(base, fl0, out=base)
+        axes.append((f, strides[i], N))
+    if base is not None:
+        base = base.astype(np.int32)
     if base is None:
         outs = [np.broadcast_to(fl[0], (P, fl.shape[1])).copy() for fl in flats]
     else:
@@ -333,7 +332,11 @@ def lookup(table, grids, thickness: np.ndarray):
         if idx.size:
             b = base[idx]
             accs = [np.zeros((idx.size, fl.shape[1]), np.float32) for fl in flats]
-            sub = [(i0[idx], wt[idx], st, N) for i0, wt, st, N in axes]
+            sub = []
+            for f, st, N in axes:
+                fs = f[idx]
+                i0 = np.floor(fs)
+                sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
             for corner in range(1 << len(sub)):
                 off = b.copy()
                 wc = None

@@ -9,7 +9,7 @@ import pytest
 
 from nodes.huang import km
 
-pytestmark = pytest.mark.filterwarnings("ignore::UserWarning", "ignore::RuntimeWarning")
+pytestmark = pytest.mark.filterwarnings("ignore:Aligning:Warning", "ignore:Trimming:Warning", "ignore::UserWarning")
 
 # ---------------------------------------------------------------------------------------------
 # KM vs adding–doubling for index-matched slabs
