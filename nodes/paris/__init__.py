@@ -12,4 +12,5 @@ NODES = {
     "MakeLight": "nodes.paris.render:MakeLight",
     "LoadCameraJson": "nodes.paris.render:LoadCameraJson",
     "FrameFace": "nodes.paris.render:FrameFace",
+    "MeshMask": "nodes.paris.render:MeshMask",
 }

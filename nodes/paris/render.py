@@ -501,3 +501,20 @@ class FrameFace(Node):
             v = (yy.ravel() + 0.5 - n / 2) / k + c[1]
             out = _bilinear(image.pixels.astype(np.float64), u, v).reshape(n, n, -1).astype(np.float32)
         return {"camera": cam, "image": Image(out)}
+
+
+class MeshMask(Node):
+    """The pixels a mesh covers through a camera, as a Mask (e.g. the face region of the photo
+    for SkinSegment, Paris 2003 §3), optionally with its inner holes (eyes, mouth) left open."""
+
+    version = "1"
+    inputs = {"mesh": In(Mesh, "the mesh"), "camera": In(Camera, "the camera")}
+    outputs = {"mask": Out(Mask, "1 where the mesh is seen")}
+
+    class Params(Node.Params):
+        fill_holes: bool = Field(False, description="count the inner holes (eyes, mouth) as covered")
+
+    def compute(self, mesh, camera: Camera):
+        check_mesh(mesh)
+        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera)
+        return Mask(s.coverage.astype(np.float32))

@@ -8,7 +8,7 @@ a rough mirror ball under the same light (the probe).  The same module renders r
 under directional lights for the oracle test (tests/oracles/test_paris_face_mitsuba.py).
 
 ``python nodes/paris/data/make_capture.py`` writes ``sample_capture/`` beside this file:
-photo.exr, probe.exr, mesh.ply, camera.json, skin.png (read by graphs/face_capture.yaml).
+photo.exr, probe.exr, mesh.ply, camera.json (read by graphs/face_capture.yaml).
 """
 from __future__ import annotations
 
@@ -183,12 +183,6 @@ def main(out_dir: str | None = None, size: int = 128, spp: int = 64):
     for name, img in (("photo.exr", photo), ("probe.exr", probe)):
         with open(os.path.join(out_dir, name), "wb") as f:
             f.write(encode_image(img, ".exr", 16))
-    from nodes.common import raster
-
-    r = raster.rasterize(m.vertices, m.faces, cam)
-    sk = raster.interpolate(r, m.faces, skin_w) > 0.5
-    with open(os.path.join(out_dir, "skin.png"), "wb") as f:
-        f.write(encode_image(sk[..., None].astype(np.float32), ".png", 8))
     m.export(os.path.join(out_dir, "mesh.ply"))
     with open(os.path.join(out_dir, "camera.json"), "w") as f:
         json.dump(cam.model_dump(), f, indent=1)
