@@ -289,6 +289,10 @@ def stack_table(S, K, grids, wavelengths, illuminant="D65", background=None):
     return np.concatenate([Rt @ W, Rb @ W, T @ W], axis=-1)
 
 
+#: pixels per block in :func:`lookup`: keeps the temporaries in cache and off fresh pages
+LOOKUP_BLOCK = 1 << 15
+
+
 def lookup(table, grids, thickness: np.ndarray):
     """Multilinear interpolation of ``table`` (*grid sizes, C) at per-pixel thicknesses.
 
@@ -296,7 +300,7 @@ def lookup(table, grids, thickness: np.ndarray):
     Pixels whose thicknesses all fall on grid nodes (e.g. binary masks times a thickness) are a
     single gather and get the table value exactly; only the others are interpolated (2^n
     corners).  ``table`` may be a list of tables on the same grid: a list of float32 (H, W, C_k)
-    is returned then, else one float32 (H, W, C).
+    is returned then, else one float32 (H, W, C).  Works in blocks of ``LOOKUP_BLOCK`` pixels.
     """
     tables = table if isinstance(table, (list, tuple)) else [table]
     h, w, n = thickness.shape
@@ -305,52 +309,58 @@ def lookup(table, grids, thickness: np.ndarray):
     t = thickness.reshape(P, n)
     sizes = [len(g) for g in grids]
     strides = [int(np.prod(sizes[i + 1:], dtype=np.int64)) for i in range(n)]
+    axes = [(i, np.float32((sizes[i] - 1) / (grids[i][-1] - grids[i][0])), strides[i], sizes[i])
+            for i in range(n) if sizes[i] > 1]
+    if not axes:
+        outs = [np.broadcast_to(fl[0], (P, fl.shape[1])).copy() for fl in flats]
+    else:
+        outs = [np.empty((P, fl.shape[1]), np.float32) for fl in flats]
+        for s0 in range(0, P, LOOKUP_BLOCK):
+            s1 = min(P, s0 + LOOKUP_BLOCK)
+            _lookup_block(flats, axes, t[s0:s1], [o[s0:s1] for o in outs])
+    outs = [o.reshape(h, w, -1) for o in outs]
+    return outs if isinstance(table, (list, tuple)) else outs[0]
+
+
+def _lookup_block(flats, axes, t, outs):
     base = None
     frac_any = None
-    axes = []
-    for i in range(n):
-        g = grids[i]
-        N = sizes[i]
-        if N == 1:
-            continue
-        f = np.multiply(t[:, i], np.float32((N - 1) / (g[-1] - g[0])), dtype=np.float32)
+    fs_all = []
+    for i, scale, st, N in axes:
+        f = np.multiply(t[:, i], scale, dtype=np.float32)
         np.minimum(f, np.float32(N - 1), out=f)
         fl0 = np.floor(f)
         nz = f != fl0  # off the grid nodes along this axis
         frac_any = nz if frac_any is None else np.logical_or(frac_any, nz, out=frac_any)
-        if strides[i] != 1:
-            fl0 *= np.float32(strides[i])  # exact: table sizes stay far below 2**24
+        if st != 1:
+            fl0 *= np.float32(st)  # exact: table sizes stay far below 2**24
         base = fl0 if base is None else np.add(base, fl0, out=base)
-        axes.append((f, strides[i], N))
-    if base is not None:
-        base = base.astype(np.int32)
-    if base is None:
-        outs = [np.broadcast_to(fl[0], (P, fl.shape[1])).copy() for fl in flats]
-    else:
-        outs = [np.take(fl, base, axis=0) for fl in flats]
-        idx = np.flatnonzero(frac_any)
-        if idx.size:
-            b = base[idx]
-            accs = [np.zeros((idx.size, fl.shape[1]), np.float32) for fl in flats]
-            sub = []
-            for f, st, N in axes:
-                fs = f[idx]
-                i0 = np.floor(fs)
-                sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
-            for corner in range(1 << len(sub)):
-                off = b.copy()
-                wc = None
-                for j, (i0, wt, st, N) in enumerate(sub):
-                    if corner >> j & 1:
-                        off += np.where(i0 < N - 1, np.int32(st), np.int32(0))
-                        wj = wt
-                    else:
-                        wj = np.float32(1.0) - wt
-                    wc = wj if wc is None else wc * wj
-                wc = wc[:, None]
-                for acc, fl in zip(accs, flats):
-                    acc += np.take(fl, off, axis=0) * wc
-            for o, acc in zip(outs, accs):
-                o[idx] = acc
-    outs = [o.reshape(h, w, -1) for o in outs]
-    return outs if isinstance(table, (list, tuple)) else outs[0]
+        fs_all.append(f)
+    base = base.astype(np.int32)
+    for o, fl in zip(outs, flats):
+        np.take(fl, base, axis=0, out=o)
+    idx = np.flatnonzero(frac_any)
+    if not idx.size:
+        return
+    b = base[idx]
+    accs = [np.zeros((idx.size, fl.shape[1]), np.float32) for fl in flats]
+    sub = []
+    for f, (i, scale, st, N) in zip(fs_all, axes):
+        fs = f[idx]
+        i0 = np.floor(fs)
+        sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
+    for corner in range(1 << len(sub)):
+        off = b.copy()
+        wc = None
+        for j, (i0, wt, st, N) in enumerate(sub):
+            if corner >> j & 1:
+                off += np.where(i0 < N - 1, np.int32(st), np.int32(0))
+                wj = wt
+            else:
+                wj = np.float32(1.0) - wt
+            wc = wj if wc is None else wc * wj
+        wc = wc[:, None]
+        for acc, fl in zip(accs, flats):
+            acc += np.take(fl, off, axis=0) * wc
+    for o, acc in zip(outs, accs):
+        o[idx] = acc

@@ -81,6 +81,26 @@ def over_rgb_background(q: dict, Rg: np.ndarray) -> np.ndarray:
     return (q["Rt"] + q["T2"] * Rg / (1.0 - q["Rb"] * Rg)).astype(np.float32)
 
 
+def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
+    """(R over the RGB background Rg, T) per pixel, float32 (H, W, 3) each, in row blocks
+    (the table lookups and the combination stay in cache)."""
+    n = S.shape[0]
+    h, w = thickness.shape[:2]
+    grids = km.thickness_grid([float(thickness[..., i].max()) for i in range(n)], lut_size)
+    table = _stack_table(S, K, wl, grids, illuminant, None)
+    R = np.empty((h, w, 3), np.float32)
+    T = np.empty((h, w, 3), np.float32)
+    rows = max(1, km.LOOKUP_BLOCK // max(w, 1))
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        q = dict(zip(("Rt", "Rb", "T", "T2"), km.lookup(table, grids, thickness[r0:r1])))
+        g = Rg[r0:r1]
+        np.divide(q["T2"] * g, 1.0 - q["Rb"] * g, out=R[r0:r1])
+        R[r0:r1] += q["Rt"]
+        T[r0:r1] = q["T"]
+    return R, T
+
+
 class KMStack(Node):
     """Cosmetic layers over skin → combined reflectance and transmittance, per pixel (Huang 2013 §3.1, eqs. 1–4).
 
@@ -126,8 +146,8 @@ class KMStack(Node):
         t = _thickness_map(thickness, "thickness", shape, len(specs))
         if background is not None:
             Rg = check_reflectance_image(background, "background")
-            q = pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
-            return {"reflectance": Image(over_rgb_background(q, Rg)), "transmittance": Image(q["T"])}
+            R, T = stack_over_rgb(S, K, wl, t, Rg, p.illuminant, p.lut_size)
+            return {"reflectance": Image(R), "transmittance": Image(T)}
         if background_spectrum is not None:
             v = background_spectrum.values
             if not ((v >= 0) & (v <= 1)).all():
