@@ -129,6 +129,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         B[:, i] = (b[:, 0] - a[:, 0]) * sg
         C[:, i] = ((b[:, 1] - a[:, 1]) * a[:, 0] - (b[:, 0] - a[:, 0]) * a[:, 1]) * sg
         own[:, i] = _owns_edge(a[:, 0], a[:, 1], b[:, 0], b[:, 1], sg)
+    A, B, C = ([np.ascontiguousarray(M[:, i]) for i in range(3)] for M in (A, B, C))
     for a, b in zip(starts[:-1], starts[1:]):
         _batch(ids[a:b], bw[a:b], bh[a:b], npix[a:b], xmin, ymin, A, B, C, own, fz, area,
                perspective, W, depth, tri, bary)
@@ -156,7 +157,7 @@ def _batch(ids, bw, bh, npix, xmin, ymin, A, B, C, own, fz, area, perspective, W
     t = ids[owner]
     px = xmin[t] + local % bwo + 0.5
     py = ymin[t] + local // bwo + 0.5
-    e = [A[t, i] * px + B[t, i] * py + C[t, i] for i in range(3)]
+    e = [A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3)]
     inside = np.ones(n, bool)
     for i in range(3):
         inside &= e[i] >= 0

@@ -91,12 +91,12 @@ def close_holes(mesh):
 
     F = np.asarray(mesh.faces, np.int64)
     e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    nv = len(mesh.vertices)
+    key = np.minimum(e[:, 0], e[:, 1]) * nv + np.maximum(e[:, 0], e[:, 1])
+    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
     bnd = e[cnt[inv.ravel()] == 1]
     if len(bnd) == 0:
         return mesh
-    nv = len(mesh.vertices)
     g = coo_matrix((np.ones(len(bnd)), (bnd[:, 0], bnd[:, 1])), shape=(nv, nv))
     ncomp, lab = connected_components(g, directed=False)
     comp = lab[bnd[:, 0]]
