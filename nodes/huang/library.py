@@ -6,7 +6,7 @@ its specular parameters (§3.3: Beckmann RMS slope m, intensity ρ_s, Fresnel f0
 
 The library's cosmetics are **examples, not measured products**: each one's R∞ is a measured
 ColorChecker spectrum from colour-science, and its thin-layer reflectance is synthetic (see
-``data/README.md`` and ``data/build_library.py``); S and K come from KMInvert (eqs. 6–7).
+``README.md`` and ``data/build_library.py``); S and K come from KMInvert (eqs. 6–7).
 """
 from __future__ import annotations
 
