@@ -81,6 +81,15 @@ def disc_counts(H: int, W: int, r: float) -> np.ndarray:
     return A @ np.maximum(G, 0).astype(np.float64)
 
 
+@functools.lru_cache(maxsize=4)
+def _inverse_counts(H: int, W: int, r: float) -> tuple[np.ndarray, np.ndarray]:
+    cnt = disc_counts(H, W, r)
+    inv = (1.0 / cnt).astype(np.float32)
+    cnt.setflags(write=False)
+    inv.setflags(write=False)
+    return cnt, inv
+
+
 def local_mean_std(h: np.ndarray, r: float, mask: np.ndarray | None = None,
                    workers: int | None = -1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eq. (1): local mean μ and standard deviation σ of ``h`` under a disc of radius r px.
@@ -89,7 +98,9 @@ def local_mean_std(h: np.ndarray, r: float, mask: np.ndarray | None = None,
     μ = (h·m ∗ f)/(m ∗ f), σ² = (h²·m ∗ f)/(m ∗ f) − μ².  Returns (μ, σ, weight) where weight is
     the mask mass under the disc (0: statistics undefined there).  ``h`` may be (H, W) or
     (n, H, W) (n maps sharing the mask, transformed in one batch).  Each map is centred on its
-    (masked) mean before the float32 FFT, so σ² suffers no cancellation.
+    (masked) mean before the FFT, so σ² suffers no cancellation.  Without a mask the work and
+    the results are float32 (≈1e-7 relative); with a mask float64 (few pixels may fall under
+    a disc there).
     """
     h = np.asarray(h)
     if h.dtype not in (np.float32, np.float64):
@@ -125,16 +136,28 @@ def local_mean_std(h: np.ndarray, r: float, mask: np.ndarray | None = None,
     if m32 is not None:
         stack[-1] = m32
     sums = disc_sums(stack, r, workers, dt)
-    wsum = disc_counts(H, W, r) if m is None else sums[-1].astype(np.float64)
-    ok = wsum > 1e-6 * max(float(wsum.max()), 1e-300)
-    inv = (1.0 / np.where(ok, wsum, 1.0)).astype(dt)
-    mu_d = sums[:n] * inv
-    var = sums[n:2 * n] * inv
-    var -= mu_d * mu_d
-    np.maximum(var, 0.0, out=var)
-    sd = np.sqrt(var, dtype=np.float64)
-    mu = mu_d.astype(np.float64) + c[:, None, None]
-    wsum = np.where(ok, wsum, 0.0)
+    if m is None:  # every disc holds ≥ 1 image pixel: float32 all the way
+        cnt, inv = _inverse_counts(H, W, float(r))
+        mu = sums[:n]
+        mu *= inv
+        var = sums[n:2 * n]
+        var *= inv
+        var -= mu * mu
+        np.maximum(var, 0.0, out=var)
+        sd = np.sqrt(var, out=var)
+        mu += c[:, None, None].astype(np.float32)
+        wsum = cnt
+    else:
+        wsum = sums[-1]
+        ok = wsum > 1e-6 * max(float(wsum.max()), 1e-300)
+        inv = 1.0 / np.where(ok, wsum, 1.0)
+        mu_d = sums[:n] * inv
+        var = sums[n:2 * n] * inv
+        var -= mu_d * mu_d
+        np.maximum(var, 0.0, out=var)
+        sd = np.sqrt(var)
+        mu = mu_d + c[:, None, None]
+        wsum = np.where(ok, wsum, 0.0)
     return (mu[0], sd[0], wsum) if single else (mu, sd, wsum)
 
 
@@ -147,10 +170,13 @@ def resize_to(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Bilinear resize of a 2-D map to (H, W) (cv2, pixel-centre aligned)."""
     import cv2
 
+    a = np.asarray(a)
+    if a.dtype not in (np.float32, np.float64):
+        a = a.astype(np.float64)
     if a.shape[:2] == tuple(shape):
-        return np.asarray(a, np.float64)
+        return a
     interp = cv2.INTER_AREA if a.shape[0] > shape[0] else cv2.INTER_LINEAR
-    return cv2.resize(np.asarray(a, np.float64), (shape[1], shape[0]), interpolation=interp)
+    return cv2.resize(np.ascontiguousarray(a), (shape[1], shape[0]), interpolation=interp)
 
 
 def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
@@ -165,7 +191,7 @@ def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
 def _map(img: Image, port: str, what: str = "concentration") -> np.ndarray:
     if img.channels != 1:
         raise BadInput(port, f"{port} must be a one-channel {what} map, got {img.channels} channels")
-    a = img.pixels[:, :, 0].astype(np.float64)
+    a = img.pixels[:, :, 0]
     if not np.isfinite(a).all():
         raise BadInput(port, f"{port} holds NaN or Inf values")
     if (a < 0).any():
@@ -203,7 +229,7 @@ class LocalHistMatch(Node):
     pixel does not grow with r (FFT convolution; r beyond the image diagonal = global match).
     """
 
-    version = "2"
+    version = "3"
     inputs = {"neutral": In(Image, "neutral map H_n (one channel, volume fraction)"),
               "target": In(Image, "target map H of the same size"),
               "mask": In(Mask, "where statistics are taken (skin)", optional=True)}
@@ -230,13 +256,17 @@ class LocalHistMatch(Node):
         m = _mask(mask, hn.shape)
         (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
         self.ctx.progress(0.8, "statistics done")
-        out = np.where(w > 0, match(hn, mu_n, sd_n, mu, sd, p.eps), hn)
-        scale = np.where(w > 0, sd / np.maximum(sd_n, p.eps), 1.0)
-        # means of non-negative maps are ≥ 0; clip the float32 FFT round-off (~1e-7)
-        bias = np.maximum(np.where(w > 0, mu, hn), 0.0)
-        mu_n = np.maximum(np.where(w > 0, mu_n, hn), 0.0)
-        if m is not None:  # outside the skin nothing changes
-            out = np.where(m > 0, out, hn)
+        scale = sd / np.maximum(sd_n, p.eps)
+        out = mu + scale * (hn - mu_n)  # eq. (3)
+        if m is not None:  # no statistics (no skin under the disc) or outside the skin: unchanged
+            ok = w > 0
+            out = np.where(ok & (m > 0), out, hn)
+            scale = np.where(ok, scale, 1.0)
+            mu = np.where(ok, mu, hn)
+            mu_n = np.where(ok, mu_n, hn)
+        # means of non-negative maps are ≥ 0; clip the FFT round-off (~1e-7)
+        bias = np.maximum(mu, 0.0)
+        mu_n = np.maximum(mu_n, 0.0)
         shp = stats_shape(hn.shape, p.stats_size)
         return {"matched": Image(np.maximum(out, 0.0).astype(np.float32)),
                 "scale": Image(resize_to(scale, shp).astype(np.float32)),

@@ -14,8 +14,10 @@ def lut():
 
 
 def _lab_of_sd(sd):
-    sd = sd.copy().align(colour.SpectralShape(380, 780, 5))
-    xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100.0
+    shape = colour.SpectralShape(380, 780, 5)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    xyz = colour.sd_to_XYZ(sd.copy().align(shape), cmfs, ill) / 100.0
     return colour.XYZ_to_Lab(xyz, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
 
