@@ -354,3 +354,32 @@ outputs:
     assert r.returncode == 2, r.stderr
     assert "layer" in r.stderr and "cosmetic" in r.stderr and "lipstick_red" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_cosmetic_shade_with_mesh_and_camera():
+    """Normals, view rays and mm/pixel from a mesh: a plane facing the camera at 500 mm."""
+    import trimesh
+
+    from graphkit import Camera
+
+    h, w = 16, 20
+    cam = Camera(width=w, height=h, fx=40.0, fy=40.0, cx=w / 2, cy=h / 2)
+    z = 500.0
+    V = np.array([[-400, -400, z], [400, -400, z], [400, 400, z], [-400, 400, z]], float)
+    mesh = trimesh.Trimesh(V, [[0, 1, 2], [0, 2, 3]], process=False)
+    light = Light(direction=(0.1, -0.2, -1.0), intensity=2.0)
+    rho = np.full((h, w, 3), 0.5, np.float32)
+    t = np.zeros((h, w, 1), np.float32)
+    out = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh, "camera": cam,
+                              "light": light}, cosmetics=["foundation_light"], relight=False)
+    l = np.array(light.direction) / np.linalg.norm(light.direction)
+    y, x = 5, 13
+    ray = np.array([(x + 0.5 - cam.cx) / cam.fx, (y + 0.5 - cam.cy) / cam.fy, 1.0])
+    v = -ray / np.linalg.norm(ray)
+    want = kelemen_specular(np.array([0, 0, -1.0]), l, v, 0.35, 0.18, 0.028) * 2.0
+    np.testing.assert_allclose(out["specular"].pixels[y, x], want, rtol=1e-5)
+    np.testing.assert_allclose(out["diffuse"].pixels, rho, rtol=1e-6)  # relight=False: unit irradiance
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh},
+            cosmetics=["foundation_light"])
+    assert e.value.port == "camera"

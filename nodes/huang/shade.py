@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Field, Image, In, Light, Mask, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
 from . import km
 from .layer import _thickness_map
@@ -43,6 +43,8 @@ class CosmeticShade(Node):
         "light": In(Light, "a directional light (for E and the specular)", optional=True),
         "depth": In(Image, "camera depth in mm (SSS kernel width)", optional=True),
         "skin": In(Mask, "where the skin is (SSS stays inside)", optional=True),
+        "mesh": In(Mesh, "face mesh (mm): normals, depth and view rays come from it with 'camera'", optional=True),
+        "camera": In(Camera, "the photo camera of the mesh (OpenCV axes)", optional=True),
     }
     outputs = {"image": Out(Image, "linear RGB radiance: diffuse + specular"),
                "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
@@ -59,9 +61,12 @@ class CosmeticShade(Node):
         skin_rho_s: float = Field(0.18, ge=0, description="skin specular intensity")
         skin_f0: float = Field(0.028, ge=0, le=1, description="skin Fresnel reflectance at normal incidence")
         cover_mm: float = Field(0.005, gt=0, description="thickness (mm) at which a layer's own specular is fully on")
+        relight: bool = Field(True, description="diffuse lit by 'light'; False: unit irradiance (the albedo is an "
+                              "already-lit photo) and the light only makes the specular")
 
     def compute(self, albedo: Image, thickness: Image, layers=None, irradiance=None, normals=None,
-                light: Light | None = None, depth=None, skin: Mask | None = None):
+                light: Light | None = None, depth=None, skin: Mask | None = None, mesh=None,
+                camera: Camera | None = None):
         from nodes.common.microfacet import kelemen_specular
         from nodes.common.sss import sss_blur
 
@@ -73,6 +78,21 @@ class CosmeticShade(Node):
         h, w = rho.shape[:2]
         t = _thickness_map(thickness, "thickness", (h, w), len(specs))
         n = None
+        view = None  # per-pixel directions to the viewer, from the camera
+        mpp = p.mm_per_pixel
+        dmap = None
+        if (mesh is None) != (camera is None):
+            raise BadInput("camera" if camera is None else "mesh", "connect both mesh and camera (or neither)")
+        if mesh is not None:
+            if normals is not None or depth is not None:
+                raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
+            if (camera.width, camera.height) != (w, h):
+                raise BadInput("camera", f"camera is {camera.width}×{camera.height}, the albedo is {w}×{h}")
+            n, dmap, mpp_map, view, cov = _mesh_geometry(mesh, camera)
+            mpp = np.where(cov, mpp_map, p.mm_per_pixel)
+            skin_cov = cov.astype(np.float32)
+            skin = Mask(skin_cov if skin is None else np.minimum(skin.alpha, skin_cov)) \
+                if (skin is None or skin.alpha.shape == (h, w)) else skin
         if normals is not None:
             n = np.asarray(normals.pixels, np.float64)
             if n.shape != (h, w, 3):
@@ -91,13 +111,12 @@ class CosmeticShade(Node):
             if not np.isfinite(E).all() or (E < 0).any():
                 raise BadInput("irradiance", "irradiance must be finite and ≥ 0")
             E = np.broadcast_to(E, (h, w, 3))
-        elif light is not None:
+        elif light is not None and p.relight:
             cos = 1.0 if n is None else np.maximum(n @ ldir, 0.0)[..., None]
             E = (np.asarray(cos, np.float32) * lcol + np.asarray(light.ambient, np.float32)).astype(np.float32)
             E = np.broadcast_to(E, (h, w, 3))
         else:
             E = np.ones((h, w, 3), np.float32)
-        dmap = None
         if depth is not None:
             dmap = np.asarray(depth.pixels, np.float64)
             if dmap.shape[:2] != (h, w) or dmap.shape[2] != 1:
@@ -115,7 +134,7 @@ class CosmeticShade(Node):
         # §3.2: light entering the skin (with skin ↔ layer inter-reflections), scattered, leaving
         pre = T * E / (1.0 - Rb * rho)
         if p.sss:
-            pre = sss_blur(pre, p.mm_per_pixel, dmap, mask=smask)
+            pre = sss_blur(pre, mpp, dmap, mask=smask)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_exit = np.where(T > 1e-12, T2 / T, 0.0)
         diffuse = (Rt * E + t_exit * rho * pre).astype(np.float32)
@@ -123,8 +142,11 @@ class CosmeticShade(Node):
         # §3.3: specular, bottom to top
         spec = np.zeros((h, w, 3), np.float32)
         if n is not None and ldir is not None:
-            v = np.asarray(p.view, np.float64)
-            v = v / max(np.linalg.norm(v), 1e-12)
+            if view is not None:
+                v = view
+            else:
+                v = np.asarray(p.view, np.float64)
+                v = v / max(np.linalg.norm(v), 1e-12)
             s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
             Wf = km.rgb_weights(wl, p.illuminant)
             Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
@@ -148,3 +170,32 @@ class CosmeticShade(Node):
         light = Light(direction=(0.3, -0.2, -1.0), intensity=2.0, ambient=(0.1, 0.1, 0.1))
         return [({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 1.0},
                  {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm), "light": light})]
+
+
+def _mesh_geometry(mesh, camera: Camera):
+    """Rasterise ``mesh`` through ``camera`` (nodes.common.raster): per-pixel unit normals and
+    view directions in the camera frame, depth (mesh units, mm), mm per pixel (depth / f) and
+    coverage.  Uncovered pixels get zero normals (no specular) and the farthest covered depth."""
+    from nodes.common.raster import interpolate, rasterize
+
+    V = np.asarray(mesh.vertices, np.float64)
+    F = np.asarray(mesh.faces, np.int64)
+    r = rasterize(V, F, camera)
+    cov = r.coverage
+    R = camera.pose[:3, :3]
+    vn = np.asarray(mesh.vertex_normals, np.float64) @ R.T
+    n = interpolate(r, F, vn)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    n[~cov] = 0.0
+    if cov.any():
+        # normals facing away from the camera are flipped towards it (mesh winding varies)
+        if np.mean(n[cov][:, 2]) > 0:
+            n = -n
+    h, w = cov.shape
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    ray = np.stack([(xs - camera.cx) / camera.fx, (ys - camera.cy) / camera.fy, np.ones_like(xs)], -1)
+    view = -ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    far = float(r.depth[cov].max()) if cov.any() else 1.0
+    depth = np.where(cov, r.depth, far)
+    mpp = depth / np.sqrt(camera.fx * camera.fy)
+    return n, depth, mpp, view, cov
