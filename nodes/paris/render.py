@@ -516,5 +516,5 @@ class MeshMask(Node):
 
     def compute(self, mesh, camera: Camera):
         check_mesh(mesh)
-        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera)
+        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera, min_pixels=0)
         return Mask(s.coverage.astype(np.float32))
