@@ -175,18 +175,26 @@ def lut_axes(size_u: int, size_v: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of an (n_v, n_u, C) table at volume fractions (eq. 7)."""
-    nv, nu = lut.shape[:2]
-    fu = np.clip(np.cbrt(np.clip(c_m, 0, CM_MAX)) / np.cbrt(CM_MAX), 0, 1) * (nu - 1)
-    fv = np.clip(np.cbrt(np.clip(c_hd, 0, CHD_MAX)) / np.cbrt(CHD_MAX), 0, 1) * (nv - 1)
-    u0 = np.minimum(np.floor(fu).astype(np.int64), nu - 2 if nu > 1 else 0)
-    v0 = np.minimum(np.floor(fv).astype(np.int64), nv - 2 if nv > 1 else 0)
-    u1 = np.minimum(u0 + 1, nu - 1)
-    v1 = np.minimum(v0 + 1, nv - 1)
-    a = (fu - u0)[..., None]
-    b = (fv - v0)[..., None]
-    return ((1 - a) * (1 - b) * lut[v0, u0] + a * (1 - b) * lut[v0, u1]
-            + (1 - a) * b * lut[v1, u0] + a * b * lut[v1, u1])
+    """Bilinear lookup of an (n_v, n_u, C) table at volume fractions (eq. 7), float32.
+
+    u = ∛C_m / ∛0.5 and v = ∛C_hd / ∛0.32 in table coordinates; values outside table 1's
+    ranges are clamped to its edges.
+    """
+    c_m, c_hd = np.broadcast_arrays(np.asarray(c_m, np.float32), np.asarray(c_hd, np.float32))
+    nv, nu, nc = lut.shape
+    flat = np.ascontiguousarray(lut, np.float32).reshape(-1, nc)
+    fu = np.cbrt(np.clip(c_m, 0, CM_MAX)) * np.float32((nu - 1) / np.cbrt(CM_MAX))
+    fv = np.cbrt(np.clip(c_hd, 0, CHD_MAX)) * np.float32((nv - 1) / np.cbrt(CHD_MAX))
+    u0 = np.clip(fu.astype(np.int64), 0, max(nu - 2, 0))
+    v0 = np.clip(fv.astype(np.int64), 0, max(nv - 2, 0))
+    a = np.clip(fu - u0, 0, 1)[..., None]
+    b = np.clip(fv - v0, 0, 1)[..., None]
+    du = 1 if nu > 1 else 0
+    dv = nu if nv > 1 else 0
+    i00 = v0 * nu + u0
+    top = flat[i00] * (1 - a) + flat[i00 + du] * a
+    bot = flat[i00 + dv] * (1 - a) + flat[i00 + dv + du] * a
+    return top * (1 - b) + bot * b
 
 
 class SkinColorLUT(Node):

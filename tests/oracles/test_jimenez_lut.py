@@ -78,4 +78,4 @@ def test_lut_lookup_hits_grid_entries(lut):
     table = lut["lut"].pixels.astype(np.float64)
     cm, chd = S.lut_axes(table.shape[1], table.shape[0])
     got = S.lut_lookup(table, cm[None, [3, 17, 40]], chd[[5, 30, 63], None])
-    np.testing.assert_allclose(got, table[np.ix_([5, 30, 63], [3, 17, 40])], atol=1e-9)
+    np.testing.assert_allclose(got, table[np.ix_([5, 30, 63], [3, 17, 40])], atol=1e-5)  # float32 lookup
