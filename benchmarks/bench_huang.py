@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=10)
     args = ap.parse_args(argv)
     from graphkit import Image
-    from nodes.huang import stack as st
+    from nodes.huang import km
     from nodes.huang.stack import KMStack
 
     node = KMStack(KMStack.Params(cosmetics=COSMETICS))
@@ -79,7 +79,7 @@ def main(argv=None) -> int:
         frac = float(np.mean(np.any((t > 0) & (np.abs(t - t.max(axis=(0, 1))) > 0), axis=-1)))
         for bgname, kw in (("spectral TCS13", {}), ("RGB image", {"background": skin})):
             def cold():
-                st._TABLES.clear()
+                km._TABLES.clear()
                 node.compute(thickness=timg, **kw)
 
             c = median_seconds(cold, max(3, args.runs // 3))

@@ -1,7 +1,6 @@
 """graphs/makeup.yaml runs end to end (astronaut → FaceMesh → cosmetic map → CosmeticShade)."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -152,9 +152,7 @@ def test_lookup_exact_on_nodes_and_close_between():
     wl = km.WAVELENGTHS
     S, K = rng.uniform(1, 30, (3, wl.size)), rng.uniform(0.1, 8, (3, wl.size))
     grids = km.thickness_grid([0.03, 0.05, 0.0], 17)
-    from nodes.huang.stack import _stack_table
-
-    tabs = _stack_table(S, K, wl, grids, "D65", None)
+    tabs = km.stack_rgb_table(S, K, wl, grids, "D65", None)
     h, w = 16, 20
     # thicknesses exactly on nodes (binary masks × thickness) → table values, exactly
     t = np.stack([0.03 * (rng.random((h, w)) > 0.5), 0.05 * (rng.random((h, w)) > 0.5), np.zeros((h, w))], -1)

@@ -269,24 +269,44 @@ def thickness_grid(maxima, size: int) -> list[np.ndarray]:
     return [np.linspace(0.0, m, size) if m > 0 else np.zeros(1) for m in maxima]
 
 
-def stack_table(S, K, grids, wavelengths, illuminant="D65", background=None):
-    """Linear-RGB stack quantities on the grid of layer thicknesses.
+_TABLES: dict = {}
 
-    S, K: (n_layers, n_λ) in mm⁻¹, bottom layer first; ``grids``: one 1-D thickness grid (mm)
-    per layer.  Returns an array (*grid sizes, C) with C = 3 (RGB of R over the spectral
-    ``background``) when ``background`` (n_λ reflectance) is given, else C = 9: RGB of Rt, of Rb
-    and of T (the stack alone).  The spectral work happens here, once per grid node.
+
+def stack_rgb_table(S, K, wl, grids, illuminant, bg):
+    """Linear-RGB tables of a stack on a grid of layer thicknesses (memoised per material set).
+
+    S, K: (n, n_λ) mm⁻¹, bottom layer first; ``grids``: one 1-D thickness grid (mm) per layer;
+    ``bg``: spectral background reflectance (n_λ) or None.  Returns float32 tables of shape
+    (*grid sizes, 3): [RGB of R over bg, T filter] with a background, else [RGB of Rt, Rb filter,
+    T filter, T² filter] (filters: RGB(x)/RGB(1)).  The spectral work (eqs. 1–4 per wavelength)
+    happens only here.
     """
-    n = len(grids)
+    key = (S.tobytes(), K.tobytes(), wl.tobytes(), tuple(g.tobytes() for g in grids), illuminant,
+           None if bg is None else bg.tobytes())
+    tab = _TABLES.get(key)
+    if tab is not None:
+        return tab
+    n = S.shape[0]
     shape = tuple(len(g) for g in grids)
-    W = rgb_weights(wavelengths, illuminant)
-    mesh = np.meshgrid(*grids, indexing="ij") if n else []
-    Xs = [m.reshape(shape + (1,)) for m in mesh]
-    Rt, Rb, T = stack([S[i] for i in range(n)], [K[i] for i in range(n)], Xs)
-    Rt, Rb, T = (np.broadcast_to(a, shape + (len(wavelengths),)) for a in (Rt, Rb, T))
-    if background is not None:
-        return over_background(Rt, Rb, T, np.asarray(background, np.float64)) @ W
-    return np.concatenate([Rt @ W, Rb @ W, T @ W], axis=-1)
+    # each layer on its own 1-D grid (axis i), broadcast together by compose: eqs. 1–2 run on
+    # n × lut_size × n_λ values, eqs. 3–4 on the product grid.
+    Xs = [g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)) for i, g in enumerate(grids)]
+    Rt, Rb, T = stack(list(S), list(K), Xs)
+    full = shape + (wl.size,)
+    Rt, Rb, T = (np.broadcast_to(a, full) for a in (Rt, Rb, T))
+    W = rgb_weights(wl, illuminant)
+    # quantities that multiply light (T, T², Rb·Rg) are RGB filters: divided by the RGB of the
+    # spectrally flat 1, so that no layer gives exactly 1 (the white's RGB is 1 ± 1e-4)
+    Wf = W / W.sum(axis=0)
+    if bg is not None:
+        tab = [over_background(Rt, Rb, T, bg) @ W, T @ Wf]
+    else:
+        tab = [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
+    tab = [np.ascontiguousarray(x, np.float32) for x in tab]
+    if len(_TABLES) > 64:
+        _TABLES.clear()
+    _TABLES[key] = tab
+    return tab
 
 
 #: pixels per block in :func:`lookup`: keeps the temporaries in cache and off fresh pages
@@ -343,7 +363,8 @@ def _lookup_block(flats, axes, t, outs):
     if not idx.size:
         return
     b = base[idx]
-    accs = [np.zeros((idx.size, fl.shape[1]), np.float32) for fl in flats]
+    merged = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)  # one gather per corner
+    acc = np.zeros((idx.size, merged.shape[1]), np.float32)
     sub = []
     for f, (i, scale, st, N) in zip(fs_all, axes):
         fs = f[idx]
@@ -359,8 +380,9 @@ def _lookup_block(flats, axes, t, outs):
             else:
                 wj = np.float32(1.0) - wt
             wc = wj if wc is None else wc * wj
-        wc = wc[:, None]
-        for acc, fl in zip(accs, flats):
-            acc += np.take(fl, off, axis=0) * wc
-    for o, acc in zip(outs, accs):
-        o[idx] = acc
+        acc += np.take(merged, off, axis=0) * wc[:, None]
+    c0 = 0
+    for o in outs:
+        c1 = c0 + o.shape[1]
+        o[idx] = acc[:, c0:c1]
+        c0 = c1

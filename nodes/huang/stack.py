@@ -38,47 +38,9 @@ def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=25, background_s
     n = S.shape[0]
     grids = km.thickness_grid([float(thickness[..., i].max()) for i in range(n)], lut_size)
     bg = None if background_spectrum is None else np.asarray(background_spectrum, np.float64)
-    table = _stack_table(S, K, wl, grids, illuminant, bg)
+    table = km.stack_rgb_table(S, K, wl, grids, illuminant, bg)
     names = ("R", "T") if bg is not None else ("Rt", "Rb", "T", "T2")
     return dict(zip(names, km.lookup(table, grids, thickness)))
-
-
-_TABLES: dict = {}
-
-
-def _stack_table(S, K, wl, grids, illuminant, bg):
-    """The RGB tables of stack quantities on the thickness grid (memoised: a per-material precompute)."""
-    key = (S.tobytes(), K.tobytes(), wl.tobytes(), tuple(g.tobytes() for g in grids), illuminant,
-           None if bg is None else bg.tobytes())
-    tab = _TABLES.get(key)
-    if tab is not None:
-        return tab
-    n = S.shape[0]
-    shape = tuple(len(g) for g in grids)
-    # each layer on its own 1-D grid (axis i), broadcast together by compose: eqs. 1–2 run on
-    # n × lut_size × n_λ values, eqs. 3–4 on the product grid.
-    Xs = [g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)) for i, g in enumerate(grids)]
-    Rt, Rb, T = km.stack(list(S), list(K), Xs)
-    full = shape + (wl.size,)
-    Rt, Rb, T = (np.broadcast_to(a, full) for a in (Rt, Rb, T))
-    W = km.rgb_weights(wl, illuminant)
-    # quantities that multiply light (T, T², Rb·Rg) are RGB filters: divided by the RGB of the
-    # spectrally flat 1, so that no layer gives exactly 1 (the white's RGB is 1 ± 1e-4)
-    Wf = W / W.sum(axis=0)
-    if bg is not None:
-        tab = [km.over_background(Rt, Rb, T, bg) @ W, T @ Wf]
-    else:
-        tab = [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
-    tab = [np.ascontiguousarray(x, np.float32) for x in tab]
-    if len(_TABLES) > 64:
-        _TABLES.clear()
-    _TABLES[key] = tab
-    return tab
-
-
-def over_rgb_background(q: dict, Rg: np.ndarray) -> np.ndarray:
-    """R = Rt + T² Rg / (1 − Rb Rg) in linear RGB (an approximation of the spectral product)."""
-    return (q["Rt"] + q["T2"] * Rg / (1.0 - q["Rb"] * Rg)).astype(np.float32)
 
 
 def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
@@ -87,7 +49,7 @@ def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
     n = S.shape[0]
     h, w = thickness.shape[:2]
     grids = km.thickness_grid([float(thickness[..., i].max()) for i in range(n)], lut_size)
-    table = _stack_table(S, K, wl, grids, illuminant, None)
+    table = km.stack_rgb_table(S, K, wl, grids, illuminant, None)
     R = np.empty((h, w, 3), np.float32)
     T = np.empty((h, w, 3), np.float32)
     rows = max(1, km.LOOKUP_BLOCK // max(w, 1))
