@@ -175,10 +175,11 @@ class SkinChromophores(Node):
     Outputs are unitless volume fractions (C_m and C_hd of table 1, clipped to its ranges),
     zero outside the skin; ``pigments`` is a 2×3 array of density vectors (−ln RGB per unit
     volume fraction; row 0 melanin, row 1 hemoglobin).  Without a ``mask`` the skin is found
-    by a YCrCb colour box.
+    by a YCrCb colour box; with one, that box also removes non-skin pixels inside it (eyes,
+    teeth, brows) unless ``colour_check`` is off.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"image": In(Image, "photo, linear RGB"),
               "mask": In(Mask, "skin mask (optional: detected by colour otherwise)", optional=True)}
     outputs = {"melanin": Out(Image, "C_m, volume fraction"),
@@ -189,6 +190,7 @@ class SkinChromophores(Node):
     class Params(Node.Params):
         melanin_blend: float = Field(0.61, ge=0, le=1, description="β_m of the model used for naming and scaling")
         min_skin_fraction: float = Field(0.002, ge=0, le=1, description="fewer skin pixels than this share of the photo is an error")
+        colour_check: bool = Field(True, description="inside a given mask keep only skin-coloured pixels (drops eyes, teeth, brows)")
 
     def compute(self, image: Image, mask: Mask | None = None):
         from .skinlut import CHD_MAX, CM_MAX
@@ -201,6 +203,8 @@ class SkinChromophores(Node):
             if mask.alpha.shape != rgb.shape[:2]:
                 raise BadInput("mask", f"mask is {mask.width}×{mask.height}, image is {image.width}×{image.height}")
             skin = (mask.alpha > 0.5).astype(np.float32)
+            if self.params.colour_check:
+                skin = skin * detect_skin(rgb)
             where = "mask"
         else:
             skin = detect_skin(rgb)
