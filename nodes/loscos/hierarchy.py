@@ -1,0 +1,386 @@
+"""Hierarchical radiosity (Loscos 2000 §2.3, after Hanrahan et al. 1991 and Sillion 1995).
+
+One place for the hierarchy: quadtree elements over the scene's parallelograms, links carrying
+form factor F and attenuation V, BF / BFV refinement, and the gather + push-pull solver.
+
+* Elements live in flat arrays (:class:`Hierarchy`): polygon, level, quadtree cell (i, j),
+  parent, first child (children are 4 consecutive ids), area.
+* A link (receiver r ← sender s) carries F_rs (unitless, :func:`geometry.element_form_factors`)
+  and V_rs ∈ [0, 1], the fraction of unblocked rays; VISIBLE (V = 1), INVISIBLE (V = 0) or
+  PARTIAL otherwise (§2.3).
+* Gather: H_r = Σ_links F V B_s (irradiance, W/m² when B is radiosity in W/m²);
+  push: a leaf's irradiance is the sum over itself and its ancestors;
+  pull: an element's radiosity is the area average of its leaves (§2.3, [23]).
+  B_leaf = E_leaf + ρ_leaf H_leaf, iterated until the change is below ``tol``.
+
+Clustering: the hierarchy starts from polygon–polygon links, i.e. the root cluster's
+self-link already refined one level; in an enclosed room every cluster link of Sillion's
+algorithm is refined below the cluster level at once, so no cluster elements are kept.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import geometry as G
+
+VISIBLE, PARTIAL, INVISIBLE = 2, 1, 0
+
+
+def vis_type(V: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """VISIBLE / PARTIAL / INVISIBLE from attenuation factors (§2.3)."""
+    return np.where(V >= 1 - tol, VISIBLE, np.where(V <= tol, INVISIBLE, PARTIAL))
+
+
+@dataclass(eq=False)
+class Hierarchy:
+    """Quadtree elements over P parallelograms plus the links between them."""
+
+    P_o: np.ndarray  # (P,3) polygon origins
+    P_u: np.ndarray
+    P_v: np.ndarray
+    poly: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    level: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    ij: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    parent: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    child0: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    recv: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    send: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    F: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    V: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    ARRAYS = ("P_o", "P_u", "P_v", "poly", "level", "ij", "parent", "child0",
+              "recv", "send", "F", "V")
+
+    @classmethod
+    def roots(cls, verts: np.ndarray) -> "Hierarchy":
+        o, u, v, n, a = G.frame(np.asarray(verts, np.float64))
+        P = len(o)
+        return cls(o, u, v, poly=np.arange(P), level=np.zeros(P, np.int64),
+                   ij=np.zeros((P, 2), np.int64), parent=np.full(P, -1),
+                   child0=np.full(P, -1))
+
+    def copy(self) -> "Hierarchy":
+        return Hierarchy(**{k: getattr(self, k).copy() for k in self.ARRAYS})
+
+    # -- element geometry -----------------------------------------------------------------
+    @property
+    def n_elems(self) -> int:
+        return len(self.poly)
+
+    @property
+    def P_n(self):
+        c = np.cross(self.P_u, self.P_v)
+        return c / np.linalg.norm(c, axis=1, keepdims=True)
+
+    @property
+    def P_area(self):
+        return np.linalg.norm(np.cross(self.P_u, self.P_v), axis=1)
+
+    def geom(self, e: np.ndarray):
+        """origin, u, v, n, area of elements e."""
+        p = self.poly[e]
+        sc = 0.5 ** self.level[e]
+        u = self.P_u[p] * sc[:, None]
+        v = self.P_v[p] * sc[:, None]
+        o = self.P_o[p] + self.ij[e, 0:1] * u + self.ij[e, 1:2] * v
+        return o, u, v, self.P_n[p], self.P_area[p] * sc * sc
+
+    def area(self, e=None):
+        e = np.arange(self.n_elems) if e is None else e
+        return self.P_area[self.poly[e]] * 0.25 ** self.level[e]
+
+    @property
+    def leaves(self) -> np.ndarray:
+        return np.flatnonzero(self.child0 < 0)
+
+    def subdivide(self, e: np.ndarray) -> None:
+        """Give every element in e (that has none yet) its 4 children."""
+        e = np.unique(e[self.child0[e] < 0])
+        if len(e) == 0:
+            return
+        n0 = self.n_elems
+        k = len(e)
+        ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+        self.child0[e] = n0 + 4 * np.arange(k)
+        self.poly = np.concatenate([self.poly, np.repeat(self.poly[e], 4)])
+        self.level = np.concatenate([self.level, np.repeat(self.level[e] + 1, 4)])
+        cij = (2 * self.ij[e])[:, None, :] + ab[None]
+        self.ij = np.concatenate([self.ij, cij.reshape(-1, 2)])
+        self.parent = np.concatenate([self.parent, np.repeat(e, 4)])
+        self.child0 = np.concatenate([self.child0, np.full(4 * k, -1)])
+
+    def unsubdivide(self, e: np.ndarray) -> None:
+        """Make elements e leaves again (their children stay allocated but unreachable)."""
+        self.child0[e] = -1
+
+    def children(self, e: np.ndarray) -> np.ndarray:
+        """(len(e), 4) child ids."""
+        return self.child0[e][:, None] + np.arange(4)[None]
+
+    def ancestors_pairs(self, leaves: np.ndarray):
+        """(leaf position, ancestor-or-self id) pairs for the push/pull matrices."""
+        rows, cols = [], []
+        cur = leaves.copy()
+        pos = np.arange(len(leaves))
+        while len(cur):
+            rows.append(pos)
+            cols.append(cur)
+            par = self.parent[cur]
+            m = par >= 0
+            pos, cur = pos[m], par[m]
+        return np.concatenate(rows), np.concatenate(cols)
+
+    def is_descendant_or_self(self, e: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Elementwise: is e[k] inside a[k] (same polygon, deeper or equal, cell within)?"""
+        same = self.poly[e] == self.poly[a]
+        dl = self.level[e] - self.level[a]
+        ok = same & (dl >= 0)
+        sh = np.where(ok, dl, 0)
+        return ok & np.all((self.ij[e] >> sh[:, None]) == self.ij[a], axis=1)
+
+    def leaf_grid(self, max_level: int | None = None):
+        """Per polygon a (2^L × 2^L) array of leaf ids (L = deepest level) → (P, 2^L, 2^L)."""
+        lv = self.leaves
+        L = int(self.level[lv].max()) if max_level is None else max_level
+        n = 1 << L
+        grid = np.full((len(self.P_o), n, n), -1, np.int64)
+        for l in np.unique(self.level[lv]):
+            e = lv[self.level[lv] == l]
+            b = 1 << (L - l)
+            r = np.arange(b)
+            I = (self.ij[e, 0] * b)[:, None, None] + r[None, :, None]
+            J = (self.ij[e, 1] * b)[:, None, None] + r[None, None, :]
+            grid[self.poly[e][:, None, None], I, J] = e[:, None, None]
+        return grid
+
+    def locate(self, poly: np.ndarray, s: np.ndarray, t: np.ndarray, grid=None):
+        """Leaf id under polygon coordinates (s, t) ∈ [0,1]²."""
+        grid = self.leaf_grid() if grid is None else grid
+        n = grid.shape[1]
+        i = np.clip((s * n).astype(np.int64), 0, n - 1)
+        j = np.clip((t * n).astype(np.int64), 0, n - 1)
+        return grid[poly, i, j]
+
+
+# ------------------------------------------------------------------------------------------
+# links: form factors and visibility
+
+
+def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng,
+                    occ=None) -> np.ndarray:
+    """Attenuation V for links r ← s: fraction of n_rays² unblocked segments (§2.3)."""
+    if len(r) == 0:
+        return np.zeros(0)
+    occ = occ if occ is not None else (h.P_o, h.P_u, h.P_v, h.P_n)
+    ro, ru, rv, _, _ = h.geom(r)
+    so, su, sv, _, _ = h.geom(s)
+    st = G.grid_st(n_rays)
+    k = len(st)
+    M = len(r)
+    ja = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
+    jb = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
+    jb = jb[:, rng.permutation(k)]
+    p0 = ro[:, None] + ja[..., 0:1] * ru[:, None] + ja[..., 1:2] * rv[:, None]
+    p1 = so[:, None] + jb[..., 0:1] * su[:, None] + jb[..., 1:2] * sv[:, None]
+    ign = np.repeat(np.stack([h.poly[r], h.poly[s]], 1), k, axis=0)
+    blocked = G.segment_blocked(p0.reshape(-1, 3), p1.reshape(-1, 3), *occ, ignore=ign)
+    # weight each ray by the point-to-point kernel cos·cos/r², so that F·V estimates the
+    # occluded form factor even where visibility correlates with distance
+    d = p1 - p0
+    r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
+    rn = h.P_n[h.poly[r]][:, None]
+    sn = h.P_n[h.poly[s]][:, None]
+    w = (np.clip(np.einsum("mkc,mkc->mk", d, rn), 0, None)
+         * np.clip(-np.einsum("mkc,mkc->mk", d, sn), 0, None) / (r2 * r2))
+    wsum = w.sum(1)
+    vis = 1.0 - blocked.reshape(M, k)
+    return np.where(wsum > 0, (w * vis).sum(1) / np.maximum(wsum, 1e-300), vis.mean(1))
+
+
+def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """False where one element lies wholly behind the other's plane (no exchange)."""
+    ro, ru, rv, rn, _ = h.geom(r)
+    so, su, sv, sn, _ = h.geom(s)
+    cr = G.corners(ro, ru, rv)
+    cs = G.corners(so, su, sv)
+    ds = np.einsum("nkc,nc->nk", cs - ro[:, None], rn)
+    dr = np.einsum("nkc,nc->nk", cr - so[:, None], sn)
+    return (ds > 1e-9).any(1) & (dr > 1e-9).any(1) & (h.poly[r] != h.poly[s])
+
+
+def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int):
+    """F for links, with 4× more receiver points for near pairs (the integrand peaks at a
+    shared edge, where a coarse midpoint rule underestimates it)."""
+    c1 = o1 + 0.5 * (u1 + v1)
+    c2 = o2 + 0.5 * (u2 + v2)
+    size = np.linalg.norm(u1 + v1, axis=1) + np.linalg.norm(u2 + v2, axis=1)
+    near = np.linalg.norm(c1 - c2, axis=1) < 1.0 * size
+    F = np.zeros(len(o1))
+    for m, n in ((~near, n_ff), (near, 4 * n_ff)):
+        if m.any():
+            F[m] = G.element_form_factors(o1[m], u1[m], v1[m], n1[m], o2[m], u2[m], v2[m],
+                                          n2[m], n)
+    return F
+
+
+def ff_spread(h: Hierarchy, r, s):
+    """Min, centre and max of the point-to-polygon F_{dx→s} over r's centre and corners
+    (moved 1 % inwards), the refinement oracle."""
+    ro, ru, rv, rn, _ = h.geom(r)
+    so, su, sv, sn, _ = h.geom(s)
+    P = G.corners(so, su, sv)
+    st = np.array([[0.5, 0.5], [0.01, 0.01], [0.99, 0.01], [0.99, 0.99], [0.01, 0.99]])
+    F = []
+    for a, b in st:
+        x = ro + a * ru + b * rv
+        f = G.ff_point_polygon(x, rn, P)
+        F.append(np.where(np.einsum("nc,nc->n", x - so, sn) > 0, f, 0.0))
+    F = np.stack(F, 1)
+    return F.min(1), F[:, 0], F.max(1)
+
+
+def center_ff(h: Hierarchy, r, s):
+    """Cheap estimate of F_rs: point at r's centre to polygon s (exact contour integral)."""
+    ro, ru, rv, rn, _ = h.geom(r)
+    so, su, sv, _, _ = h.geom(s)
+    return G.ff_point_polygon(ro + 0.5 * (ru + rv), rn, G.corners(so, su, sv))
+
+
+@dataclass
+class RefineParams:
+    eps_bf: float = 0.02  # refine when F·B_s / B_median exceeds this (unitless)
+    eps_bfv: float = 0.002  # …or when the link is PARTIAL and F·B_s / B_median exceeds this
+    min_area: float = 1e-3  # m²: elements are not split below this
+    max_level: int = 7
+    n_rays: int = 4  # n_rays² visibility rays per link
+    n_ff: int = 3  # n_ff² receiver points for F
+    seed: int = 0
+
+
+def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
+           prm: RefineParams, rng, force=None, progress=None):
+    """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4).
+
+    B_elem: (n_elems,) luminance of each element's radiosity (W/m²).  ``force(r, s)`` may
+    return a mask of links that must be split further (used for §4.1 and §4.5).
+    Returns the accepted links (r, s, F, V); grows h.
+    """
+    out_r, out_s, out_F, out_V = [], [], [], []
+    it = 0
+    B_ref = max(float(np.median(B_elem[h.parent < 0])), 1e-12)
+    while len(r):
+        it += 1
+        m = facing(h, r, s)
+        r, s = r[m], s[m]
+        if not len(r):
+            break
+        Fmin, Fc, Fmax = ff_spread(h, r, s)
+        B_elem = _grow(B_elem, h)
+        Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
+        ar, as_ = h.area(r), h.area(s)
+        can_r = (ar > prm.min_area) & (h.level[r] < prm.max_level)
+        can_s = (as_ > prm.min_area) & (h.level[s] < prm.max_level)
+        # (a) the irradiance varies over the receiver by more than eps: the push step would
+        #     spread an average, so split the receiver;  (b) Hanrahan's BF on the larger of
+        #     F_rs and F_sr = F_rs·A_r/A_s (split the larger element);  (c) BFV for PARTIAL.
+        trig_r = (Fmax - Fmin) * Bs > prm.eps_bf
+        contrib = Fc * np.maximum(1.0, ar / as_) * Bs
+        V = link_visibility(h, r, s, prm.n_rays, rng)
+        partial = (V > 1e-9) & (V < 1 - 1e-9)
+        trig_c = (contrib > prm.eps_bf) | (partial & (Fc * Bs > prm.eps_bfv))
+        if force is not None:
+            trig_c |= force(r, s)
+        big_r = np.where(ar >= as_, can_r, ~can_s & can_r)
+        split_r = (trig_r & can_r) | (trig_c & big_r)
+        split_s = ~split_r & trig_c & can_s
+        need = split_r | split_s
+        go = need & (split_r | split_s)
+        acc = ~go & (V > 0)
+        if acc.any():
+            ra, sa = r[acc], s[acc]
+            o1, u1, v1, n1, _ = h.geom(ra)
+            o2, u2, v2, n2, _ = h.geom(sa)
+            F = link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+            keep = F > 0
+            out_r.append(ra[keep]); out_s.append(sa[keep])
+            out_F.append(F[keep]); out_V.append(V[acc][keep])
+        gr = go & split_r
+        gs = go & ~split_r
+        h.subdivide(r[gr])
+        h.subdivide(s[gs])
+        B_elem = _grow(B_elem, h)
+        nr = [h.children(r[gr]).ravel(), np.repeat(r[gs], 4)]
+        ns = [np.repeat(s[gr], 4), h.children(s[gs]).ravel()]
+        r = np.concatenate(nr)
+        s = np.concatenate(ns)
+        if progress:
+            progress(it, len(r))
+    cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
+    return cat(out_r, np.int64), cat(out_s, np.int64), cat(out_F, float), cat(out_V, float)
+
+
+def _grow(B_elem: np.ndarray, h: Hierarchy) -> np.ndarray:
+    """Children inherit their parent's radiosity estimate."""
+    n0 = len(B_elem)
+    if n0 >= h.n_elems:
+        return B_elem
+    out = np.concatenate([B_elem, np.zeros(h.n_elems - n0)])
+    while True:  # parents come before children; one pass per new level
+        new = out[h.parent[n0:]]
+        if np.array_equal(new, out[n0:]):
+            return out
+        out[n0:] = new
+
+
+# ------------------------------------------------------------------------------------------
+# gather + push-pull
+
+
+@dataclass(eq=False)
+class Operators:
+    """Sparse gather / push / pull operators over the current leaves."""
+
+    leaves: np.ndarray
+    push: object  # (L × N) leaf ← ancestors-or-self
+    pull: object  # (N × L) element ← area-weighted leaves
+    K: object  # (N × N) receiver ← sender, F·V
+    Ku: object  # (N × N) F only (unoccluded)
+
+    def gather(self, B_leaf: np.ndarray, unoccluded: bool = False) -> np.ndarray:
+        """Irradiance at the leaves from leaf radiosities (columns broadcast)."""
+        K = self.Ku if unoccluded else self.K
+        return self.push @ (K @ (self.pull @ B_leaf))
+
+
+def operators(h: Hierarchy) -> Operators:
+    import scipy.sparse as sp
+
+    lv = h.leaves
+    N = h.n_elems
+    L = len(lv)
+    rows, cols = h.ancestors_pairs(lv)
+    push = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(L, N))
+    a = h.area()
+    pull = sp.csr_matrix((a[lv][rows] / a[cols], (cols, rows)), shape=(N, L))
+    K = sp.csr_matrix((h.F * h.V, (h.recv, h.send)), shape=(N, N))
+    Ku = sp.csr_matrix((h.F, (h.recv, h.send)), shape=(N, N))
+    return Operators(lv, push, pull, K, Ku)
+
+
+def solve(ops: Operators, E: np.ndarray, rho: np.ndarray, tol: float = 1e-7,
+          max_iter: int = 500) -> tuple[np.ndarray, int]:
+    """Jacobi gather/push-pull iterations for B = E + ρ·H(B) at the leaves.
+
+    E, rho: (L, m) — m independent right-hand sides (channels × lights).  Returns (B, iters).
+    """
+    B = E.copy()
+    scale = max(np.abs(E).max(), 1e-300)
+    for it in range(1, max_iter + 1):
+        Bn = E + rho * ops.gather(B)
+        d = np.abs(Bn - B).max()
+        B = Bn
+        if d <= tol * scale:
+            return B, it
+    return B, max_iter

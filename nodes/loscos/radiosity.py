@@ -1,0 +1,420 @@
+"""RadiositySolve and TextureRefine (Loscos 2000 §2.3–2.4, §4, §4.1)."""
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from graphkit import BadInput, Field, Node
+
+from . import hierarchy as HR
+from .ports import (PROJECTION, RADIOSITY, ROOM_SCENE, Projection, RadiositySolution,
+                    RoomScene)
+
+LUM = np.array([0.2126, 0.7152, 0.0722])
+
+
+# ------------------------------------------------------------------------------------------
+# shared steps
+
+
+def light_matrix(scene: RoomScene, h: HR.Hierarchy, leaves: np.ndarray, lights: list[str]):
+    """(L,S) 1 where leaf l lies on a polygon of light s."""
+    name = np.array(scene.light + [""] * (len(h.P_o) - len(scene.light)), dtype=object)
+    ln = name[h.poly[leaves]]
+    return np.stack([(ln == s).astype(float) for s in lights], 1) if lights else \
+        np.zeros((len(leaves), 0))
+
+
+def light_emittance(scene: RoomScene, lights: list[str]) -> np.ndarray:
+    """(S,3) emittance per light (the first polygon of each light), W/m²."""
+    out = []
+    for s in lights:
+        p = scene.light.index(s)
+        out.append(scene.emittance[p])
+    return np.array(out).reshape(-1, 3)
+
+
+def responses(h: HR.Hierarchy, ops: HR.Operators, Lm: np.ndarray, rho: np.ndarray, tol):
+    """Per-light unit-emittance responses: radiosity, irradiance, unoccluded irradiance.
+
+    Radiosity is linear in the emittances (B = (I − ρK)⁻¹ E), so one solve per light and
+    channel gives every later relighting as a weighted sum (§5, "going further").
+    Returns three (L,S,3) arrays (W/m² per W/m² of emittance) and the iteration count.
+    """
+    L, S = Lm.shape
+    if S == 0:
+        z = np.zeros((L, 0, 3))
+        return z, z, z, 0
+    E = np.repeat(Lm[:, :, None], 3, axis=2).reshape(L, S * 3)
+    R = np.repeat(rho[:, None, :], S, axis=1).reshape(L, S * 3)
+    B, it = HR.solve(ops, E, R, tol=tol)
+    H = ops.gather(B)
+    Hu = ops.gather(B, unoccluded=True)
+    return B.reshape(L, S, 3), H.reshape(L, S, 3), Hu.reshape(L, S, 3), it
+
+
+def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection) -> np.ndarray:
+    """Mean texture (linear radiance) over the covered texels of each leaf; NaN if unseen."""
+    P, R = proj.coverage.shape[:2]
+    st = (np.arange(R) + 0.5) / R
+    S, T = np.meshgrid(st, st, indexing="ij")
+    grid = h.leaf_grid()
+    pid = np.repeat(np.arange(P), R * R)
+    leaf = h.locate(pid, np.tile(S.ravel(), P), np.tile(T.ravel(), P), grid)
+    pos = np.full(h.n_elems, -1)
+    pos[leaves] = np.arange(len(leaves))
+    k = pos[leaf]
+    w = proj.coverage.reshape(-1).astype(float)
+    m = (k >= 0) & (w > 0)
+    cnt = np.bincount(k[m], w[m], minlength=len(leaves))
+    out = np.full((len(leaves), 3), np.nan)
+    tex = proj.textures.reshape(-1, 3).astype(float)
+    for c in range(3):
+        s = np.bincount(k[m], w[m] * tex[m, c], minlength=len(leaves))
+        out[:, c] = np.where(cnt > 0, s / np.maximum(cnt, 1e-300), np.nan)
+    return out
+
+
+def estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, mode, rho_hat, n_iter, tol):
+    """Leaf reflectances (L,3) — Fournier et al. eq. (1), refined (§4).
+
+    mode "scene": the scene file's albedos.  mode "photo": start from eq. (1)
+    ρ_i = T_i / T_A · ρ̂ (T_A the mean texture luminance), then ``n_iter`` times solve and set
+    ρ_i = π T_i / H_i, the reflectance the computed irradiance implies; leaves the camera does
+    not see take their polygon's area-weighted average of the computed reflectances (§4,
+    "the average of the computed reflectances"), or the scene file's value for unseen
+    polygons and for emitters (the approximate textures of §3).
+    """
+    rho_scene = scene_reflectance(scene, h, leaves)
+    if mode == "scene":
+        return rho_scene
+    seen = np.all(np.isfinite(T), 1) & ~(emit_leaf.max(1) > 0)
+    if not seen.any():
+        return rho_scene
+    a = h.area(leaves)
+    TA = np.sum(a[seen] * (T[seen] @ LUM)) / a[seen].sum()
+    rho = rho_scene.copy()
+    rho[seen] = np.clip(T[seen] / max(TA, 1e-12) * rho_hat, 0.0, 0.95)
+
+    def fill(rho):
+        poly = h.poly[leaves]
+        for p in np.unique(poly[~seen]):
+            on = (poly == p) & seen
+            if on.any() and not (emit_leaf[poly == p].max() > 0):
+                rho[(poly == p) & ~seen] = (a[on, None] * rho[on]).sum(0) / a[on].sum()
+        return rho
+
+    rho = fill(rho)
+    for _ in range(n_iter):
+        B, _ = HR.solve(ops, emit_leaf, rho, tol=tol)
+        H = ops.gather(B)
+        rho[seen] = np.clip(np.pi * T[seen] / np.maximum(H[seen], 1e-12), 0.0, 0.95)
+        rho = fill(rho)
+    return rho
+
+
+def scene_reflectance(scene, h, leaves):
+    refl = scene.reflectance
+    return refl[h.poly[leaves]].astype(float)
+
+
+def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol, info):
+    lights = scene.light_names
+    ops = HR.operators(h)
+    leaves = ops.leaves
+    Lm = light_matrix(scene, h, leaves, lights)
+    emit = light_emittance(scene, lights)
+    emit_leaf = Lm @ emit if len(lights) else np.zeros((len(leaves), 3))
+    T = leaf_textures(h, leaves, proj) if proj is not None else np.full((len(leaves), 3), np.nan)
+    rho = estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, rho_mode, rho_hat, n_iter, tol)
+    R, RH, RHu, it = responses(h, ops, Lm, rho, tol)
+    info = dict(info, leaves=int(len(leaves)), links=int(len(h.recv)), elements=int(h.n_elems),
+                iterations=int(it))
+    return RadiositySolution(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS}, rho=rho, T=T,
+                             resp=R, resp_H=RH, resp_Hu=RHu, emit=emit, lights=lights, info=info)
+
+
+def initial_radiosity(scene: RoomScene, h: HR.Hierarchy) -> np.ndarray:
+    """Per-element luminance guess for the first refinement: E + ρ·B_ambient (§2.4, eq. 2)."""
+    A = h.P_area
+    e = scene.emittance @ LUM
+    rho = scene.reflectance @ LUM
+    rho_bar = np.sum(rho * A) / A.sum()
+    amb = np.sum(e * A) / A.sum() / max(1 - rho_bar, 1e-3)
+    Bp = e + rho * amb
+    return Bp[h.poly]
+
+
+def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol: float,
+                       progress=None) -> HR.Hierarchy:
+    """BF(V) refinement from polygon–polygon links, alternating with solves (§2.3)."""
+    h = HR.Hierarchy.roots(scene.verts)
+    rng = np.random.default_rng(prm.seed)
+    P = len(scene.verts)
+    r, s = np.meshgrid(np.arange(P), np.arange(P), indexing="ij")
+    r, s = r.ravel(), s.ravel()
+    m = r != s
+    B = initial_radiosity(scene, h)
+    for k in range(rounds):
+        h.recv, h.send, h.F, h.V = HR.refine(h, r[m] if k == 0 else h.recv,
+                                             s[m] if k == 0 else h.send, B, prm, rng)
+        if progress:
+            progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")
+        ops = HR.operators(h)
+        emit_leaf = scene.emittance[h.poly[ops.leaves]]
+        Bl, _ = HR.solve(ops, emit_leaf, scene.reflectance[h.poly[ops.leaves]], tol=tol)
+        B = (ops.pull @ Bl) @ LUM
+    return h
+
+
+class RefineParamsMixin(Node.Params):
+    eps_bf: float = Field(0.1, gt=0, description="BF threshold on F·B / median polygon B")
+    eps_bfv: float = Field(0.01, gt=0, description="BFV threshold for PARTIAL links (same)")
+    min_area: float = Field(4e-4, gt=0, description="smallest element area (m²)")
+    max_level: int = Field(7, ge=0, le=10, description="deepest quadtree level")
+    rays: int = Field(4, ge=1, le=16, description="rays² per link for the attenuation factor")
+    ff_points: int = Field(3, ge=1, le=8, description="points² per receiver for form factors")
+    seed: int = Field(0, description="seed of the visibility ray jitter")
+    tol: float = Field(1e-6, gt=0, description="relative convergence threshold of gathering")
+
+
+class RadiositySolve(Node):
+    """Hierarchical radiosity of the real scene (Loscos 2000 §2.3–2.4, §4).
+
+    Quadtree patches over each polygon, links with form factors (contour integral, exact per
+    receiver point) and attenuation factors from ray casting (VISIBLE / PARTIAL / INVISIBLE),
+    BF refinement with a BFV term for partial links, then gather + push-pull until the
+    largest change is below ``tol`` (relative).  Reflectances come from the photograph:
+    Fournier's eq. (1) with the average reflectance ``rho_hat``, refined from the computed
+    reflectances (§4); emittances from the scene file (W/m²) or estimated by eq. (2).
+    The solution keeps one response per light (radiosity is linear in the emittances).
+    """
+
+    version = "1"
+    inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
+    outputs = {"solution": RADIOSITY}
+    tolerance = {"rtol": 1e-4, "atol": 1e-6}
+
+    class Params(RefineParamsMixin):
+        rounds: int = Field(2, ge=1, le=5, description="refine/solve rounds (BF uses the last B)")
+        reflectance: Literal["photo", "scene"] = Field(
+            "photo", description="photo: Fournier eq. 1 + §4 refinement; scene: file albedos")
+        emittance: Literal["scene", "estimate"] = Field(
+            "scene", description="scene: the file's W/m²; estimate: Fournier eq. 2, equal lights")
+        rho_hat: float = Field(0.5, gt=0, lt=1, description="user average reflectance ρ̂ (eq. 1)")
+        reflectance_iterations: int = Field(3, ge=0, le=20, description="§4 refinement passes")
+
+    def refine_params(self):
+        p = self.params
+        return HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
+                               p.ff_points, p.seed)
+
+    def compute(self, scene: RoomScene, projection: Projection):
+        if projection.textures.shape[0] != len(scene.verts):
+            raise BadInput("projection", f"projection has {projection.textures.shape[0]} "
+                           f"polygons, the scene {len(scene.verts)}")
+        scene = self.apply_emittance_mode(scene, projection)
+        h = hierarchical_solve(scene, self.refine_params(), self.params.rounds, self.params.tol,
+                               self.ctx.progress)
+        return finish_solution(scene, h, projection, self.params.reflectance, self.params.rho_hat,
+                               self.params.reflectance_iterations, self.params.tol,
+                               {"step": "RadiositySolve"})
+
+    def apply_emittance_mode(self, scene, proj):
+        if self.params.emittance == "scene":
+            return scene
+        from .geometry import frame
+
+        A = frame(scene.verts)[4]
+        cov = proj.coverage > 0
+        TA = proj.textures[cov].mean(0) if cov.any() else np.full(3, 0.0)
+        isl = np.array([bool(x) for x in scene.light])
+        # eq. (2): Σ E_i A_i = (1 − ρ̂) B_A Σ A_i, B_A = π × mean radiance; equal lights
+        e = (1 - self.params.rho_hat) * np.pi * TA * A.sum() / max(A[isl].sum(), 1e-12)
+        em = scene.emittance.copy()
+        em[isl] = e
+        return RoomScene(scene.names, scene.verts, scene.reflectance, em, scene.light,
+                         scene.virtual)
+
+
+# ------------------------------------------------------------------------------------------
+# §4.1 texture-based refinement
+
+
+def light_visibility(h: HR.Hierarchy, leaves, light_polys: list[np.ndarray]) -> np.ndarray:
+    """(L,S) attenuation of each leaf w.r.t. each light: Σ F·V / Σ F over the light's links
+    to the leaf or its ancestors (NaN when no link)."""
+    pos = np.full(h.n_elems, -1)
+    pos[leaves] = np.arange(len(leaves))
+    rows, cols = h.ancestors_pairs(leaves)
+    import scipy.sparse as sp
+
+    A = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(leaves), h.n_elems))
+    out = np.full((len(leaves), len(light_polys)), np.nan)
+    for k, lp in enumerate(light_polys):
+        m = np.isin(h.poly[h.send], lp)
+        fv = np.bincount(h.recv[m], h.F[m] * h.V[m], minlength=h.n_elems)
+        f = np.bincount(h.recv[m], h.F[m], minlength=h.n_elems)
+        a, b = A @ fv, A @ f
+        out[:, k] = np.where(b > 0, a / np.maximum(b, 1e-300), np.nan)
+    return out
+
+
+def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng):
+    """Replace links `mask` (receiver not a leaf) by links from each receiver leaf."""
+    from . import geometry as G
+
+    r, s = h.recv[mask], h.send[mask]
+    keep = ~mask
+    nr, ns = [], []
+    while len(r):
+        leaf = h.child0[r] < 0
+        nr.append(r[leaf]); ns.append(s[leaf])
+        r, s = r[~leaf], s[~leaf]
+        c = h.children(r)
+        r, s = c.ravel(), np.repeat(s, 4)
+    r, s = np.concatenate(nr), np.concatenate(ns)
+    f = HR.facing(h, r, s)
+    r, s = r[f], s[f]
+    o1, u1, v1, n1, _ = h.geom(r)
+    o2, u2, v2, n2, _ = h.geom(s)
+    F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+    V = HR.link_visibility(h, r, s, prm.n_rays, rng)
+    m = F > 0
+    h.recv = np.concatenate([h.recv[keep], r[m]])
+    h.send = np.concatenate([h.send[keep], s[m]])
+    h.F = np.concatenate([h.F[keep], F[m]])
+    h.V = np.concatenate([h.V[keep], V[m]])
+
+
+def lab(rgb: np.ndarray) -> np.ndarray:
+    from nodes.common.color import linear_srgb_to_lab
+
+    x = np.nan_to_num(np.asarray(rgb, float))
+    scale = max(np.percentile(x, 99), 1e-12)  # normalise: the photo's scale is arbitrary
+    return np.asarray(linear_srgb_to_lab(np.clip(x / scale, 0, None)), float)
+
+
+def leaf_neighbours(h: HR.Hierarchy, leaves) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of positions (into leaves) of edge-adjacent leaves on the same polygon."""
+    grid = h.leaf_grid()
+    pos = np.full(h.n_elems, -1)
+    pos[leaves] = np.arange(len(leaves))
+    g = pos[grid]
+    a = np.concatenate([g[:, :-1, :].ravel(), g[:, :, :-1].ravel()])
+    b = np.concatenate([g[:, 1:, :].ravel(), g[:, :, 1:].ravel()])
+    m = (a != b) & (a >= 0) & (b >= 0)
+    pr = np.unique(np.stack([a[m], b[m]], 1), axis=0)
+    return pr[:, 0], pr[:, 1]
+
+
+def texture_refine(scene, h: HR.Hierarchy, proj, prm: HR.RefineParams, color_thr, vis_thr,
+                   max_rounds, rng, progress=None):
+    """§4.1: links from real lights to leaves, then Fig. 12's texture-based subdivision."""
+    lights = scene.light_names
+    lp = [np.array([p for p, n in enumerate(scene.light) if n == s]) for s in lights]
+    allp = np.concatenate(lp) if lp else np.zeros(0, int)
+    from_light = lambda: np.isin(h.poly[h.send], allp) & (h.child0[h.recv] >= 0)  # noqa: E731
+    push_links_down(h, from_light(), prm, rng)
+    stats = {"subdivided": 0, "undone": 0}
+    for rnd in range(max_rounds):
+        leaves = h.leaves
+        T = leaf_textures(h, leaves, proj)
+        seen = np.all(np.isfinite(T), 1)
+        C = lab(T)
+        Vis = np.nan_to_num(light_visibility(h, leaves, lp), nan=1.0)
+        a, b = leaf_neighbours(h, leaves)
+        ok = seen[a] & seen[b]
+        a, b = a[ok], b[ok]
+        dc = np.linalg.norm(C[a] - C[b], axis=1)
+        dv = np.abs(Vis[a] - Vis[b]).max(1) if Vis.shape[1] else np.zeros(len(a))
+        similar_c = dc < color_thr
+        similar_v = dv < vis_thr
+        bad = (similar_c & ~similar_v) | (~similar_c & similar_v)
+        want = np.zeros(len(leaves), bool)
+        want[a[bad]] = True
+        want[b[bad]] = True
+        partial = ((Vis > vis_thr) & (Vis < 1 - vis_thr)).any(1) if Vis.shape[1] else \
+            np.zeros(len(leaves), bool)
+        want |= partial & seen
+        e = leaves[want & (h.level[leaves] < prm.max_level)
+                   & (h.area(leaves) > prm.min_area)]
+        if not len(e):
+            break
+        h.subdivide(e)
+        push_links_down(h, np.isin(h.recv, e) & np.isin(h.poly[h.send], allp), prm, rng)
+        # undo subdivisions whose children show no visibility change (Fig. 12)
+        leaves2 = h.leaves
+        Vis2 = np.nan_to_num(light_visibility(h, leaves2, lp), nan=1.0)
+        pos = np.full(h.n_elems, -1)
+        pos[leaves2] = np.arange(len(leaves2))
+        ch = h.children(e)
+        vc = Vis2[pos[ch]]  # (k,4,S)
+        same = (np.ptp(vc, axis=1) < vis_thr).all(1) & \
+            ~((vc > vis_thr) & (vc < 1 - vis_thr)).any((1, 2))
+        undo = e[same]
+        if len(undo):
+            gone = np.isin(h.recv, h.children(undo).ravel())
+            back = gone & np.isin(h.poly[h.send], allp)
+            # restore one link per (parent, light element) by pushing children links up
+            pr, ps = h.parent[h.recv[back]], h.send[back]
+            key = np.unique(np.stack([pr, ps], 1), axis=0)
+            h.recv, h.send, h.F, h.V = (x[~gone] for x in (h.recv, h.send, h.F, h.V))
+            h.unsubdivide(undo)
+            from . import geometry as G
+            o1, u1, v1, n1, _ = h.geom(key[:, 0])
+            o2, u2, v2, n2, _ = h.geom(key[:, 1])
+            F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+            V = HR.link_visibility(h, key[:, 0], key[:, 1], prm.n_rays, rng)
+            h.recv = np.concatenate([h.recv, key[:, 0]])
+            h.send = np.concatenate([h.send, key[:, 1]])
+            h.F = np.concatenate([h.F, F]); h.V = np.concatenate([h.V, V])
+        stats["subdivided"] += int(len(e) - len(undo))
+        stats["undone"] += int(len(undo))
+        if progress:
+            progress((rnd + 1) / max_rounds, f"texture refinement round {rnd + 1}")
+        if len(undo) == len(e):
+            break
+    return stats
+
+
+class TextureRefine(Node):
+    """Texture-based refinement of shadow boundaries (Loscos 2000 §4.1, Fig. 12, eq. 4).
+
+    All links from real lights are first moved to the leaves (Fig. 10b).  Then, for each
+    visible leaf and each neighbour: similar colour (CIELAB distance, eq. 4, below
+    ``color_threshold``) but different visibility (attenuation differs by ≥
+    ``visibility_threshold``) → subdivide; different colour but similar visibility →
+    subdivide; PARTIAL → subdivide.  A subdivision whose children show no visibility change
+    is undone.  Ends with a radiosity step on the new mesh and re-estimated reflectances.
+    Colours are of the leaf's mean texture, normalised by the photo's 99th percentile.
+    """
+
+    version = "1"
+    inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
+    outputs = {"solution": RADIOSITY}
+    tolerance = {"rtol": 1e-4, "atol": 1e-6}
+
+    class Params(RefineParamsMixin):
+        rays: int = Field(6, ge=1, le=16, description="rays² per light link at the leaves")
+        color_threshold: float = Field(6.0, gt=0, description="ΔE*ab below which colours match")
+        visibility_threshold: float = Field(0.1, gt=0, lt=1, description="attenuation difference")
+        max_rounds: int = Field(4, ge=0, le=10, description="refinement passes")
+        reflectance: Literal["photo", "scene"] = Field("photo", description="as RadiositySolve")
+        rho_hat: float = Field(0.5, gt=0, lt=1, description="user average reflectance ρ̂ (eq. 1)")
+        reflectance_iterations: int = Field(3, ge=0, le=20, description="§4 refinement passes")
+
+    def compute(self, scene: RoomScene, solution: RadiositySolution, projection: Projection):
+        if len(solution.P_o) != len(scene.verts):
+            raise BadInput("solution", "the solution was computed for another scene")
+        p = self.params
+        h = solution.hierarchy().copy()
+        prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
+                              p.ff_points, p.seed)
+        rng = np.random.default_rng(p.seed + 1)
+        stats = texture_refine(scene, h, projection, prm, p.color_threshold,
+                               p.visibility_threshold, p.max_rounds, rng, self.ctx.progress)
+        return finish_solution(scene, h, projection, p.reflectance, p.rho_hat,
+                               p.reflectance_iterations, p.tol,
+                               dict(solution.info, step="TextureRefine", **stats))

@@ -1,0 +1,204 @@
+"""LoadScene: a real scene's polygons, emitters, camera and photograph (Loscos 2000 §3).
+
+Scene file (YAML, ``loscos_scene: 1``)::
+
+    camera: {width: 128, height: 128, fov_deg: 39.3077, position: [0, 0, 3.9],
+             look_at: [0, 0, 0], up: [0, 1, 0]}          # metres, degrees (horizontal fov)
+    photo: cornell2.exr                                  # linear radiance, relative path
+    materials: {white: [0.885809, 0.698859, 0.666422]}   # diffuse albedo, linear RGB
+    polygons:                                            # planar parallelograms, metres,
+      - {name: floor, material: white, vertices: [[...], [...], [...], [...]]}  # CCW from front
+    lights:                                              # area emitters
+      - {name: A, material: white, emittance: [57.8, 43.9, 21.2], vertices: [...]}  # W/m²
+    boxes:                                               # expanded to 5 or 6 parallelograms
+      - {name: tall, material: white, to_world: [[4×4]], bottom: false}  # of the cube [-1,1]³
+
+Emittance is the emitted radiosity in W/m² (π × the radiance).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from graphkit import BadInput, Camera, Field, Image, InputFile, Node
+
+from .ports import ROOM_SCENE, RoomScene
+
+BUILTIN = {"cornell2": "cornell2.yaml"}
+DATA = os.path.join(os.path.dirname(__file__), "data")
+
+
+def camera_from_lookat(width, height, fov_deg, position, look_at, up) -> Camera:
+    """Pinhole Camera (OpenCV axes) from a look-at description; fov is horizontal, degrees."""
+    o = np.asarray(position, float)
+    z = np.asarray(look_at, float) - o
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, float))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = -R @ o
+    f = 0.5 * width / np.tan(np.radians(fov_deg) / 2)
+    return Camera(width=width, height=height, fx=f, fy=f, cx=width / 2, cy=height / 2,
+                  world_to_camera=M.tolist())
+
+
+def box_faces(to_world, bottom: bool = True):
+    """The faces of the cube [-1,1]³ under an affine 4×4 ``to_world``, outward, as (k,4,3)."""
+    M = np.asarray(to_world, float)
+    faces = []
+    for k in range(3):
+        for sgn in (1, -1):
+            a, b = (k + 1) % 3, (k + 2) % 3
+            if sgn < 0:
+                a, b = b, a
+            n = np.zeros(3); n[k] = sgn
+            ea = np.zeros(3); ea[a] = 1
+            eb = np.zeros(3); eb[b] = 1
+            loc = np.stack([n - ea - eb, n + ea - eb, n + ea + eb, n - ea + eb])
+            w = loc @ M[:3, :3].T + M[:3, 3]
+            if not bottom and k == 1 and sgn < 0:
+                continue
+            faces.append(w)
+    return np.array(faces)
+
+
+def check_polygons(verts: np.ndarray, names, port: str, rel_tol: float = 1e-6):
+    """Raise BadInput for degenerate, non-planar or non-parallelogram polygons."""
+    for p, (v, name) in enumerate(zip(verts, names)):
+        if not np.all(np.isfinite(v)):
+            raise BadInput(port, f"polygon '{name}' has non-finite vertices")
+        u, w = v[1] - v[0], v[3] - v[0]
+        size = max(np.linalg.norm(u), np.linalg.norm(w), 1e-300)
+        area = np.linalg.norm(np.cross(u, w))
+        if area <= 1e-10 * size * size or size < 1e-9:
+            raise BadInput(port, f"polygon '{name}' is degenerate (zero area: its vertices are "
+                                 "collinear or repeated)")
+        n = np.cross(u, w) / area
+        dev = abs(np.dot(v[2] - v[0], n))
+        if dev > rel_tol * size * 10:
+            raise BadInput(port, f"polygon '{name}' is not planar (4th vertex is {dev:.3g} "
+                                 "off the plane of the other three)")
+        gap = np.linalg.norm(v[2] - (v[1] + w))
+        if gap > 1e-4 * size:
+            raise BadInput(port, f"polygon '{name}' is not a parallelogram (v2 must equal "
+                                 f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms")
+
+
+def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str | None]:
+    """Scene YAML document → (RoomScene, Camera, photo file name or None)."""
+    if not isinstance(doc, dict) or doc.get("loscos_scene") != 1:
+        raise BadInput(port, "not a scene file (expected a mapping with 'loscos_scene: 1')")
+    mats = doc.get("materials", {}) or {}
+
+    def albedo(item):
+        m = item.get("material", item.get("reflectance", [0.5, 0.5, 0.5]))
+        if isinstance(m, str):
+            if m not in mats:
+                raise BadInput(port, f"'{item.get('name')}' uses unknown material '{m}' "
+                                     f"(known: {', '.join(mats)})")
+            m = mats[m]
+        m = np.asarray(m, float).reshape(-1)
+        if m.shape != (3,) or np.any(m < 0) or np.any(m >= 1):
+            raise BadInput(port, f"'{item.get('name')}': reflectance must be 3 values in [0, 1)")
+        return m
+
+    names, verts, refl, emit, light = [], [], [], [], []
+    for item in doc.get("polygons", []) or []:
+        names.append(str(item["name"])); verts.append(np.asarray(item["vertices"], float))
+        refl.append(albedo(item)); emit.append(np.zeros(3)); light.append("")
+    for item in doc.get("boxes", []) or []:
+        for k, f in enumerate(box_faces(item["to_world"], item.get("bottom", True))):
+            names.append(f"{item['name']}.{k}"); verts.append(f)
+            refl.append(albedo(item)); emit.append(np.zeros(3)); light.append("")
+    for item in doc.get("lights", []) or []:
+        e = np.asarray(item["emittance"], float).reshape(-1)
+        if e.shape != (3,) or np.any(e < 0):
+            raise BadInput(port, f"light '{item['name']}': emittance must be 3 values ≥ 0 (W/m²)")
+        names.append(str(item["name"])); verts.append(np.asarray(item["vertices"], float))
+        refl.append(albedo(item)); emit.append(e); light.append(str(item["name"]))
+    for n, v in zip(names, verts):
+        if v.shape != (4, 3):
+            raise BadInput(port, f"polygon '{n}' needs 4 vertices of 3 coordinates, got {v.shape}")
+    if not names:
+        raise BadInput(port, "the scene has no polygons")
+    verts = np.array(verts)
+    check_polygons(verts, names, port)
+    check_emitters(verts, np.array(emit), names, port)
+    c = doc.get("camera")
+    if not c:
+        raise BadInput(port, "the scene has no camera")
+    cam = camera_from_lookat(int(c["width"]), int(c["height"]), float(c["fov_deg"]),
+                             c["position"], c["look_at"], c.get("up", [0, 1, 0]))
+    return RoomScene(names, verts, np.array(refl), np.array(emit), light), cam, doc.get("photo")
+
+
+def check_emitters(verts, emit, names, port):
+    from .geometry import frame
+
+    area = frame(verts)[4]
+    for n, a, e in zip(names, area, emit):
+        if np.any(e > 0) and a <= 1e-12:
+            raise BadInput(port, f"emitter '{n}' has zero area")
+
+
+def check_camera_sees(scene: RoomScene, cam: Camera, port: str):
+    """BadInput unless some polygon is in front of the camera and inside its frame."""
+    from .textures import pixel_map
+
+    pp, _ = pixel_map(scene.verts, cam, step=4)
+    if not (pp >= 0).any():
+        raise BadInput(port, "the camera sees no polygon of the scene")
+
+
+class LoadScene(Node):
+    """Load a real scene: polygons, reflectances, area emitters, camera, photograph (§3).
+
+    ``path`` is a scene YAML (format in the module docstring) or ``builtin:cornell2`` — a
+    Cornell box with Mitsuba's ``cornell_box()`` geometry and colours plus a second area
+    light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py).
+    Units: metres, W/m² (emittance = π × radiance), photograph in linear radiance.
+    """
+
+    version = "1"
+    outputs = {"scene": ROOM_SCENE, "camera": Camera, "photo": Image}
+
+    class Params(Node.Params):
+        path: InputFile = Field(description="scene YAML, relative to the graph, or builtin:NAME")
+
+    @classmethod
+    def resolve_file(cls, param, value, base_dir):
+        if value.startswith("builtin:"):
+            name = value[len("builtin:"):]
+            if name not in BUILTIN:
+                raise BadInput(param, f"unknown builtin scene '{value}' (known: "
+                               + ", ".join("builtin:" + k for k in BUILTIN) + ")")
+            return os.path.join(DATA, BUILTIN[name])
+        return super().resolve_file(param, value, base_dir)
+
+    def compute(self):
+        import yaml
+
+        from nodes.io.images import read_image
+
+        path = self.resolve_file("path", self.params.path, self.ctx.base_dir)
+        if not os.path.exists(path):
+            raise BadInput("path", f"scene file not found: {path}")
+        with open(path) as f:
+            try:
+                doc = yaml.safe_load(f)
+            except yaml.YAMLError as e:
+                raise BadInput("path", f"{path}: not valid YAML: {e}") from None
+        scene, cam, photo = parse_scene(doc)
+        if not photo:
+            raise BadInput("path", "the scene file names no photo")
+        px, _ = read_image(os.path.join(os.path.dirname(path), photo))
+        px = px[:, :, :3]
+        if px.shape[:2] != (cam.height, cam.width):
+            raise BadInput("path", f"photo is {px.shape[1]}×{px.shape[0]} but the camera is "
+                                   f"{cam.width}×{cam.height}")
+        check_camera_sees(scene, cam, "path")
+        return {"scene": scene, "camera": cam, "photo": Image(px)}
