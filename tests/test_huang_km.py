@@ -169,3 +169,14 @@ def test_lookup_exact_on_nodes_and_close_between():
     Rt, Rb, T = km.stack(list(S), list(K), [t[..., i:i + 1].astype(np.float64) for i in range(3)])
     assert np.abs(outs[0] - Rt @ W).max() < 2e-3
     assert np.abs(outs[2] - T @ Wf).max() < 2e-3
+
+
+def test_lookup_hits_nodes_exactly_for_any_thickness():
+    # t = max must land on the last node even when max·(N−1)/max rounds below N−1 in float32
+    rng = np.random.default_rng(8)
+    for m in rng.uniform(0.001, 0.5, 40).astype(np.float32):
+        g = km.thickness_grid([float(m)], 25)
+        table = np.arange(25, dtype=np.float32)[:, None] * np.ones(3, np.float32)
+        t = np.array([[[0.0], [m], [m]]], np.float32)
+        out = km.lookup(table, g, t)
+        np.testing.assert_array_equal(out[0, :, 0], [0.0, 24.0, 24.0])

@@ -311,6 +311,8 @@ def stack_rgb_table(S, K, wl, grids, illuminant, bg):
 
 #: pixels per block in :func:`lookup`: keeps the temporaries in cache and off fresh pages
 LOOKUP_BLOCK = 1 << 15
+#: thicknesses closer than this to a grid node (in grid cells) are taken as on the node
+SNAP = np.float32(1.0 / 2048)
 
 
 def lookup(table, grids, thickness: np.ndarray):
@@ -349,8 +351,10 @@ def _lookup_block(flats, axes, t, outs):
     for i, scale, st, N in axes:
         f = np.multiply(t[:, i], scale, dtype=np.float32)
         np.minimum(f, np.float32(N - 1), out=f)
+        # thicknesses within SNAP of a node (in cells) are on it: t = max may round to 23.99999
+        f += SNAP
         fl0 = np.floor(f)
-        nz = f != fl0  # off the grid nodes along this axis
+        nz = (f - fl0) > np.float32(2 * SNAP)  # off the grid nodes along this axis
         frac_any = nz if frac_any is None else np.logical_or(frac_any, nz, out=frac_any)
         if st != 1:
             fl0 *= np.float32(st)  # exact: table sizes stay far below 2**24
@@ -367,7 +371,7 @@ def _lookup_block(flats, axes, t, outs):
     acc = np.zeros((idx.size, merged.shape[1]), np.float32)
     sub = []
     for f, (i, scale, st, N) in zip(fs_all, axes):
-        fs = f[idx]
+        fs = f[idx] - SNAP
         i0 = np.floor(fs)
         sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
     for corner in range(1 << len(sub)):
