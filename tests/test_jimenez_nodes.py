@@ -155,3 +155,24 @@ def test_blush_graph_runs(tmp_path):
     bad = graphkit("run", ROOT / "graphs" / "blush.yaml", "--out", tmp_path / "o2", "--cache", tmp_path / "cache",
                    "-q", "--set", "weights=[0.5, 0.6]", env=env, timeout=300)
     assert bad.returncode == 2 and "sum to one" in bad.stderr
+
+
+def test_examples_run():
+    for cls in (LocalHistMatch, AppearanceRig, SkinShade):
+        for params, inputs in cls.examples():
+            cls(cls.Params(**params)).compute(**inputs)
+
+
+def test_matching_a_map_to_itself_is_the_identity():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=12, deadline=None, derandomize=True)
+    @given(st.integers(8, 40), st.integers(8, 40), st.floats(0.5, 60.0), st.integers(0, 2**31 - 1))
+    def prop(h, w, r, seed):
+        a = Image((np.random.default_rng(seed).random((h, w, 1)) * 0.3).astype(np.float32))
+        out = LocalHistMatch(LocalHistMatch.Params(radius=r, stats_size=0)).compute(neutral=a, target=a)
+        np.testing.assert_allclose(out["matched"].pixels, a.pixels, atol=2e-6)
+        np.testing.assert_allclose(out["scale"].pixels, 1.0, atol=1e-3)
+
+    prop()

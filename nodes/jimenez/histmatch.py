@@ -229,7 +229,7 @@ class LocalHistMatch(Node):
     pixel does not grow with r (FFT convolution; r beyond the image diagonal = global match).
     """
 
-    version = "3"
+    version = "4"
     inputs = {"neutral": In(Image, "neutral map H_n (one channel, volume fraction)"),
               "target": In(Image, "target map H of the same size"),
               "mask": In(Mask, "where statistics are taken (skin)", optional=True)}
@@ -242,7 +242,7 @@ class LocalHistMatch(Node):
     class Params(Node.Params):
         radius: float = Field(16.0, description="disc radius r in pixels (> 0)")
         stats_size: int = Field(256, ge=0, description="longer side of the scale/bias maps (0 = full size)")
-        eps: float = Field(1e-6, gt=0, description="floor of σ_n (volume fraction)")
+        eps: float = Field(1e-6, gt=0, description="floor of σ_n (volume fraction); below it scale = 1")
 
     def compute(self, neutral: Image, target: Image, mask: Mask | None = None):
         p = self.params
@@ -256,7 +256,11 @@ class LocalHistMatch(Node):
         m = _mask(mask, hn.shape)
         (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
         self.ctx.progress(0.8, "statistics done")
-        scale = sd / np.maximum(sd_n, p.eps)
+        # σ_n below the floor (a flat neighbourhood, or a one-pixel disc): H_n − μ_n is 0 there
+        # anyway, so the scale is set to 1 rather than to a ratio of round-off values
+        floor = max(p.eps, 1e-3 * float(hn.std()) if m is None else p.eps)
+        flat = sd_n <= floor
+        scale = np.where(flat, 1.0, sd / np.maximum(sd_n, floor)).astype(sd.dtype, copy=False)
         out = mu + scale * (hn - mu_n)  # eq. (3)
         if m is not None:  # no statistics (no skin under the disc) or outside the skin: unchanged
             ok = w > 0
