@@ -101,6 +101,7 @@ class FitSkinPhong(Node):
         n = int(use.sum())
         mat = PhongMaterial(diffuse=tuple(float(v) for v in x[:3]), specular=float(x[3]),
                             shininess=float(shininess), ambient_scale=1.0,
+                            ambient=tuple(float(v) for v in amb_rgb),
                             residual=float(np.sqrt(e_all)), rms_luv=float(np.sqrt(e_all / n)),
                             pixels=n)
         out_light = light.model_copy(update={"ambient": tuple(float(v) for v in amb_rgb)})
