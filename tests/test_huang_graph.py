@@ -46,6 +46,7 @@ def test_makeup_graph_runs(tmp_path, cache):
 
     photo = LoadImage(LoadImage.Params(path="builtin:astronaut"), Context()).compute().pixels
     assert made.shape == photo.shape == (512, 512, 3)
+    assert np.isfinite(made).all() and made.min() >= 0
     changed = np.abs(made - photo).max(axis=-1) > 2e-3 * (1 + photo.max(axis=-1))
     frac = changed.mean()
     assert 0.01 < frac < 0.3, frac  # the face only; the suit, flag and shuttle are untouched
