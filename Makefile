@@ -10,7 +10,7 @@ APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray
 
 .PHONY: demo test bench sysdeps clean lock
 demo: $(STAMP)
-	$(BIN)/graphkit run graphs/demo.yaml --out out
+	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/contact_sheet.png)"
 
 test: $(STAMP) sysdeps
@@ -24,6 +24,7 @@ $(STAMP): pyproject.toml constraints.txt $(PLUGINS)
 	$(PIP) install -q --disable-pip-version-check --upgrade pip
 	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
 	$(if $(wildcard plugins/graphkit-mediapipe),$(PIP) install -q --disable-pip-version-check --no-deps -c constraints.txt mediapipe==0.10.14)
+	$(BIN)/graphkit schema -o graph.schema.json   # editors: `# yaml-language-server: $$schema=../graph.schema.json`
 	touch $@
 
 # Installs the Debian packages some tests need when they are missing (root or sudo).

@@ -14,7 +14,7 @@ import uuid
 
 from .errors import GraphkitError, UsageError
 from .executor import Progress, RunResult
-from .runner import NodeOutcome, Session
+from .runner import Session
 
 _sessions: dict[str, Session] = {}
 _sessions_lock = threading.Lock()

@@ -18,9 +18,9 @@ import sys
 import time
 import uuid
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Any, Callable
+from typing import Any
 
 from .errors import GraphkitError, UsageError
 from .runner import NodeOutcome, Session
@@ -241,4 +241,4 @@ def graph_id(graph) -> str:
     return f"{graph.name}-{hashlib.blake2b(graph.path.encode(), digest_size=6).hexdigest()}"
 
 
-__all__ = ["run_local", "export_outputs", "RunResult", "Progress", "asdict", "Callable"]
+__all__ = ["run_local", "export_outputs", "RunResult", "Progress"]

@@ -31,7 +31,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from .errors import BadInput, Diagnostic, GraphError, GraphkitError, UsageError
-from .hashing import canonical, key_digest
+from .hashing import key_digest
 from .node import Node, probe
 from .registry import NUMPY, Registry
 
@@ -558,4 +558,4 @@ def graph_to_networkx(graph: Graph):
     return g
 
 
-__all__ = ["Graph", "GNode", "load_graph", "parse_set", "graph_to_networkx", "canonical"]
+__all__ = ["Graph", "GNode", "load_graph", "parse_set", "graph_to_networkx"]

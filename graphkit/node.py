@@ -193,7 +193,3 @@ def probe(backend: type[Backend]) -> str | None:
         return f"{type(e).__name__}: {e}"
     return None if ok else backend.why_unavailable()
 
-
-def reference_backend(node_cls: type[Node]) -> type:
-    """The node's own compute, seen as the ``numpy`` backend."""
-    return node_cls

@@ -11,6 +11,28 @@ REF = r"^[A-Za-z_][A-Za-z0-9_\-]*\.[A-Za-z_][A-Za-z0-9_]*$"
 PARAM_REF = r"\$\{params\.[A-Za-z_][A-Za-z0-9_]*\}"
 
 
+_NESTED = ("items", "additionalProperties")
+_NESTED_LISTS = ("prefixItems", "anyOf", "oneOf", "allOf")
+
+
+def _allow_refs(s):
+    """Let every value in a param schema also be a ``${params.NAME}`` string."""
+    if not isinstance(s, dict):
+        return s
+    s = dict(s)
+    for k in _NESTED:
+        if isinstance(s.get(k), dict):
+            s[k] = _allow_refs(s[k])
+    for k in _NESTED_LISTS:
+        if isinstance(s.get(k), list):
+            s[k] = [_allow_refs(x) for x in s[k]]
+    if isinstance(s.get("properties"), dict):
+        s["properties"] = {k: _allow_refs(v) for k, v in s["properties"].items()}
+    if "type" in s or "$ref" in s or "enum" in s or "const" in s:
+        return {"anyOf": [s, {"type": "string", "pattern": PARAM_REF}], "description": s.get("description", "")}
+    return s
+
+
 def _port_schema(port) -> dict:
     one = {"type": "string", "pattern": REF}
     desc = f"{port.type}: {port.doc}"
@@ -24,9 +46,9 @@ def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
     params = cls.Params.model_json_schema()
     defs = params.pop("$defs", {})
     params["additionalProperties"] = False
-    for k, v in params.get("properties", {}).items():  # any param may be a ${params.NAME}
-        params["properties"][k] = {"anyOf": [v, {"type": "string", "pattern": PARAM_REF}],
-                                   "description": v.get("description", "")}
+    for k, v in params.get("properties", {}).items():  # any value may be a ${params.NAME}
+        params["properties"][k] = _allow_refs(v)
+    defs = {k: _allow_refs(v) for k, v in defs.items()}
     s = {
         "type": "object",
         "description": (cls.__doc__ or "").strip(),
