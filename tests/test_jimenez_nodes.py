@@ -176,3 +176,22 @@ def test_matching_a_map_to_itself_is_the_identity():
         np.testing.assert_allclose(out["scale"].pixels, 1.0, atol=1e-3)
 
     prop()
+
+
+def test_skinshade_camera_footprint_equals_explicit_mm_per_pixel():
+    from graphkit import Camera
+
+    lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
+    rng = np.random.default_rng(9)
+    H, W = 20, 30
+    mel = Image((rng.random((H, W, 1)) * 0.05).astype(np.float32))
+    hem = Image((rng.random((H, W, 1)) * 0.05).astype(np.float32))
+    nrm = rng.normal(size=(H, W, 3)).astype(np.float32)
+    nrm[..., 2] = -np.abs(nrm[..., 2]) - 1
+    depth = Image(np.full((H, W, 1), 600.0, np.float32))
+    cam = Camera(width=W, height=H, fx=1200.0, fy=1200.0, cx=W / 2, cy=H / 2)
+    light = Light(direction=(0.2, -0.1, -1.0))
+    a = SkinShade().compute(melanin=mel, hemoglobin=hem, lut=lut, light=light, normals=Image(nrm), depth=depth, camera=cam)
+    b = SkinShade(SkinShade.Params(mm_per_pixel=0.5)).compute(melanin=mel, hemoglobin=hem, lut=lut, light=light,
+                                                              normals=Image(nrm), depth=depth)
+    np.testing.assert_allclose(a["image"].pixels, b["image"].pixels, atol=1e-6)

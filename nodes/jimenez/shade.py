@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Field, Image, In, Light, Mask, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
 
 
 class SkinShade(Node):
@@ -22,7 +22,8 @@ class SkinShade(Node):
     ``roughness``, Schlick F₀ = ``f0``); image = albedo·diffuse + specular·light.
     Normals are camera-space unit vectors (OpenCV axes; default facing the camera), the viewer
     is along −z (orthographic view).  ``depth`` is in mm, ``mm_per_pixel`` the pixel footprint
-    on the skin in mm.  Maps are volume fractions (table 1 ranges).
+    on the skin in mm (with a ``camera`` and ``depth`` it is depth / fx per pixel instead).
+    Maps are volume fractions (table 1 ranges).
     """
 
     version = "1"
@@ -32,7 +33,8 @@ class SkinShade(Node):
               "light": In(Light, "directional light"),
               "normals": In(Image, "camera-space unit normals (3 channels)", optional=True),
               "depth": In(Image, "camera depth in mm (1 channel)", optional=True),
-              "mask": In(Mask, "skin: where light scatters", optional=True)}
+              "mask": In(Mask, "skin: where light scatters", optional=True),
+              "camera": In(Camera, "pinhole camera: with depth, the pixel footprint is depth/fx mm", optional=True)}
     outputs = {"image": Out(Image, "shaded skin, linear RGB"),
                "albedo": Out(Image, "LUT albedo"),
                "diffuse": Out(Image, "scattered diffuse irradiance (before the albedo)"),
@@ -47,7 +49,8 @@ class SkinShade(Node):
         scatter: bool = Field(True, description="apply subsurface scattering to the diffuse term")
 
     def compute(self, melanin: Image, hemoglobin: Image, lut: Image, light: Light,
-                normals: Image | None = None, depth: Image | None = None, mask: Mask | None = None):
+                normals: Image | None = None, depth: Image | None = None, mask: Mask | None = None,
+                camera: Camera | None = None):
         from nodes.common.microfacet import kelemen_specular
         from nodes.common.sss import sss_blur
 
@@ -92,9 +95,17 @@ class SkinShade(Node):
         ndotl = np.maximum((n * l).sum(-1), 0.0)
         col = np.asarray(light.color, np.float64) * light.intensity
         irr = ndotl[..., None] * col + np.asarray(light.ambient, np.float64)
+        mpp = p.mm_per_pixel
+        if camera is not None and depth is not None:
+            if (camera.height, camera.width) != shp:
+                raise BadInput("camera", f"camera is {camera.width}×{camera.height}, maps are {shp[1]}×{shp[0]}")
+            z = depth.pixels[:, :, 0].astype(np.float64)
+            if not np.all(z > 0):
+                raise BadInput("depth", "depth must be > 0 mm everywhere when a camera gives the pixel footprint")
+            mpp = z / camera.fx
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
-            irr = sss_blur(irr.astype(np.float32), p.mm_per_pixel,
+            irr = sss_blur(irr.astype(np.float32), mpp,
                            None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
                            mask=None if mask is None else mask.alpha).astype(np.float64)
         spec = kelemen_specular(n, l, v, p.roughness, p.specular, p.f0)
