@@ -180,3 +180,12 @@ def test_lookup_hits_nodes_exactly_for_any_thickness():
         t = np.array([[[0.0], [m], [m]]], np.float32)
         out = km.lookup(table, g, t)
         np.testing.assert_array_equal(out[0, :, 0], [0.0, 24.0, 24.0])
+
+
+def test_lookup_snapped_axis_with_an_interpolated_one():
+    # one axis a hair below its last node (snapped), the other between nodes: stays in bounds
+    g = km.thickness_grid([1.0, 1.0], 5)
+    table = (np.arange(5)[:, None] * 10 + np.arange(5)[None, :]).astype(np.float32)[..., None]
+    t = np.array([[[np.nextafter(np.float32(1), np.float32(0)), 0.3]]], np.float32)
+    out = km.lookup(table, g, t)
+    assert out[0, 0, 0] == pytest.approx(40 + 0.3 * 4, abs=1e-4)

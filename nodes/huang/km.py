@@ -366,13 +366,14 @@ def _lookup_block(flats, axes, t, outs):
     idx = np.flatnonzero(frac_any)
     if not idx.size:
         return
-    b = base[idx]
+    b = np.zeros(idx.size, np.int32)
     merged = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)  # one gather per corner
     acc = np.zeros((idx.size, merged.shape[1]), np.float32)
     sub = []
     for f, (i, scale, st, N) in zip(fs_all, axes):
         fs = f[idx] - SNAP
         i0 = np.floor(fs)
+        b += i0.astype(np.int32) * np.int32(st)  # (the snapped base may differ by one node here)
         sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
     for corner in range(1 << len(sub)):
         off = b.copy()
