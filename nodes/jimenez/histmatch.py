@@ -1,8 +1,9 @@
 """Approximate local histogram matching and the appearance rig (Jimenez et al. 2010 §4.1, §4.2).
 
 Local statistics under a disc of radius r (eq. 1) are computed with FFT convolution
-(scipy.fft; float32 on mean-centred data, float64 with a mask): the cost per pixel is O(log(N + r)), i.e. it does not grow with r while
-r ≪ N, and r beyond the image diagonal short-cuts to global statistics.  The disc is the set of
+(scipy.fft; float32 on mean-centred data, float64 with a mask): the cost per pixel is
+O(log(N + r)), i.e. it does not grow with r while r ≪ N, and r beyond the image diagonal
+short-cuts to global statistics.  The disc is the set of
 integer offsets with dx² + dy² ≤ r²; statistics use only pixels inside the image (and inside
 the optional mask): μ = (H·M ∗ f)/(M ∗ f), which equals ``cv2.filter2D`` with the normalised
 disc kernel on the interior and stays unbiased at the border.

@@ -32,7 +32,7 @@ from typing import Literal
 
 import numpy as np
 
-from graphkit import BadInput, Field, Image, Node, Out, Vector, Array
+from graphkit import Array, Field, Image, Node, Out, Vector
 
 CM_MAX = 0.5    # table 1
 CHD_MAX = 0.32  # table 1
