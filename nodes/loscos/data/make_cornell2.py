@@ -18,7 +18,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.abspath(os.path.join(HERE, "..", "..", "..")))
 
 SIZE = 128
-SPP = 64
+SPP = 512
 LIGHT_B_OFFSET = np.array([-0.5, 0.0, 0.45])  # metres, from light A's centre
 LIGHT_B_RADIANCE = np.array([11.0, 12.0, 14.0])  # W/(m² sr)
 
