@@ -123,3 +123,20 @@ def test_shadow_map_occluder_casts_exact_shadow():
     inside = (np.abs(X.ravel()) < 0.7) & (np.abs(Z.ravel()) < 0.7)
     outside = (np.abs(X.ravel()) > 0.8) | (np.abs(Z.ravel()) > 0.8)
     assert (vis[inside] == 0).all() and (vis[outside] == 1).all()
+
+
+def test_scanline_spans_equal_brute_force_inside_test():
+    """Random triangles: the covered pixels are exactly those whose centre passes the three
+    edge functions (brute force over every pixel)."""
+    rng = np.random.default_rng(5)
+    W, H = 70, 50
+    yy, xx = np.mgrid[0:H, 0:W] + 0.5
+    for _ in range(40):
+        xy = rng.uniform([-10, -10], [W + 10, H + 10], (3, 2))
+        r = raster.rasterize_screen(xy, np.ones(3), [[0, 1, 2]], W, H)
+        a, b, c = xy
+        def s(p, q):
+            return (q[0] - p[0]) * (yy - p[1]) - (q[1] - p[1]) * (xx - p[0])
+        d = np.stack([s(a, b), s(b, c), s(c, a)])
+        inside = np.all(d > 0, 0) | np.all(d < 0, 0)
+        assert np.array_equal(r.coverage, inside)

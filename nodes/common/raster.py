@@ -8,8 +8,10 @@ with :func:`interpolate`.  Shared edges follow a tie-breaking rule (a pixel cent
 an edge shared by two triangles belongs to exactly one of them), so the covered pixel count of
 a mesh equals its projected area up to boundary sampling.
 
-Work is vectorised over (triangle, pixel-of-its-bounding-box) pairs, in batches that bound the
-memory; there is no per-pixel Python loop.  Triangles with a vertex at or behind the near plane
+Work is vectorised: per (triangle, row of its bounding box) the span of pixel centres allowed
+by the three edge functions (scanline conversion), then per covered (triangle, pixel) pair the
+barycentrics and depth, and a scatter-min z-buffer; in batches that bound the memory, with no
+per-pixel Python loop.  Triangles with a vertex at or behind the near plane
 are dropped (no clipping: meshes here lie in front of the camera).
 
 Shadow maps (Williams 1978, used by Paris 2003 §5 "Cast shadows") are built on the same
@@ -131,8 +133,8 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         own[:, i] = _owns_edge(a[:, 0], a[:, 1], b[:, 0], b[:, 1], sg)
     A, B, C = ([np.ascontiguousarray(M[:, i]) for i in range(3)] for M in (A, B, C))
     for a, b in zip(starts[:-1], starts[1:]):
-        _batch(ids[a:b], bw[a:b], bh[a:b], npix[a:b], xmin, ymin, A, B, C, own, fz, area,
-               perspective, W, depth, tri, bary)
+        t, px, py = _spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
+        _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary)
     cov = tri >= 0
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
@@ -147,30 +149,47 @@ def _owns_edge(ax, ay, bx, by, sign):
     return (dy > 0) | ((dy == 0) & (dx < 0))
 
 
-def _batch(ids, bw, bh, npix, xmin, ymin, A, B, C, own, fz, area, perspective, W, depth, tri,
-           bary):
-    n = int(npix.sum())
-    owner = np.repeat(np.arange(len(ids)), npix)
-    first = np.cumsum(npix) - npix
-    local = np.arange(n) - first[owner]
-    bwo = bw[owner]
+def _spans(ids, bh, xmin, xmax, ymin, A, B, C, own):
+    """Pixels (triangle, x + 0.5, y + 0.5) whose centres are inside their triangle: per
+    (triangle, row) the span allowed by the three edge functions (scanline conversion)."""
+    R = int(bh.sum())
+    owner = np.repeat(np.arange(len(ids)), bh)
+    first = np.cumsum(bh) - bh
     t = ids[owner]
-    px = xmin[t] + local % bwo + 0.5
-    py = ymin[t] + local // bwo + 0.5
-    e = [A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3)]
-    inside = np.ones(n, bool)
-    for i in range(3):
-        inside &= e[i] >= 0
-    ties = inside & ((e[0] == 0) | (e[1] == 0) | (e[2] == 0))
-    if ties.any():
-        ti = np.nonzero(ties)[0]
+    yc = ymin[t] + (np.arange(R) - first[owner]) + 0.5
+    lo = xmin[t].copy()  # first allowed pixel index
+    hi = xmax[t].copy()  # last allowed pixel index
+    with np.errstate(divide="ignore", invalid="ignore"):
         for i in range(3):
-            z = e[i][ti] == 0
-            inside[ti[z]] &= own[t[ti[z]], i]
-    e0, e1, e2 = e
-    if not inside.any():
+            a = A[i][t]
+            c = B[i][t] * yc + C[i][t]
+            o = own[t, i]
+            bound = -c / a - 0.5  # the edge crosses the row at pixel index `bound`
+            pos, neg = a > 0, a < 0
+            # a > 0: x ≥ bound (inclusive when the edge is owned, else strict)
+            l_inc = np.ceil(bound)
+            l_exc = np.floor(bound) + 1
+            lo = np.where(pos, np.maximum(lo, np.where(o, l_inc, l_exc)), lo)
+            u_inc = np.floor(bound)
+            u_exc = np.ceil(bound) - 1
+            hi = np.where(neg, np.minimum(hi, np.where(o, u_inc, u_exc)), hi)
+            flat = a == 0
+            dead = flat & ((c < 0) | ((c == 0) & ~o))
+            hi = np.where(dead, lo - 1, hi)
+    n = np.maximum(hi - lo + 1, 0).astype(np.int64)
+    tot = int(n.sum())
+    row = np.repeat(np.arange(R), n)
+    startx = np.cumsum(n) - n
+    px = lo[row] + (np.arange(tot) - startx[row]) + 0.5
+    return t[row], px, yc[row]
+
+
+def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary):
+    """Barycentrics, depth and the z-buffer test of inside pixels."""
+    if len(t) == 0:
         return
-    k = np.nonzero(inside)[0]
+    e0, e1, e2 = (A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3))
+    k = slice(None)
     absa = np.abs(area[t[k]])
     b = np.stack([e0[k], e1[k], e2[k]], 1) / absa[:, None]  # screen-space barycentrics
     Z = fz[t[k]]
