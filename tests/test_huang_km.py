@@ -189,3 +189,27 @@ def test_lookup_snapped_axis_with_an_interpolated_one():
     t = np.array([[[np.nextafter(np.float32(1), np.float32(0)), 0.3]]], np.float32)
     out = km.lookup(table, g, t)
     assert out[0, 0, 0] == pytest.approx(40 + 0.3 * 4, abs=1e-4)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sampled_from(["zero", "max", "below_max", "near_node", "random"]), min_size=24, max_size=24),
+       st.integers(0, 2**31 - 1))
+def test_lookup_mixed_maps_match_exact_stack(kinds, seed):
+    rng = np.random.default_rng(seed)
+    wl = km.WAVELENGTHS
+    S, K = rng.uniform(1, 30, (3, wl.size)), rng.uniform(0.1, 8, (3, wl.size))
+    mx = rng.uniform(0.005, 0.1, 3).astype(np.float32)
+    vals = np.zeros((4, 6, 3), np.float32)
+    for k, kind in enumerate(kinds):
+        y, x = divmod(k, 6)
+        for i in range(3):
+            v = {"zero": 0.0, "max": mx[i], "below_max": np.nextafter(mx[i], np.float32(0)),
+                 "near_node": mx[i] * rng.integers(0, 25) / 24 * (1 + 1e-7 * rng.normal()),
+                 "random": mx[i] * rng.random()}[kind if i != k % 3 else "random"]
+            vals[y, x, i] = min(np.float32(v), mx[i])
+    vals[0, 0] = mx  # the map's maxima are the grid ends
+    g = km.thickness_grid([float(vals[..., i].max()) for i in range(3)], 25)
+    tabs = km.stack_rgb_table(S, K, wl, g, "D65", None)
+    out = km.lookup(tabs, g, vals)
+    Rt, Rb, T = km.stack(list(S), list(K), [vals[..., i:i + 1].astype(np.float64) for i in range(3)])
+    assert np.abs(out[0] - Rt @ km.rgb_weights(wl)).max() < 2e-3
