@@ -49,6 +49,8 @@ class RichProgress(Progress):
 
         self.console = Console(stderr=True)
         self.rows: dict[str, list] = {}
+        self.total = 0
+        self.max_rows = 24
         self._lock = threading.Lock()
         self.live = Live(self._table(), console=self.console, refresh_per_second=8, transient=False)
 
@@ -62,12 +64,20 @@ class RichProgress(Progress):
         t.add_column("s", justify="right")
         style = {"cached": "cyan", "running": "yellow", "done": "green"}
         now = time.perf_counter()
-        for name, (typ, state, t0, secs, note) in self.rows.items():
+        rows = list(self.rows.items())
+        if len(rows) > self.max_rows:  # big graphs: what runs now, the latest finished, a count
+            running = [r for r in rows if r[1][1] == "running"]
+            finished = [r for r in rows if r[1][1] != "running"]
+            counts = {st: sum(1 for r in finished if r[1][1] == st) for st in ("done", "cached")}
+            t.caption = f"{counts['done']} done, {counts['cached']} cached, {len(running)} running of {self.total}"
+            rows = finished[-(self.max_rows - min(len(running), self.max_rows // 2)):] + running[: self.max_rows // 2]
+        for name, (typ, state, t0, secs, note) in rows:
             s = secs if secs is not None else now - t0
             t.add_row(name, typ, f"[{style.get(state, '')}]{state}[/] {note}", f"{s:.2f}")
         return t
 
     def start(self, total):
+        self.total = total
         self.live.start()
 
     def running(self, node, node_type):
