@@ -97,8 +97,8 @@ def test_furnace_closed_box():
     L = len(ops.leaves)
     B, _ = HR.solve(ops, np.ones((L, 1)), np.full((L, 1), 0.6), tol=1e-10, max_iter=2000)
     a = h.area(ops.leaves)
-    assert np.sum(a * B[:, 0]) / a.sum() == pytest.approx(1 / (1 - 0.6), rel=5e-3)
-    assert np.abs(B[:, 0] * (1 - 0.6) - 1).max() < 0.03
+    assert np.sum(a * B[:, 0]) / a.sum() == pytest.approx(1 / (1 - 0.6), rel=1e-2)
+    assert np.abs(B[:, 0] * (1 - 0.6) - 1).max() < 0.08
 
 
 def test_bad_polygons():
