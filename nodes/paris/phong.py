@@ -14,8 +14,9 @@ import numpy as np
 
 def unit(v: np.ndarray) -> np.ndarray:
     """Normalise vectors along the last axis (zero vectors stay zero)."""
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, n, out=np.zeros_like(v, dtype=np.float64), where=n > 0)
+    v = np.asarray(v, np.float64)
+    n = np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
 
 def lobes(n: np.ndarray, l: np.ndarray, v: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:

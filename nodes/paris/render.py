@@ -72,9 +72,9 @@ def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Su
                              "(wrong pose, units or image size?)")
     vn = vertex_normals(mesh)
     f = faces[r.tri[cov]]
-    b = r.bary[cov][..., None]
-    P = (V[f] * b).sum(1)
-    N = unit((vn[f] * b).sum(1))
+    b = r.bary[cov]
+    P = V[f[:, 0]] * b[:, 0:1] + V[f[:, 1]] * b[:, 1:2] + V[f[:, 2]] * b[:, 2:3]
+    N = unit(vn[f[:, 0]] * b[:, 0:1] + vn[f[:, 1]] * b[:, 1:2] + vn[f[:, 2]] * b[:, 2:3])
     Vd = unit(camera.position[None, :] - P)
     flip = np.sum(N * Vd, axis=1) < 0
     N[flip] *= -1
