@@ -319,72 +319,70 @@ def lookup(table, grids, thickness: np.ndarray):
     """Multilinear interpolation of ``table`` (*grid sizes, C) at per-pixel thicknesses.
 
     ``thickness``: (H, W, n_layers) in mm, ≥ 0 (values above a grid's end are clamped to it).
-    Pixels whose thicknesses all fall on grid nodes (e.g. binary masks times a thickness) are a
-    single gather and get the table value exactly; only the others are interpolated (2^n
-    corners).  ``table`` may be a list of tables on the same grid: a list of float32 (H, W, C_k)
-    is returned then, else one float32 (H, W, C).  Works in blocks of ``LOOKUP_BLOCK`` pixels.
+    Pixels whose thicknesses all fall on grid nodes (e.g. binary masks times a thickness; within
+    about ``SNAP`` of a cell) are a single gather and get the table value exactly; only the others are
+    interpolated (2^n corners).  ``table`` may be a list of tables on the same grid: a list of
+    float32 (H, W, C_k) is returned then, else one float32 (H, W, C).  Works in blocks of
+    ``LOOKUP_BLOCK`` pixels.
     """
     tables = table if isinstance(table, (list, tuple)) else [table]
     h, w, n = thickness.shape
     flats = [np.ascontiguousarray(tb.reshape(-1, tb.shape[-1]), dtype=np.float32) for tb in tables]
     P = h * w
-    t = thickness.reshape(P, n)
+    t = np.ascontiguousarray(thickness.reshape(P, n), dtype=np.float32)
     sizes = [len(g) for g in grids]
     strides = [int(np.prod(sizes[i + 1:], dtype=np.int64)) for i in range(n)]
-    axes = [(i, np.float32((sizes[i] - 1) / (grids[i][-1] - grids[i][0])), strides[i], sizes[i])
-            for i in range(n) if sizes[i] > 1]
-    if not axes:
-        outs = [np.broadcast_to(fl[0], (P, fl.shape[1])).copy() for fl in flats]
-    else:
-        outs = [np.empty((P, fl.shape[1]), np.float32) for fl in flats]
-        for s0 in range(0, P, LOOKUP_BLOCK):
-            s1 = min(P, s0 + LOOKUP_BLOCK)
-            _lookup_block(flats, axes, t[s0:s1], [o[s0:s1] for o in outs])
+    # per axis: cells per mm (0 for a one-node axis), stride, last node; as (n,) vectors
+    scale = np.array([(N - 1) / (g[-1] - g[0]) if N > 1 else 0.0 for g, N in zip(grids, sizes)], np.float32)
+    # (row-wise broadcasting over a short last axis is slow in numpy: scale by a diagonal
+    # matmul and clamp against the last nodes tiled to a block)
+    last = np.array([N - 1 for N in sizes], np.float32)
+    nb = min(P, LOOKUP_BLOCK)
+    axes = (np.tile(scale, nb), np.array(strides, np.float32), np.tile(last, nb), sizes, strides)
+    outs = [np.empty((P, fl.shape[1]), np.float32) for fl in flats]
+    for s0 in range(0, P, LOOKUP_BLOCK):
+        s1 = min(P, s0 + LOOKUP_BLOCK)
+        _lookup_block(flats, axes, t[s0:s1], [o[s0:s1] for o in outs])
     outs = [o.reshape(h, w, -1) for o in outs]
     return outs if isinstance(table, (list, tuple)) else outs[0]
 
 
 def _lookup_block(flats, axes, t, outs):
-    base = None
-    frac_any = None
-    fs_all = []
-    for i, scale, st, N in axes:
-        f = np.multiply(t[:, i], scale, dtype=np.float32)
-        np.minimum(f, np.float32(N - 1), out=f)
-        # thicknesses within SNAP of a node (in cells) are on it: t = max may round to 23.99999
-        f += SNAP
-        fl0 = np.floor(f)
-        nz = (f - fl0) > np.float32(2 * SNAP)  # off the grid nodes along this axis
-        frac_any = nz if frac_any is None else np.logical_or(frac_any, nz, out=frac_any)
-        if st != 1:
-            fl0 *= np.float32(st)  # exact: table sizes stay far below 2**24
-        base = fl0 if base is None else np.add(base, fl0, out=base)
-        fs_all.append(f)
-    base = base.astype(np.int32)
+    scale, stride_f, last, sizes, strides = axes
+    flat = np.multiply(t.reshape(-1), scale[:t.size])
+    np.minimum(flat, last[:flat.size], out=flat)
+    f = flat.reshape(t.shape)           # (B, n) position in cells
+    f += SNAP                           # within SNAP of a node counts as on it (t = max → 23.99999)
+    fl0 = np.floor(f)
+    r = f - fl0                         # SNAP on a node, up to ~1 between nodes
+    n = r.shape[1]
+    off_node = (r @ np.ones(n, np.float32)) > np.float32((n + 1) * SNAP)
+    base = (fl0 @ stride_f).astype(np.int32)  # exact: table sizes stay far below 2**24
     for o, fl in zip(outs, flats):
         np.take(fl, base, axis=0, out=o)
-    idx = np.flatnonzero(frac_any)
+    idx = np.flatnonzero(off_node)
     if not idx.size:
         return
-    b = np.zeros(idx.size, np.int32)
+    fs = f[idx] - SNAP
+    i0 = np.floor(fs)
+    wt = fs - i0                        # weight of the next node, per axis
+    b = (i0 @ stride_f).astype(np.int32)
     merged = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)  # one gather per corner
     acc = np.zeros((idx.size, merged.shape[1]), np.float32)
-    sub = []
-    for f, (i, scale, st, N) in zip(fs_all, axes):
-        fs = f[idx] - SNAP
-        i0 = np.floor(fs)
-        b += i0.astype(np.int32) * np.int32(st)  # (the snapped base may differ by one node here)
-        sub.append((i0, fs - i0, st, N))  # node index, weight of the next node
-    for corner in range(1 << len(sub)):
+    live = [j for j, N in enumerate(sizes) if N > 1]
+    steps = [np.where(i0[:, j] < sizes[j] - 1, np.int32(strides[j]), np.int32(0)) for j in live]
+    for corner in range(1 << len(live)):
         off = b.copy()
         wc = None
-        for j, (i0, wt, st, N) in enumerate(sub):
-            if corner >> j & 1:
-                off += np.where(i0 < N - 1, np.int32(st), np.int32(0))
-                wj = wt
+        for k, j in enumerate(live):
+            if corner >> k & 1:
+                off += steps[k]
+                wj = wt[:, j]
             else:
-                wj = np.float32(1.0) - wt
+                wj = np.float32(1.0) - wt[:, j]
             wc = wj if wc is None else wc * wj
+        if wc is None:
+            wc = np.ones(idx.size, np.float32)
         acc += np.take(merged, off, axis=0) * wc[:, None]
     c0 = 0
     for o in outs:
