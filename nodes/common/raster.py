@@ -285,16 +285,18 @@ class ShadowMap:
         if self.kind == "point":
             b = b * np.maximum(d, 1e-9) / self._ref_dist
         H, W = self.depth.shape
+        # pad the map with +inf (nothing in the way) so taps need no bounds checks
+        dpad = np.pad(self.depth, pcf + 1, constant_values=np.inf).ravel()
+        Wp = W + 2 * (pcf + 1)
+        ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64) + pcf + 1
+        iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64) + pcf + 1
+        base = iy * Wp + ix
+        db = d - b
         acc = np.zeros(len(pts))
         taps = 0
         for dy in range(-pcf, pcf + 1):
             for dx in range(-pcf, pcf + 1):
-                ix = np.floor(xy[:, 0]).astype(np.int64) + dx
-                iy = np.floor(xy[:, 1]).astype(np.int64) + dy
-                inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
-                occl = np.full(len(pts), np.inf)
-                occl[inside] = self.depth[iy[inside], ix[inside]]
-                acc += d - b <= occl
+                acc += db <= dpad[base + (dy * Wp + dx)]
                 taps += 1
         out[good] = acc / taps
         return out
