@@ -63,6 +63,33 @@ def head_mesh(subdivisions: int = 5):
     return m, np.clip(alb, 0, 1), skin_w
 
 
+def facemesh_head(subdivisions: int = 2):
+    """(mesh, albedo, skin weight) from the astronaut's FaceMesh mesh (mm): subdivided
+    ``subdivisions`` times (finer albedo and shading), moved so its centre is on the optical
+    axis at DISTANCE_MM, with the mottled skin albedo of :func:`head_mesh`.  The mesh is an
+    open mask (holes at the eyes and mouth).  Needs the graphkit-mediapipe plugin."""
+    import skimage.data
+    import trimesh
+
+    from graphkit import Image
+    from graphkit.registry import default_registry
+    from nodes.common.color import srgb_to_linear
+
+    photo = Image(srgb_to_linear(skimage.data.astronaut() / 255.0))
+    fm = default_registry().node_class("FaceMesh")().compute(image=photo)["mesh"]
+    V, F = np.asarray(fm.vertices, np.float64), np.asarray(fm.faces, np.int64)
+    for _ in range(subdivisions):
+        V, F = trimesh.remesh.subdivide(V, F)
+    lo, hi = V.min(0), V.max(0)
+    V = V - [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]] + [0, 0, DISTANCE_MM - 88.0]
+    m = trimesh.Trimesh(V, F, process=False)
+    x, y = V[:, 0], V[:, 1]
+    skin = np.array([0.60, 0.40, 0.31])
+    mott = 1 + 0.10 * np.sin(0.31 * x + 1.0) * np.sin(0.27 * y) + 0.06 * np.sin(0.9 * x - 0.7 * y)
+    alb = np.clip(skin[None, :] * mott[:, None], 0, 1)
+    return m, alb, np.ones(len(V))
+
+
 def camera(size: int = 128):
     from graphkit import Camera
 
