@@ -93,7 +93,7 @@ def test_kmlayer_from_spectra_and_bad_coefficients():
     assert e.value.port == "S" and "≥ 0" in e.value.message and "550" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S, "K": Spectrum(wl, -K.values)})
-    assert e.value.port == "S" and "K must be ≥ 0" in e.value.message
+    assert e.value.port == "K" and "K must be ≥ 0" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S})
     assert e.value.port == "K"
@@ -216,6 +216,10 @@ def test_kmstack_rgb_background_formula():
 
 def test_kmstack_bad_input():
     t = Image(np.zeros((4, 5, 3), np.float32))
+    neg = get_cosmetic("blush_rose").model_copy(update={"K": [-1.0] + get_cosmetic("blush_rose").K[1:]})
+    with pytest.raises(BadInput) as e:
+        run(KMStack, {"thickness": Image(np.zeros((4, 5, 1))), "layers": [neg]})
+    assert e.value.port == "layers" and "K must be ≥ 0" in e.value.message and "380 nm" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMStack, {"thickness": t, "background": Image(np.zeros((4, 6, 3)))}, cosmetics=SET3)
     assert e.value.port == "thickness" and "5×4" in e.value.message and "6×4" in e.value.message

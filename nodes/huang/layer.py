@@ -74,6 +74,13 @@ class KMLayer(Node):
                 raise BadInput("cosmetic", "S and K are connected: leave 'cosmetic' empty")
             if S.wavelengths.shape != K.wavelengths.shape or not np.array_equal(S.wavelengths, K.wavelengths):
                 raise BadInput("K", "S and K must be sampled at the same wavelengths")
+            for port, sp in (("S", S), ("K", K)):
+                v = sp.values
+                if not np.isfinite(v).all():
+                    raise BadInput(port, f"{port} has non-finite values")
+                if (v < 0).any():
+                    j = int(np.argmax(v < 0))
+                    raise BadInput(port, f"{port} must be ≥ 0 mm⁻¹; {v[j]:.6g} at {sp.wavelengths[j]:g} nm")
             spec = KMLayerSpec(name=p.name or "layer", wavelengths=S.wavelengths.tolist(), S=S.values.tolist(),
                                K=K.values.tolist(), thickness_mm=p.thickness_mm, m=p.m, rho_s=p.rho_s, f0=p.f0)
             wl, Sa, Ka = layer_arrays([spec], "S")
