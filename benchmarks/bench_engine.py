@@ -117,10 +117,10 @@ def bench_overhead():
 
 
 def bench_cached_demo():
-    print("(b) all-cached re-run of graphs/demo.yaml, wall time incl. interpreter start")
+    print("(b) all-cached re-run of the demo graphs/face_relight.yaml, wall time incl. interpreter start")
     exe = ROOT / ".venv" / "bin" / "graphkit"
     with tempfile.TemporaryDirectory() as d:
-        cmd = [str(exe), "run", str(ROOT / "graphs" / "demo.yaml"), "--cache", f"{d}/c", "--out", f"{d}/o", "-q"]
+        cmd = [str(exe), "run", str(ROOT / "graphs" / "face_relight.yaml"), "--cache", f"{d}/c", "--out", f"{d}/o", "-q"]
         subprocess.run(cmd, check=True)
         times = []
         for _ in range(7):
