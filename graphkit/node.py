@@ -106,7 +106,8 @@ class Node(_Computable):
     version: ClassVar[str] = "1"
     inputs: ClassVar[dict[str, Any]] = {}
     outputs: ClassVar[dict[str, Any]] = {}
-    #: per-node tolerances for the backend conformance harness
+    #: per-node tolerances for the backend conformance harness (rtol, atol, and bad_fraction:
+    #: the share of output values allowed outside rtol/atol, e.g. silhouette pixels)
     tolerance: ClassVar[dict[str, float]] = {"rtol": 1e-5, "atol": 1e-6}
     #: True when the result embeds provenance (the run's recipe digest and key)
     provenance: ClassVar[bool] = False
