@@ -5,7 +5,8 @@ import trimesh
 
 from graphkit import BadInput, Camera, Image, Light
 from nodes.paris.models import PhongMaterial
-from nodes.paris.render import (FrameFace, LoadCameraJson, MakeLight, Render, ShadeFace,
+from nodes.io.cameras import LoadCameraJson
+from nodes.paris.render import (FrameFace, MakeLight, Render, ShadeFace,
                                 close_holes)
 
 CAM = Camera(width=96, height=96, fx=160, fy=160, cx=48, cy=48)

@@ -7,4 +7,5 @@ NODES = {
     "LoadMesh": "nodes.io.meshes:LoadMesh",
     "SaveMesh": "nodes.io.meshes:SaveMesh",
     "ContactSheet": "nodes.io.sheet:ContactSheet",
+    "LoadCameraJson": "nodes.io.cameras:LoadCameraJson",
 }

@@ -10,7 +10,6 @@ NODES = {
     "ShadeFace": "nodes.paris.render:ShadeFace",
     "Render": "nodes.paris.render:Render",
     "MakeLight": "nodes.paris.render:MakeLight",
-    "LoadCameraJson": "nodes.paris.render:LoadCameraJson",
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
 }

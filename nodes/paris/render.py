@@ -12,7 +12,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from graphkit import BadInput, Camera, Field, Image, In, InputFile, Light, Mask, Mesh, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
 from .models import PhongMaterial
 
@@ -450,29 +450,6 @@ class MakeLight(Node):
             d = np.array([np.sin(a) * np.cos(e), -np.sin(e), -np.cos(a) * np.cos(e)])
         return Light(kind=p.kind, direction=tuple(float(v) for v in d), position=p.position,
                      color=p.color, intensity=p.intensity, ambient=p.ambient)
-
-
-class LoadCameraJson(Node):
-    """Read a :class:`graphkit.Camera` (pinhole intrinsics in pixels + 4×4 world→camera pose,
-    OpenCV axes) from a JSON file with the Camera's fields (Paris 2003 §1: the calibrated
-    photograph's projection)."""
-
-    version = "1"
-    outputs = {"camera": Out(Camera, "the camera")}
-
-    class Params(Node.Params):
-        path: InputFile = Field(description="JSON file with width, height, fx, fy, cx, cy, world_to_camera")
-
-    def compute(self):
-        import json
-
-        path = self.resolve_file("path", self.params.path, self.ctx.base_dir)
-        try:
-            with open(path) as f:
-                data = json.load(f)
-            return Camera.model_validate(data)
-        except (OSError, ValueError) as e:
-            raise BadInput("path", f"cannot read a camera from {path}: {e}") from None
 
 
 class FrameFace(Node):
