@@ -26,6 +26,7 @@ import numpy as np
 from . import geometry as G
 
 VISIBLE, PARTIAL, INVISIBLE = 2, 1, 0
+DEAD = -2  # parent id of elements removed by an undone subdivision
 
 
 def vis_type(V: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -93,7 +94,7 @@ class Hierarchy:
 
     @property
     def leaves(self) -> np.ndarray:
-        return np.flatnonzero(self.child0 < 0)
+        return np.flatnonzero((self.child0 < 0) & (self.parent != DEAD))
 
     def subdivide(self, e: np.ndarray) -> None:
         """Give every element in e (that has none yet) its 4 children."""
@@ -112,7 +113,9 @@ class Hierarchy:
         self.child0 = np.concatenate([self.child0, np.full(4 * k, -1)])
 
     def unsubdivide(self, e: np.ndarray) -> None:
-        """Make elements e leaves again (their children stay allocated but unreachable)."""
+        """Make elements e leaves again (their children stay allocated, marked DEAD)."""
+        ch = self.children(e).ravel()
+        self.parent[ch] = DEAD
         self.child0[e] = -1
 
     def children(self, e: np.ndarray) -> np.ndarray:
@@ -269,7 +272,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     """
     out_r, out_s, out_F, out_V = [], [], [], []
     it = 0
-    B_ref = max(float(np.median(B_elem[h.parent < 0])), 1e-12)
+    B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
         it += 1
         m = facing(h, r, s)
@@ -328,7 +331,7 @@ def _grow(B_elem: np.ndarray, h: Hierarchy) -> np.ndarray:
         return B_elem
     out = np.concatenate([B_elem, np.zeros(h.n_elems - n0)])
     while True:  # parents come before children; one pass per new level
-        new = out[h.parent[n0:]]
+        new = out[np.maximum(h.parent[n0:], 0)]
         if np.array_equal(new, out[n0:]):
             return out
         out[n0:] = new

@@ -130,7 +130,7 @@ class RadiositySolution:
 
     @property
     def leaves(self):
-        return np.flatnonzero(self.child0 < 0)
+        return np.flatnonzero((self.child0 < 0) & (self.parent != -2))
 
     def B(self, emit=None):
         """Leaf radiosity (L,3) in W/m² for emittances (S,3) (default: the solved ones)."""

@@ -5,6 +5,8 @@ Scene file (YAML, ``loscos_scene: 1``)::
     camera: {width: 128, height: 128, fov_deg: 39.3077, position: [0, 0, 3.9],
              look_at: [0, 0, 0], up: [0, 1, 0]}          # metres, degrees (horizontal fov)
     photo: cornell2.exr                                  # linear radiance, relative path
+    photo_sha256: …                                      # optional: the photo's digest (it
+                                                         # puts the photo into the cache key)
     materials: {white: [0.885809, 0.698859, 0.666422]}   # diffuse albedo, linear RGB
     polygons:                                            # planar parallelograms, metres,
       - {name: floor, material: white, vertices: [[...], [...], [...], [...]]}  # CCW from front
@@ -195,7 +197,16 @@ class LoadScene(Node):
         scene, cam, photo = parse_scene(doc)
         if not photo:
             raise BadInput("path", "the scene file names no photo")
-        px, _ = read_image(os.path.join(os.path.dirname(path), photo))
+        photo_path = os.path.join(os.path.dirname(path), photo)
+        if not os.path.exists(photo_path):
+            raise BadInput("path", f"photo not found: {photo_path}")
+        if doc.get("photo_sha256"):
+            import hashlib
+
+            with open(photo_path, "rb") as f:
+                if hashlib.sha256(f.read()).hexdigest() != doc["photo_sha256"]:
+                    raise BadInput("path", f"{photo_path} does not match photo_sha256 in {path}")
+        px, _ = read_image(photo_path)
         px = px[:, :, :3]
         if px.shape[:2] != (cam.height, cam.width):
             raise BadInput("path", f"photo is {px.shape[1]}×{px.shape[0]} but the camera is "
