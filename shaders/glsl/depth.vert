@@ -5,6 +5,7 @@
 uniform mat4 proj;
 in vec3 q;
 out float vz;
+invariant gl_Position;
 void main() {
     vz = q.z;
     gl_Position = proj * vec4(q, 1.0);

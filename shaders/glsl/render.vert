@@ -9,6 +9,7 @@ in vec3 N;
 out vec3 vP;
 out vec3 vN;
 out float vz;
+invariant gl_Position;
 void main() {
     vP = P;
     vN = N;

@@ -38,10 +38,12 @@ class RenderGL(Backend):
     node = "Render"
     name = "opengl"
     version = "1"  # bump when the output for the same inputs changes
-    # float32 vs float64 maths moves pixels whose centre lies on a silhouette, shadow-map or
-    # texture-occlusion boundary (and the PCF tap choice at texel boundaries): allow 1% of the
-    # values, everything else within the node's rtol/atol.
-    tolerance = {"rtol": 1e-3, "atol": 2e-3, "bad_fraction": 0.01}
+    # float32 vs float64 maths and GL's fill rule move pixels whose centre lies on a
+    # silhouette, shadow-map or texture-occlusion boundary (or a PCF tap at a texel boundary):
+    # 0.5% of the values may differ (measured: ≤ 0.06% on tests/test_opengl_backend.py, 0.02%
+    # in the 512² benchmark, 0 on Render.examples()); all others within the node's rtol/atol
+    # (measured max |diff| off edges: 1e-4, 6e-4 on eye highlights with exponent 60).
+    tolerance = {"rtol": 1e-3, "atol": 2e-3, "bad_fraction": 0.005}
 
     @classmethod
     def available(cls) -> bool:
@@ -401,15 +403,27 @@ def _render(rt, job):
             t.filter = (mgl.NEAREST, mgl.NEAREST)
         rb = ctx.depth_renderbuffer((W, H))
         fbo = ctx.framebuffer(color_attachments=[color, aux], depth_attachment=rb)
-        trash += [color, aux, rb, fbo]
+        zfbo = ctx.framebuffer(depth_attachment=rb)
+        trash += [color, aux, rb, fbo, zfbo]
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if len(faces):
             vbo = ctx.buffer(job["vertices"].tobytes())
             ibo = ctx.buffer(faces.tobytes())
+            # depth pre-pass (same vertex positions, `invariant gl_Position`), then shade only
+            # the nearest fragment of each pixel (no overdraw)
+            zprog = rt.program("depth.vert", "depth.frag")
+            zprog["proj"].write(_mat4(clip))
+            zvao = ctx.vertex_array(zprog, [(vbo, "3f 24x", "q")], ibo, index_element_size=4)
+            trash += [zvao, vbo, ibo]
+            zfbo.use()
+            zvao.render(mgl.TRIANGLES)
+            fbo.use()
+            ctx.depth_func = "=="
             vao = ctx.vertex_array(prog, [(vbo, "3f 3f 3f", "q", "P", "N")], ibo, index_element_size=4)
+            trash.append(vao)
             vao.render(mgl.TRIANGLES)
-            trash += [vao, vbo, ibo]
+            ctx.depth_func = "<"
         aux_px = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=1), np.float32).reshape(H, W, 4)
         cov = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), np.float32).reshape(H, W, 4)[..., 3] > 0.5
         # composite: background, eyes, exposure, clamp

@@ -30,10 +30,10 @@ class Runtime:
     ctx: Any
     executor: ThreadPoolExecutor
     programs: dict[tuple[str, str], Any] = field(default_factory=dict)
-    cache: dict[Any, Any] = field(default_factory=dict)  # reusable textures / framebuffers
+    renderer: str = "?"  # GL_RENDERER, read on the GL thread at start
 
     def describe(self) -> str:
-        return f"{self.ctx.info.get('GL_RENDERER', '?')} (OpenGL {self.ctx.version_code})"
+        return f"{self.renderer} (OpenGL {self.ctx.version_code})"
 
     def program(self, vert: str, frag: str) -> Any:
         """The linked program of ``shaders/glsl/<vert>`` + ``<frag>`` (GL thread only)."""
@@ -99,6 +99,7 @@ def _make() -> Runtime | Unavailable:
         return Unavailable(f"no OpenGL 3.3 context through EGL ({type(e).__name__}: {e}); "
                            "install libegl1 and a Mesa driver (libgl1-mesa-dri)")
     rt = Runtime(moderngl, ctx, ex)
+    rt.renderer = ex.submit(lambda: str(ctx.info.get("GL_RENDERER", "?"))).result()
     try:
         for v, f in PROGRAMS:
             rt.call(lambda r, v=v, f=f: r.program(v, f))
