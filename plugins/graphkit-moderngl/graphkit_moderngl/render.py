@@ -270,15 +270,15 @@ def _shadow_setup(V, F, light, size: int, margin: float = 0.02):
 # GL thread
 
 
-def _mat4(m) -> bytes:
-    return np.asarray(m, np.float64).T.astype("f4").tobytes()  # GLSL matrices are column-major
+def _mat(m) -> bytes:
+    """A matrix as GLSL wants it (column-major float32)."""
+    return np.asarray(m, np.float64).T.astype("f4").tobytes()
 
 
 def _set(prog, name, value):
     """Set a uniform that may have been optimised away."""
-    u = prog.get(name, None) if hasattr(prog, "get") else (prog[name] if name in prog else None)
-    if u is not None:
-        u.value = value
+    if name in prog:
+        prog[name].value = value
 
 
 def _write(prog, name, data: bytes):
@@ -312,7 +312,7 @@ def _depth_pass(rt, q32, clip, faces, W, H, clear):
     fbo.clear(clear, 0.0, 0.0, 0.0, depth=1.0)
     objs = [rb, fbo]
     if len(faces):
-        prog["proj"].write(_mat4(clip))
+        prog["proj"].write(_mat(clip))
         vbo = ctx.buffer(np.ascontiguousarray(q32, np.float32).tobytes())
         ibo = ctx.buffer(faces.tobytes())
         vao = ctx.vertex_array(prog, [(vbo, "3f", "q")], ibo, index_element_size=4)
@@ -353,7 +353,7 @@ def _render(rt, job):
             _set(prog, "shadows", True)
             _set(prog, "shadow_maps", 0)
             _set(prog, "sm_size", size)
-            _write(prog, "sm_to_light", b"".join(_mat4(m) for m in to_light))
+            _write(prog, "sm_to_light", b"".join(_mat(m) for m in to_light))
             _write(prog, "sm_proj", proj.tobytes())
             _write(prog, "sm_bias", bias.tobytes())
         else:
@@ -375,7 +375,7 @@ def _render(rt, job):
             dtex.use(location=1)
             tdepth.use(location=2)
             _set(prog, "has_detail", True)
-            _write(prog, "tex_pose", _mat4(tc.pose))
+            _write(prog, "tex_pose", _mat(tc.pose))
             _set(prog, "tex_K", (tc.fx, tc.fy, tc.cx, tc.cy))
             _set(prog, "tex_size", (tc.width, tc.height))
             _set(prog, "occl_tol", det["tol"])
@@ -396,7 +396,7 @@ def _render(rt, job):
         _set(prog, "cam_pos", tuple(job["cam_pos"]))
         _set_lights(prog, lights, p.inverse_square)
         clip, faces = job["main"]
-        prog["proj"].write(_mat4(clip))
+        prog["proj"].write(_mat(clip))
         color = ctx.texture((W, H), 4, dtype="f4")
         aux = ctx.texture((W, H), 4, dtype="f4")
         for t in (color, aux):
@@ -413,7 +413,7 @@ def _render(rt, job):
             # depth pre-pass (same vertex positions, `invariant gl_Position`), then shade only
             # the nearest fragment of each pixel (no overdraw)
             zprog = rt.program("depth.vert", "depth.frag")
-            zprog["proj"].write(_mat4(clip))
+            zprog["proj"].write(_mat(clip))
             zvao = ctx.vertex_array(zprog, [(vbo, "3f 24x", "q")], ibo, index_element_size=4)
             trash += [zvao, vbo, ibo]
             zfbo.use()
@@ -445,7 +445,7 @@ def _render(rt, job):
         if eyes is not None:
             centres, axes, R = eyes
             o = job["cam_pos"]
-            _write(comp, "ray_mat", _mat4_3(job["ray_mat"]))
+            _write(comp, "ray_mat", _mat(job["ray_mat"]))
             _set(comp, "fwd", tuple(job["fwd"]))
             _write(comp, "eye_c", np.asarray(centres, np.float32).tobytes())
             _write(comp, "eye_oc", np.asarray(o[None] - centres, np.float32).tobytes())
@@ -462,7 +462,3 @@ def _render(rt, job):
     finally:
         for o in reversed(trash):
             o.release()
-
-
-def _mat4_3(m) -> bytes:
-    return np.asarray(m, np.float64).T.astype("f4").tobytes()
