@@ -323,28 +323,42 @@ def _look_frame(forward: np.ndarray) -> np.ndarray:
     return np.stack([x, y, f])
 
 
-def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
-               margin: float = 0.02) -> ShadowMap:
-    """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
+@dataclass
+class ShadowFrame:
+    """Where a shadow map looks from: the light frame and its projection onto ``size``² texels.
 
-    Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
-    perspective view from the light's position whose field of view fits the mesh.
+    ``M`` maps world → light frame (z away from the light), ``q`` holds the vertices in that
+    frame; a light-frame point p lands on texel ``p.xy * scale + offset`` (orthographic) or
+    ``p.xy / p.z * scale + offset`` (perspective).  ``texel`` is the world size of one texel
+    (at distance ``ref_dist`` for point lights), used for the depth bias.
+    """
+
+    kind: str
+    M: np.ndarray
+    q: np.ndarray
+    scale: np.ndarray
+    offset: np.ndarray
+    texel: float
+    ref_dist: float
+    perspective: bool
+
+
+def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0.02) -> ShadowFrame:
+    """The frame of a shadow map of ``vertices`` seen from ``light`` (see :func:`shadow_map`).
+
+    Shared by every rasteriser that renders shadow maps (the numpy one here, the OpenGL backend).
     """
     V = np.asarray(vertices, np.float64)
     if light.kind == "directional":
-        d = np.asarray(light.direction, np.float64)
-        R = _look_frame(-d)
+        R = _look_frame(-np.asarray(light.direction, np.float64))
         q = V @ R.T
         lo, hi = q[:, :2].min(0), q[:, :2].max(0)
         ext = float(max(hi - lo)) * (1 + 2 * margin) or 1.0
-        centre = (lo + hi) / 2
         M = np.eye(4)
         M[:3, :3] = R
         scale = np.array([size / ext, size / ext])
-        offset = size / 2 - centre * scale
-        sm_xy = q[:, :2] * scale + offset
-        r = rasterize_screen(sm_xy, q[:, 2], faces, size, size, perspective=False)
-        return ShadowMap("directional", r.depth, M, scale, offset, ext / size)
+        offset = size / 2 - (lo + hi) / 2 * scale
+        return ShadowFrame("directional", M, q, scale, offset, ext / size, 1.0, False)
     pos = np.asarray(light.position, np.float64)
     c = V.mean(0)
     R = _look_frame(c - pos)
@@ -356,11 +370,21 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
         raise ValueError("point light inside or in front of the mesh's bounds: no shadow map")
     t = np.abs(q[:, :2] / q[:, 2:3]).max() * (1 + 2 * margin)
     f = size / (2 * t)
-    scale = np.array([f, f])
-    offset = np.array([size / 2, size / 2])
-    r = rasterize_screen(q[:, :2] / q[:, 2:3] * scale + offset, q[:, 2], faces, size, size,
-                         perspective=True)
     dref = float(np.linalg.norm(c - pos))
-    sm = ShadowMap("point", r.depth, M, scale, offset, dref / f)
-    sm._ref_dist = dref
+    return ShadowFrame("point", M, q, np.array([f, f]), np.array([size / 2, size / 2]), dref / f, dref, True)
+
+
+def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
+               margin: float = 0.02) -> ShadowMap:
+    """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
+
+    Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
+    perspective view from the light's position whose field of view fits the mesh.
+    """
+    fr = shadow_frame(vertices, light, size, margin)
+    xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
+    r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size, perspective=fr.perspective)
+    sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
+    if fr.perspective:
+        sm._ref_dist = fr.ref_dist
     return sm

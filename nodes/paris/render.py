@@ -247,6 +247,18 @@ class ShadeFace(Node):
         return {"image": Image(out), "coverage": Mask(s.coverage.astype(np.float32))}
 
 
+def check_render_inputs(lights, detail, texture_camera) -> list:
+    """Render's input checks, shared by its backends: the lights as a list."""
+    lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
+    if not lights:
+        raise BadInput("lights", "no light connected")
+    if detail is not None and texture_camera is None:
+        raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
+    if detail is not None:
+        check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
+    return lights
+
+
 class Render(Node):
     """Paris 2003 §5 rendering engine: Phong (ambient + diffuse + specular, §4) × detail texture.
 
@@ -303,13 +315,7 @@ class Render(Node):
 
         from . import phong
 
-        lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
-        if not lights:
-            raise BadInput("lights", "no light connected")
-        if detail is not None and texture_camera is None:
-            raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
-        if detail is not None:
-            check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
+        lights = check_render_inputs(lights, detail, texture_camera)
         p = self.params
         eye_mesh = mesh
         check_mesh(mesh)

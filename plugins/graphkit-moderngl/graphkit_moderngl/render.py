@@ -56,16 +56,10 @@ class RenderGL(Backend):
 
     def compute(self, mesh, camera: Camera, material, lights, detail: Image | None = None,
                 texture_camera: Camera | None = None, ambient: Light | None = None):
-        from nodes.paris.render import (check_camera_matches, check_mesh, close_holes,
-                                        eye_spheres, vertex_normals)
+        from nodes.paris.render import (check_mesh, check_render_inputs, close_holes, eye_spheres,
+                                        vertex_normals)
 
-        lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
-        if not lights:
-            raise BadInput("lights", "no light connected")
-        if detail is not None and texture_camera is None:
-            raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
-        if detail is not None:
-            check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
+        lights = check_render_inputs(lights, detail, texture_camera)
         if len(lights) > MAX_LIGHTS:
             raise BadInput("lights", f"{len(lights)} lights: the opengl backend takes at most "
                                      f"{MAX_LIGHTS} (the numpy backend any number)")
@@ -226,44 +220,24 @@ def _light_uniforms(light: Light):
 
 
 def _shadow_setup(V, F, light, size: int, margin: float = 0.02):
-    """The light frame of ``nodes.common.raster.shadow_map`` (same maths) and the clip matrix
-    that rasterises it in GL: dict(to_light 4×4, proj (sx, sy, ox, oy), bias (texel, dref),
-    clip, faces, q)."""
-    from nodes.common.raster import _look_frame
+    """The light frame of ``nodes.common.raster.shadow_map`` (one implementation:
+    ``shadow_frame``) and the clip matrix that rasterises it in GL: dict(to_light 4×4,
+    proj (sx, sy, ox, oy), bias (texel, dref), clip, faces, q)."""
+    from nodes.common.raster import shadow_frame
 
-    if light.kind == "directional":
-        d = np.asarray(light.direction, np.float64)
-        R = _look_frame(-d)
-        q = V @ R.T
-        lo, hi = q[:, :2].min(0), q[:, :2].max(0)
-        ext = float(max(hi - lo)) * (1 + 2 * margin) or 1.0
-        centre = (lo + hi) / 2
-        M = np.eye(4)
-        M[:3, :3] = R
-        scale = np.array([size / ext, size / ext])
-        offset = size / 2 - centre * scale
+    fr = shadow_frame(V, light, size, margin)
+    (sx, sy), (ox, oy) = fr.scale, fr.offset
+    if fr.perspective:
+        P = pinhole_proj(sx, sy, ox, oy, size, size)
+        clip, Fk = _view_geometry(fr.q, F, P)
+    else:
         P = np.zeros((4, 4))
-        P[0, 0], P[0, 3] = 2 * scale[0] / size, 2 * offset[0] / size - 1
-        P[1, 1], P[1, 3] = 2 * scale[1] / size, 2 * offset[1] / size - 1
+        P[0, 0], P[0, 3] = 2 * sx / size, 2 * ox / size - 1
+        P[1, 1], P[1, 3] = 2 * sy / size, 2 * oy / size - 1
         P[3, 3] = 1.0
-        clip, Fk = _view_geometry(q, F, P, perspective=False)
-        return dict(to_light=M, proj=(*scale, *offset), bias=(ext / size, 1.0), clip=clip,
-                    faces=Fk, q=q.astype(np.float32))
-    pos = np.asarray(light.position, np.float64)
-    c = V.mean(0)
-    R = _look_frame(c - pos)
-    M = np.eye(4)
-    M[:3, :3] = R
-    M[:3, 3] = -R @ pos
-    q = V @ R.T + M[:3, 3]
-    if np.any(q[:, 2] <= 1e-9):
-        raise ValueError("point light inside or in front of the mesh's bounds: no shadow map")
-    t = np.abs(q[:, :2] / q[:, 2:3]).max() * (1 + 2 * margin)
-    f = size / (2 * t)
-    clip, Fk = _view_geometry(q, F, pinhole_proj(f, f, size / 2, size / 2, size, size))
-    dref = float(np.linalg.norm(c - pos))
-    return dict(to_light=M, proj=(f, f, size / 2, size / 2), bias=(dref / f, dref), clip=clip,
-                faces=Fk, q=q.astype(np.float32))
+        clip, Fk = _view_geometry(fr.q, F, P, perspective=False)
+    return dict(to_light=fr.M, proj=(sx, sy, ox, oy), bias=(fr.texel, fr.ref_dist), clip=clip,
+                faces=Fk, q=fr.q.astype(np.float32))
 
 
 # ----------------------------------------------------------------------------------------------
