@@ -263,8 +263,6 @@ def light_visibility(h: HR.Hierarchy, leaves, light_polys: list[np.ndarray]) -> 
 
 def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng):
     """Replace links `mask` (receiver not a leaf) by links from each receiver leaf."""
-    from . import geometry as G
-
     r, s = h.recv[mask], h.send[mask]
     keep = ~mask
     nr, ns = [], []
@@ -362,7 +360,6 @@ def texture_refine(scene, h: HR.Hierarchy, proj, prm: HR.RefineParams, color_thr
             key = np.unique(np.stack([pr, ps], 1), axis=0)
             h.recv, h.send, h.F, h.V = (x[~gone] for x in (h.recv, h.send, h.F, h.V))
             h.unsubdivide(undo)
-            from . import geometry as G
             o1, u1, v1, n1, _ = h.geom(key[:, 0])
             o2, u2, v2, n2, _ = h.geom(key[:, 1])
             F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
