@@ -13,6 +13,7 @@ are BLAKE2b-128 over the canonical encoding of their parts.
 from __future__ import annotations
 
 import enum
+import functools
 import hashlib
 import json
 import os
@@ -134,8 +135,19 @@ def canonical_items(parts: dict) -> dict[str, bytes]:
     """Encode each entry of a dict on its own (for :func:`canonical_merge`)."""
     out = {}
     for k, v in parts.items():
-        out[k] = canonical(k) + canonical(v)
+        out[k] = _str_item(k, v) if type(v) is str else _key_bytes(k) + canonical(v)
     return out
+
+
+@functools.lru_cache(maxsize=256)
+def _key_bytes(k: str) -> bytes:
+    return canonical(k)
+
+
+@functools.lru_cache(maxsize=4096)
+def _str_item(k: str, v: str) -> bytes:
+    """Encoded (key, value) for string values (node type, versions, backend: they repeat)."""
+    return canonical(k) + canonical(v)
 
 
 def canonical_merge(static: dict[str, bytes], varying: dict) -> bytes:
