@@ -29,7 +29,7 @@ def test_face_capture_graph_runs(tmp_path):
     missing = [n for n in ("ProbeLight", "SkinSegment", "ShininessFromSaturation", "ContactSheet")
                if n not in names]
     if missing:
-        pytest.skip(f"face_capture.yaml needs {missing}, which are not installed")
+        pytest.skip(reason=f"face_capture.yaml needs {missing}, which are not installed")
     r = _run(["run", str(ROOT / "graphs" / "face_capture.yaml"), "--out", str(tmp_path / "out")],
              tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -95,7 +95,7 @@ def test_face_relight_demo_runs(tmp_path):
     names = default_registry().node_names()
     missing = [n for n in ("FaceMesh", "SkinSegment", "ContactSheet") if n not in names]
     if missing:
-        pytest.skip(f"face_relight.yaml needs {missing}, which are not installed")
+        pytest.skip(reason=f"face_relight.yaml needs {missing}, which are not installed")
     r = _run(["run", str(ROOT / "graphs" / "face_relight.yaml"), "--out", str(tmp_path / "out")],
              tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -55,7 +55,7 @@ def run(request):
         m, alb, skin_w = mc.head_mesh()
     else:
         if "FaceMesh" not in reg.node_names():
-            pytest.skip("the FaceMesh node (plugin graphkit-mediapipe) is not installed")
+            pytest.skip(reason="the FaceMesh node (plugin graphkit-mediapipe) is not installed")
         m, alb, skin_w = mc.facemesh_head()
     cam = mc.camera(SIZE)
     photo = Image(mc.render_scene(m, alb, cam, [], SPP, flash=True))

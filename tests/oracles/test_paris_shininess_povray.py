@@ -24,7 +24,7 @@ FLASH = (1.0, 0.9, 0.8)       # light colour
 def _povray():
     exe = shutil.which("povray")
     if exe is None:
-        pytest.skip("POV-Ray is not installed (Debian package 'povray'; `make sysdeps` installs it)")
+        pytest.skip(reason="POV-Ray is not installed (Debian package 'povray'; `make sysdeps` installs it)")
     return exe
 
 
