@@ -62,7 +62,7 @@ def big_mesh(n_target=24060):
     m = trimesh.creation.uv_sphere(radius=1.0, count=[n, n])
     m.vertices *= [72.0, 98.0, 88.0]
     m.vertices[:, 2] += mc.DISTANCE_MM
-    return f"head-shaped uv sphere", m, mc.camera(512)
+    return "head-shaped uv sphere", m, mc.camera(512)
 
 
 def peer_moderngl(mesh, cam, runs):
@@ -117,16 +117,13 @@ def peer_moderngl(mesh, cam, runs):
     return t, ctx.info["GL_RENDERER"]
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--size", type=int, default=512)
-    a = ap.parse_args()
+def scenes(size: int):
+    """(name, mesh, camera, material, cases) for each benchmark mesh; a case is
+    (label, Render params, lights, extra inputs).  Shared with bench_render_backends.py."""
     from graphkit import Image, Light
     from nodes.paris.models import PhongMaterial
-    from nodes.paris.render import FrameFace, Render
+    from nodes.paris.render import FrameFace
 
-    print(f"cores: {os.cpu_count()}, frame {a.size}×{a.size}, median of {a.runs} runs")
     mat = PhongMaterial(diffuse=(0.6, 0.45, 0.3), specular=0.2, shininess=10.0)
     rng = np.random.default_rng(0)
     lights8 = []
@@ -137,9 +134,8 @@ def main():
                              intensity=0.25))
     one = [Light(direction=(0.3, -0.3, -0.9))]
     for name, mesh, cam0 in (face_mesh(), big_mesh()):
-        cam = FrameFace(FrameFace.Params(size=a.size, margin=0.05)).compute(mesh=mesh, camera=cam0)["camera"]
+        cam = FrameFace(FrameFace.Params(size=size, margin=0.05)).compute(mesh=mesh, camera=cam0)["camera"]
         detail = Image(rng.uniform(0.8, 1.2, (cam0.height, cam0.width, 3)).astype(np.float32))
-        print(f"\n{name}: {len(mesh.faces)} triangles")
         cases = [
             ("1 light", dict(shadows=False), one, {}),
             ("1 light + shadow map", dict(shadows=True, shadow_map_size=512), one, {}),
@@ -148,6 +144,19 @@ def main():
             ("8 lights + shadows + detail + exposure 2", dict(shadows=True, shadow_map_size=512, exposure=2.0),
              lights8, dict(detail=detail, texture_camera=cam0)),
         ]
+        yield name, mesh, cam, mat, cases
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--size", type=int, default=512)
+    a = ap.parse_args()
+    from nodes.paris.render import Render
+
+    print(f"cores: {os.cpu_count()}, frame {a.size}×{a.size}, median of {a.runs} runs")
+    for name, mesh, cam, mat, cases in scenes(a.size):
+        print(f"\n{name}: {len(mesh.faces)} triangles")
         for label, params, lights, extra in cases:
             node = Render(Render.Params(eye_highlights="off", **params))
             t = timeit(lambda: node.compute(mesh=mesh, camera=cam, material=mat, lights=lights, **extra), a.runs)
@@ -157,6 +166,7 @@ def main():
             print(f"  peer: {who}")
         else:
             node = Render(Render.Params(eye_highlights="off", shadows=False))
+            one = cases[0][2]
             t1 = timeit(lambda: node.compute(mesh=mesh, camera=cam, material=mat, lights=one), a.runs)
             print(f"  peer moderngl ({who}), 1 light, per-pixel Phong + readback: {1 / tp:7.1f} fps "
                   f"({tp * 1e3:.1f} ms); numpy/peer time ratio {t1 / tp:.1f}×")

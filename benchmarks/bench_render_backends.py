@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_render import big_mesh, face_mesh, timeit  # noqa: E402
+from bench_render import scenes, timeit  # noqa: E402
 
 
 def main():
@@ -32,11 +32,9 @@ def main():
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--size", type=int, default=512)
     a = ap.parse_args()
-    from graphkit import Image, Light
     from graphkit.node import probe
     from graphkit.registry import default_registry
-    from nodes.paris.models import PhongMaterial
-    from nodes.paris.render import FrameFace, Render
+    from nodes.paris.render import Render
 
     reg = default_registry()
     if "opengl" not in reg.backend_names("Render"):
@@ -51,29 +49,10 @@ def main():
 
     print(f"cores: {os.cpu_count()}, frame {a.size}×{a.size}, median of {a.runs} runs, "
           f"OpenGL: {runtime().describe()}")
-    mat = PhongMaterial(diffuse=(0.6, 0.45, 0.3), specular=0.2, shininess=10.0)
-    rng = np.random.default_rng(0)
-    lights8 = []
-    for i in range(8):
-        az, el = rng.uniform(-60, 60), rng.uniform(-30, 40)
-        a_, e_ = np.radians(az), np.radians(el)
-        lights8.append(Light(direction=(np.sin(a_) * np.cos(e_), -np.sin(e_), -np.cos(a_) * np.cos(e_)),
-                             intensity=0.25))
-    one = [Light(direction=(0.3, -0.3, -0.9))]
     tol = {**Render.tolerance, **GL.tolerance}
-    for name, mesh, cam0 in (face_mesh(), big_mesh()):
-        cam = FrameFace(FrameFace.Params(size=a.size, margin=0.05)).compute(mesh=mesh, camera=cam0)["camera"]
-        detail = Image(rng.uniform(0.8, 1.2, (cam0.height, cam0.width, 3)).astype(np.float32))
+    for name, mesh, cam, mat, cases in scenes(a.size):
         print(f"\n{name}: {len(mesh.faces)} triangles")
         print(f"  {'configuration':42s} {'numpy fps':>10s} {'opengl fps':>11s} {'speed-up':>9s} {'differing':>10s}")
-        cases = [
-            ("1 light", dict(shadows=False), one, {}),
-            ("1 light + shadow map", dict(shadows=True, shadow_map_size=512), one, {}),
-            ("1 light + shadows + detail", dict(shadows=True, shadow_map_size=512), one,
-             dict(detail=detail, texture_camera=cam0)),
-            ("8 lights + shadows + detail + exposure 2", dict(shadows=True, shadow_map_size=512, exposure=2.0),
-             lights8, dict(detail=detail, texture_camera=cam0)),
-        ]
         for label, params, lights, extra in cases:
             p = Render.Params(eye_highlights="off", **params)
             ref_node, gl_node = Render(p), GL(p)

@@ -24,7 +24,6 @@ the node's own ``compute`` is always the ``numpy`` reference backend.
 """
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable, ClassVar
 
@@ -156,10 +155,6 @@ class Node(_Computable):
             if any(isinstance(m, _InputFileMarker) for m in f.metadata):
                 out.append(name)
         return out
-
-    @classmethod
-    def summary(cls) -> str:
-        return (inspect.getdoc(cls) or "").split("\n")[0]
 
 
 class Backend(_Computable):

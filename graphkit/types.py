@@ -315,7 +315,6 @@ Scalar = SCALAR
 Vector = VECTOR
 Array = ARRAY
 Json = JSON
-Any_ = ANY
 
 _BY_CLASS: dict[type, PortType] = {Image: IMAGE, Mask: MASK, Spectrum: SPECTRUM, File: FILE}
 BUILTIN_PORT_TYPES: dict[str, PortType] = {

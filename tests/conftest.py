@@ -25,6 +25,18 @@ def graphkit(*args, env=None, cwd=None, timeout=120, **kw) -> subprocess.Complet
                           text=True, env=env or engine_env(), cwd=cwd, timeout=timeout, **kw)
 
 
+def read_exr(path):
+    """Pixels of an image file as float32 H×W×C, read with OpenImageIO."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    px = inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
+    inp.close()
+    return np.asarray(px, np.float32)
+
+
 @pytest.fixture
 def engine_registry():
     """A registry with the built-in nodes and the engine test nodes."""

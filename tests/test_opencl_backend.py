@@ -18,6 +18,8 @@ import sys
 import numpy as np
 import pytest
 
+from conftest import read_exr
+
 H = W = 512  # builtin:astronaut is 512×512 RGB
 
 GRAPH = """\
@@ -58,16 +60,6 @@ def write_exr(path, px):
     assert out.open(str(path), oiio.ImageSpec(px.shape[1], px.shape[0], px.shape[2], "float"))
     assert out.write_image(np.ascontiguousarray(px, np.float32))
     out.close()
-
-
-def read_exr(path):
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    assert inp is not None, oiio.geterror()
-    px = inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
-    inp.close()
-    return np.asarray(px, np.float32)
 
 
 @pytest.fixture(scope="module")

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from graphkit import Camera, Image, Light
+from conftest import read_exr
 
 
 def _classes():
@@ -254,16 +255,6 @@ def run_cli(d, graph, out, *args, env=None):
     return subprocess.run([sys.executable, "-m", "graphkit", "run", str(d / graph), "--cache",
                            str(out) + "_cache", "--out", str(out), "-q", *args],
                           capture_output=True, text=True, env=e, timeout=120)
-
-
-def read_exr(path):
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    assert inp is not None, oiio.geterror()
-    px = inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
-    inp.close()
-    return np.asarray(px, np.float32)
 
 
 def backend_of(out):

@@ -119,6 +119,18 @@ def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int 
     return out
 
 
+def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Dual basis of parallelogram edge pairs (P, 3): (x − o)·du, (x − o)·dv are the in-plane
+    coordinates (s, t) of a point x on the plane o + s·u + t·v."""
+    uu = np.einsum("pc,pc->p", u, u)
+    vv = np.einsum("pc,pc->p", v, v)
+    uv = np.einsum("pc,pc->p", u, v)
+    det = uu * vv - uv * uv
+    du = (vv[:, None] * u - uv[:, None] * v) / det[:, None]
+    dv = (uu[:, None] * v - uv[:, None] * u) / det[:, None]
+    return du, dv
+
+
 def segment_blocked(p0: np.ndarray, p1: np.ndarray, occ_o, occ_u, occ_v, occ_n,
                     ignore: np.ndarray | None = None, chunk: int = 100_000) -> np.ndarray:
     """Whether each segment p0→p1 (N,3) crosses one of the parallelograms (two-sided).
@@ -130,13 +142,7 @@ def segment_blocked(p0: np.ndarray, p1: np.ndarray, occ_o, occ_u, occ_v, occ_n,
     out = np.zeros(N, bool)
     if N == 0 or len(occ_o) == 0:
         return out
-    # dual basis for in-plane coordinates
-    uu = np.einsum("pc,pc->p", occ_u, occ_u)
-    vv = np.einsum("pc,pc->p", occ_v, occ_v)
-    uv = np.einsum("pc,pc->p", occ_u, occ_v)
-    det = uu * vv - uv * uv
-    du = (vv[:, None] * occ_u - uv[:, None] * occ_v) / det[:, None]
-    dv = (uu[:, None] * occ_v - uv[:, None] * occ_u) / det[:, None]
+    du, dv = dual_basis(occ_u, occ_v)
     pid = np.arange(len(occ_o))
     for a in range(0, N, chunk):
         b = min(N, a + chunk)
@@ -172,12 +178,7 @@ def ray_first_hit(o: np.ndarray, d: np.ndarray, occ_o, occ_u, occ_v, occ_n,
     ttb = np.zeros(N)
     if len(occ_o) == 0:
         return idx, tb, sb, ttb
-    uu = np.einsum("pc,pc->p", occ_u, occ_u)
-    vv = np.einsum("pc,pc->p", occ_v, occ_v)
-    uv = np.einsum("pc,pc->p", occ_u, occ_v)
-    det = uu * vv - uv * uv
-    du = (vv[:, None] * occ_u - uv[:, None] * occ_v) / det[:, None]
-    dv = (uu[:, None] * occ_v - uv[:, None] * occ_u) / det[:, None]
+    du, dv = dual_basis(occ_u, occ_v)
     for a in range(0, N, chunk):
         b = min(N, a + chunk)
         oo, dd = o[a:b], d[a:b]
