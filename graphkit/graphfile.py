@@ -362,6 +362,17 @@ def _validate(doc: _Doc, data: dict, path: str, reg: Registry, overrides: dict,
                     doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': file not found: {resolved}")
                     continue
                 files[fp] = resolved
+                try:
+                    named = cls.referenced_files(fp, resolved)
+                except BadInput as e:
+                    doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': {e.message}")
+                    continue
+                for label, p in named.items():
+                    if not os.path.isfile(p):
+                        doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': "
+                               f"{resolved} names {label} {p}, which is not found")
+                    else:
+                        files[f"{fp}:{label}"] = p
         backend = spec.get("backend")
         if backend is not None:
             names = reg.backend_names(tname)

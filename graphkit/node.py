@@ -149,6 +149,12 @@ class Node(_Computable):
         return value if os.path.isabs(value) else os.path.join(base_dir, value)
 
     @classmethod
+    def referenced_files(cls, param: str, path: str) -> dict[str, str]:
+        """Files that the input file ``path`` names and the node also reads (e.g. a scene file's
+        photograph): {label: path}.  Their content goes into the cache key too."""
+        return {}
+
+    @classmethod
     def input_file_params(cls) -> list[str]:
         out = []
         for name, f in cls.Params.model_fields.items():

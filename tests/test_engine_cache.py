@@ -82,3 +82,4 @@ def test_same_bytes_in_another_cache(tmp_path, write, engine_registry):
     k1 = {n: (o.key, o.outputs) for n, o in r1.result.outcomes.items()}
     k2 = {n: (o.key, o.outputs) for n, o in r2.result.outcomes.items()}
     assert k1 == k2
+

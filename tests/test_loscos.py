@@ -143,3 +143,27 @@ def test_camera_sees_nothing_and_photo_size():
     with pytest.raises(BadInput, match="photo is 16×16 but the camera is 32×32") as e:
         ProjectTextures().compute(scene=sc, camera=cam, photo=Image(np.zeros((16, 16, 3))))
     assert e.value.args[0] == "photo" or "photo" in str(e.value)
+
+
+def test_files_named_by_an_input_file_are_in_the_key(tmp_path, write, engine_registry):
+    """A scene file's photograph (Node.referenced_files) changes the key when its bytes change."""
+    import shutil
+
+    from graphkit.graphfile import load_graph
+    from graphkit.runner import Session
+    from graphkit.store import Store
+    from nodes.loscos import scene
+
+    data = tmp_path / "scene"
+    shutil.copytree(scene.DATA, data)
+    g = write("g.yaml", f"graphkit: 1\nnodes:\n  s: {{type: LoadScene, params: {{path: {data}/cornell2.yaml}}}}\n")
+
+    def key():
+        graph = load_graph(g, engine_registry, {})
+        return Session(graph, engine_registry, Store(tmp_path / "c")).key(graph.nodes["s"], {})[0]
+
+    k1 = key()
+    assert k1 == key()
+    photo = data / "cornell2.exr"
+    photo.write_bytes(photo.read_bytes() + b"\0")
+    assert key() != k1

@@ -4,9 +4,9 @@ Scene file (YAML, ``loscos_scene: 1``)::
 
     camera: {width: 128, height: 128, fov_deg: 39.3077, position: [0, 0, 3.9],
              look_at: [0, 0, 0], up: [0, 1, 0]}          # metres, degrees (horizontal fov)
-    photo: cornell2.exr                                  # linear radiance, relative path
-    photo_sha256: …                                      # optional: the photo's digest (it
-                                                         # puts the photo into the cache key)
+    photo: cornell2.exr                                  # linear radiance, relative path; its
+                                                         # content is part of the cache key
+    photo_sha256: …                                      # optional consistency check
     materials: {white: [0.885809, 0.698859, 0.666422]}   # diffuse albedo, linear RGB
     polygons:                                            # planar parallelograms, metres,
       - {name: floor, material: white, vertices: [[...], [...], [...], [...]]}  # CCW from front
@@ -180,6 +180,20 @@ class LoadScene(Node):
                                + ", ".join("builtin:" + k for k in BUILTIN) + ")")
             return os.path.join(DATA, BUILTIN[name])
         return super().resolve_file(param, value, base_dir)
+
+    @classmethod
+    def referenced_files(cls, param, path):
+        """The photograph the scene file names: its content is part of the cache key."""
+        import yaml
+
+        try:
+            with open(path) as f:
+                doc = yaml.safe_load(f)
+        except (OSError, yaml.YAMLError):
+            return {}  # compute reports the problem with the scene file itself
+        if isinstance(doc, dict) and isinstance(doc.get("photo"), str):
+            return {"photo": os.path.join(os.path.dirname(path), doc["photo"])}
+        return {}
 
     def compute(self):
         import yaml
