@@ -4,25 +4,42 @@ table 1, eq. 7; spectral model after Donner & Jensen 2006 / Donner et al. 2008).
 Units (all lengths in **mm**, wavelengths λ in **nm**, absorption/scattering in **mm⁻¹**):
 
 * eumelanin   σa_em(λ) = 6.6·10¹⁰ · λ^−3.33 mm⁻¹   (Jacques' 6.6·10¹¹ λ^−3.33 cm⁻¹; 67.9 mm⁻¹ at 500 nm)
-* pheomelanin σa_pm(λ) = 2.9·10¹³ · λ^−4.75 mm⁻¹   (Donner & Jensen's 2.9·10¹⁴, read as cm⁻¹ like the above)
+* pheomelanin σa_pm(λ) = 2.9·10¹⁴ · λ^−4.75 mm⁻¹   (Donner & Jensen 2006's coefficient.  The
+  two public implementations of that paper found (pbrt-based skin materials on GitHub) use it
+  unchanged beside 6.6·10¹⁰ for eumelanin, i.e. in the same mm⁻¹ as the eumelanin term above;
+  the paper's text was not available to check.  Version 1 divided it by 10, which made
+  pheomelanin 13–23× weaker than eumelanin over 450–650 nm instead of 1.3–2.3×.)
 * baseline    σa_base(λ) = 0.0244 + 8.53 · exp(−(λ − 154)/66.2) mm⁻¹ (Jacques, bloodless tissue)
 * hemoglobin  σa_hb(λ) = ln(10) · ε(λ) · 150 g/L / 64 500 g/mol, ε in cm⁻¹/M from Prahl's table
   (data/hemoglobin_prahl.csv), ÷10 to mm⁻¹; blood oxygenation γ = 0.75 mixes HbO₂ and Hb.
-* reduced scattering σs′_epi(λ) = 14.74 λ^−0.22 + 2.2·10¹¹ λ^−4 mm⁻¹, dermis half of it.
+* reduced scattering σs′_epi(λ) = 14.74 λ^−0.22 + 2.2·10¹¹ λ^−4 mm⁻¹; the dermis has the same
+  (``km``, ``filter``) or half of it (``multipole``, as Donner & Jensen 2006).
 
 Volume fractions (unitless): C_m melanin, β_m eumelanin share of melanin, C_he and C_hd
 hemoglobin in epidermis and dermis.  Table 1 ranges: C_m 0–0.5, β_m 0–1, C_he 0–0.1,
 C_hd 0–0.32; the table uses C_he = 0.25 C_hd (§6).
 
 Total diffuse reflectance: the dermis is a semi-infinite scattering medium (Jensen et al.
-2001 dipole, integrated over the surface).  The epidermis (thickness ``d_epi`` mm) is by
-default a thin absorbing filter crossed twice by diffuse light (Beer–Lambert with a mean path
-of 2·d_epi, as in the Cotton & Claridge model behind the paper's acquisition, §3); a
-``multipole`` option models it as a scattering slab (Donner & Jensen 2005 multipole,
-integrated over the surface) added to the dermis as R₁ + T₁² R₂ / (1 − R₁ R₂).  The filter
-form keeps melanin's spectral slope visible in RGB and fits measured skin colours better
-(tests/oracles/test_jimenez_lut.py).  Spectra → CIE XYZ (D65, CIE 1931 2°) → linear sRGB with
-colour-science.
+2001 dipole, integrated over the surface, η = 1.4).  The epidermis (thickness ``d_epi`` mm)
+is a layer that scatters as well as absorbs, added to the dermis as
+R = R₁ + T₁² R₂ / (1 − R₁ R₂) (the layer-adding rule Donner & Jensen use).  Its R₁, T₁ come
+by default (``"km"``) from the Kubelka–Munk two-flux solution for a slab (Kubelka 1948, the
+theory of the Cotton & Claridge model behind the paper's acquisition, §3), with
+K = 2 σa and S = ¾ σs′ − ¼ σa (Star, Marijnissen & van Gemert 1988, Phys. Med. Biol. 33:437),
+and ``d_epi`` = 0.06 mm: the cellular (melanin-bearing) epidermis is 56.6 ± 11.5 µm on the
+forearm (Sandby-Møller, Poulsen & Wulf 2003, Acta Derm. Venereol. 83:410).
+
+Why a scattering epidermis: melanin sits inside scattering tissue, so reflectance varies
+roughly with √σa rather than with exp(−σa·path); an absorbing filter over the dermis
+(``"filter"``, T = exp(−2 σa d) per crossing, the previous default) exaggerates melanin's blue
+absorption and makes dark skin far too saturated (ColorChecker dark skin ΔE00 8.4 at the
+best β_m; at its nearest entry the filter leaves 0.1 % reflectance at 420 nm where the
+measured patch keeps 6 %).  The diffusion multipole of Donner & Jensen 2005 (``"multipole"``,
+kept as an option, d = 0.25 mm) puts its source 1/σt′ = 0.11–0.23 mm deep (450–700 nm), i.e.
+below an epidermis of realistic thickness, so it is not usable at 0.06–0.1 mm; the two-flux
+slab is.  The dermis scatters like the epidermis (σs′ above); Donner & Jensen 2006 halve it,
+which makes light skin too dark (nodes/jimenez/README.md reports the numbers).  Spectra →
+CIE XYZ (D65, CIE 1931 2°) → linear sRGB with colour-science.
 """
 from __future__ import annotations
 
@@ -53,7 +70,7 @@ def eumelanin_absorption(wl_nm):
 
 def pheomelanin_absorption(wl_nm):
     """σa of pheomelanin, mm⁻¹ (λ in nm)."""
-    return 2.9e13 * np.asarray(wl_nm, np.float64) ** -4.75
+    return 2.9e14 * np.asarray(wl_nm, np.float64) ** -4.75
 
 
 def baseline_absorption(wl_nm):
@@ -101,6 +118,21 @@ def _slab_RT(sa, ss, d, eta=1.4, n_pairs=6):
     return np.clip(alpha / 2 * R, 0, 1), np.clip(alpha / 2 * T, 0, 1)
 
 
+def _km_slab_RT(sa, ss, d):
+    """Kubelka–Munk diffuse R and T of a slab of thickness d (mm), σa and σs′ in mm⁻¹.
+
+    K = 2σa, S = ¾σs′ − ¼σa (Star et al. 1988); a = 1 + K/S, b = √(a² − 1):
+    R = sinh(bSd) / (a sinh(bSd) + b cosh(bSd)), T = b / (same).
+    """
+    K = 2.0 * sa
+    Sk = np.maximum(0.75 * ss - 0.25 * sa, 1e-9)
+    a = 1.0 + K / Sk
+    b = np.sqrt(a * a - 1.0)
+    x = b * Sk * d
+    den = a * np.sinh(x) + b * np.cosh(x)
+    return np.sinh(x) / den, b / den
+
+
 def _semi_infinite_R(sa, ss, eta=1.4):
     """Total diffuse reflectance of a semi-infinite medium (r-integrated dipole)."""
     st = sa + ss
@@ -110,13 +142,16 @@ def _semi_infinite_R(sa, ss, eta=1.4):
 
 
 def skin_reflectance(c_m, c_hd, beta_m=0.61, c_he=None, wl=WL, d_epi=None, oxygenation=0.75,
-                     epidermis: str = "filter"):
+                     epidermis: str = "km"):
     """Total diffuse reflectance (…, n_wl) of two-layer skin for volume fractions C_m, C_hd.
 
-    ``c_he`` defaults to 0.25·C_hd (§6).  ``d_epi`` in mm (default 0.1 for ``filter``, 0.25
-    for ``multipole``), ``wl`` in nm.  ``epidermis``:
+    ``c_he`` defaults to 0.25·C_hd (§6).  ``d_epi`` in mm (default 0.06 for ``km``, 0.1 for
+    ``filter``, 0.25 for ``multipole``), ``wl`` in nm.  ``epidermis``:
 
-    * ``"filter"`` (default): the thin epidermis is an absorbing filter crossed twice by
+    * ``"km"`` (default): the epidermis is a scattering, absorbing Kubelka–Munk slab (σs′ as
+      below) over a semi-infinite dipole dermis with the same σs′, added as
+      R₁ + T₁² R₂ / (1 − R₁R₂) (module docstring).
+    * ``"filter"``: the thin epidermis is an absorbing filter crossed twice by
       diffuse light, T = exp(−2 σa_epi d_epi) per crossing (mean diffuse path 2d), over a
       semi-infinite dermis (dipole, σs′ as the epidermis): R = T² R_derm.
     * ``"multipole"``: the epidermis is a scattering multipole slab (σs′_epi), the dermis a
@@ -132,6 +167,11 @@ def skin_reflectance(c_m, c_hd, beta_m=0.61, c_he=None, wl=WL, d_epi=None, oxyge
     sa_epi = c_m * mel + c_he * hem + (1 - c_m - c_he) * base
     sa_derm = c_hd * hem + (1 - c_hd) * base
     ss = reduced_scattering_epidermis(wl)
+    if epidermis == "km":
+        d = 0.06 if d_epi is None else d_epi
+        R1, T1 = _km_slab_RT(sa_epi, ss, d)
+        R2 = _semi_infinite_R(sa_derm, ss)
+        return R1 + T1 * T1 * R2 / (1 - R1 * R2)
     if epidermis == "filter":
         d = 0.1 if d_epi is None else d_epi
         T = np.exp(-2.0 * sa_epi * d)
@@ -201,14 +241,16 @@ class SkinColorLUT(Node):
     """Skin colour lookup table (Jimenez 2010 §6, table 1, eq. 7, figure 9).
 
     Each entry is the total diffuse reflectance of the two-layer spectral skin model (module
-    docstring: melanin mm⁻¹, Prahl hemoglobin, an epidermis of ``epidermis_mm`` mm over a
-    semi-infinite dermis, C_he = 0.25 C_hd) converted to linear sRGB (D65) with colour-science.  Columns
+    docstring: melanin mm⁻¹, Prahl hemoglobin, a scattering epidermis of ``epidermis_mm`` mm
+    over a semi-infinite dermis, C_he = 0.25 C_hd) converted to linear sRGB (D65) with colour-science.  Columns
     (u, width) sample melanin C_m ∈ [0, 0.5] as u = ∛C_m, rows (v, height) sample dermal
     hemoglobin C_hd ∈ [0, 0.32] as v = ∛C_hd (eq. 7).  ``reflectance`` holds the spectra
-    (rows × columns × wavelengths) at ``wavelengths`` (nm).
+    (rows × columns × wavelengths) at ``wavelengths`` (nm).  ``melanin_blend`` (β_m) is a
+    per-subject parameter (table 1: 0–1): lighter skin tends to pheomelanin, darker skin to
+    eumelanin, so one table per β_m is the intended use; 0.61 is figure 9's.
     """
 
-    version = "1"
+    version = "2"
     outputs = {"lut": Out(Image, "linear sRGB albedo, rows = ∛C_hd, columns = ∛C_m"),
                "reflectance": Out(Array, "spectral reflectance, (rows, columns, wavelengths)"),
                "wavelengths": Out(Vector, "wavelengths of the spectra (nm)")}
@@ -216,9 +258,9 @@ class SkinColorLUT(Node):
     class Params(Node.Params):
         size: int = Field(64, ge=2, le=512, description="entries per axis")
         melanin_blend: float = Field(0.61, ge=0, le=1, description="β_m: eumelanin share of melanin (figure 9: 0.61)")
-        epidermis_mm: float = Field(0.1, gt=0, le=2, description="epidermis thickness (mm)")
+        epidermis_mm: float | None = Field(None, gt=0, le=2, description="epidermis thickness (mm); default per model: km 0.06, filter 0.1, multipole 0.25")
         oxygenation: float = Field(0.75, ge=0, le=1, description="blood oxygen saturation")
-        epidermis: Literal["filter", "multipole"] = Field("filter", description="epidermis model (module docstring)")
+        epidermis: Literal["km", "filter", "multipole"] = Field("km", description="epidermis model (module docstring)")
 
     def compute(self):
         p = self.params

@@ -53,25 +53,57 @@ def test_lightness_falls_monotonically_with_melanin(lut):
     assert np.all(np.diff(L, axis=1) < 0)  # along u (melanin), every hemoglobin row
 
 
-def test_nearest_entries_reproduce_measured_skin(lut):
+# β_m is a per-subject parameter (table 1: 0–1), so each measured sample may pick its own table
+# from a coarse grid over that range; figure 9's β_m = 0.61 is reported beside it.
+BETA_GRID = (0.0, 0.25, 0.5, 0.61, 0.75, 1.0)
+
+
+def _skin_samples():
     from colour.quality.datasets import SDS_TCS
 
+    cc = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    # colour-science's skin-like samples: the two ColorChecker skin patches, CIE TCS13 "human
+    # complexion" (5 YR 8/4; identical in the CIE 1995 and CIE 2024 sets) and CIE 2024 TCS15
+    # (Japanese skin complexion).  TCS01 (7.5 R 6/4, light greyish red) is not a skin sample.
+    return {"ColorChecker light skin": cc["light skin"],
+            "ColorChecker dark skin": cc["dark skin"],
+            "CIE TCS13 (human complexion)": SDS_TCS["CIE 1995"]["TCS13"],
+            "CIE 2024 TCS15 (Japanese skin)": SDS_TCS["CIE 2024"]["TCS15"]}
+
+
+# ΔE00 bound per sample.  TCS13 is a known miss: it is lighter *and* more saturated
+# (L* 80.2, C* 24.1) than any colour this skin model reaches (the lightest table entry with
+# C* ≥ 20 has L* ≈ 70; more pigment for chroma costs lightness), in every variant measured
+# (filter, Kubelka–Munk or multipole epidermis, either pheomelanin scale, β-carotene up to
+# 20 µM): best ΔE00 7.1–7.2 (README).  The bound asserts what is measured.
+BOUNDS = {"CIE TCS13 (human complexion)": 7.5}
+
+
+@pytest.fixture(scope="module")
+def nearest():
     from nodes.common.color import linear_srgb_to_lab
 
-    labs = linear_srgb_to_lab(lut["lut"].pixels.astype(np.float64))
-    cc = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
-    samples = {"ColorChecker light skin": (cc["light skin"], 5.0),
-               "CIE TCS15 (skin)": (SDS_TCS["CIE 2024"]["TCS15"], 5.0),
-               # known misses of this model (reported in nodes/jimenez/README.md): the darkest and
-               # the lightest-most-yellow samples lie outside the gamut the 2-parameter table spans
-               "ColorChecker dark skin": (cc["dark skin"], 9.0),
-               "CIE TCS13 (human complexion)": (SDS_TCS["CIE 1995"]["TCS13"], 8.0)}
-    for name, (sd, bound) in samples.items():
-        de = colour.delta_E(labs, _lab_of_sd(sd), method="CIE 2000")
-        v, u = np.unravel_index(np.argmin(de), de.shape)
+    out = {name: {} for name in _skin_samples()}
+    for beta in BETA_GRID:
+        labs = linear_srgb_to_lab(S.SkinColorLUT(S.SkinColorLUT.Params(melanin_blend=beta))
+                                  .compute()["lut"].pixels.astype(np.float64))
         cm, chd = S.lut_axes(*labs.shape[1::-1])
-        print(f"{name}: ΔE00 = {de.min():.2f} at C_m = {cm[u]:.4f}, C_hd = {chd[v]:.4f}")
-        assert de.min() <= bound, name
+        for name, sd in _skin_samples().items():
+            de = colour.delta_E(labs, _lab_of_sd(sd), method="CIE 2000")
+            v, u = np.unravel_index(np.argmin(de), de.shape)
+            out[name][beta] = (float(de.min()), float(cm[u]), float(chd[v]))
+    return out
+
+
+def test_nearest_entries_reproduce_measured_skin(nearest):
+    for name, by_beta in nearest.items():
+        beta = min(by_beta, key=lambda b: by_beta[b][0])
+        de, cm, chd = by_beta[beta]
+        d61 = by_beta[0.61]
+        print(f"{name}: ΔE00 = {de:.2f} at C_m = {cm:.4f}, C_hd = {chd:.4f}, β_m = {beta}"
+              f"   (β_m = 0.61: {d61[0]:.2f} at C_m = {d61[1]:.4f}, C_hd = {d61[2]:.4f})")
+    for name, by_beta in nearest.items():
+        assert min(v[0] for v in by_beta.values()) <= BOUNDS.get(name, 5.0), name
 
 
 def test_lut_lookup_hits_grid_entries(lut):
