@@ -142,3 +142,121 @@ def test_error_against_brute_force_local_histogram_matching_on_real_maps():
               f"mean |err| = {err.mean() / sigma:.3f} σ, median {np.median(err) / sigma:.3f} σ, "
               f"p90 {np.percentile(err, 90) / sigma:.3f} σ (unmatched H_n: {base.mean() / sigma:.3f} σ)")
         assert err.mean() < 0.5 * base.mean()
+
+
+# --------------------------------------------------------------------------------------------
+# the fast path (statistics on a grid of ⌊r/4⌋-pixel cells) against the exact one, which the
+# tests above hold to cv2.filter2D
+
+
+def _astronaut_maps(n):
+    """Real maps: the astronaut's hemoglobin (neutral) and a mirrored, flushed copy (target),
+    with the skin mask of both (as in the brute-force test above)."""
+    from skimage import data, transform
+
+    from nodes.common.color import srgb_to_linear
+    from nodes.jimenez.chromophores import SkinChromophores
+
+    photo = srgb_to_linear(data.astronaut()[:400, 50:450] / 255.0)
+    photo = transform.resize(photo, (n, n), anti_aliasing=True).astype(np.float32)
+    out = SkinChromophores().compute(image=Image(photo))
+    skin = out["skin"].alpha
+    hn = out["hemoglobin"].pixels[..., 0]
+    return hn, hn[:, ::-1] * 1.5 + 0.01 * skin, skin * skin[:, ::-1]
+
+
+def _fast_vs_exact(hn, ht, m, r):
+    """|fast − exact| of the matched map over the mask (or everywhere), in units of the
+    target's σ there: (mean, p99, max)."""
+    kw = {"neutral": Image(hn[..., None]), "target": Image(ht[..., None]), "mask": None if m is None else Mask(m)}
+    exact = LocalHistMatch(LocalHistMatch.Params(radius=r, mode="exact")).compute(**kw)["matched"].pixels[..., 0]
+    fast = LocalHistMatch(LocalHistMatch.Params(radius=r)).compute(**kw)["matched"].pixels[..., 0]
+    sel = np.ones(exact.shape, bool) if m is None else m > 0.5
+    d = np.abs(fast - exact)[sel] / ht[sel].std()
+    return d.mean(), np.percentile(d, 99), d.max()
+
+
+@pytest.mark.parametrize("r", [16.0, 32.0])
+def test_fast_path_close_to_exact_on_gaussian_data(r):
+    rng = np.random.default_rng(21)
+    hn = np.clip(rng.normal(0.10, 0.02, (256, 256)), 0, None).astype(np.float32)
+    ht = np.clip(rng.normal(0.16, 0.035, (256, 256)), 0, None).astype(np.float32)
+    mean, p99, mx = _fast_vs_exact(hn, ht, None, r)
+    print(f"fast vs exact, Gaussian data, r={r}: mean |Δ| = {mean:.4f} σ, p99 {p99:.4f} σ, max {mx:.3f} σ")
+    # white noise is the hardest case (all its structure is finer than a cell); the error
+    # falls as 1/r with the noise of the local mean itself (σ/√(πr²) = 0.035 σ at r = 16)
+    assert mean <= 0.02 * 16 / r
+    assert p99 <= 0.07 * 16 / r
+
+
+def test_fast_path_close_to_exact_on_real_maps():
+    hn, ht, m = _astronaut_maps(256)
+    for mask in (m, None):
+        for r in (8.0, 16.0, 32.0):
+            mean, p99, mx = _fast_vs_exact(hn, ht, mask, r)
+            print(f"fast vs exact, astronaut hemoglobin, {'skin mask' if mask is not None else 'no mask'}, "
+                  f"r={r}: mean |Δ| = {mean:.4f} σ, p99 {p99:.4f} σ, max {mx:.2f} σ")
+            # where σ_n → 0 (the edge of the skin, pixels of almost no hemoglobin) eq. (3)
+            # scales by σ/σ_n ≫ 1 in both paths: rare large differences (max), small mean
+            assert mean <= 0.03
+            assert p99 <= 0.2
+
+
+@pytest.mark.parametrize("shape", [(250, 333), (97, 140)])
+def test_fast_path_on_sizes_that_are_not_whole_cells(shape):
+    rng = np.random.default_rng(22)
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    base = 0.1 + 0.03 * np.sin(xx / 17.0) * np.cos(yy / 23.0)  # low-frequency structure + noise
+    hn = (base + rng.normal(0, 0.01, shape)).clip(0).astype(np.float32)
+    ht = (1.4 * base + rng.normal(0, 0.015, shape)).clip(0).astype(np.float32)
+    for r in (12.0, 20.0):  # cells of 3 and 5 px: partial last row and column
+        mean, p99, mx = _fast_vs_exact(hn, ht, None, r)
+        print(f"fast vs exact, {shape}, r={r}: mean |Δ| = {mean:.4f} σ, p99 {p99:.4f} σ")
+        # (statistics shifted by one cell would give 0.018 σ and 0.011 σ mean: alignment matters)
+        assert mean <= 0.015 * 12 / r and p99 <= 0.055 * 12 / r
+
+
+def test_fast_path_is_exact_below_8_px_and_in_the_global_limit():
+    rng = np.random.default_rng(23)
+    hn = rng.random((60, 70)).astype(np.float32)
+    ht = (rng.random((60, 70)) * 2).astype(np.float32)
+    for r in (3.0, 7.9, 200.0):
+        kw = {"neutral": Image(hn), "target": Image(ht)}
+        a = LocalHistMatch(LocalHistMatch.Params(radius=r, stats_size=0)).compute(**kw)
+        b = LocalHistMatch(LocalHistMatch.Params(radius=r, stats_size=0, mode="exact")).compute(**kw)
+        for port in a:
+            np.testing.assert_array_equal(a[port].pixels, b[port].pixels)
+
+
+def test_fast_path_cost_per_pixel_does_not_grow_with_r():
+    """The docstring's claim, structurally: the cell is ⌊r/4⌋ px and the disc kernel on the
+    grid at most 11 × 11 taps for every r ≥ 8, so the grid work is ≤ 121/c² taps per pixel
+    (falling with r); the per-pixel passes (cell sums, eq. 3) do not depend on r at all."""
+    from nodes.jimenez.histmatch import CELLS_PER_RADIUS, grid_disc_kernel, stats_cell
+
+    for r in (8.0, 9.5, 16.0, 31.0, 64.0, 128.0, 300.0, 1000.0):
+        c = stats_cell(4096, 4096, r)
+        k = grid_disc_kernel(r, c)
+        assert c >= 2 and c > r / CELLS_PER_RADIUS - 1
+        assert k.shape[0] <= 2 * (CELLS_PER_RADIUS + 1) + 1
+        assert k.size / c ** 2 <= 121 / 4
+        # and the kernel is the disc: its mass is the disc area, in cells
+        assert abs(k.sum() * c * c - np.pi * r * r) <= 0.01 * np.pi * r * r
+
+
+def test_banded_eq3_equals_resizing_whole():
+    """apply_scale_bias works on bands of rows; the result equals resizing a, b whole (cv2
+    bilinear) and evaluating eq. (3) with numpy."""
+    from nodes.jimenez.histmatch import apply_scale_bias, grid_resize
+
+    rng = np.random.default_rng(24)
+    for (H, W), c in (((1024, 768), 4), ((1024, 512), 32), ((300, 410), 8), ((333, 250), 5)):
+        g = (-(-H // c), -(-W // c))
+        hn = (rng.random((H, W)) * 0.1).astype(np.float32)
+        s = (rng.random(g) + 0.5).astype(np.float32)
+        mu = (rng.random(g) * 0.1).astype(np.float32)
+        mu_n = (rng.random(g) * 0.1).astype(np.float32)
+        out = apply_scale_bias(hn, s, mu, mu_n, c)
+        a = grid_resize(s, c, (H, W))
+        b = grid_resize(mu - s * mu_n, c, (H, W))
+        np.testing.assert_allclose(out, np.maximum(a * hn + b, 0), atol=1e-7, rtol=0)
