@@ -13,6 +13,22 @@ import numpy as np
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
 
 
+def _bands(fn, H: int, rows: int = 48) -> None:
+    """fn(y0, y1) over bands of ``rows`` rows, on up to os.cpu_count() threads (numpy releases
+    the GIL; the bands are independent, so the result does not depend on the threading)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    bands = [(y, min(y + rows, H)) for y in range(0, H, rows)]
+    workers = min(len(bands), os.cpu_count() or 1)
+    if workers <= 1:
+        for b in bands:
+            fn(*b)
+        return
+    with ThreadPoolExecutor(workers) as ex:
+        list(ex.map(lambda b: fn(*b), bands))
+
+
 class SkinShade(Node):
     """Shade skin from melanin/hemoglobin maps (Jimenez 2010 §6, eq. 7, figure 9).
 
@@ -26,7 +42,7 @@ class SkinShade(Node):
     Maps are volume fractions (table 1 ranges).
     """
 
-    version = "1"
+    version = "2"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)"),
               "hemoglobin": In(Image, "C_hd map (volume fraction)"),
               "lut": In(Image, "SkinColorLUT table"),
@@ -65,11 +81,12 @@ class SkinShade(Node):
                                      f"{port} is {img.width}×{img.height}")
             if img.channels != 1:
                 raise BadInput(port, f"{port} must be a one-channel map, got {img.channels} channels")
-            a = img.pixels[:, :, 0].astype(np.float64)
-            if not np.isfinite(a).all():
+            a = img.pixels[:, :, 0]  # float32
+            lo, hi = float(a.min()), float(a.max())  # NaN propagates through min
+            if not (np.isfinite(lo) and np.isfinite(hi)):
                 raise BadInput(port, f"{port} holds NaN or Inf values")
-            if (a < 0).any():
-                raise BadInput(port, f"{port} holds negative concentrations (min {a.min():.4g})")
+            if lo < 0:
+                raise BadInput(port, f"{port} holds negative concentrations (min {lo:.4g})")
             maps[port] = a
         if lut.channels != 3 or min(lut.height, lut.width) < 2:
             raise BadInput("lut", f"expected an RGB table of at least 2×2 entries, got {lut.size_str()}")
@@ -80,21 +97,6 @@ class SkinShade(Node):
                 raise BadInput(port, f"{port} must be {shp[1]}×{shp[0]}×{ch}, got {opt.size_str()}")
         if mask is not None and mask.alpha.shape != shp:
             raise BadInput("mask", f"mask is {mask.width}×{mask.height}, maps are {shp[1]}×{shp[0]}")
-
-        albedo = lut_lookup(lut.pixels.astype(np.float64), maps["melanin"], maps["hemoglobin"])
-        if normals is None:
-            n = np.zeros(shp + (3,))
-            n[..., 2] = -1.0
-        else:
-            n = normals.pixels.astype(np.float64)
-            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-        ldir = np.asarray(light.direction, np.float64)
-        ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
-        l = np.broadcast_to(ldir, n.shape)
-        v = np.broadcast_to(np.array([0.0, 0.0, -1.0]), n.shape)
-        ndotl = np.maximum((n * l).sum(-1), 0.0)
-        col = np.asarray(light.color, np.float64) * light.intensity
-        irr = ndotl[..., None] * col + np.asarray(light.ambient, np.float64)
         mpp = p.mm_per_pixel
         if camera is not None and depth is not None:
             if (camera.height, camera.width) != shp:
@@ -103,15 +105,44 @@ class SkinShade(Node):
             if not np.all(z > 0):
                 raise BadInput("depth", "depth must be > 0 mm everywhere when a camera gives the pixel footprint")
             mpp = z / camera.fx
+
+        # directional light, orthographic viewer along −z: L and V are the same at every pixel
+        ldir = np.asarray(light.direction, np.float64)
+        ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
+        vdir = np.array([0.0, 0.0, -1.0])
+        col = (np.asarray(light.color, np.float64) * light.intensity).astype(np.float32)
+        amb = np.asarray(light.ambient, np.float32)
+        if normals is None:  # facing the camera everywhere: N·L and the specular are constants
+            n = None
+            n0 = np.array([0.0, 0.0, -1.0])
+            ndotl_0 = np.float32(max(float(n0 @ ldir), 0.0))
+            spec_0 = np.float32(kelemen_specular(n0, ldir, vdir, p.roughness, p.specular, p.f0))
+        lut32 = np.ascontiguousarray(lut.pixels, np.float32)
+        H, W = shp
+        albedo = np.empty((H, W, 3), np.float32)
+        irr = np.empty((H, W, 3), np.float32)
+        spec = np.empty((H, W), np.float32)
+
+        def per_pixel(y0, y1):  # the pixel-local terms of one band of rows (cache-sized)
+            albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1])
+            if normals is None:
+                ndotl, spec[y0:y1] = ndotl_0, spec_0
+            else:
+                nb = normals.pixels[y0:y1]
+                nb = nb / np.maximum(np.sqrt(np.einsum("...i,...i->...", nb, nb)), 1e-12)[..., None]
+                ndotl = np.maximum(nb @ ldir.astype(np.float32), 0.0)
+                spec[y0:y1] = kelemen_specular(nb, ldir, vdir, p.roughness, p.specular, p.f0)
+            np.multiply(np.asarray(ndotl, np.float32)[..., None], col, out=irr[y0:y1])
+            irr[y0:y1] += amb
+
+        _bands(per_pixel, H)
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
-            irr = sss_blur(irr.astype(np.float32), mpp,
-                           None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
-                           mask=None if mask is None else mask.alpha).astype(np.float64)
-        spec = kelemen_specular(n, l, v, p.roughness, p.specular, p.f0)
-        img = albedo * irr + spec[..., None] * col
-        return {"image": Image(img.astype(np.float32)), "albedo": Image(albedo.astype(np.float32)),
-                "diffuse": Image(irr.astype(np.float32)), "specular": Image(spec.astype(np.float32))}
+            irr = sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
+                           mask=None if mask is None else mask.alpha)
+        img = albedo * irr
+        img += spec[..., None] * col
+        return {"image": Image(img), "albedo": Image(albedo), "diffuse": Image(irr), "specular": Image(spec)}
 
     @classmethod
     def examples(cls):
