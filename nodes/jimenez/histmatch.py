@@ -9,9 +9,9 @@ and mask rules (statistics of the in-image, in-mask part of the disc: μ = (H·M
 - fast (:func:`grid_mean_std`, the default): the paper stores μ, σ, scale and bias
   downsampled because they are low-frequency (§4.2, §6).  The moments H, H² (and the mask) are
   summed over cells of c = ⌊r/4⌋ pixels, the disc sum is taken on that grid with the exact
-  cell-coverage kernel of the disc (≤ 11 × 11 taps), and eq. (3) is applied with scale and bias
+  cell-coverage kernel of the disc (≤ 13 × 13 taps), and eq. (3) is applied with scale and bias
   resized bilinearly.  Cost per pixel: a fixed number of passes over the maps plus
-  ≤ 121/c² taps, so it does not grow with r (it falls).  The disc edge is resolved to about one
+  ≤ 169/c² taps (c ≥ 2), so it does not grow with r (it falls).  The disc edge is resolved to about one
   cell: mean |Δ| ≈ 1.5% of σ from the exact path at r = 16 on white noise (falling as 1/r),
   1.2–1.8% on the astronaut's hemoglobin maps (tests/oracles/test_jimenez_histmatch.py).  Below r = 8 px
   and in the global limit (r beyond the image diagonal) it is the exact path.
@@ -247,7 +247,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None,
 
     The moments h·m, h²·m and m are summed over the cells (:func:`cell_means`, O(1) per pixel),
     then over the disc with the cell-coverage kernel of :func:`grid_disc_kernel`
-    (``cv2.filter2D``: ≈(2·cells + 1)² taps on H·W/c² cells, so the work per image pixel falls
+    (``cv2.filter2D``: ≤ (2·⌊cells + cells/c + ½⌋ + 1)² ≤ 13² taps on H·W/c² cells, so the work per image pixel falls
     with r).  This is exact for maps that are constant within cells; otherwise the disc edge is
     blurred over about one cell (r/cells px).  Border and mask handling as in
     :func:`local_mean_std` (statistics of the in-image, in-mask part of the disc).  float32 on
@@ -371,7 +371,7 @@ def apply_scale_bias(hn: np.ndarray, scale: np.ndarray, mu: np.ndarray, mu_n: np
         a, b = grid_resize(a, c, (H, W)), grid_resize(b, c, (H, W))
         c, gH, gW = 1, H, W
     out = np.empty((H, W), np.float32)
-    # bands of ≥ 256 rows (whole cells); one band where the grid is coarse (little to resize)
+    # bands of whole cells, ≥ 8 cells and ≥ 256 rows: a, b of a band stay in the cache
     band = H if c == 1 else c * max(8, 256 // c)
     for y0 in range(0, H, band):
         y1 = min(y0 + band, H)
@@ -455,7 +455,7 @@ class LocalHistMatch(Node):
     ``mode``: ``fast`` (default) takes the statistics on a grid of ⌊r/4⌋-pixel cells and
     applies eq. (3) with them resized bilinearly (§6); ``exact`` convolves at full resolution
     (FFT).  Cost per pixel does not grow with r in either mode (fast: constant passes plus
-    ≤ 121/c² grid taps per pixel; exact: O(log N)); r beyond the image diagonal = global match.
+    ≤ 169/c² grid taps per pixel, c = ⌊r/4⌋ ≥ 2; exact: O(log N)); r beyond the image diagonal = global match.
     """
 
     version = "5"
