@@ -237,8 +237,38 @@ def cell_fraction(H: int, W: int, c: int) -> np.ndarray:
     return np.outer(fy, fx).astype(np.float32)
 
 
-def grid_mean_std(hs, r: float, mask: np.ndarray | None = None,
-                  cells: int = CELLS_PER_RADIUS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`cell_means` of h·m and h²·m, and min(h) (NaN if h holds NaN), in one pass over
+    bands of ≥ 256 rows on the cores (the band's h·m and h²·m stay in the cache)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    import cv2
+
+    H, W = h.shape
+    a1 = np.empty((-(-H // c), -(-W // c)), np.float32)
+    a2 = np.empty_like(a1)
+    rows = c * max(1, 256 // c)
+
+    def band(y0):
+        hb = h[y0:y0 + rows]
+        x = hb if m is None else cv2.multiply(hb, m[y0:y0 + rows])
+        a1[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(x, c)
+        a2[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(cv2.multiply(x, hb), c)
+        return float(hb.min())
+
+    starts = range(0, H, rows)
+    workers = min(len(starts), os.cpu_count() or 1)
+    if workers <= 1:
+        lows = [band(y) for y in starts]
+    else:
+        with ThreadPoolExecutor(workers) as ex:
+            lows = list(ex.map(band, starts))
+    return a1, a2, float(np.min(lows))
+
+
+def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CELLS_PER_RADIUS,
+                  mins: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fast eq. (1): local mean and standard deviation of each (H, W) map in ``hs`` (a sequence
     or an (n, H, W) array) on the grid of c × c-pixel cells, c = :func:`stats_cell`, returned
     as (μ, σ, weight), each (n, ⌈H/c⌉, ⌈W/c⌉), values at the cell centres (see
@@ -252,6 +282,8 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None,
     blurred over about one cell (r/cells px).  Border and mask handling as in
     :func:`local_mean_std` (statistics of the in-image, in-mask part of the disc).  float32 on
     data centred on its global mean.  Where c = 1 this is :func:`local_mean_std` (exact).
+    ``mins``: a list to which the minimum of each map is appended (taken in the same pass;
+    nothing is appended where c = 1).
     """
     import cv2
 
@@ -270,19 +302,12 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None,
         inv, weight = _disc_weights(am, k, c)
     msum = float(am.sum(dtype=np.float64))
     full = m is None and H % c == 0 and W % c == 0  # am = 1 everywhere
-    tmp = np.empty((H, W), np.float32)
     mom = []  # centred (E[h·m], E[h²·m]) per map
     g = np.empty(n)
     for i in range(n):
-        h = np.ascontiguousarray(hs[i], np.float32)
-        if m is None:
-            a1 = cell_means(h, c)
-            np.square(h, out=tmp)
-        else:
-            cv2.multiply(h, m, dst=tmp)
-            a1 = cell_means(tmp, c)
-            cv2.multiply(tmp, h, dst=tmp)
-        a2 = cell_means(tmp, c)
+        a1, a2, lo = _cell_moments(np.ascontiguousarray(hs[i], np.float32), m, c)
+        if mins is not None:
+            mins.append(lo)
         # centre on the (masked) global mean g: E[(h−g)²m] = E[h²m] − 2g·E[hm] + g²·E[m]
         g[i] = gi = float(a1.sum(dtype=np.float64)) / max(msum, 1e-300)
         if full:
@@ -410,19 +435,24 @@ def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
     return max(1, round(H * s)), max(1, round(W * s))
 
 
-def _map(img: Image, port: str, what: str = "concentration", check_inf: bool = True) -> np.ndarray:
-    """The one-channel map of ``img``, checked: no NaN, no negative values and (``check_inf``)
-    no +Inf; without ``check_inf`` the caller must reject +Inf itself (one pass less)."""
+def _map(img: Image, port: str, what: str = "concentration", check_values: bool = True) -> np.ndarray:
+    """The one-channel map of ``img``, checked (``check_values``): no NaN, Inf or negative
+    values.  Without ``check_values`` the caller checks them with :func:`_check_values`."""
     if img.channels != 1:
         raise BadInput(port, f"{port} must be a one-channel {what} map, got {img.channels} channels")
     a = img.pixels[:, :, 0]
-    lo = float(a.min())  # NaN propagates through min; −Inf is its minimum
-    if not np.isfinite(lo) or (check_inf and not np.isfinite(float(a.max()))):
+    if check_values:
+        _check_values(port, float(a.min()), np.isfinite(float(a.max())))
+    return a
+
+
+def _check_values(port: str, lo: float, finite: bool) -> None:
+    """``lo``: the map's minimum (NaN if it holds NaN); ``finite``: no +Inf seen."""
+    if not (np.isfinite(lo) and finite):
         raise BadInput(port, f"{port} holds NaN or Inf values")
     if lo < 0:
         raise BadInput(port, f"{port} holds negative concentrations (min {lo:.4g}); "
                              "volume fractions must be ≥ 0")
-    return a
 
 
 def _mask(mask: Mask | None, shape, port="mask") -> np.ndarray | None:
@@ -484,9 +514,10 @@ class LocalHistMatch(Node):
         if neutral.pixels.shape[:2] != target.pixels.shape[:2]:
             raise BadInput("target", f"map sizes differ: neutral is {neutral.width}×{neutral.height}, "
                                      f"target is {target.width}×{target.height}")
-        hn = _map(neutral, "neutral", check_inf=False)
-        ht = _map(target, "target", check_inf=False)
+        hn = _map(neutral, "neutral", check_values=False)
+        ht = _map(target, "target", check_values=False)
         m = _mask(mask, hn.shape)
+        mins = []
         H, W = hn.shape
         with np.errstate(invalid="ignore", over="ignore"):  # +Inf input: rejected just below
             if p.mode == "exact":
@@ -494,10 +525,11 @@ class LocalHistMatch(Node):
                 (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
             else:
                 c = stats_cell(H, W, p.radius)
-                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m)
-        for port, a in (("neutral", mu_n), ("target", mu)):  # +Inf anywhere makes every μ NaN
-            if not np.isfinite(a).all():
-                raise BadInput(port, f"{port} holds NaN or Inf values")
+                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, mins=mins)
+        if not mins:
+            mins = [float(hn.min()), float(ht.min())]
+        for port, lo, a in (("neutral", mins[0], mu_n), ("target", mins[1], mu)):
+            _check_values(port, lo, np.isfinite(a).all())  # +Inf anywhere makes every μ NaN
         self.ctx.progress(0.8, "statistics done")
         # σ_n below the floor (a flat neighbourhood, or a one-pixel disc; without a mask 1e-3 of
         # the largest σ_n): H_n − μ_n is ~0 there, so the scale is 1 rather than a ratio of
