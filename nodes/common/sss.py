@@ -13,8 +13,8 @@ width per pixel from the depth gradient so that a kernel covers the same surface
 foreshortened skin and stops at silhouettes.
 
 Here each Gaussian is applied separably (y then x), in float32, to the colour channels whose
-weight is not zero, with ``cv2.sepFilter2D`` and scipy's truncated, normalised kernel and
-``reflect`` boundary (:func:`gaussian_kernel`).  Where σ varies per pixel, the kernel at a pixel
+weight is not zero, with ``cv2.filter2D`` and scipy's truncated, normalised kernel and
+``reflect`` boundary (:func:`gaussian_kernel`, :func:`_blur_1d`).  Where σ varies per pixel, the kernel at a pixel
 is the Gaussian of that pixel's σ (the gather :func:`_blur_axis`, kept as the reference); it is
 evaluated as uniform blurs at σ levels ≤ 2% apart (at most 32 per axis), each pixel's kernel
 interpolated linearly in σ between the two levels around its σ: exact on the levels (the
@@ -80,16 +80,17 @@ def gaussian_kernel(sigma: float) -> np.ndarray:
     return g
 
 
-def _blur_uniform(plane: np.ndarray, sigma_y: float, sigma_x: float) -> np.ndarray:
-    """Separable Gaussian blur of a float32 (H, W) plane with one σ per axis (pixels):
-    ``cv2.sepFilter2D`` with :func:`gaussian_kernel` taps and BORDER_REFLECT (= scipy's
-    ``reflect``, also for kernels longer than the image)."""
+def _blur_1d(plane: np.ndarray, sigma: float, axis: int) -> np.ndarray:
+    """Gaussian blur of a float32 (H, W) plane along ``axis`` (0 = y, 1 = x) with one σ
+    (pixels): ``cv2.filter2D`` with the :func:`gaussian_kernel` taps as a column or row and
+    BORDER_REFLECT (= scipy's ``reflect``, also for kernels longer than the image).  (Two 1-D
+    ``filter2D`` passes take ~0.6× the time of one ``sepFilter2D`` at these sizes.)"""
     import cv2
 
-    ky, kx = gaussian_kernel(sigma_y), gaussian_kernel(sigma_x)
-    if ky.size == 1 and kx.size == 1:
-        return plane.copy()
-    return cv2.sepFilter2D(plane, -1, kx, ky, borderType=cv2.BORDER_REFLECT)
+    k = gaussian_kernel(sigma)
+    if k.size == 1:
+        return plane
+    return cv2.filter2D(plane, -1, k.reshape((-1, 1) if axis == 0 else (1, -1)), borderType=cv2.BORDER_REFLECT)
 
 
 class _Levels:
@@ -172,21 +173,15 @@ def _blur_planes_axis(planes: list[np.ndarray], sigma, axis: int, valid: np.ndar
     renormalised; no valid tap: unchanged), boundary mirrored (scipy ``reflect``).
 
     A per-pixel σ is a blur whose kernel at a pixel is the Gaussian of that pixel's σ (the
-    gather of :func:`_blur_axis`).  It is evaluated as uniform blurs (``cv2.sepFilter2D``) at
+    gather of :func:`_blur_axis`).  It is evaluated as uniform blurs (:func:`_blur_1d`) at
     the σ levels, the kernel of a pixel between two levels being interpolated linearly in σ
     between theirs: exact for pixels on a level (σ maps with two values, the extremes,
     σ < 1/8 px), within ~(ratio − 1)²/4 of the kernel elsewhere.
     """
     import cv2
 
-    one = np.ones(1, np.float32)
-
     def blur(a, s):
-        k = gaussian_kernel(s)
-        if k.size == 1:
-            return a
-        kx, ky = (one, k) if axis == 0 else (k, one)
-        return cv2.sepFilter2D(a, -1, kx, ky, borderType=cv2.BORDER_REFLECT)
+        return _blur_1d(a, s, axis)
 
     v = None if valid is None else valid.astype(np.float32)
     srcs = planes if v is None else [p * v for p in planes] + [v]
@@ -326,8 +321,8 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
             sy, sx = sd / step_y, sd / step_x
         else:
             sy, sx = plan_y.scaled(sd), plan_x.scaled(sd)
-        if valid is None and isinstance(sy, float):  # both axes in one cv2 separable filter
-            blurred = [_blur_uniform(planes[ch], sy, sx) for ch in chans]
+        if valid is None and isinstance(sy, float):
+            blurred = [_blur_1d(_blur_1d(planes[ch], sy, 0), sx, 1) for ch in chans]
         else:  # y then x, each normalised by the blurred mask (light stays in the skin)
             blurred = _blur_planes_axis([planes[ch] for ch in chans], sy, 0, valid)
             blurred = _blur_planes_axis(blurred, sx, 1, valid)
