@@ -91,7 +91,9 @@ def test_rows_sum_to_one_in_closed_box():
 
 def test_furnace_closed_box():
     sc = closed_box(rho=0.6, E=1.0)
-    prm = HR.RefineParams(eps_bf=0.1, eps_bfv=0.01, min_area=1e-2, max_level=4, n_rays=1)
+    # 2×2 rays: a link's sender centroid (where the receiver looks, hierarchy.link_matrix)
+    # comes from its visibility rays, and one ray gives one random point
+    prm = HR.RefineParams(eps_bf=0.1, eps_bfv=0.01, min_area=1e-2, max_level=4, n_rays=2)
     h = RS.hierarchical_solve(sc, prm, 1, 1e-9)
     ops = HR.operators(h)
     L = len(ops.leaves)

@@ -8,6 +8,11 @@ form factor F and attenuation V, BF / BFV refinement, and the gather + push-pull
 * A link (receiver r ← sender s) carries F_rs (unitless, :func:`geometry.element_form_factors`)
   and V_rs ∈ [0, 1], the fraction of unblocked rays; VISIBLE (V = 1), INVISIBLE (V = 0) or
   PARTIAL otherwise (§2.3).
+* A link also carries C, where on the sender it looks: the (s, t) centroid, in the sender's
+  own coordinates, of the point-to-point kernel cos·cos/r² over its visibility rays (C[:, :2]
+  with occlusion, C[:, 2:] without).  The gather takes B_s not as the sender's mean but as
+  the plane through its four children's means, evaluated at that centroid (first order in
+  the size of the sender; see :func:`link_matrix`).
 * Gather: H_r = Σ_links F V B_s (irradiance, W/m² when B is radiosity in W/m²);
   push: a leaf's irradiance is the sum over itself and its ancestors;
   pull: an element's radiosity is the area average of its leaves (§2.3, [23]).
@@ -50,9 +55,10 @@ class Hierarchy:
     send: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     F: np.ndarray = field(default_factory=lambda: np.zeros(0))
     V: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    C: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
 
     ARRAYS = ("P_o", "P_u", "P_v", "poly", "level", "ij", "parent", "child0",
-              "recv", "send", "F", "V")
+              "recv", "send", "F", "V", "C")
 
     @classmethod
     def roots(cls, verts: np.ndarray) -> "Hierarchy":
@@ -172,10 +178,15 @@ class Hierarchy:
 
 
 def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng,
-                    occ=None) -> np.ndarray:
-    """Attenuation V for links r ← s: fraction of n_rays² unblocked segments (§2.3)."""
+                    occ=None, centroid: bool = False):
+    """Attenuation V for links r ← s: fraction of n_rays² unblocked segments (§2.3).
+
+    With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
+    points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
+    (0.5, 0.5) where no ray carries weight.
+    """
     if len(r) == 0:
-        return np.zeros(0)
+        return (np.zeros(0), np.zeros((0, 4))) if centroid else np.zeros(0)
     occ = occ if occ is not None else (h.P_o, h.P_u, h.P_v, h.P_n)
     ro, ru, rv, _, _ = h.geom(r)
     so, su, sv, _, _ = h.geom(s)
@@ -199,7 +210,15 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
          * np.clip(-np.einsum("mkc,mkc->mk", d, sn), 0, None) / (r2 * r2))
     wsum = w.sum(1)
     vis = 1.0 - blocked.reshape(M, k)
-    return np.where(wsum > 0, (w * vis).sum(1) / np.maximum(wsum, 1e-300), vis.mean(1))
+    V = np.where(wsum > 0, (w * vis).sum(1) / np.maximum(wsum, 1e-300), vis.mean(1))
+    if not centroid:
+        return V
+    C = np.full((M, 4), 0.5)
+    for a, W in ((0, w * vis), (2, w)):
+        ws = W.sum(1)
+        ok = ws > 0
+        C[ok, a:a + 2] = np.einsum("mk,mkc->mc", W[ok], jb[ok]) / ws[ok, None]
+    return V, C
 
 
 def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -260,17 +279,19 @@ class RefineParams:
     n_rays: int = 4  # n_rays² visibility rays per link
     n_ff: int = 3  # n_ff² receiver points for F
     seed: int = 0
+    max_link_area: float = np.inf  # m²: larger elements never carry a link
 
 
 def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
            prm: RefineParams, rng, force=None, progress=None):
-    """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4).
+    """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4), plus a
+    largest element size for links (``prm.max_link_area``).
 
     B_elem: (n_elems,) luminance of each element's radiosity (W/m²).  ``force(r, s)`` may
     return a mask of links that must be split further (used for §4.1 and §4.5).
-    Returns the accepted links (r, s, F, V); grows h.
+    Returns the accepted links (r, s, F, V, C); grows h.
     """
-    out_r, out_s, out_F, out_V = [], [], [], []
+    out_r, out_s, out_F, out_V, out_C = [], [], [], [], []
     it = 0
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
@@ -290,11 +311,15 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         #     F_rs and F_sr = F_rs·A_r/A_s (split the larger element);  (c) BFV for PARTIAL.
         trig_r = (Fmax - Fmin) * Bs > prm.eps_bf
         contrib = Fc * np.maximum(1.0, ar / as_) * Bs
-        V = link_visibility(h, r, s, prm.n_rays, rng)
+        V, C = link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
         partial = (V > 1e-9) & (V < 1 - 1e-9)
         trig_c = (contrib > prm.eps_bf) | (partial & (Fc * Bs > prm.eps_bfv))
         if force is not None:
             trig_c |= force(r, s)
+        # (d) links between elements larger than max_link_area are always split: BF bounds
+        #     F·B̄ but not how B curves over a big sender (a wall peaks under the light, and
+        #     the kernel from the opposite wall peaks there too), an error of one sign
+        trig_c |= np.maximum(ar, as_) > prm.max_link_area
         big_r = np.where(ar >= as_, can_r, ~can_s & can_r)
         split_r = (trig_r & can_r) | (trig_c & big_r)
         split_s = ~split_r & trig_c & can_s
@@ -308,7 +333,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
             F = link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
             keep = F > 0
             out_r.append(ra[keep]); out_s.append(sa[keep])
-            out_F.append(F[keep]); out_V.append(V[acc][keep])
+            out_F.append(F[keep]); out_V.append(V[acc][keep]); out_C.append(C[acc][keep])
         gr = go & split_r
         gs = go & ~split_r
         h.subdivide(r[gr])
@@ -321,7 +346,8 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         if progress:
             progress(it, len(r))
     cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
-    return cat(out_r, np.int64), cat(out_s, np.int64), cat(out_F, float), cat(out_V, float)
+    C = np.concatenate(out_C) if out_C else np.zeros((0, 4))
+    return cat(out_r, np.int64), cat(out_s, np.int64), cat(out_F, float), cat(out_V, float), C
 
 
 def _grow(B_elem: np.ndarray, h: Hierarchy) -> np.ndarray:
@@ -348,7 +374,7 @@ class Operators:
     leaves: np.ndarray
     push: object  # (L × N) leaf ← ancestors-or-self
     pull: object  # (N × L) element ← area-weighted leaves
-    K: object  # (N × N) receiver ← sender, F·V
+    K: object  # (N × N) receiver ← sender, F·V (spread over the sender's children, below)
     Ku: object  # (N × N) F only (unoccluded)
 
     def gather(self, B_leaf: np.ndarray, unoccluded: bool = False) -> np.ndarray:
@@ -367,9 +393,36 @@ def operators(h: Hierarchy) -> Operators:
     push = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(L, N))
     a = h.area()
     pull = sp.csr_matrix((a[lv][rows] / a[cols], (cols, rows)), shape=(N, L))
-    K = sp.csr_matrix((h.F * h.V, (h.recv, h.send)), shape=(N, N))
-    Ku = sp.csr_matrix((h.F, (h.recv, h.send)), shape=(N, N))
+    K = link_matrix(h, h.F * h.V, h.C[:, :2])
+    Ku = link_matrix(h, h.F, h.C[:, 2:])
     return Operators(lv, push, pull, K, Ku)
+
+
+def link_matrix(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
+    """(N × N) gather matrix: receiver ← sender radiosity, one row entry per link, or four.
+
+    F·B̄_s is exact only where B is constant over s; where the receiver sees one side of s
+    more (s next to r, part of s hidden, the room darker towards its open side) it misses
+    the covariance of B with the kernel over s, and that error has one sign over a whole
+    wall.  So where s has children, B at the link's kernel centroid (s̄, t̄) is taken from the
+    plane through the children's means: child (a, b) gets the weight
+    ¼ + (2a−1)(s̄−½) + (2b−1)(t̄−½) (they sum to 1; exact for B linear over s).  The
+    centroid offsets are clamped to ±¼, where the weights stay in [0, ½] (a convex
+    combination, so B never goes negative next to a shadow boundary).
+    """
+    import scipy.sparse as sp
+
+    N = h.n_elems
+    r, s = h.recv, h.send
+    has = h.child0[s] >= 0
+    d = np.clip(np.asarray(cen, float)[has] - 0.5, -0.25, 0.25)
+    rows, cols, vals = [r[~has]], [s[~has]], [weight[~has]]
+    for c, (a, b) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):  # order of subdivide()
+        rows.append(r[has])
+        cols.append(h.child0[s[has]] + c)
+        vals.append(weight[has] * (0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]))
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(N, N))
 
 
 def solve(ops: Operators, E: np.ndarray, rho: np.ndarray, tol: float = 1e-7,

@@ -114,6 +114,7 @@ class RadiositySolution:
     send: np.ndarray
     F: np.ndarray
     V: np.ndarray
+    C: np.ndarray
     rho: np.ndarray
     T: np.ndarray
     resp: np.ndarray

@@ -157,8 +157,8 @@ def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol:
     m = r != s
     B = initial_radiosity(scene, h)
     for k in range(rounds):
-        h.recv, h.send, h.F, h.V = HR.refine(h, r[m] if k == 0 else h.recv,
-                                             s[m] if k == 0 else h.send, B, prm, rng)
+        h.recv, h.send, h.F, h.V, h.C = HR.refine(h, r[m] if k == 0 else h.recv,
+                                                  s[m] if k == 0 else h.send, B, prm, rng)
         if progress:
             progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")
         ops = HR.operators(h)
@@ -177,6 +177,8 @@ class RefineParamsMixin(Node.Params):
     ff_points: int = Field(3, ge=1, le=8, description="points² per receiver for form factors")
     seed: int = Field(0, description="seed of the visibility ray jitter")
     tol: float = Field(1e-6, gt=0, description="relative convergence threshold of gathering")
+    max_link_area: float = Field(0.5, gt=0, description="m²: larger elements are split before "
+                                 "they carry a link (BF misses how B curves over them)")
 
 
 class RadiositySolve(Node):
@@ -191,7 +193,7 @@ class RadiositySolve(Node):
     The solution keeps one response per light (radiosity is linear in the emittances).
     """
 
-    version = "1"
+    version = "2"
     inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
@@ -208,7 +210,7 @@ class RadiositySolve(Node):
     def refine_params(self):
         p = self.params
         return HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
-                               p.ff_points, p.seed)
+                               p.ff_points, p.seed, p.max_link_area)
 
     def compute(self, scene: RoomScene, projection: Projection):
         if projection.textures.shape[0] != len(scene.verts):
@@ -278,12 +280,13 @@ def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng
     o1, u1, v1, n1, _ = h.geom(r)
     o2, u2, v2, n2, _ = h.geom(s)
     F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
-    V = HR.link_visibility(h, r, s, prm.n_rays, rng)
+    V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
     m = F > 0
     h.recv = np.concatenate([h.recv[keep], r[m]])
     h.send = np.concatenate([h.send[keep], s[m]])
     h.F = np.concatenate([h.F[keep], F[m]])
     h.V = np.concatenate([h.V[keep], V[m]])
+    h.C = np.concatenate([h.C[keep], C[m]])
 
 
 def lab(rgb: np.ndarray) -> np.ndarray:
@@ -358,15 +361,16 @@ def texture_refine(scene, h: HR.Hierarchy, proj, prm: HR.RefineParams, color_thr
             # restore one link per (parent, light element) by pushing children links up
             pr, ps = h.parent[h.recv[back]], h.send[back]
             key = np.unique(np.stack([pr, ps], 1), axis=0)
-            h.recv, h.send, h.F, h.V = (x[~gone] for x in (h.recv, h.send, h.F, h.V))
+            h.recv, h.send, h.F, h.V, h.C = (x[~gone] for x in (h.recv, h.send, h.F, h.V, h.C))
             h.unsubdivide(undo)
             o1, u1, v1, n1, _ = h.geom(key[:, 0])
             o2, u2, v2, n2, _ = h.geom(key[:, 1])
             F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
-            V = HR.link_visibility(h, key[:, 0], key[:, 1], prm.n_rays, rng)
+            V, C = HR.link_visibility(h, key[:, 0], key[:, 1], prm.n_rays, rng, centroid=True)
             h.recv = np.concatenate([h.recv, key[:, 0]])
             h.send = np.concatenate([h.send, key[:, 1]])
             h.F = np.concatenate([h.F, F]); h.V = np.concatenate([h.V, V])
+            h.C = np.concatenate([h.C, C])
         stats["subdivided"] += int(len(e) - len(undo))
         stats["undone"] += int(len(undo))
         if progress:
@@ -388,7 +392,7 @@ class TextureRefine(Node):
     Colours are of the leaf's mean texture, normalised by the photo's 99th percentile.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
@@ -408,7 +412,7 @@ class TextureRefine(Node):
         p = self.params
         h = solution.hierarchy().copy()
         prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
-                              p.ff_points, p.seed)
+                              p.ff_points, p.seed, p.max_link_area)
         rng = np.random.default_rng(p.seed + 1)
         stats = texture_refine(scene, h, projection, prm, p.color_threshold,
                                p.visibility_threshold, p.max_rounds, rng, self.ctx.progress)

@@ -354,7 +354,7 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
     cand_r = [h.recv[redo]]
     cand_s = [h.send[redo]]
     keep = ~redo
-    kr, ks, kF, kV = h.recv[keep], h.send[keep], h.F[keep], h.V[keep]
+    kr, ks, kF, kV, kC = h.recv[keep], h.send[keep], h.F[keep], h.V[keep], h.C[keep]
     # 2. new links between virtual polygons and every polygon
     roots = np.flatnonzero(h.parent == -1)
     new = N0 + np.arange(K)
@@ -372,9 +372,10 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
         return (np.isin(h.poly[ss], vl_polys) & seen_poly[h.poly[rr]]
                 & (h.level[rr] < force_level))
 
-    nr, ns, nF, nV = HR.refine(h, r, s, B_el, prm, rng, force=force)
+    nr, ns, nF, nV, nC = HR.refine(h, r, s, B_el, prm, rng, force=force)
     h.recv = np.concatenate([kr, nr]); h.send = np.concatenate([ks, ns])
     h.F = np.concatenate([kF, nF]); h.V = np.concatenate([kV, nV])
+    h.C = np.concatenate([kC, nC])
     # 3. solve on the new leaves; new leaves inherit ρ, T_final/T and D of their old leaf
     ops = HR.operators(h)
     lv = ops.leaves
@@ -403,11 +404,12 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
     # polygons, original emittances.  Real pixels are then scaled by B / B_ref.
     rr = (h.poly[nr] < P0) & (h.poly[ns] < P0)
     occ = (h.P_o[:P0], h.P_u[:P0], h.P_v[:P0], h.P_n[:P0])
-    V_wo = HR.link_visibility(h, nr[rr], ns[rr], prm.n_rays, np.random.default_rng(prm.seed + 9),
-                              occ=occ)
+    V_wo, C_wo = HR.link_visibility(h, nr[rr], ns[rr], prm.n_rays,
+                                    np.random.default_rng(prm.seed + 9), occ=occ, centroid=True)
     h_ref = h.copy()
     h_ref.recv = np.concatenate([kr, nr[rr]]); h_ref.send = np.concatenate([ks, ns[rr]])
     h_ref.F = np.concatenate([kF, nF[rr]]); h_ref.V = np.concatenate([kV, V_wo])
+    h_ref.C = np.concatenate([kC, C_wo])
     ops_ref = HR.operators(h_ref)
     E_ref = np.zeros((len(lv), 3))
     E_ref[~virt] = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H,

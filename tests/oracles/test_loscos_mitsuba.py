@@ -54,6 +54,26 @@ def psnr(a, b):
     return 10 * np.log10(1.0 / np.mean((enc(a) - enc(b)) ** 2))
 
 
+def floor_tiles_under_boxes(sc: RoomScene, n: int) -> np.ndarray:
+    """(n²,) whether the centre of each floor tile (polygon 0, s-major) lies under a box top."""
+    from nodes.loscos.geometry import dual_basis, frame
+
+    o, u, w, _, _ = frame(sc.verts[0][None])
+    st = (np.arange(n) + 0.5) / n
+    S, T = np.meshgrid(st, st, indexing="ij")
+    c = o + S.reshape(-1, 1) * u + T.reshape(-1, 1) * w  # (n², 3) tile centres
+    out = np.zeros(n * n, bool)
+    for q in range(5, len(sc.verts)):
+        qo, qu, qv, qn, _ = frame(sc.verts[q][None])
+        if sc.light[q] or qn[0, 1] < 0.99:  # box tops only (normal +y)
+            continue
+        du, dv = dual_basis(qu, qv)
+        d = (c - qo) * [1, 0, 1]  # compare in the floor plane (x, z)
+        a, b = d @ (du[0] * [1, 0, 1]), d @ (dv[0] * [1, 0, 1])
+        out |= (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
+    return out
+
+
 def test_irradiance_per_patch_vs_mitsuba(pipe):
     """Leaf irradiance averaged over 4×4 tiles of the five walls vs Mitsuba (see
     mitsuba_ref.tile_irradiance for why radiance/ρ replaces the irradiancemeter)."""
@@ -67,24 +87,29 @@ def test_irradiance_per_patch_vs_mitsuba(pipe):
     grid = h.leaf_grid()
     G = grid.shape[1]
     walls = [0, 1, 2, 3, 4]
-    irr = MR.tile_irradiance(sc, walls, 4, res=32, spp=256)
+    irr = MR.tile_irradiance(sc, walls, 4, res=32, spp=1024)  # ~1 % noise per tile
+    under = floor_tiles_under_boxes(sc, 4)
     worst_tile, worst_wall, errs = 0.0, 0.0, []
     for p in walls:
         tile = H[pos[grid[p]]].reshape(4, G // 4, 4, G // 4, 3).mean((1, 3)).reshape(16, 3) @ LUM
         ref = np.array([irr[(p, k)] for k in range(16)]) @ LUM
-        lit = ref > 0.2 * ref.max()  # tiles in deep shadow (under a box) are reported apart
+        # a floor tile whose centre a box stands on is mostly unlit floor plus a strip along
+        # the box's contact edge: reported apart, not asserted
+        lit = ~under if p == 0 else np.ones(16, bool)
         e = tile / ref - 1
         ew = tile.sum() / ref.sum() - 1
-        print(f"{sc.names[p]:10s} wall {ew:+.3f}  max tile {np.abs(e[lit]).max():.3f}")
+        dark = "  ".join(f"{k}: {e[k]:+.3f} (E {ref[k] / ref.max():.2f} of max)"
+                         for k in np.flatnonzero(~lit))
+        print(f"{sc.names[p]:10s} wall {ew:+.3f}  max tile {np.abs(e[lit]).max():.3f}"
+              + (f"  dark tiles {dark}" if dark else ""))
         worst_tile = max(worst_tile, np.abs(e[lit]).max())
         errs += list(np.abs(e[lit]))
         worst_wall = max(worst_wall, abs(ew))
     within = np.mean(np.array(errs) < 0.05)
     print(f"tiles within 5 %: {within:.2f}; worst wall {worst_wall:.3f}; worst tile {worst_tile:.3f}")
-    # Issue 4 asks for 5 % per patch and 2 % per wall.  NOT met yet (README, "Measured"):
-    # these assertions hold the level measured at the test settings (eps_bf 0.3).
-    assert worst_wall < 0.06  # measured 0.044–0.051 (ceiling), run to run
-    assert within >= 0.6
+    # Issue 4: within 5 % per patch (every lit tile) and 2 % per wall
+    assert worst_wall < 0.02
+    assert worst_tile < 0.05
 
 
 def test_light_a_off_vs_mitsuba(pipe):
