@@ -24,59 +24,81 @@ import numpy as np
 __all__ = ["beckmann_D", "schlick_fresnel", "kelemen_specular", "kelemen_brdf"]
 
 
-def beckmann_D(cos_theta_h, m):
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a·b over the last axis, broadcasting the rest.  One per-pixel array against one vector
+    (a directional light, an orthographic viewer) goes through matmul: np.sum(a * b, -1)
+    makes an (…, 3) temporary and reduces over an axis of 3, several times slower."""
+    if b.ndim == 1:
+        return a @ b
+    if a.ndim == 1:
+        return b @ a
+    return np.einsum("...i,...i->...", a, b)
+
+
+def beckmann_D(cos_theta_h, m, dtype=np.float64):
     """Normalised Beckmann NDF  D(θ_h) = exp(−tan²θ_h / m²) / (π m² cos⁴θ_h).
 
     ``cos_theta_h`` = N·H (scalar or array), ``m`` = RMS slope (unitless, > 0; see the
     module docstring).  Normalised so that ∫ D(ω_h) cos θ_h dω_h = 1 over the hemisphere.
-    Returns 0 where cos θ_h ≤ 0 (back-facing microfacets).
+    Returns 0 where cos θ_h ≤ 0 (back-facing microfacets) and where cos²θ_h is below √(the
+    smallest normal number of ``dtype``): D has underflowed to 0 there, and cos⁴θ_h would
+    underflow to 0 as well (0/0).  Computed and returned in ``dtype`` (float64, the
+    reference, or float32 for per-pixel images: relative error ~1e-6/m² then).
     """
-    c = np.asarray(cos_theta_h, dtype=np.float64)
-    m = np.asarray(m, dtype=np.float64)
+    dtype = np.dtype(dtype).type
+    c = np.asarray(cos_theta_h, dtype=dtype)
+    m2 = np.square(np.asarray(m, dtype=dtype))
     c2 = c * c
-    pos = c > 0
-    c2s = np.where(pos, c2, 1.0)
-    tan2 = (1.0 - c2s) / c2s
-    m2 = m * m
-    d = np.exp(-tan2 / m2) / (np.pi * m2 * c2s * c2s)
-    return np.where(pos, d, 0.0)
+    pos = (c > 0) & (c2 > np.sqrt(np.finfo(dtype).tiny))
+    c2s = np.where(pos, c2, dtype(1))
+    tan2 = (1 - c2s) / c2s
+    d = np.exp(-tan2 / m2)
+    d /= (np.pi * m2) * (c2s * c2s)
+    return np.where(pos, d, dtype(0))
 
 
-def schlick_fresnel(cos_theta, f0):
+def schlick_fresnel(cos_theta, f0, dtype=np.float64):
     """Schlick's Fresnel approximation  F = f0 + (1 − f0)(1 − cos θ)⁵.
 
     ``cos_theta`` is the cosine between the view (or light) direction and the half vector
     (clipped to [0, 1]); ``f0`` is the reflectance at normal incidence (0.028 for skin,
-    i.e. n ≈ 1.4).  Unitless.
+    i.e. n ≈ 1.4).  Unitless; computed in ``dtype``.
     """
-    c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
-    e = (1.0 - c) ** 5
-    return e + np.asarray(f0, dtype=np.float64) * (1.0 - e)
+    dtype = np.dtype(dtype).type
+    c = np.clip(np.asarray(cos_theta, dtype=dtype), 0, 1)
+    e = (1 - c) ** 5
+    return e + np.asarray(f0, dtype=dtype) * (1 - e)
 
 
-def kelemen_brdf(n, l, v, m, f0=0.028):
+def _kelemen(n, l, v, m, f0, dtype):
+    """(f_r, N·L) of :func:`kelemen_brdf` in ``dtype``.  H, |L + V|² and the Fresnel term have
+    the broadcast shape of l and v only: for a directional light and an orthographic viewer
+    they are computed once, and only N·H and N·L are per pixel."""
+    dtype = np.dtype(dtype).type
+    n, l, v = (np.asarray(x, dtype=dtype) for x in (n, l, v))
+    h = l + v
+    hh = _dot(h, h)
+    hok = hh > 1e-12
+    hh_s = np.where(hok, hh, dtype(1))
+    H = h / np.sqrt(hh_s)[..., None]
+    ndotl = _dot(n, l)
+    ok = hok & (ndotl > 0)
+    f = beckmann_D(_dot(n, H), m, dtype) * (schlick_fresnel(_dot(H, l), f0, dtype) / hh_s)
+    return np.where(ok, np.maximum(f, dtype(0)), dtype(0)), ndotl
+
+
+def kelemen_brdf(n, l, v, m, f0=0.028, dtype=np.float64):
     """Kelemen/Szirmay-Kalos specular BRDF  f_r = D(H) F(H·L) / |L + V|²  (sr⁻¹).
 
     This is Huang 2013 eq. 5, f_r = P_H(H) F(H·L) / (2(1 + L·V)), since |L + V|² = 2(1 + L·V),
     with P_H the normalised Beckmann NDF :func:`beckmann_D`.  ``n``, ``l``, ``v`` are unit
-    vectors (…, 3) (l towards the light, v towards the viewer); returns (…).  Zero where
-    N·L ≤ 0 or L = −V.
+    vectors (…, 3) (l towards the light, v towards the viewer); returns (…) in ``dtype``.
+    Zero where N·L ≤ 0 or L = −V.
     """
-    n = np.asarray(n, dtype=np.float64)
-    l = np.asarray(l, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    h = l + v
-    hh = np.sum(h * h, axis=-1)
-    ok = (hh > 1e-12) & (np.sum(n * l, axis=-1) > 0)
-    hh_s = np.where(ok, hh, 1.0)
-    H = h / np.sqrt(hh_s)[..., None]
-    ndoth = np.sum(n * H, axis=-1)
-    hdotl = np.sum(H * l, axis=-1)
-    f = beckmann_D(ndoth, m) * schlick_fresnel(hdotl, f0) / hh_s
-    return np.where(ok, np.maximum(f, 0.0), 0.0)
+    return _kelemen(n, l, v, m, f0, dtype)[0]
 
 
-def kelemen_specular(n, l, v, m, rho_s, f0=0.028):
+def kelemen_specular(n, l, v, m, rho_s, f0=0.028, dtype=np.float64):
     """Kelemen/Szirmay-Kalos specular term as in GPU Gems 3 ch. 14 (``KS_Skin_Specular``).
 
     Returns ``rho_s · π · f_r(L, V) · max(N·L, 0)`` with f_r = :func:`kelemen_brdf`, i.e.
@@ -89,9 +111,9 @@ def kelemen_specular(n, l, v, m, rho_s, f0=0.028):
     viewer; ``m``: Beckmann RMS slope (unitless; 0.3 … 0.35 for skin); ``rho_s``: specular
     intensity (unitless; ≈ 0.18 for skin in GPU Gems 3); ``f0``: Fresnel reflectance at normal
     incidence (0.028 for skin).  ``m``, ``rho_s``, ``f0`` may be arrays broadcasting with (…).
-    Returns (…) float64.
+    Returns (…) in ``dtype``: float64 (the reference) by default; SkinShade passes float32
+    for its per-pixel normals (same maths, float32 rounding, no float64 temporaries).
     """
-    n = np.asarray(n, dtype=np.float64)
-    l = np.asarray(l, dtype=np.float64)
-    ndotl = np.maximum(np.sum(n * l, axis=-1), 0.0)
-    return np.asarray(rho_s, dtype=np.float64) * np.pi * kelemen_brdf(n, l, v, m, f0) * ndotl
+    dtype = np.dtype(dtype).type
+    f, ndotl = _kelemen(n, l, v, m, f0, dtype)
+    return f * (np.asarray(rho_s, dtype=dtype) * dtype(np.pi)) * np.maximum(ndotl, dtype(0))
