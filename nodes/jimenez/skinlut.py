@@ -214,27 +214,69 @@ def lut_axes(size_u: int, size_v: int) -> tuple[np.ndarray, np.ndarray]:
     return u ** 3, v ** 3
 
 
-def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray) -> np.ndarray:
+def _cube_root_coord(c: np.ndarray, c_max: float, n: int) -> np.ndarray:
+    """Table coordinate (n − 1)·∛(clip(c, 0, c_max) / c_max) of a float32 map, float32.
+
+    cv2.pow (vectorised exp/log, ~3e-7 relative error, i.e. float32 noise) is ~10× faster
+    than np.cbrt on float32; cv2 takes 2-D arrays, so the map goes in as one column."""
+    import cv2
+
+    flat = np.clip(np.ascontiguousarray(c, np.float32).reshape(-1, 1), np.float32(0), np.float32(c_max))
+    f = cv2.pow(flat, 1.0 / 3.0)
+    f *= np.float32((n - 1) / np.cbrt(c_max))
+    return f.reshape(np.shape(c))
+
+
+def lut_corners(lut: np.ndarray) -> np.ndarray:
+    """The table as bilinear cell coefficients, float32 (4, n_v·n_u, C): for the cell whose
+    lower corner is entry (v, u), with c_ab = lut[v + b, u + a] (clamped at the last row and
+    column), the planes c00, c10 − c00, c01 − c00 and c11 − c10 − c01 + c00, so that
+    value(a, b) = c00 + a (c10 − c00) + b ((c01 − c00) + a (c11 − c10 − c01 + c00))."""
+    t = np.asarray(lut, np.float64)
+    nv, nu, nc = t.shape
+    c10 = t[:, np.minimum(np.arange(nu) + 1, nu - 1)]
+    c01 = t[np.minimum(np.arange(nv) + 1, nv - 1)]
+    c11 = c01[:, np.minimum(np.arange(nu) + 1, nu - 1)]
+    coef = np.stack([t, c10 - t, c01 - t, c11 - c10 - c01 + t])
+    return np.ascontiguousarray(coef.reshape(4, nv * nu, nc), np.float32)
+
+
+def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
     """Bilinear lookup of an (n_v, n_u, C) table at volume fractions (eq. 7), float32.
 
     u = ∛C_m / ∛0.5 and v = ∛C_hd / ∛0.32 in table coordinates; values outside table 1's
-    ranges are clamped to its edges.
+    ranges are clamped to its edges.  Returns the broadcast shape of the maps + (C,).
+
+    Float32 throughout (equal to a float64 bilinear lookup within float32 rounding,
+    tests/oracles/test_jimenez_lut.py): coordinates by cv2.pow, one cell index per pixel, four
+    gathers of contiguous C-vectors from :func:`lut_corners` (pass ``corners`` to reuse them
+    across calls) and the bilinear form on contiguous (N, C) arrays — numpy is slow on
+    (N, C) views with a stride between pixels or a broadcast weight of shape (N, 1), so the
+    weights are expanded to (N, C) once by cv2.merge.
     """
+    import cv2
+
     c_m, c_hd = np.broadcast_arrays(np.asarray(c_m, np.float32), np.asarray(c_hd, np.float32))
-    nv, nu, nc = lut.shape
-    flat = np.ascontiguousarray(lut, np.float32).reshape(-1, nc)
-    fu = np.cbrt(np.clip(c_m, 0, CM_MAX)) * np.float32((nu - 1) / np.cbrt(CM_MAX))
-    fv = np.cbrt(np.clip(c_hd, 0, CHD_MAX)) * np.float32((nv - 1) / np.cbrt(CHD_MAX))
-    u0 = np.clip(fu.astype(np.int64), 0, max(nu - 2, 0))
-    v0 = np.clip(fv.astype(np.int64), 0, max(nv - 2, 0))
-    a = np.clip(fu - u0, 0, 1)[..., None]
-    b = np.clip(fv - v0, 0, 1)[..., None]
-    du = 1 if nu > 1 else 0
-    dv = nu if nv > 1 else 0
-    i00 = v0 * nu + u0
-    top = flat[i00] * (1 - a) + flat[i00 + du] * a
-    bot = flat[i00 + dv] * (1 - a) + flat[i00 + dv + du] * a
-    return top * (1 - b) + bot * b
+    nv, nu, nc = np.shape(lut)
+    coef = lut_corners(lut) if corners is None else corners
+    fu = _cube_root_coord(c_m, CM_MAX, nu).reshape(-1)
+    fv = _cube_root_coord(c_hd, CHD_MAX, nv).reshape(-1)
+    u0 = np.minimum(fu.astype(np.intp), max(nu - 2, 0))  # fu ≥ 0: truncation is floor
+    v0 = np.minimum(fv.astype(np.intp), max(nv - 2, 0))
+    a = fu - u0.astype(np.float32)  # in [0, 1] up to rounding at the last entry
+    b = fv - v0.astype(np.float32)
+    v0 *= nu
+    v0 += u0  # cell index
+    a, b = (cv2.merge([w] * nc).reshape(-1, nc) if nc > 1 else w[:, None] for w in (a, b))
+    out = np.take(coef[3], v0, axis=0, mode="clip")
+    out *= a
+    out += np.take(coef[2], v0, axis=0, mode="clip")
+    out *= b
+    out += np.take(coef[0], v0, axis=0, mode="clip")
+    d = np.take(coef[1], v0, axis=0, mode="clip")
+    d *= a
+    out += d
+    return out.reshape(c_m.shape + (nc,))
 
 
 class SkinColorLUT(Node):

@@ -111,3 +111,38 @@ def test_lut_lookup_hits_grid_entries(lut):
     cm, chd = S.lut_axes(table.shape[1], table.shape[0])
     got = S.lut_lookup(table, cm[None, [3, 17, 40]], chd[[5, 30, 63], None])
     np.testing.assert_allclose(got, table[np.ix_([5, 30, 63], [3, 17, 40])], atol=1e-5)  # float32 lookup
+
+
+def _bilinear_f64(table, c_m, c_hd):
+    """Straightforward float64 bilinear lookup at u = ∛C_m, v = ∛C_hd (eq. 7), clamped."""
+    t = np.asarray(table, np.float64)
+    nv, nu = t.shape[:2]
+    fu = np.cbrt(np.clip(np.asarray(c_m, np.float64), 0, S.CM_MAX)) * (nu - 1) / np.cbrt(S.CM_MAX)
+    fv = np.cbrt(np.clip(np.asarray(c_hd, np.float64), 0, S.CHD_MAX)) * (nv - 1) / np.cbrt(S.CHD_MAX)
+    u0 = np.clip(np.floor(fu).astype(int), 0, nu - 2)
+    v0 = np.clip(np.floor(fv).astype(int), 0, nv - 2)
+    a, b = (fu - u0)[..., None], (fv - v0)[..., None]
+    return ((t[v0, u0] * (1 - a) + t[v0, u0 + 1] * a) * (1 - b)
+            + (t[v0 + 1, u0] * (1 - a) + t[v0 + 1, u0 + 1] * a) * b)
+
+
+def test_fast_lut_lookup_equals_float64_bilinear(lut):
+    """The float32 lookup (cv2.pow coordinates, one cell index, cell-coefficient gathers) is a
+    bilinear lookup up to float32 rounding: inside the table, clamped outside it (negative and
+    above table 1's maxima), at the last entries, on odd shapes and a non-square table."""
+    rng = np.random.default_rng(3)
+    table = lut["lut"].pixels
+    c_m = rng.uniform(-0.05, 0.6, (37, 53)).astype(np.float32)
+    c_hd = rng.uniform(-0.03, 0.4, (37, 53)).astype(np.float32)
+    c_m[0, :3], c_hd[0, :3] = [0.0, S.CM_MAX, S.CM_MAX], [S.CHD_MAX, 0.0, S.CHD_MAX]
+    for t in (table, table[:40, :23], table[:2, :2]):
+        want = _bilinear_f64(t, c_m, c_hd)
+        got = S.lut_lookup(t, c_m, c_hd)
+        assert got.dtype == np.float32 and got.shape == (37, 53, 3)
+        # coordinates carry float32 rounding (~3e-7 relative): error ≲ 1e-5 cell × the step
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-6)
+        np.testing.assert_array_equal(S.lut_lookup(t, c_m, c_hd, S.lut_corners(t)), got)
+    # broadcasting and a one-channel table
+    got = S.lut_lookup(table[..., :1], c_m[:1], c_hd[:, :1])
+    np.testing.assert_allclose(got, _bilinear_f64(table[..., :1], *np.broadcast_arrays(c_m[:1], c_hd[:, :1])),
+                               rtol=0, atol=2e-6)
