@@ -214,31 +214,20 @@ def lut_axes(size_u: int, size_v: int) -> tuple[np.ndarray, np.ndarray]:
     return u ** 3, v ** 3
 
 
-def _cube_root_coord(c: np.ndarray, c_max: float, n: int) -> np.ndarray:
-    """Table coordinate (n − 1)·∛(clip(c, 0, c_max) / c_max) of a float32 map, float32.
-
-    cv2.pow (vectorised exp/log, ~3e-7 relative error, i.e. float32 noise) is ~10× faster
-    than np.cbrt on float32; cv2 takes 2-D arrays, so the map goes in as one column."""
-    import cv2
-
-    flat = np.clip(np.ascontiguousarray(c, np.float32).reshape(-1, 1), np.float32(0), np.float32(c_max))
-    f = cv2.pow(flat, 1.0 / 3.0)
-    f *= np.float32((n - 1) / np.cbrt(c_max))
-    return f.reshape(np.shape(c))
-
-
 def lut_corners(lut: np.ndarray) -> np.ndarray:
-    """The table as bilinear cell coefficients, float32 (4, n_v·n_u, C): for the cell whose
+    """The table as bilinear cell coefficients, float32 (4, n_v, n_u, C): for the cell whose
     lower corner is entry (v, u), with c_ab = lut[v + b, u + a] (clamped at the last row and
-    column), the planes c00, c10 − c00, c01 − c00 and c11 − c10 − c01 + c00, so that
+    column), the tables c00, c10 − c00, c01 − c00 and c11 − c10 − c01 + c00, so that
     value(a, b) = c00 + a (c10 − c00) + b ((c01 − c00) + a (c11 − c10 − c01 + c00))."""
     t = np.asarray(lut, np.float64)
     nv, nu, nc = t.shape
     c10 = t[:, np.minimum(np.arange(nu) + 1, nu - 1)]
     c01 = t[np.minimum(np.arange(nv) + 1, nv - 1)]
     c11 = c01[:, np.minimum(np.arange(nu) + 1, nu - 1)]
-    coef = np.stack([t, c10 - t, c01 - t, c11 - c10 - c01 + t])
-    return np.ascontiguousarray(coef.reshape(4, nv * nu, nc), np.float32)
+    return np.ascontiguousarray(np.stack([t, c10 - t, c01 - t, c11 - c10 - c01 + t]), np.float32)
+
+
+_ROW = 1024  # pixels per row when a map is not a 2-D image cv2 can take as it is
 
 
 def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
@@ -247,36 +236,68 @@ def lut_lookup(lut: np.ndarray, c_m: np.ndarray, c_hd: np.ndarray, corners: np.n
     u = ∛C_m / ∛0.5 and v = ∛C_hd / ∛0.32 in table coordinates; values outside table 1's
     ranges are clamped to its edges.  Returns the broadcast shape of the maps + (C,).
 
-    Float32 throughout (equal to a float64 bilinear lookup within float32 rounding,
-    tests/oracles/test_jimenez_lut.py): coordinates by cv2.pow, one cell index per pixel, four
-    gathers of contiguous C-vectors from :func:`lut_corners` (pass ``corners`` to reuse them
-    across calls) and the bilinear form on contiguous (N, C) arrays — numpy is slow on
-    (N, C) views with a stride between pixels or a broadcast weight of shape (N, 1), so the
-    weights are expanded to (N, C) once by cv2.merge.
+    Float32 throughout, equal to a float64 bilinear lookup within float32 rounding
+    (tests/oracles/test_jimenez_lut.py): coordinates by cv2.pow (~3e-7 relative error, ~10×
+    faster than np.cbrt), the cell of each pixel as whole-number float maps, the four tables
+    of :func:`lut_corners` (pass ``corners`` to reuse them across calls) gathered there by
+    cv2.remap INTER_NEAREST (an exact gather, ~3× faster than np.take), and the bilinear form
+    on contiguous (…, C) arrays (weights expanded to C channels by cv2.merge: numpy is several
+    times slower broadcasting (…, 1) against (…, 3)).  cv2.remap's own INTER_LINEAR is not
+    used: it quantises the fractional coordinates to 1/32 of a cell.
     """
     import cv2
 
     c_m, c_hd = np.broadcast_arrays(np.asarray(c_m, np.float32), np.asarray(c_hd, np.float32))
+    shape = c_m.shape
     nv, nu, nc = np.shape(lut)
     coef = lut_corners(lut) if corners is None else corners
-    fu = _cube_root_coord(c_m, CM_MAX, nu).reshape(-1)
-    fv = _cube_root_coord(c_hd, CHD_MAX, nv).reshape(-1)
-    u0 = np.minimum(fu.astype(np.intp), max(nu - 2, 0))  # fu ≥ 0: truncation is floor
-    v0 = np.minimum(fv.astype(np.intp), max(nv - 2, 0))
-    a = fu - u0.astype(np.float32)  # in [0, 1] up to rounding at the last entry
-    b = fv - v0.astype(np.float32)
-    v0 *= nu
-    v0 += u0  # cell index
-    a, b = (cv2.merge([w] * nc).reshape(-1, nc) if nc > 1 else w[:, None] for w in (a, b))
-    out = np.take(coef[3], v0, axis=0, mode="clip")
+    if len(shape) == 2 and 0 < shape[0] < 32767 and 0 < shape[1] < 32767:  # cv2's limit on map sizes
+        maps = (c_m, c_hd)
+    else:  # as rows of _ROW pixels, the last one padded
+        n = c_m.size
+        pad = -n % _ROW
+        maps = tuple(np.pad(x.reshape(-1), (0, pad)).reshape(-1, _ROW) for x in (c_m, c_hd))
+        if maps[0].shape[0] >= 32767:
+            h = 32766 * _ROW  # that many pixels at a time
+            parts = [lut_lookup(lut, c_m.reshape(-1)[s:s + h], c_hd.reshape(-1)[s:s + h], coef)
+                     for s in range(0, n, h)]
+            return np.concatenate(parts).reshape(shape + (nc,))
+    (fu, u0), (fv, v0) = (_cell(x, c_max, size) for x, c_max, size in
+                          ((maps[0], CM_MAX, nu), (maps[1], CHD_MAX, nv)))
+    a = fu - u0  # in [0, 1] up to rounding at the last entry
+    b = fv - v0
+    if nc > 1:
+        a, b = cv2.merge([a] * nc), cv2.merge([b] * nc)
+    else:
+        a, b = a[..., None], b[..., None]
+
+    def gather(k):
+        g = cv2.remap(coef[k], u0, v0, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        return g.reshape(u0.shape + (nc,))
+
+    out = gather(3)
     out *= a
-    out += np.take(coef[2], v0, axis=0, mode="clip")
+    out += gather(2)
     out *= b
-    out += np.take(coef[0], v0, axis=0, mode="clip")
-    d = np.take(coef[1], v0, axis=0, mode="clip")
+    out += gather(0)
+    d = gather(1)
     d *= a
     out += d
-    return out.reshape(c_m.shape + (nc,))
+    if out.shape[:2] != shape:
+        out = out.reshape(-1, nc)[:c_m.size]
+    return out.reshape(shape + (nc,))
+
+
+def _cell(c: np.ndarray, c_max: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(f, f0): the table coordinate f = (n − 1)·∛(clip(c, 0, c_max) / c_max) of a 2-D float32
+    map and its cell min(⌊f⌋, n − 2) ≥ 0 as whole numbers in float32 (cv2.remap's map type)."""
+    import cv2
+
+    f = cv2.pow(np.clip(c, np.float32(0), np.float32(c_max)), 1.0 / 3.0)
+    f *= np.float32((n - 1) / np.cbrt(c_max))
+    f0 = np.floor(f)
+    np.minimum(f0, np.float32(max(n - 2, 0)), out=f0)
+    return f, f0
 
 
 class SkinColorLUT(Node):

@@ -142,6 +142,18 @@ def test_fast_lut_lookup_equals_float64_bilinear(lut):
         # coordinates carry float32 rounding (~3e-7 relative): error ≲ 1e-5 cell × the step
         np.testing.assert_allclose(got, want, rtol=0, atol=2e-6)
         np.testing.assert_array_equal(S.lut_lookup(t, c_m, c_hd, S.lut_corners(t)), got)
+    # other shapes go through cv2 as rows of _ROW pixels (and in parts beyond cv2's 32767 rows)
+    for shp in ((), (7,), (2, 3, 5)):
+        m, h = c_m.ravel()[:int(np.prod(shp))].reshape(shp), c_hd.ravel()[:int(np.prod(shp))].reshape(shp)
+        np.testing.assert_allclose(S.lut_lookup(table, m, h), _bilinear_f64(table, m, h), rtol=0, atol=2e-6)
+    m, h = (rng.uniform(0, 0.4, 40000).astype(np.float32) for _ in range(2))
+    want = S.lut_lookup(table, m.reshape(200, 200), h.reshape(200, 200)).reshape(-1, 3)
+    for row in (1024, 1):  # row = 1: 40000 rows, looked up in two parts
+        S._ROW, old_row = row, S._ROW
+        try:
+            np.testing.assert_array_equal(S.lut_lookup(table, m, h), want)
+        finally:
+            S._ROW = old_row
     # broadcasting and a one-channel table
     got = S.lut_lookup(table[..., :1], c_m[:1], c_hd[:, :1])
     np.testing.assert_allclose(got, _bilinear_f64(table[..., :1], *np.broadcast_arrays(c_m[:1], c_hd[:, :1])),
