@@ -106,6 +106,35 @@ def test_skinshade_post_scatter_texturing_and_specular():
     np.testing.assert_allclose(out["image"].pixels, alb * irr + spec * np.array([2.0, 1.8, 1.6]), rtol=1e-5)
 
 
+def test_skinshade_pixel_terms_equal_a_float64_reference():
+    """Without scattering, every output is pixel-local: the banded float32 path (bands of 48
+    rows, the last one short; planes merged into 3 channels) equals a float64 evaluation of
+    albedo·(light·max(N·L, 0) + ambient) + specular·light, with unnormalised normals."""
+    from nodes.common.microfacet import kelemen_specular
+    from nodes.jimenez.skinlut import lut_lookup
+
+    H, W = 97, 61
+    rng = np.random.default_rng(5)
+    lut = SkinColorLUT(SkinColorLUT.Params(size=16)).compute()["lut"]
+    mel = (rng.random((H, W, 1)) * 0.3).astype(np.float32)
+    hem = (rng.random((H, W, 1)) * 0.2).astype(np.float32)
+    nrm = (rng.normal(size=(H, W, 3)) * [0.5, 0.5, 1] + [0, 0, -1.5]).astype(np.float32)
+    light = Light(direction=(0.5, -0.2, -1.0), color=(1.0, 0.8, 0.6), intensity=1.5, ambient=(0.02, 0.03, 0.04))
+    out = SkinShade(SkinShade.Params(scatter=False)).compute(
+        melanin=Image(mel), hemoglobin=Image(hem), lut=lut, light=light, normals=Image(nrm))
+    n = nrm.astype(np.float64)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    ldir = np.array(light.direction) / np.linalg.norm(light.direction)
+    col = np.array(light.color) * light.intensity
+    irr = np.maximum(n @ ldir, 0)[..., None] * col + np.array(light.ambient)
+    spec = kelemen_specular(n, ldir, np.array([0, 0, -1.0]), 0.35, 0.18, 0.028)
+    alb = lut_lookup(lut.pixels, mel[..., 0], hem[..., 0]).astype(np.float64)
+    np.testing.assert_allclose(out["albedo"].pixels, alb, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(out["diffuse"].pixels, irr, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(out["specular"].pixels[..., 0], spec, rtol=2e-5, atol=1e-8)
+    np.testing.assert_allclose(out["image"].pixels, alb * irr + spec[..., None] * col, rtol=1e-5, atol=1e-7)
+
+
 def test_skinshade_scatters_a_shadow_edge_red_furthest():
     lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
     H, W = 16, 80

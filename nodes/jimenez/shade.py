@@ -67,10 +67,12 @@ class SkinShade(Node):
     def compute(self, melanin: Image, hemoglobin: Image, lut: Image, light: Light,
                 normals: Image | None = None, depth: Image | None = None, mask: Mask | None = None,
                 camera: Camera | None = None):
+        import cv2
+
         from nodes.common.microfacet import kelemen_specular
         from nodes.common.sss import sss_blur
 
-        from .skinlut import lut_lookup
+        from .skinlut import lut_corners, lut_lookup
 
         p = self.params
         shp = melanin.pixels.shape[:2]
@@ -118,30 +120,44 @@ class SkinShade(Node):
             ndotl_0 = np.float32(max(float(n0 @ ldir), 0.0))
             spec_0 = np.float32(kelemen_specular(n0, ldir, vdir, p.roughness, p.specular, p.f0))
         lut32 = np.ascontiguousarray(lut.pixels, np.float32)
+        corners = lut_corners(lut32)
+        l32, v32 = ldir.astype(np.float32), vdir.astype(np.float32)
         H, W = shp
         albedo = np.empty((H, W, 3), np.float32)
         irr = np.empty((H, W, 3), np.float32)
         spec = np.empty((H, W), np.float32)
 
+        # Per-pixel work in float32 on bands of rows, on contiguous arrays: numpy is several
+        # times slower on (…, 3) arrays broadcast against (…, 1) ones than on flat arrays, so
+        # 3-channel results are assembled from planes by cv2.merge.
         def per_pixel(y0, y1):  # the pixel-local terms of one band of rows (cache-sized)
-            albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1])
+            albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1], corners)
             if normals is None:
-                ndotl, spec[y0:y1] = ndotl_0, spec_0
-            else:
-                nb = normals.pixels[y0:y1]
-                nb = nb / np.maximum(np.sqrt(np.einsum("...i,...i->...", nb, nb)), 1e-12)[..., None]
-                ndotl = np.maximum(nb @ ldir.astype(np.float32), 0.0)
-                spec[y0:y1] = kelemen_specular(nb, ldir, vdir, p.roughness, p.specular, p.f0)
-            np.multiply(np.asarray(ndotl, np.float32)[..., None], col, out=irr[y0:y1])
-            irr[y0:y1] += amb
+                irr[y0:y1] = ndotl_0 * col + amb
+                spec[y0:y1] = spec_0
+                return
+            nb = normals.pixels[y0:y1]
+            inv = np.sqrt((nb * nb) @ np.ones(3, np.float32))  # |n|
+            np.maximum(inv, np.float32(1e-12), out=inv)
+            np.divide(np.float32(1), inv, out=inv)
+            nb = nb * cv2.merge([inv] * 3)  # unit normals
+            ndotl = np.maximum(nb @ l32, np.float32(0))
+            spec[y0:y1] = kelemen_specular(nb, l32, v32, p.roughness, p.specular, p.f0, dtype=np.float32)
+            cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
 
         _bands(per_pixel, H)
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
-            irr = sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
-                           mask=None if mask is None else mask.alpha)
-        img = albedo * irr
-        img += spec[..., None] * col
+            irr = np.ascontiguousarray(
+                sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
+                         mask=None if mask is None else mask.alpha), np.float32)
+        img = np.empty((H, W, 3), np.float32)
+
+        def combine(y0, y1):  # image = albedo · diffuse + specular · light
+            cv2.merge([spec[y0:y1] * col[c] for c in range(3)], dst=img[y0:y1])
+            img[y0:y1] += albedo[y0:y1] * irr[y0:y1]
+
+        _bands(combine, H)
         return {"image": Image(img), "albedo": Image(albedo), "diffuse": Image(irr), "specular": Image(spec)}
 
     @classmethod
