@@ -6,7 +6,11 @@
     and the peer: cv2.filter2D with the normalised disc kernel (mean and mean of squares of
     one map, float32), same machine, same process, interleaved.
 (b) SkinShade on 1280×720 (LUT lookup, SSS with a depth gradient and with flat depth,
-    Kelemen specular).
+    Kelemen specular), then its parts on the whole image, interleaved: ``lut_lookup`` against
+    the peer cv2.remap (INTER_LINEAR, BORDER_REPLICATE: the same bilinear lookup with 1/32-cell
+    fixed-point weights, multi-threaded; same float32 map coordinates), the float32 Kelemen
+    specular against the same function in float64 (the reference dtype), and sss_blur at
+    flat depth.
 
 Median (min) of ``--runs`` timings after one warm-up; the runs of the cases being compared are
 interleaved so that a load change on the machine hits all of them alike (the fast node at both
@@ -50,13 +54,23 @@ def main():
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--skip-shade", action="store_true")
+    ap.add_argument("--skip-histmatch", action="store_true", help="only (b), SkinShade")
     a = ap.parse_args()
     import cv2
 
-    from graphkit import Image, Light
+    print(f"cores: {os.cpu_count()}, cv2 threads: {cv2.getNumThreads()}")
+    if not a.skip_histmatch:
+        histmatch(a)
+    if not a.skip_shade:
+        skinshade(a)
+
+
+def histmatch(a):
+    import cv2
+
+    from graphkit import Image
     from nodes.jimenez.histmatch import LocalHistMatch, disc_kernel, grid_mean_std, local_mean_std
 
-    print(f"cores: {os.cpu_count()}, cv2 threads: {cv2.getNumThreads()}")
     rng = np.random.default_rng(0)
     N = a.size
     hn = Image((rng.random((N, N, 1)) * 0.1).astype(np.float32))
@@ -93,10 +107,18 @@ def main():
     print(f"  ratio r=128 / r=16 (median): node fast {t[('node', 128.0)][0] / t[('node', 16.0)][0]:.2f}, "
           f"node exact {te[('node', 128.0)][0] / te[('node', 16.0)][0]:.2f}, "
           f"peer cv2.filter2D {t[('peer', 128.0)][0] / t[('peer', 16.0)][0]:.2f}")
-    if a.skip_shade:
-        return
+
+
+def skinshade(a):
+    import cv2
+
+    from graphkit import Image, Light
+    from nodes.common.microfacet import kelemen_specular
+    from nodes.common.sss import sss_blur
     from nodes.jimenez.shade import SkinShade
-    from nodes.jimenez.skinlut import SkinColorLUT
+    from nodes.jimenez.skinlut import CHD_MAX, CM_MAX, SkinColorLUT, lut_corners, lut_lookup
+
+    rng = np.random.default_rng(1)
 
     lut = SkinColorLUT().compute()["lut"]
     H, W = 720, 1280
@@ -118,6 +140,35 @@ def main():
     for mpp in (0.5, 0.25):
         print(f"  {mpp} mm/px (largest Gaussian σ = {np.sqrt(7.41) / mpp:.1f} px): with depth gradient "
               f"{fmt(t[('depth', mpp)])}, flat depth {fmt(t[('flat', mpp)])}")
+
+    # the parts, each called once on the whole image (the node calls lookup and specular per
+    # 48-row band on all cores; cv2 calls inside them and the peer use cv2's own threads)
+    table = lut.pixels
+    corners = lut_corners(table)
+    m, h = mel.pixels[..., 0], hem.pixels[..., 0]
+    nv, nu = table.shape[:2]
+    n32 = nrm.pixels / np.linalg.norm(nrm.pixels, axis=-1, keepdims=True)
+    n64 = n32.astype(np.float64)
+    ldir = np.asarray(light.direction, np.float64)
+    ldir /= np.linalg.norm(ldir)
+    vdir = np.array([0.0, 0.0, -1.0])
+    l32, v32 = ldir.astype(np.float32), vdir.astype(np.float32)
+    irr = np.ascontiguousarray(np.broadcast_to(np.float32(0.6), (H, W, 3)))
+
+    def remap_peer():
+        mx = cv2.pow(np.clip(m, 0, CM_MAX), 1 / 3) * np.float32((nu - 1) / np.cbrt(CM_MAX))
+        my = cv2.pow(np.clip(h, 0, CHD_MAX), 1 / 3) * np.float32((nv - 1) / np.cbrt(CHD_MAX))
+        return cv2.remap(table, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    parts = {"lut_lookup": lambda: lut_lookup(table, m, h, corners), "remap": remap_peer,
+             "spec32": lambda: kelemen_specular(n32, l32, v32, 0.35, 0.18, 0.028, dtype=np.float32),
+             "spec64": lambda: kelemen_specular(n64, ldir, vdir, 0.35, 0.18, 0.028),
+             "sss": lambda: sss_blur(irr, 0.25, None)}
+    t = timeit(parts, a.runs)
+    print(f"  parts: lut_lookup {fmt(t['lut_lookup'])}, peer cv2.remap {fmt(t['remap'])}, ratio "
+          f"{t['lut_lookup'][0] / t['remap'][0]:.2f}  |  Kelemen specular float32 {fmt(t['spec32'])}, "
+          f"float64 {fmt(t['spec64'])}, ratio {t['spec32'][0] / t['spec64'][0]:.2f}  |  "
+          f"sss_blur flat 0.25 mm/px {fmt(t['sss'])}")
 
 
 if __name__ == "__main__":
