@@ -151,7 +151,7 @@ class Session:
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
         key, parts = self.key(g, input_digests)
-        rec = self.store.get_record(key)
+        rec = self.store.get_record(key, touch=True)
         if rec is None:
             with self.store.key_lock(key):
                 rec = self.store.get_record(key)  # another process may have made it meanwhile
@@ -159,7 +159,6 @@ class Session:
                     outputs = self._compute(g, bcls, key, parts, input_digests)
                     return NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver,
                                        outputs, parts)
-        self.store.touch_record(key)
         outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
         return NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts)
 

@@ -155,9 +155,27 @@ class LocalFS:
         with contextlib.suppress(FileNotFoundError):
             self._p(rel).unlink()
 
-    def touch(self, rel: str) -> None:
-        with contextlib.suppress(OSError):
-            os.utime(self._s(rel))
+    def read_touch(self, rel: str, fresh_s: float) -> bytes | None:
+        """Read a small file and mark it used (mtime = now) unless it was marked in the last
+        ``fresh_s`` seconds: one open, fstat, read and close, and no utime on a warm re-run."""
+        try:
+            fd = os.open(self._s(rel), os.O_RDONLY)
+        except FileNotFoundError:
+            return None
+        try:
+            st = os.fstat(fd)
+            data = os.read(fd, st.st_size + 1)
+            while len(data) <= st.st_size:  # a short read (rare): read to the end
+                more = os.read(fd, 1 << 16)
+                if not more:
+                    break
+                data += more
+            if time.time() - st.st_mtime > fresh_s:
+                with contextlib.suppress(OSError):  # read-only caches stay readable
+                    os.utime(fd)
+            return data
+        finally:
+            os.close(fd)
 
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
         base = self._p(rel)
@@ -236,8 +254,8 @@ class FsspecFS:
         with contextlib.suppress(FileNotFoundError):
             self.fs.rm_file(self._p(rel))
 
-    def touch(self, rel: str) -> None:
-        pass
+    def read_touch(self, rel: str, fresh_s: float) -> bytes | None:
+        return self.read(rel)
 
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
         base = self._p(rel)
@@ -310,8 +328,14 @@ class Store:
     def _orel(digest: str) -> str:
         return f"objects/{digest[:2]}/{digest}"
 
-    def get_record(self, key: str) -> dict | None:
-        raw = self.fs.read(self._krel(key))
+    #: a record read within this many seconds of its last use is not re-marked as used: gc's
+    #: least-recently-used order has this granularity, and warm re-runs write nothing
+    TOUCH_GRANULARITY_S = 60.0
+
+    def get_record(self, key: str, touch: bool = False) -> dict | None:
+        """The record of ``key`` (None if absent or unreadable); ``touch`` marks it used for gc."""
+        rel = self._krel(key)
+        raw = self.fs.read_touch(rel, self.TOUCH_GRANULARITY_S) if touch else self.fs.read(rel)
         if raw is None:
             return None
         try:
@@ -322,9 +346,6 @@ class Store:
         # objects are written before their record, and gc (exclusive store lock) never runs
         # beside a run (shared lock), so a readable record's objects exist
         return rec
-
-    def touch_record(self, key: str) -> None:
-        self.fs.touch(self._krel(key))
 
     def put_record(self, key: str, record: dict) -> None:
         with self._errors("write a cache record"):
