@@ -213,3 +213,69 @@ def test_lookup_mixed_maps_match_exact_stack(kinds, seed):
     out = km.lookup(tabs, g, vals)
     Rt, Rb, T = km.stack(list(S), list(K), [vals[..., i:i + 1].astype(np.float64) for i in range(3)])
     assert np.abs(out[0] - Rt @ km.rgb_weights(wl)).max() < 2e-3
+
+
+def _multilinear_f64(table, grids, t):
+    """Plain float64 multilinear interpolation of table (*sizes, C) at thicknesses t (…, n):
+    a loop over the 2^n corners, thicknesses clamped to each grid, and (as km.lookup documents)
+    a coordinate within km.SNAP of a node put on it."""
+    sizes = [len(g) for g in grids]
+    t = np.asarray(t, np.float64)
+    lo, wt = [], []
+    for i, (g, N) in enumerate(zip(grids, sizes)):
+        if N == 1:
+            lo.append(np.zeros(t.shape[:-1], np.int64))
+            wt.append(np.zeros(t.shape[:-1]))
+            continue
+        f = np.clip(t[..., i], g[0], g[-1]) / (g[-1] - g[0]) * (N - 1)
+        f = np.where(np.abs(f - np.rint(f)) <= km.SNAP, np.rint(f), f)
+        i0 = np.minimum(np.floor(f).astype(np.int64), N - 2)
+        lo.append(i0)
+        wt.append(f - i0)
+    out = 0.0
+    for corner in range(1 << len(sizes)):
+        idx, w = [], 1.0
+        for i, N in enumerate(sizes):
+            b = corner >> i & 1
+            if N == 1 and b:
+                w = w * 0.0
+            idx.append(np.minimum(lo[i] + b, N - 1))
+            w = w * (wt[i] if b else 1.0 - wt[i])
+        out = out + np.asarray(table, np.float64)[tuple(idx)] * np.asarray(w)[..., None]
+    return out
+
+
+@pytest.mark.parametrize("sizes, shape", [((25, 25, 25), (96, 700)), ((17, 1, 9), (40, 50)), ((33,), (30, 40)),
+                                          ((5, 7), (300, 200)), ((9, 9, 9, 5), (20, 30))])
+def test_lookup_matches_float64_multilinear(sizes, shape):
+    """The cv2.remap gathers and the per-cell coefficient form against a plain float64
+    multilinear reference: exact on nodes, float32 rounding between them, bands that are on
+    nodes, mostly off them, or mixed (an image wider than one band)."""
+    rng = np.random.default_rng(len(sizes) * 100 + sizes[0])
+    n = len(sizes)
+    mx = rng.uniform(0.01, 0.2, n)
+    grids = [np.linspace(0, m, N) if N > 1 else np.zeros(1) for m, N in zip(mx, sizes)]
+    tabs = [rng.uniform(0, 1, sizes + (3,)).astype(np.float32), rng.uniform(-2, 2, sizes + (1,)).astype(np.float32)]
+    h, w = shape
+    nodes = np.stack([rng.integers(0, N, (h, w)) * (g[-1] / max(N - 1, 1)) for g, N in zip(grids, sizes)], -1)
+    soft = rng.uniform(0, 1, (h, w, n)) * np.array([g[-1] for g in grids])
+    t = nodes.copy()
+    t[: h // 3] = soft[: h // 3]                                    # top: every pixel between nodes
+    sprinkle = rng.random((h, w)) < 0.05
+    t[h // 3:][sprinkle[h // 3:]] = soft[h // 3:][sprinkle[h // 3:]]  # below: 5 % between nodes
+    t[-1, -1] = [g[-1] * 1.5 for g in grids]                        # beyond the grid: clamped
+    t = t.astype(np.float32)
+    got = km.lookup(tabs, grids, t)
+    for tab, out in zip(tabs, got):
+        ref = _multilinear_f64(tab, grids, t)
+        assert out.dtype == np.float32 and out.shape == (h, w, tab.shape[-1])
+        # float32 cell positions: ~1e-6 cells; the rest is float32 rounding
+        np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5 * np.abs(tab).max())
+    # pixels on nodes (bottom part, outside the sprinkle) are the table entries, bit for bit
+    on = np.zeros((h, w), bool)
+    on[h // 3:] = ~sprinkle[h // 3:]
+    on[-1, -1] = False
+    k = [np.rint(nodes[..., i] / (g[-1] / max(N - 1, 1)) if N > 1 else 0 * nodes[..., i]).astype(int)
+         for i, (g, N) in enumerate(zip(grids, sizes))]
+    for tab, out in zip(tabs, got):
+        np.testing.assert_array_equal(out[on], tab[tuple(ki[on] for ki in k)])
