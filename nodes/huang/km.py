@@ -611,32 +611,49 @@ def _lookup(plan: _Plan, t, outs, h, w):
         info[i] = plan.prepare(t[s0:s1], x[s0:s1], None if y is None else y[s0:s1])
 
     run_tasks([functools.partial(prep, i) for i in range(len(bands))])
-    # 2. one gather per table over the whole frame (cv2.remap threads it itself)
+    # 2. scattered off-node pixels: interpolated on the pool while the caller's thread gathers
+    #    the nodes of the whole frame (one cv2.remap per table, threaded by cv2 itself); their
+    #    values are put in place after the gather
+    some = [(v[1] + s0, v[2]) for (s0, s1), v in zip(bands, info) if v is not None and v[0] == "some"]
+    pending = []
+    if some:
+        idx, ts = (np.concatenate(c) for c in zip(*some))
+        pool = _pool()
+        step = min(LOOKUP_BLOCK, max(4096, -(-idx.size // 2)))
+        for i0 in range(0, idx.size, step):
+            i1 = min(idx.size, i0 + step)
+            pending.append((i0, i1, None if pool is None else pool.submit(plan.interp, ts[i0:i1])))
     if any(v is None or v[0] == "some" for v in info):
         shape = (h, w) if h <= _REMAP_MAX and w <= _REMAP_MAX else None
         for o, img in zip(outs, plan.images):
             plan.gather(img, x, y, o, shape)
-    # 3. interpolation: whole bands in place, scattered pixels together in chunks
-    tasks = []
-    for (s0, s1), v in zip(bands, info):
-        if v is not None and v[0] == "all":
-            tasks.append(functools.partial(plan.interp, t[s0:s1], [o[s0:s1] for o in outs]))
-    some = [(v[1] + s0, v[2]) for (s0, s1), v in zip(bands, info) if v is not None and v[0] == "some"]
-    if some:
-        idx, ts = (np.concatenate(c) for c in zip(*some))
-
-        def fix(i0, i1):
-            for o, val in zip(outs, plan.interp(ts[i0:i1])):
-                # scatter whole pixels as opaque items: ~3× faster than o[idx] = val
-                item = np.dtype((np.void, 4 * o.shape[1]))
-                np.put(o.view(item).reshape(-1), idx[i0:i1], np.ascontiguousarray(val).view(item).reshape(-1))
-
-        tasks += [functools.partial(fix, i0, min(idx.size, i0 + LOOKUP_BLOCK))
-                  for i0 in range(0, idx.size, LOOKUP_BLOCK)]
-    run_tasks(tasks)
+    for i0, i1, fut in pending:
+        vals = plan.interp(ts[i0:i1]) if fut is None else fut.result()
+        for o, val in zip(outs, vals):
+            # scatter whole pixels as opaque items: ~3× faster than o[idx] = val
+            item = np.dtype((np.void, 4 * o.shape[1]))
+            np.put(o.view(item).reshape(-1), idx[i0:i1], np.ascontiguousarray(val).view(item).reshape(-1))
+    # 3. bands mostly off the nodes: interpolated whole, in place
+    run_tasks([functools.partial(plan.interp, t[s0:s1], [o[s0:s1] for o in outs])
+               for (s0, s1), v in zip(bands, info) if v is not None and v[0] == "all"])
 
 
 _POOL = None
+
+
+def _pool():
+    """The persistent thread pool (one thread per core), or None on one core."""
+    import os
+
+    global _POOL
+    ncpu = os.cpu_count() or 1
+    if ncpu < 2:
+        return None
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix="km-lookup")
+    return _POOL
 
 
 def run_tasks(tasks) -> None:
@@ -645,16 +662,11 @@ def run_tasks(tasks) -> None:
     result does not depend on the threading."""
     import os
 
-    global _POOL
     ncpu = os.cpu_count() or 1
     if ncpu < 2 or len(tasks) < 2:
         for fn in tasks:
             fn()
         return
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix="km-lookup")
     # one run of consecutive tasks per thread, the caller's thread taking the first: few
     # hand-offs, and neighbouring bands stay on one core
     per = -(-len(tasks) // min(ncpu, len(tasks)))
@@ -664,7 +676,7 @@ def run_tasks(tasks) -> None:
         for fn in chunk:
             fn()
 
-    futs = [_POOL.submit(run, c) for c in runs[1:]]
+    futs = [_pool().submit(run, c) for c in runs[1:]]
     run(runs[0])
     for fut in futs:
         fut.result()
