@@ -53,8 +53,8 @@ def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=25, background_s
 
 
 def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
-    """(R over the RGB background Rg, T) per pixel, float32 (H, W, 3) each.  The table lookups
-    and the combination Rt + T²·Rg/(1 − Rb·Rg) run on bands of rows (in the cache, on all cores)."""
+    """(R over the RGB background Rg, T) per pixel, float32 (H, W, 3) each: the four tables
+    looked up, then Rt + T²·Rg/(1 − Rb·Rg) on bands of rows on all cores."""
     n = S.shape[0]
     h, w = thickness.shape[:2]
     grids = km.thickness_grid(channel_max(thickness, n), lut_size)
@@ -89,7 +89,9 @@ class KMStack(Node):
     Units: thickness mm, S and K mm⁻¹, wavelengths nm.
     """
 
-    version = "2"  # 2: thickness lookup snaps each axis within km.SNAP of a node (was: whole pixel); ≤ ~1e-5 change there
+    # 2: the thickness lookup puts each axis within km.SNAP of a node on it (was: only pixels
+    #    with every axis there); values there move by ≤ ~2e-5
+    version = "2"
     inputs = {
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
