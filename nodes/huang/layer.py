@@ -40,7 +40,7 @@ class KMLayer(Node):
     description that KMStack / CosmeticShade take.  Exact at K = 0, S → 0, X → 0 and X → ∞.
     """
 
-    version = "1"
+    version = "2"
     inputs = {
         "S": In(Spectrum, "scattering coefficient, mm⁻¹ per wavelength (nm)", optional=True),
         "K": In(Spectrum, "absorption coefficient, mm⁻¹ per wavelength (nm)", optional=True),

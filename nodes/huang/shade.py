@@ -33,7 +33,7 @@ class CosmeticShade(Node):
     Units: thickness mm, mm_per_pixel mm, depth mm, S/K mm⁻¹, wavelengths nm.
     """
 
-    version = "2"
+    version = "3"
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
