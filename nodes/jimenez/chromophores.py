@@ -179,7 +179,7 @@ class SkinChromophores(Node):
     teeth, brows) unless ``colour_check`` is off.
     """
 
-    version = "3"
+    version = "4"
     inputs = {"image": In(Image, "photo, linear RGB"),
               "mask": In(Mask, "skin mask (optional: detected by colour otherwise)", optional=True)}
     outputs = {"melanin": Out(Image, "C_m, volume fraction"),
