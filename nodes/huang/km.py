@@ -37,6 +37,9 @@ import functools
 
 import numpy as np
 
+from nodes.common import parallel
+from nodes.common.parallel import run_tasks
+
 #: wavelengths of the cosmetics library and the default grid (nm): 380–780 nm every 5 nm,
 #: the grid of Huang 2013 §4 (CS-2000 measurements) and of colour-science's ColorChecker data.
 WAVELENGTHS = np.arange(380.0, 780.0 + 1e-9, 5.0)
@@ -618,7 +621,7 @@ def _lookup(plan: _Plan, t, outs, h, w):
     pending = []
     if some:
         idx, ts = (np.concatenate(c) for c in zip(*some))
-        pool = _pool()
+        pool = parallel.pool()
         step = min(LOOKUP_BLOCK, max(4096, -(-idx.size // 2)))
         for i0 in range(0, idx.size, step):
             i1 = min(idx.size, i0 + step)
@@ -636,52 +639,3 @@ def _lookup(plan: _Plan, t, outs, h, w):
     # 3. bands mostly off the nodes: interpolated whole, in place
     run_tasks([functools.partial(plan.interp, t[s0:s1], [o[s0:s1] for o in outs])
                for (s0, s1), v in zip(bands, info) if v is not None and v[0] == "all"])
-
-
-_POOL = None
-
-
-def _pool():
-    """The persistent thread pool (one thread per core), or None on one core."""
-    import os
-
-    global _POOL
-    ncpu = os.cpu_count() or 1
-    if ncpu < 2:
-        return None
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix="km-lookup")
-    return _POOL
-
-
-def run_tasks(tasks) -> None:
-    """Run the callables on a persistent pool of one thread per core (inline when there is
-    one core or one task).  numpy and cv2 release the GIL; the tasks are independent, so the
-    result does not depend on the threading."""
-    import os
-
-    ncpu = os.cpu_count() or 1
-    if ncpu < 2 or len(tasks) < 2:
-        for fn in tasks:
-            fn()
-        return
-    # one run of consecutive tasks per thread, the caller's thread taking the first: few
-    # hand-offs, and neighbouring bands stay on one core
-    per = -(-len(tasks) // min(ncpu, len(tasks)))
-    runs = [tasks[i:i + per] for i in range(0, len(tasks), per)]
-
-    def run(chunk):
-        for fn in chunk:
-            fn()
-
-    futs = [_pool().submit(run, c) for c in runs[1:]]
-    run(runs[0])
-    for fut in futs:
-        fut.result()
-
-
-def run_bands(fn, h: int, rows: int) -> None:
-    """fn(r0, r1) for bands of ``rows`` rows covering [0, h), with :func:`run_tasks`."""
-    run_tasks([functools.partial(fn, r, min(h, r + rows)) for r in range(0, h, rows)])

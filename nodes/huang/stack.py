@@ -7,6 +7,8 @@ import numpy as np
 
 from graphkit import BadInput, Field, Image, In, Node, Out, Spectrum
 
+from nodes.common.parallel import run_bands
+
 from . import km
 from .layer import _thickness_map
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers, skin_spectrum
@@ -70,7 +72,7 @@ def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
         np.divide(num, den, out=num)
         num += Rt[r0:r1]
 
-    km.run_bands(combine, h, max(1, km.LOOKUP_BLOCK // max(w, 1)))
+    run_bands(combine, h, max(1, km.LOOKUP_BLOCK // max(w, 1)))
     return R, Tq
 
 

@@ -240,30 +240,23 @@ def cell_fraction(H: int, W: int, c: int) -> np.ndarray:
 def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray, float]:
     """:func:`cell_means` of h·m and h²·m, and min(h) (NaN if h holds NaN), in one pass over
     bands of ≥ 256 rows on the cores (the band's h·m and h²·m stay in the cache)."""
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
     import cv2
+
+    from nodes.common.parallel import run_bands
 
     H, W = h.shape
     a1 = np.empty((-(-H // c), -(-W // c)), np.float32)
     a2 = np.empty_like(a1)
     rows = c * max(1, 256 // c)
 
-    def band(y0):
+    def band(y0, _y1):
         hb = h[y0:y0 + rows]
         x = hb if m is None else cv2.multiply(hb, m[y0:y0 + rows])
         a1[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(x, c)
         a2[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(cv2.multiply(x, hb), c)
         return float(hb.min())
 
-    starts = range(0, H, rows)
-    workers = min(len(starts), os.cpu_count() or 1)
-    if workers <= 1:
-        lows = [band(y) for y in starts]
-    else:
-        with ThreadPoolExecutor(workers) as ex:
-            lows = list(ex.map(band, starts))
+    lows = run_bands(band, H, rows)
     return a1, a2, float(np.min(lows))
 
 

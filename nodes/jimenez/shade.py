@@ -11,22 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
+from nodes.common.parallel import run_bands
 
-
-def _bands(fn, H: int, rows: int = 48) -> None:
-    """fn(y0, y1) over bands of ``rows`` rows, on up to os.cpu_count() threads (numpy releases
-    the GIL; the bands are independent, so the result does not depend on the threading)."""
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
-    bands = [(y, min(y + rows, H)) for y in range(0, H, rows)]
-    workers = min(len(bands), os.cpu_count() or 1)
-    if workers <= 1:
-        for b in bands:
-            fn(*b)
-        return
-    with ThreadPoolExecutor(workers) as ex:
-        list(ex.map(lambda b: fn(*b), bands))
+BAND_ROWS = 48  # rows per band of the per-pixel terms (a band's temporaries stay in the cache)
 
 
 class SkinShade(Node):
@@ -115,7 +102,6 @@ class SkinShade(Node):
         col = (np.asarray(light.color, np.float64) * light.intensity).astype(np.float32)
         amb = np.asarray(light.ambient, np.float32)
         if normals is None:  # facing the camera everywhere: N·L and the specular are constants
-            n = None
             n0 = np.array([0.0, 0.0, -1.0])
             ndotl_0 = np.float32(max(float(n0 @ ldir), 0.0))
             spec_0 = np.float32(kelemen_specular(n0, ldir, vdir, p.roughness, p.specular, p.f0))
@@ -145,7 +131,7 @@ class SkinShade(Node):
             spec[y0:y1] = kelemen_specular(nb, l32, v32, p.roughness, p.specular, p.f0, dtype=np.float32)
             cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
 
-        _bands(per_pixel, H)
+        run_bands(per_pixel, H, BAND_ROWS)
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
             irr = np.ascontiguousarray(
@@ -157,7 +143,7 @@ class SkinShade(Node):
             cv2.merge([spec[y0:y1] * col[c] for c in range(3)], dst=img[y0:y1])
             img[y0:y1] += albedo[y0:y1] * irr[y0:y1]
 
-        _bands(combine, H)
+        run_bands(combine, H, BAND_ROWS)
         return {"image": Image(img), "albedo": Image(albedo), "diffuse": Image(irr), "specular": Image(spec)}
 
     @classmethod

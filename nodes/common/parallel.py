@@ -1,0 +1,50 @@
+"""Row bands on the cores: one persistent thread pool for the per-pixel node maths.
+
+numpy and cv2 release the GIL in their loops, so independent bands of rows run in parallel on
+threads; the bands are independent, so results do not depend on the threading.
+"""
+from __future__ import annotations
+
+import functools
+import os
+
+_POOL = None
+
+
+def pool():
+    """The persistent thread pool (one thread per core, at most 8), or None on one core."""
+    global _POOL
+    ncpu = os.cpu_count() or 1
+    if ncpu < 2:
+        return None
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix="nodes-bands")
+    return _POOL
+
+
+def run_tasks(tasks) -> list:
+    """Run the callables, inline on one core or for one task, else on :func:`pool`, and return
+    their results in order.  One run of consecutive tasks per thread, the caller's thread
+    taking the first: few hand-offs, and neighbouring bands stay on one core."""
+    tasks = list(tasks)
+    ncpu = os.cpu_count() or 1
+    if ncpu < 2 or len(tasks) < 2:
+        return [fn() for fn in tasks]
+    per = -(-len(tasks) // min(ncpu, len(tasks)))
+    runs = [tasks[i:i + per] for i in range(0, len(tasks), per)]
+
+    def run(chunk):
+        return [fn() for fn in chunk]
+
+    futs = [pool().submit(run, c) for c in runs[1:]]
+    out = run(runs[0])
+    for fut in futs:
+        out += fut.result()
+    return out
+
+
+def run_bands(fn, h: int, rows: int) -> list:
+    """fn(r0, r1) for bands of ``rows`` rows covering [0, h), with :func:`run_tasks`."""
+    return run_tasks([functools.partial(fn, r, min(h, r + rows)) for r in range(0, h, max(1, rows))])
