@@ -22,13 +22,16 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 def read_image_info(path: str, port: str = "path") -> tuple[np.ndarray, bool, tuple[str, ...], int]:
     """Read any OIIO-readable file → (float32 H×W×C array, whether it is integer-encoded,
-    channel names, index of the alpha channel or -1)."""
+    channel names, index of the alpha channel or -1).  Colour is returned as the file stores
+    it: a PNG's or TIFF's colour is not multiplied by its alpha (OpenImageIO's default)."""
     import OpenImageIO as oiio
 
     problem = input_file_problem(path)
     if problem:
         raise BadInput(port, problem)
-    inp = oiio.ImageInput.open(path)
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # PNG/TIFF colour as stored, not premultiplied
+    inp = oiio.ImageInput.open(path, config)
     if inp is None:
         msg = oiio.geterror() or "unknown format"
         raise BadInput(port, f"cannot read image {path}: {msg.strip()}")
@@ -102,7 +105,8 @@ class LoadImage(BuiltinFiles, Node):
     """Read an image file with OpenImageIO into a linear float32 Image.
 
     8/16-bit files (PNG, JPEG, TIFF) are sRGB-decoded to linear unless ``colorspace`` says
-    otherwise (an alpha channel is never decoded); float files (EXR, HDR) are taken as linear.
+    otherwise (an alpha channel is never decoded, and colour is not premultiplied by it); float
+    files (EXR, HDR) are taken as linear.
     An alpha channel (named so in the file, or the 4th of four) is dropped unless
     ``drop_alpha`` is false, so a grey + alpha file gives a one-channel image; a file with two
     colour channels (e.g. R, G) is refused.  ``builtin:astronaut`` names scikit-image's
@@ -111,7 +115,7 @@ class LoadImage(BuiltinFiles, Node):
     """
 
     builtin_what = "image"
-    version = "2"  # 2: alpha found by name (grey + alpha files), never sRGB-decoded
+    version = "2"  # 2: alpha found by name (grey + alpha files), not sRGB-decoded, not premultiplied
     outputs = {"image": Image}
 
     class Params(Node.Params):
