@@ -21,9 +21,11 @@ def test_ratio_is_a_over_max_b_eps(eps):
     b = np.repeat(b_vals[None, :], len(a_vals), 0)[..., None].repeat(3, -1)
     b[..., 1] *= 3.0  # channels differ
     ref = _closed_form(a, b, eps)
-    np.testing.assert_array_equal(ratio(a, b, eps), ref)  # a/(b+eps) is off by eps/b (2e-4 at b=0.5)
-    out = RatioImage(RatioImage.Params(eps=eps)).compute(a=Image(a), b=Image(b))
-    assert out.pixels.dtype == np.float32
+    r = ratio(a, b, eps)
+    assert r.dtype == np.float32
+    np.testing.assert_array_equal(r, ref)  # a/(b+eps) is off by eps/b (2e-4 at b=0.5)
+    out = RatioImage(RatioImage.Params(eps=eps)).compute(a=Image(a, "acescg"), b=Image(b))
+    assert out.pixels.dtype == np.float32 and out.colorspace == "acescg"  # a's tag is kept
     np.testing.assert_array_equal(out.pixels, ref)
     # below the floor the ratio is a / eps exactly; above it, a / b
     assert out.pixels[3, 0, 0] == np.float32(1.0) / np.float32(eps)
@@ -37,3 +39,15 @@ def test_one_channel_denominator_serves_every_channel():
     b[0, 0, 0] = 0.0
     out = RatioImage().compute(a=Image(a), b=Image(b)).pixels
     np.testing.assert_array_equal(out, _closed_form(a, np.repeat(b, 3, -1), 1e-4))
+
+
+def test_inputs_that_cannot_be_divided_name_port_b():
+    from graphkit import BadInput
+
+    a = Image(np.ones((4, 5, 3), np.float32))
+    with pytest.raises(BadInput) as e:
+        RatioImage().compute(a=a, b=Image(np.ones((4, 6, 3), np.float32)))
+    assert e.value.port == "b" and e.value.message == "image sizes differ: a is 5×4×3, b is 6×4×3"  # width×height×channels
+    with pytest.raises(BadInput) as e:
+        RatioImage().compute(a=a, b=Image(np.ones((4, 5, 2), np.float32)))
+    assert e.value.port == "b" and e.value.message == "b has 2 channels; it needs 1 or 3 (as a)"
