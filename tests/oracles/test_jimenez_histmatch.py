@@ -306,7 +306,7 @@ def test_grid_statistics_are_the_disc_statistics_at_the_cell_centres(r, c):
     assert max(errs_mu) <= 0.006 * sigma and max(errs_sd) <= 0.006 * sigma
 
 
-@pytest.mark.parametrize("shape,c", [((96, 120), 4), ((95, 121), 5), ((65, 35), 5), ((64, 64), 8)])
+@pytest.mark.parametrize("shape,c", [((96, 120), 4), ((95, 121), 5), ((65, 35), 5), ((64, 64), 8), ((97, 141), 2)])
 def test_grid_resize_puts_cell_values_at_cell_centres(shape, c):
     """grid_resize is bilinear with the value of cell i at (i + ½)·c px, held flat beyond the
     outer centres: the same as numpy's np.interp along each axis (separable).  Where the last
@@ -331,3 +331,18 @@ def test_grid_resize_puts_cell_values_at_cell_centres(shape, c):
     np.testing.assert_allclose(out, ref, atol=2e-6, rtol=0)
     if H % c == 0 and W % c == 0 and c % 2 == 1:  # cell centres are pixel centres: the cell's value
         np.testing.assert_allclose(out[c // 2::c, c // 2::c], a, atol=2e-6)
+    # onto another resolution covering the same image (the eq. 5 maps at stats_size)
+    small = grid_resize(a.astype(np.float32), c, shape, (H // 3, W // 2))
+    assert small.shape == (H // 3, W // 2)
+
+
+def test_stats_cell_follows_its_rule():
+    """c = ⌊r/4⌋ (1 below 8 px); 1 (the global limit) exactly when the disc covers the image
+    from every pixel, r² ≥ (H − 1)² + (W − 1)²: a 24-32-40 triangle puts r on the boundary."""
+    from nodes.jimenez.histmatch import stats_cell
+
+    assert stats_cell(25, 33, 40.0) == 1  # r² = 24² + 32²
+    assert stats_cell(25, 33, 39.99) == 9
+    assert stats_cell(33, 25, 39.99) == 9
+    assert stats_cell(1000, 1000, 7.99) == 1 and stats_cell(1000, 1000, 8.0) == 2
+    assert stats_cell(1000, 1000, 31.9) == 7
