@@ -42,12 +42,29 @@ def _run(cmd, cwd, timeout=600, env=None):
     return r
 
 
+def _source_copy(dest: Path) -> Path:
+    """The checkout's files (tracked, and new ones git does not ignore) copied to ``dest``: pip
+    builds in the source tree, and setuptools' build/ there would keep files deleted since."""
+    try:
+        out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                             capture_output=True, check=True)
+        names = [n for n in out.stdout.decode().split("\0") if n and (ROOT / n).is_file()]
+    except (OSError, subprocess.CalledProcessError):  # not a git checkout: copy it whole
+        shutil.copytree(ROOT, dest, ignore=shutil.ignore_patterns("build", ".venv", "*.egg-info", "__pycache__"))
+        return dest
+    for n in names:
+        (dest / n).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / n, dest / n)
+    return dest
+
+
 @pytest.fixture(scope="module")
 def wheels(tmp_path_factory):
     out = tmp_path_factory.mktemp("wheels")
+    src = _source_copy(tmp_path_factory.mktemp("src") / "relightkit")
     # isolated builds: pip fetches setuptools once, then takes it from its cache
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "--disable-pip-version-check",
-          "-w", out, ROOT, *PLUGINS], cwd=out)
+          "-w", out, src, *(src / p.relative_to(ROOT) for p in PLUGINS)], cwd=out)
     found = {p.name.split("-")[0]: p for p in out.glob("*.whl")}
     assert "relightkit" in found and len(found) == 1 + len(PLUGINS), found
     return found
