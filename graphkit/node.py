@@ -143,10 +143,20 @@ class Node(_Computable):
 
     @classmethod
     def resolve_file(cls, param: str, value: str, base_dir: str) -> str:
-        """Turn an ``InputFile`` param into a real path (override for schemes like builtin:)."""
+        """Turn an ``InputFile`` param into a real path (override for schemes like builtin:).
+
+        BadInput when the path cannot be an input file (a NUL byte, a folder, a FIFO, socket
+        or device: opening a FIFO would wait forever); a missing file is reported by the caller."""
         import os
 
-        return value if os.path.isabs(value) else os.path.join(base_dir, value)
+        from .errors import BadInput
+        from .paths import input_file_problem
+
+        path = value if os.path.isabs(value) else os.path.join(base_dir, value)
+        problem = input_file_problem(path)
+        if problem:
+            raise BadInput(param, problem)
+        return path
 
     @classmethod
     def referenced_files(cls, param: str, path: str) -> dict[str, str]:
