@@ -5,8 +5,9 @@ BIN    := $(VENV)/bin
 PIP    := $(BIN)/python -m pip
 PLUGINS := $(wildcard plugins/*/pyproject.toml)
 STAMP  := $(VENV)/.installed
-# Debian packages the tests use: Mesa's EGL/llvmpipe (moderngl backend), POV-Ray (oracle).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray
+# Debian packages the tests use: Mesa's EGL/llvmpipe (moderngl backend), POV-Ray (oracle),
+# Chromium (the studio's browser tests, driven by playwright with executable_path; no browser download).
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray chromium
 
 .PHONY: demo test bench sysdeps clean lock
 demo: $(STAMP)
@@ -22,7 +23,7 @@ bench: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt $(PLUGINS)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --disable-pip-version-check --upgrade pip
-	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl,studio]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
 	$(if $(wildcard plugins/graphkit-mediapipe),$(PIP) install -q --disable-pip-version-check --no-deps -c constraints.txt mediapipe==0.10.14)
 	$(BIN)/graphkit schema -o graph.schema.json   # editors: `# yaml-language-server: $$schema=../graph.schema.json`
 	touch $@

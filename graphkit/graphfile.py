@@ -254,11 +254,15 @@ def parse_set(items: list[str]) -> dict[str, Any]:
 
 
 def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | None = None,
-               check_backends: bool = True) -> Graph:
-    """Load, resolve and validate a graph file; raise GraphError listing every problem."""
+               check_backends: bool = True, text: str | bytes | None = None) -> Graph:
+    """Load, resolve and validate a graph file; raise GraphError listing every problem.
+
+    ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
+    it in messages and anchors its relative paths."""
     path = str(path)
     try:
-        raw = Path(path).read_bytes()
+        raw = Path(path).read_bytes() if text is None else (
+            text.encode() if isinstance(text, str) else text)
     except FileNotFoundError:
         raise UsageError(f"{path}: graph file not found") from None
     except OSError as e:
