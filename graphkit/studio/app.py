@@ -310,6 +310,7 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
+        sock.listen(128)  # connections wait in the backlog until uvicorn accepts them
     except OSError as e:
         sock.close()
         raise UsageError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
@@ -336,8 +337,11 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
 
         webbrowser.open(url)
     try:
-        server.run(sockets=[sock])
+        server.run(sockets=[sock])  # uvicorn re-raises Ctrl-C once it has shut down
+    except KeyboardInterrupt:
+        pass
     finally:
         studio.close()
         sock.close()
+    print("graphkit studio: stopped", file=sys.stderr)
     return 0

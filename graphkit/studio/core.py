@@ -73,12 +73,16 @@ class _RunProgress(Progress):
     def running(self, node, node_type):
         self._check()
         self.running_nodes.append(node)
+        if node in self.outcomes:  # done by an earlier pass of this run
+            return
         self.studio._node_event(node, state="running", seconds=None, message="", t0=time.time())
 
     def done(self, o: NodeOutcome):
-        self.outcomes[o.name] = o
         with contextlib.suppress(ValueError):
             self.running_nodes.remove(o.name)
+        if o.name in self.outcomes:  # a later pass (after a failure elsewhere) found it cached
+            return
+        self.outcomes[o.name] = o
         self.studio._node_event(o.name, state="cached" if o.hit else "done", seconds=round(o.seconds, 4),
                                 message="", digests=o.outputs, backend=o.backend)
 
