@@ -36,8 +36,8 @@ def need_browser():
 class Server:
     """`graphkit serve` in a subprocess; ``url`` holds the token."""
 
-    def __init__(self, graph, tmp: Path, *extra, env=None, plugins="studionodes"):
-        self.cache, self.out = tmp / "cache", tmp / "out"
+    def __init__(self, graph, tmp: Path, *extra, env=None, plugins="studionodes", cache=None):
+        self.cache, self.out = Path(cache) if cache else tmp / "cache", tmp / "out"
         e = engine_env({"GRAPHKIT_PLUGINS": plugins} if plugins else None)
         if env:
             e.update(env)

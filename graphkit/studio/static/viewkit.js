@@ -6,7 +6,7 @@
 //   api.exposure()              the page's preview exposure (stops)
 // sliderView() builds the common case: sliders + a live image, committing on release.
 
-export function sliderView(el, api, { sliders, note = '' }) {
+export function sliderView(el, api, { sliders, note = '', live = true }) {
   const values = {};
   const wrap = document.createElement('div');
   const img = document.createElement('img');
@@ -17,6 +17,7 @@ export function sliderView(el, api, { sliders, note = '' }) {
   if (note) { const p = document.createElement('div'); p.className = 'dim'; p.textContent = note; wrap.append(p); }
   let inflight = false, queued = false;
   async function update() {
+    if (!live) return;
     if (inflight) { queued = true; return; }
     inflight = true;
     try {
