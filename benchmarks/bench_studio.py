@@ -45,7 +45,7 @@ SLIDE = """async ([sel, value]) => {
   const r = document.querySelector(sel);
   const before = window.studio.previewLoads;
   const t0 = performance.now();
-  r.value = value; r.dispatchEvent(new Event('input', {bubbles: true}));
+  r.value = value; r.dispatchEvent(new Event(r.type === 'range' ? 'input' : 'change', {bubbles: true}));
   while (window.studio.previewLoads === before) await new Promise(f => setTimeout(f, 1));
   return performance.now() - t0;
 }"""
@@ -78,20 +78,23 @@ def bench_a(pw, tmp, n, backend, cache):
         page.click('#dag g.node[data-node="l_left60"]')
         page.select_option("#preview-select", "left60.image")
         wait_for(lambda: page.get_attribute("#preview", "data-digest"), what="preview")
-        sel = '#node-panel .ctl[data-param="azimuth_deg"] input[type=range]'
+        # the slider's number box: exact values (a range input snaps to its step)
+        sel = '#node-panel .ctl[data-param="azimuth_deg"] input[type=number]'
         page.wait_for_selector(sel)
         times, peer = [], []
+        base = -60.0 + (time.time() % 1000) / 1000  # values not in the cache yet
         for i in range(n + 2):
-            az = -60.0 + (i % 2) * 0.5 + i * 0.01  # a new value each time: a real re-run
-            ms = page.evaluate(SLIDE, [sel, str(az)])
-            st = s.api("/api/state")
-            wait_run(page, after_gen=0)
+            az = base + ((-1) ** i) * (1 + i * 0.013)
+            gen0 = s.api("/api/state")["run"]["gen"]
+            ms = page.evaluate(SLIDE, [sel, f"{az:.4f}"])
+            st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen0 and x["run"]["status"] in ("ok", "failed")
+                                   else None)(s.api("/api/state")), 120, "the run to finish")
+            assert "left60" in st["run"].get("computed", []), st["run"]
             secs = next(x for x in st["nodes"] if x["name"] == "left60").get("seconds")
             if i >= 2:  # the first moves warm up imports and the browser
                 times.append(ms)
                 if secs:
                     peer.append(secs * 1e3)
-            time.sleep(0.3)  # let the rest of the run (sheet, saves) finish
         report(f"(a) slider -> Render preview, face_relight 512^2{' backend ' + backend if backend else ''}", times, peer)
         print("    peer = the Render node's compute (same run)")
     finally:

@@ -383,3 +383,28 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
         assert sorted(k["parts"]["params"].get("salt") for k in keys if k["node"] == "nap") == [1]
     finally:
         st.close()
+
+
+def test_live_view_hook_draws_frames_and_commits(browser, server):
+    """A node class names a LiveView (studio_view); its ES module's slider draws through
+    frame() over the websocket and, on release, commit() edits the graph and it re-runs."""
+    ctx, errors = browser
+    s, _ = server(GRAPH.replace("type: Gain", "type: ViewGain").replace("level: 0.25 ", "level: 0.125"))
+    page = open_page(ctx, s)
+    wait_run(page)
+    page.click('#dag g.node[data-node="gain"]')
+    sel = '#view-body input[type=range][data-key="stops"]'
+    page.wait_for_selector(sel)
+    page.wait_for_function("() => +document.querySelector('#view-body img.view-img').dataset.frames > 0")
+    gen = run_status(page)[1]
+    page.fill(sel, "2")  # input (frames) then change (commit)
+    wait_for(lambda: page.evaluate("""() => { const i = document.querySelector('#view-body img.view-img');
+        if (!i.complete || !i.naturalWidth) return null;
+        const c = document.createElement('canvas'); c.width = i.naturalWidth; c.height = i.naturalHeight;
+        const g = c.getContext('2d'); g.drawImage(i, 0, 0);
+        return g.getImageData(4, 4, 1, 1).data[0]; }""") == srgb8(0.5), what="the view's frame at 0.125 × 2²")
+    wait_run(page, after_gen=gen)
+    st = s.api("/api/state")
+    assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 2.0
+    assert st["run"]["computed"] == ["gain", "save"]
+    assert not errors

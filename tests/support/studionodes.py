@@ -69,3 +69,40 @@ class Nap(Node):
             self.ctx.progress((i + 1) / n, "napping")
         return Image(image.pixels + np.float32(self.params.salt * 0))
 
+
+
+def _gain_view():
+    from graphkit.studio import LiveView
+
+    class View(LiveView):
+        """A live view for the tests: a stops slider drawn without the cache."""
+
+        title = "gain (test view)"
+        js = "studio_testview.js"
+
+        def data(self):
+            return {"sliders": [{"key": "stops", "min": -4, "max": 4, "step": 0.5,
+                                 "value": self.params.stops}]}
+
+        def frame(self, values):
+            return self.inputs()["image"].pixels * np.float32(2.0 ** float(values["stops"]))
+
+        def commit(self, values):
+            return self.change(self.node, "stops", float(values["stops"]))
+
+    return View
+
+
+class ViewGain(Gain):
+    """Gain with a studio live view."""
+
+    studio_view = "studionodes:GAIN_VIEW"
+
+    def compute(self, image):
+        return super().compute(image)
+
+
+def __getattr__(name):  # GAIN_VIEW is built on first use (graphkit.studio imported lazily)
+    if name == "GAIN_VIEW":
+        return _gain_view()
+    raise AttributeError(name)
