@@ -167,6 +167,7 @@ class Studio:
         self._pending: int | None = None
         self._listeners: list[Callable[[dict], None]] = []
         self._views: dict[str, Any] = {}
+        self._schemas: dict[str, Any] = {}
         self._load(self.doc)
         self._worker = threading.Thread(target=self._loop, name="graphkit-studio", daemon=True)
         self._worker.start()
@@ -489,10 +490,15 @@ class Studio:
                     with contextlib.suppress(Exception):
                         outs = {p: port.type.name for p, port in self.registry.node_class(typ).out_ports.items()}
                 if typ not in schemas and typ in self.registry.nodes:
-                    with contextlib.suppress(Exception):
-                        s, d = node_schema(self.registry, typ)
-                        schemas[typ] = {"params": s["properties"]["params"], "description": s["description"]}
-                        defs.update(d)
+                    if typ not in self._schemas:  # pydantic's schema of a type never changes
+                        self._schemas[typ] = None
+                        with contextlib.suppress(Exception):
+                            s, d = node_schema(self.registry, typ)
+                            self._schemas[typ] = ({"params": s["properties"]["params"],
+                                                   "description": s["description"]}, d)
+                    if self._schemas[typ] is not None:
+                        schemas[typ] = self._schemas[typ][0]
+                        defs.update(self._schemas[typ][1])
                 raw = spec.get("params") if isinstance(spec.get("params"), dict) else {}
                 st = {k: v for k, v in self.nodes[name].items() if k != "t0"}
                 view = None
