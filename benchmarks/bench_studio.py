@@ -62,15 +62,20 @@ VIEW_SLIDE = """async ([sel, value]) => {
 }"""
 
 
-def bench_a(pw, tmp, n, backend, cache):
-    extra = ["--backend", backend] if backend else []
-    s = Server(ROOT / "graphs" / "face_relight.yaml", tmp, *extra, plugins="", cache=cache)
+def opened(pw, graph, tmp, cache, *extra):
+    """(server, browser, context, page) with the graph open and its first run finished."""
+    s = Server(ROOT / "graphs" / graph, tmp, *extra, plugins="", cache=cache)
     b, ctx = browser_page(pw)
+    page = ctx.new_page()
+    page.goto(s.url)
+    page.wait_for_selector("#dag g.node")
+    wait_run(page, timeout=3600)
+    return s, b, ctx, page
+
+
+def bench_a(pw, tmp, n, backend, cache):
+    s, b, ctx, page = opened(pw, "face_relight.yaml", tmp, cache, *(["--backend", backend] if backend else []))
     try:
-        page = ctx.new_page()
-        page.goto(s.url)
-        page.wait_for_selector("#dag g.node")
-        wait_run(page, timeout=3600)
         gen = page.eval_on_selector("#run-status", "e => +e.dataset.gen")
         if s.api("/api/state")["graph_params"]["size"] != 512:
             s.api("/api/params", {"changes": [{"node": None, "param": "size", "value": 512}]})
@@ -104,13 +109,8 @@ def bench_a(pw, tmp, n, backend, cache):
 
 
 def bench_d(pw, tmp, n, cache):
-    s = Server(ROOT / "graphs" / "room_relight.yaml", tmp, plugins="", cache=cache)
-    b, ctx = browser_page(pw)
+    s, b, ctx, page = opened(pw, "room_relight.yaml", tmp, cache)
     try:
-        page = ctx.new_page()
-        page.goto(s.url)
-        page.wait_for_selector("#dag g.node")
-        wait_run(page, timeout=3600)
         page.click('#dag g.node[data-node="a_off"]')
         sel = '#view-body input[type=range][data-key="B"]'
         page.wait_for_selector(sel, timeout=120_000)
