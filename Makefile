@@ -8,8 +8,9 @@ STAMP  := $(VENV)/.installed
 # Debian packages the tests use: Mesa's EGL/llvmpipe (moderngl backend), POV-Ray (oracle),
 # Debian's pocl (an OpenCL platform that builds kernels on any x86-64 CPU: pip's
 # pocl-binary-distribution cannot on some, e.g. AMD Zen 5; pyopencl's wheel brings the ICD
-# loader, so ocl-icd-libopencl1 is not needed).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd
+# loader, so ocl-icd-libopencl1 is not needed),
+# Chromium (the studio's browser tests, driven by playwright with executable_path; no browser download).
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium
 
 .PHONY: demo test bench sysdeps clean lock wheel-check mutate-nodes
 demo: $(STAMP)
@@ -41,7 +42,7 @@ wheel-check: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt $(PLUGINS)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --disable-pip-version-check --upgrade pip
-	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl,studio]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
 	$(if $(wildcard plugins/graphkit-mediapipe),$(PIP) install -q --disable-pip-version-check --no-deps -c constraints.txt mediapipe==0.10.14)
 	$(BIN)/graphkit schema -o graph.schema.json   # editors: `# yaml-language-server: $$schema=../graph.schema.json`
 	touch $@

@@ -66,6 +66,17 @@ def build_parser():
     p = sub.add_parser("schema", help="print the JSON Schema of graph files")
     p.add_argument("-o", "--output", default=None)
 
+    p = sub.add_parser("serve", help="open the graph in a local web studio")
+    p.add_argument("graph", help="graph file (YAML)")
+    _cache_arg(p)
+    p.add_argument("--out", default="out", help="folder for the outputs and manifest.json of each run (default: out)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine only)")
+    p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+    p.add_argument("--jobs", "-j", type=int, default=1, help="nodes run at once (default: 1)")
+    p.add_argument("--no-run", action="store_true", help="do not run on open or on each change (press Run)")
+    p.add_argument("--open", action="store_true", help="open the URL in a web browser")
+
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
     for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
@@ -201,6 +212,14 @@ def _dispatch(args) -> int:
         return 0
     if args.cmd == "cache":
         return cmd_cache(args)
+    if args.cmd == "serve":
+        from .studio import serve
+
+        if args.jobs < 1:
+            raise UsageError("--jobs must be at least 1")
+        return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
+                     backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                     jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
     raise UsageError(f"unknown command {args.cmd}")
 
 

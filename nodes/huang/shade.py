@@ -34,6 +34,7 @@ class CosmeticShade(Node):
     """
 
     version = "3"
+    studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),

@@ -94,6 +94,7 @@ class KMStack(Node):
     # 2: the thickness lookup puts each axis within km.SNAP of a node on it (was: only pixels
     #    with every axis there); values there move by ≤ ~2e-5
     version = "2"
+    studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),

@@ -567,6 +567,7 @@ class AppearanceRig(Node):
     """
 
     version = "1"
+    studio_view = "nodes.jimenez.studio_view:BlushView"  # graphkit serve: weight sliders
     inputs = {"neutral": In(Image, "neutral map H_n (one channel)"),
               "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)"),
               "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True),

@@ -175,6 +175,7 @@ class Relight(Node):
     """
 
     version = "1"
+    studio_view = "nodes.loscos.studio_view:RoomView"  # graphkit serve: light sliders on the fast path
     inputs = {"solution": RADIOSITY, "unoccluded": UNOCCLUDED, "projection": PROJECTION,
               "photo": Image,
               "camera": In(Camera, "needed when inserting virtual lights or boxes", optional=True)}
