@@ -6,7 +6,7 @@ The engine knows nothing about faces or light: node types come from plugins (the
 from pydantic import Field
 
 from .api import Run, run_graph
-from .errors import BadInput, GraphError, GraphkitError, NodeFailed
+from .errors import BackendCannotRun, BadInput, GraphError, GraphkitError, NodeFailed
 from .node import Backend, Context, In, InputFile, Node, Out
 from .types import (Array, Camera, File, Image, Json, Light, Mask, Mesh, PortType, Scalar,
                     Spectrum, Vector)
@@ -16,5 +16,5 @@ __version__ = "0.1.0"
 __all__ = [
     "Node", "Backend", "In", "Out", "InputFile", "Context", "Field",
     "Image", "Mask", "Mesh", "Camera", "Light", "Spectrum", "File", "Scalar", "Vector", "Array",
-    "Json", "PortType", "BadInput", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
+    "Json", "PortType", "BadInput", "BackendCannotRun", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
 ]
