@@ -16,7 +16,7 @@
  * differences; the two agree to float32 round-off (~1e-7 relative).
  *
  * Compile-time constants (-D): NL layers (axes), NT tables of 3 channels each, packed per
- * grid node as NT·3 consecutive floats (table[node·NT·3 + 3·t + c]); OVER_RGB = 1 puts the
+ * grid node as NT float4 (RGB and a 0: table[node·NT + t]); OVER_RGB = 1 puts the
  * stack over a linear-RGB background image Rg (tables Rt, Rb, T, T²; stack_over_rgb):
  *
  *   R = Rt + T²·Rg / (1 − Rb·Rg)   → out (P × 3),  T → out2 (P × 3)
@@ -34,10 +34,9 @@
 #define OVER_RGB 0
 #endif
 #define SNAP (1.0f / 2048.0f)
-#define NC (NT * 3)
 
 __kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm */
-                        __global const float *restrict table,   /* nodes × NC */
+                        __global const float4 *restrict table,  /* nodes × NT: RGB + 0 */
                         __constant float *restrict scale,       /* NL: cells per mm (0 for a one-node axis) */
                         __constant float *restrict last,        /* NL: N_i − 1 */
                         __constant int *restrict stride,        /* NL: node-index stride of axis i */
@@ -69,14 +68,14 @@ __kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm *
         base += (int)lo * stride[i];
         live |= (w[i] > 0.0f) ? (1u << i) : 0u;
     }
-    float acc[NC];
-    __global const float *restrict e0 = table + (size_t)base * NC;
+    float4 acc[NT];
+    __global const float4 *e0 = table + (size_t)base * NT;
     if (live == 0) {           /* on a node (binary maps): the entry itself, exactly */
-        for (int c = 0; c < NC; ++c)
-            acc[c] = e0[c];
+        for (int t = 0; t < NT; ++t)
+            acc[t] = e0[t];
     } else {
-        for (int c = 0; c < NC; ++c)
-            acc[c] = 0.0f;
+        for (int t = 0; t < NT; ++t)
+            acc[t] = (float4)(0.0f);
         for (uint corner = 0; corner < (1u << NL); ++corner) {
             if (corner & ~live)
                 continue;      /* a corner along an axis that is on its node: weight 0 */
@@ -92,22 +91,19 @@ __kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm *
                     }
                 }
             }
-            __global const float *restrict e = e0 + (size_t)off * NC;
-            for (int c = 0; c < NC; ++c)
-                acc[c] += wt * e[c];
+            __global const float4 *e = e0 + (size_t)off * NT;
+            for (int t = 0; t < NT; ++t)
+                acc[t] += wt * e[t];
         }
     }
 #if OVER_RGB
-    /* tables: Rt, Rb, T, T2 (each RGB) */
-    for (int c = 0; c < 3; ++c) {
-        const float g = rg[(size_t)p * 3 + c];
-        const float den = 1.0f - acc[3 + c] * g;
-        out[(size_t)p * 3 + c] = acc[9 + c] * g / den + acc[c];
-        out2[(size_t)p * 3 + c] = acc[6 + c];
-    }
+    /* tables: Rt, Rb, T, T2 */
+    const float3 g = vload3(p, rg);
+    const float3 R = acc[3].xyz * g / (1.0f - acc[1].xyz * g) + acc[0].xyz;
+    vstore3(R, p, out);
+    vstore3(acc[2].xyz, p, out2);
 #else
     for (int t = 0; t < NT; ++t)
-        for (int c = 0; c < 3; ++c)
-            out[((size_t)t * P + p) * 3 + c] = acc[3 * t + c];
+        vstore3(acc[t].xyz, (size_t)t * P + p, out);
 #endif
 }

@@ -19,7 +19,7 @@ SHADER = "opencl/km_lookup.cl"
 
 
 def _packed(table, grids) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The tables on one grid packed per node (nodes × 3·NT), and per axis the scale (cells per
+    """The tables on one grid packed per node (nodes × NT × 4: RGB + 0), and per axis the scale (cells per
     mm), last node and node-index stride.  Memoised on the reference's ``km.Tables``."""
     key = ("opencl",) + tuple(np.asarray(g, np.float64).tobytes() for g in grids)
     plans = getattr(table, "plans", None)
@@ -27,7 +27,10 @@ def _packed(table, grids) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         return plans[key]
     tables = [np.asarray(t, np.float32) for t in (table if isinstance(table, (list, tuple)) else [table])]
     sizes = [len(g) for g in grids]
-    packed = np.ascontiguousarray(np.concatenate([t.reshape(-1, t.shape[-1]) for t in tables], axis=1), np.float32)
+    nodes = tables[0].size // tables[0].shape[-1]
+    packed = np.zeros((nodes, len(tables), 4), np.float32)  # per node: each table's RGB + 0 (float4)
+    for i, t in enumerate(tables):
+        packed[:, i, :3] = t.reshape(-1, 3)
     # the reference's own float32 scale (km._Plan): (N − 1) / (g[-1] − g[0]), 0 for one node
     scale = np.array([(N - 1) / (g[-1] - g[0]) if N > 1 else 0.0 for g, N in zip(grids, sizes)], np.float32)
     last = np.array([N - 1 for N in sizes], np.float32)
@@ -44,7 +47,7 @@ def lookup_tables(table, grids, thickness: np.ndarray, rg: np.ndarray | None = N
     rt = runtime()
     h, w, n = thickness.shape
     packed, scale, last, stride = _packed(table, grids)
-    NT = packed.shape[1] // 3
+    NT = packed.shape[1]
     P = h * w
     over = rg is not None
     outs = ([np.empty((h, w, 3), np.float32), np.empty((h, w, 3), np.float32)] if over
