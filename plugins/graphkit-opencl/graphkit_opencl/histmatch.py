@@ -95,6 +95,12 @@ class LocalHistMatchOpenCL(OpenCLBackend):
     kernel_version = "1"
     shaders = (SHADER,)
     needs_fp64 = True
+    #: the node's rtol/atol, and 0.5 % of values beyond them: ``scale`` = σ/σ_n where a disc
+    #: holds only a few skin pixels (outside a mask, where σ² is a float32 difference of
+    #: moments divided by a small mask mass) is round-off in the reference itself; on the
+    #: astronaut's blush basis 0.25 % of the scale map (all ≥ 20 px outside the skin) differ by
+    #: up to 0.43 while matched, bias and neutral_mean agree to 1.5e-8
+    tolerance = {"rtol": 1e-4, "atol": 1e-5, "bad_fraction": 0.005}
 
     @classmethod
     def hooks(cls):
