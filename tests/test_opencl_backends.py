@@ -161,7 +161,9 @@ def test_device_without_fp64(maps_dir, tmp_path, capsys, monkeypatch):
 
 def test_device_too_small_for_the_image(maps_dir, tmp_path, capsys, monkeypatch):
     from graphkit_opencl import base
+    from graphkit_opencl.histmatch import LocalHistMatchOpenCL
 
+    monkeypatch.setattr(LocalHistMatchOpenCL, "cpu_note", None)  # preferred, as on a GPU
     monkeypatch.setattr(base, "device_limits", lambda rt: (16 << 10, 64 << 10))  # 16 KiB buffers
     code, err = _cli(capsys, maps_dir / "free.yaml", tmp_path, "--backend", "opencl")
     assert code == 0, err

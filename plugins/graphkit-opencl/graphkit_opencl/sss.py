@@ -76,6 +76,8 @@ def sss_blur(irradiance, mm_per_pixel, depth=None, profile=None, mask=None):
 
 #: per-pixel σ: the exact gather vs the reference's σ levels (see the module docstring)
 SSS_TOLERANCE = {"rtol": 1e-3, "atol": 1e-4}
+#: benchmarks/bench_opencl.py, 1280×720, pocl on 2 cores: cv2.filter2D's separable passes win
+SSS_CPU_NOTE = "slower than numpy's cv2.filter2D blur (benchmarks/bench_opencl.py)"
 
 
 class SkinShadeOpenCL(OpenCLBackend):
@@ -86,6 +88,7 @@ class SkinShadeOpenCL(OpenCLBackend):
     kernel_version = "1"
     shaders = (SHADER,)
     tolerance = SSS_TOLERANCE
+    cpu_note = SSS_CPU_NOTE
 
     @classmethod
     def hooks(cls):
@@ -101,6 +104,7 @@ class CosmeticShadeOpenCL(OpenCLBackend):
     kernel_version = "1"
     shaders = (SHADER, "opencl/km_lookup.cl")
     tolerance = SSS_TOLERANCE
+    cpu_note = SSS_CPU_NOTE
 
     @classmethod
     def hooks(cls):
