@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -33,20 +32,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-
-
-def timed(fns: dict, runs: int, warmup: int = 1) -> dict:
-    """{name: (median s, best s)}: the callables run interleaved, ``runs`` rounds after warm-up."""
-    for _ in range(warmup):
-        for fn in fns.values():
-            fn()
-    ts: dict = {k: [] for k in fns}
-    for _ in range(runs):
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            fn()
-            ts[k].append(time.perf_counter() - t0)
-    return {k: (statistics.median(v), min(v)) for k, v in ts.items()}
+from bench_huang import timed  # noqa: E402  (interleaved rounds → median, best)
 
 
 def peer():

@@ -170,6 +170,7 @@ class Buffers:
         self.rt = rt
         self.bufs: list[Any] = []
         self.outs: list[tuple[Any, np.ndarray]] = []
+        self.keep: list[np.ndarray] = []  # host memory wrapped by buffers: must outlive them
 
     def __enter__(self):
         return self
@@ -178,6 +179,7 @@ class Buffers:
         for b in self.bufs:
             b.release()
         self.bufs.clear()
+        self.keep.clear()
 
     def input(self, a: np.ndarray):
         cl = self.rt.cl
@@ -188,7 +190,7 @@ class Buffers:
         host = mf.USE_HOST_PTR if self.rt.host_memory else mf.COPY_HOST_PTR
         b = cl.Buffer(self.rt.context, mf.READ_ONLY | host, hostbuf=a)
         self.bufs.append(b)
-        self._keep = getattr(self, "_keep", []) + [a]  # the wrapped memory must outlive the buffer
+        self.keep.append(a)
         return b
 
     def output(self, a: np.ndarray):
