@@ -44,8 +44,16 @@ def _packed(table, grids) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
 def lookup_tables(table, grids, thickness: np.ndarray, rg: np.ndarray | None = None) -> list[np.ndarray]:
     """km.lookup on the OpenCL device: float32 (H, W, 3) per table, or with ``rg`` (an RGB
     background, tables Rt, Rb, T, T²) the pair [R over rg, T]."""
-    rt = runtime()
     h, w, n = thickness.shape
+    if n == 0:  # no layers: every pixel is the vacuum entry (the reference's own lookup)
+        from nodes.huang import km
+
+        res = km.lookup(table if isinstance(table, (list, tuple)) else [table], grids, thickness)
+        if rg is None:
+            return res
+        Rt, Rb, T, T2 = res
+        return [Rt + T2 * rg / (1.0 - Rb * rg), T]
+    rt = runtime()
     packed, scale, last, stride = _packed(table, grids)
     NT = packed.shape[1]
     P = h * w
