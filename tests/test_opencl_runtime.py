@@ -227,3 +227,20 @@ def test_real_icd_only_broken_pip_pocl_falls_back_to_numpy(tmp_path):
     assert p.returncode == 2, p.stderr
     assert "Traceback" not in p.stderr
     assert "'ratio'" in p.stderr and "opencl" in p.stderr and "its compiler fails" in p.stderr
+
+
+def test_no_platform_at_all(fresh_runtime, monkeypatch):
+    """No ICD installed: clGetPlatformIDs fails (what pyopencl raises then); every backend is
+    unavailable with the reason and what to install."""
+    import pyopencl as cl
+
+    from graphkit.registry import default_registry
+
+    def none():
+        raise cl.RuntimeError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+    monkeypatch.setattr(cl, "get_platforms", none)
+    with pytest.raises(fresh_runtime.Unavailable, match="no OpenCL platform found.*pocl-opencl-icd"):
+        fresh_runtime.runtime()
+    b = default_registry().backend_class("KMStack", "opencl")
+    assert not b.available() and "no OpenCL platform found" in b.why_unavailable()
