@@ -35,24 +35,16 @@
 #endif
 #define SNAP (1.0f / 2048.0f)
 
-__kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm */
-                        __global const float4 *restrict table,  /* nodes × NT: RGB + 0 */
-                        __constant float *restrict scale,       /* NL: cells per mm (0 for a one-node axis) */
-                        __constant float *restrict last,        /* NL: N_i − 1 */
-                        __constant int *restrict stride,        /* NL: node-index stride of axis i */
-                        __global const float *restrict rg,      /* P × 3 background (OVER_RGB), else unused */
-                        __global float *restrict out,
-                        __global float *restrict out2,          /* P × 3: T (OVER_RGB), else unused */
-                        const uint P)
+/* Position of pixel p on the grid: the node below (its index), the weights along each axis
+ * (0 on a node) and the mask of the axes off their node. */
+inline uint cell(__global const float *restrict thick, const size_t p,
+                 __constant float *restrict scale, __constant float *restrict last,
+                 __constant int *restrict stride, float *w, int *base)
 {
-    const uint p = get_global_id(0);
-    if (p >= P)
-        return;
-    int base = 0;
-    uint live = 0;            /* axes off their node: only their corners are read */
-    float w[NL];
+    uint live = 0;
+    int b = 0;
     for (int i = 0; i < NL; ++i) {
-        float f = fmin(thick[(size_t)p * NL + i] * scale[i], last[i]);   /* ≥ 0 */
+        float f = fmin(thick[p * NL + i] * scale[i], last[i]);   /* ≥ 0 */
         /* |f − rint(f)| ≤ SNAP, tested as f − ⌊f⌋ ≤ SNAP or ⌊f⌋ + 1 − f ≤ SNAP: both
          * differences are exact in float32 (as the reference's f − rint(f) is), so the
          * decisions are the reference's; truncation is ⌊·⌋ for f ≥ 0 and, unlike pocl's
@@ -65,37 +57,44 @@ __kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm *
             lo = f;
         }
         w[i] = f - lo;
-        base += (int)lo * stride[i];
+        b += (int)lo * stride[i];
         live |= (w[i] > 0.0f) ? (1u << i) : 0u;
     }
-    float4 acc[NT];
+    *base = b;
+    return live;
+}
+
+/* Multilinear interpolation from the node `base` along the live axes. */
+inline void interpolate(__global const float4 *restrict table, const int base, const uint live,
+                        const float *w, __constant int *restrict stride, float4 *acc)
+{
     __global const float4 *e0 = table + (size_t)base * NT;
-    if (live == 0) {           /* on a node (binary maps): the entry itself, exactly */
-        for (int t = 0; t < NT; ++t)
-            acc[t] = e0[t];
-    } else {
-        for (int t = 0; t < NT; ++t)
-            acc[t] = (float4)(0.0f);
-        for (uint corner = 0; corner < (1u << NL); ++corner) {
-            if (corner & ~live)
-                continue;      /* a corner along an axis that is on its node: weight 0 */
-            float wt = 1.0f;
-            int off = 0;
-            for (int i = 0; i < NL; ++i) {
-                if ((live >> i) & 1u) {
-                    if ((corner >> i) & 1u) {
-                        wt *= w[i];
-                        off += stride[i];
-                    } else {
-                        wt *= 1.0f - w[i];
-                    }
+    for (int t = 0; t < NT; ++t)
+        acc[t] = (float4)(0.0f);
+    for (uint corner = 0; corner < (1u << NL); ++corner) {
+        if (corner & ~live)
+            continue;      /* a corner along an axis that is on its node: weight 0 */
+        float wt = 1.0f;
+        int off = 0;
+        for (int i = 0; i < NL; ++i) {
+            if ((live >> i) & 1u) {
+                if ((corner >> i) & 1u) {
+                    wt *= w[i];
+                    off += stride[i];
+                } else {
+                    wt *= 1.0f - w[i];
                 }
             }
-            __global const float4 *e = e0 + (size_t)off * NT;
-            for (int t = 0; t < NT; ++t)
-                acc[t] += wt * e[t];
         }
+        __global const float4 *e = e0 + (size_t)off * NT;
+        for (int t = 0; t < NT; ++t)
+            acc[t] += wt * e[t];
     }
+}
+
+inline void store(const float4 *acc, const size_t p, const uint P, __global const float *restrict rg,
+                  __global float *restrict out, __global float *restrict out2)
+{
 #if OVER_RGB
     /* tables: Rt, Rb, T, T2 */
     const float3 g = vload3(p, rg);
@@ -106,4 +105,73 @@ __kernel void km_lookup(__global const float *restrict thick,   /* P × NL, mm *
     for (int t = 0; t < NT; ++t)
         vstore3(acc[t].xyz, (size_t)t * P + p, out);
 #endif
+}
+
+#define KM_ARGS __global const float *restrict thick,  /* P × NL, mm */                     \
+                __global const float4 *restrict table, /* nodes × NT: RGB + 0 */            \
+                __constant float *restrict scale,      /* NL: cells per mm (0: one node) */ \
+                __constant float *restrict last,       /* NL: N_i − 1 */                    \
+                __constant int *restrict stride,       /* NL: node-index stride of axis i */\
+                __global const float *restrict rg,     /* P × 3 background (OVER_RGB) */    \
+                __global float *restrict out,                                               \
+                __global float *restrict out2,         /* P × 3: T (OVER_RGB) */            \
+                const uint P
+
+/* One pass, one pixel per work item (GPUs). */
+__kernel void km_lookup(KM_ARGS)
+{
+    const uint p = get_global_id(0);
+    if (p >= P)
+        return;
+    float w[NL];
+    int base;
+    const uint live = cell(thick, p, scale, last, stride, w, &base);
+    float4 acc[NT];
+    if (live == 0) {           /* on a node (binary maps): the entry itself, exactly */
+        for (int t = 0; t < NT; ++t)
+            acc[t] = table[(size_t)base * NT + t];
+    } else {
+        interpolate(table, base, live, w, stride, acc);
+    }
+    store(acc, p, P, rg, out, out2);
+}
+
+/* Two passes (CPUs, where a kernel with both paths runs at the speed of the slow one):
+ * km_nodes, one work item per row, writes the pixels on a node and lists the others per row;
+ * km_interp interpolates the listed pixels (work item (k, y): the k-th listed pixel of row y). */
+__kernel void km_nodes(KM_ARGS, const int W, __global int *restrict list, __global int *restrict count)
+{
+    const int y = get_global_id(0);
+    if ((size_t)y * W >= P)
+        return;
+    int n = 0;
+    for (int x = 0; x < W; ++x) {
+        const size_t p = (size_t)y * W + x;
+        float w[NL];
+        int base;
+        if (cell(thick, p, scale, last, stride, w, &base)) {
+            list[(size_t)y * W + n++] = x;
+        } else {
+            float4 acc[NT];
+            for (int t = 0; t < NT; ++t)
+                acc[t] = table[(size_t)base * NT + t];
+            store(acc, p, P, rg, out, out2);
+        }
+    }
+    count[y] = n;
+}
+
+__kernel void km_interp(KM_ARGS, const int W, __global const int *restrict list,
+                        __global const int *restrict count)
+{
+    const int k = get_global_id(0), y = get_global_id(1);
+    if (k >= count[y])
+        return;
+    const size_t p = (size_t)y * W + list[(size_t)y * W + k];
+    float w[NL];
+    int base;
+    const uint live = cell(thick, p, scale, last, stride, w, &base);
+    float4 acc[NT];
+    interpolate(table, base, live, w, stride, acc);
+    store(acc, p, P, rg, out, out2);
 }

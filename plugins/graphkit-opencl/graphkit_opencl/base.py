@@ -227,11 +227,11 @@ class Buffers:
                 cl.enqueue_copy(q, a, b, wait_for=wait_for, is_blocking=True)
 
 
-def launch(rt: Runtime, program, kernel: str, size, args, local=None):
+def launch(rt: Runtime, program, kernel: str, size, args, local=None, wait_for=None):
     """Enqueue ``kernel`` of ``program`` over ``size`` work items (a fresh cl.Kernel: setting the
     arguments of a shared one is not thread-safe)."""
     cl = rt.cl
     k = cl.Kernel(program, kernel)
     k.set_args(*args)
     size = (size,) if isinstance(size, int) else tuple(size)
-    return cl.enqueue_nd_range_kernel(rt.queue, k, size, local)
+    return cl.enqueue_nd_range_kernel(rt.queue, k, size, local, wait_for=wait_for)

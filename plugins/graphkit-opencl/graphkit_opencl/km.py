@@ -70,7 +70,16 @@ def lookup_tables(table, grids, thickness: np.ndarray, rg: np.ndarray | None = N
         args = [B.input(t), B.input(packed), B.input(scale), B.input(last), B.input(stride),
                 B.input(np.ascontiguousarray(rg, np.float32) if over else np.zeros(1, np.float32)),
                 B.output(outs[0]), B.output(outs[1]) if over else B.scratch(4), np.uint32(P)]
-        ev = launch(rt, prg, "km_lookup", P, args)
+        if rt.is_cpu:  # on-node pixels in a first pass, the listed others in a second
+            count = np.zeros(h, np.int32)
+            lst, cnt = B.scratch(4 * P), B.output(count)
+            ev = launch(rt, prg, "km_nodes", h, args + [np.int32(w), lst, cnt])
+            B.read([ev])  # the rows' counts: the second pass covers the longest list only
+            m = int(count.max())
+            if m:
+                ev = launch(rt, prg, "km_interp", (m, h), args + [np.int32(w), lst, cnt])
+        else:
+            ev = launch(rt, prg, "km_lookup", P, args)
         B.read([ev])
     return outs if over else list(outs[0])
 
