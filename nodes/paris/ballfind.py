@@ -29,7 +29,8 @@ silhouette has:
    environment edge is closed but concentric and inside.
 5. **Choice**: among the closed circles (support ≥ ``MIN_SUPPORT``, gap ≤ ``MAX_GAP_DEG``,
    radius ≥ ``MIN_RADIUS_PX``) that hold one of the clipped blobs (the flash's highlight), the
-   outermost of each concentric family is a ball; the family with the best support wins.
+   outermost of each family (circles concentric with it or wholly inside it: edges of its own
+   reflection, the flash's halo) is a ball; the family with the best support wins.
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
 when no closed circle is found, when two unrelated closed circles compete (supports within
@@ -150,8 +151,8 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
         best.reason = f"no ball: no closed circular outline{where} (best: {best.summary()})"
         best.candidates = cand
         return best
-    # families of concentric circles (a ball and the edges of its own reflection inside it):
-    # the outermost closed circle is the ball
+    # families of circles (a ball and the edges of its own reflection inside it): the
+    # outermost closed circle is the ball
     closed.sort(key=lambda f: -f.r)
     balls = []
     for f in closed:
@@ -173,7 +174,7 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
             best.reason = (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
                            "are clipped: the ball's silhouette may be lost in them (over-exposed)")
             return best
-    outer = [f for f in fits if f.r > best.r + 2 and _contains(f, best) and f.support >= LOOSE_SUPPORT]
+    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
     if outer and best.confident:
         o = max(outer, key=lambda f: f.support)
         best.confident = False
@@ -453,10 +454,17 @@ def _same(a, b):
     return np.hypot(ax - bx, ay - by) < 1.0 and abs(ar - br) < 1.0
 
 
-def _contains(outer, inner):
-    """inner is concentric with outer (the same ball) and not larger."""
+def _concentric(outer, inner):
+    """inner is concentric with outer and not larger."""
     (ox, oy, orr), (ix, iy, ir) = _xyr(outer), _xyr(inner)
     return np.hypot(ox - ix, oy - iy) < 0.15 * orr and ir <= orr + 1.0
+
+
+def _contains(outer, inner):
+    """inner is part of the ball outer: concentric with it (an edge of its reflection), or
+    wholly inside it (a round feature of its content, the flash's halo)."""
+    (ox, oy, orr), (ix, iy, ir) = _xyr(outer), _xyr(inner)
+    return _concentric(outer, inner) or np.hypot(ox - ix, oy - iy) + ir <= orr + 1.0
 
 
 def _subpixel(lum, g, noise, c, fov_deg):

@@ -35,8 +35,6 @@ def _povray():
 def _render(tmp_path, exponent, phong=0.4, diffuse=0.55, light=(0.0, 0.0, -1.0), gain=1.0):
     """Linear float image of the sphere (rows top→bottom, OpenCV camera frame: y down); the
     light's colour is FLASH × gain."""
-    import OpenImageIO as oiio
-
     lx, ly, lz = (1000 * c for c in light)
     scene = f"""#version 3.7;
 global_settings {{ assumed_gamma 1.0 }}
@@ -45,10 +43,16 @@ light_source {{ <{lx},{-ly},{lz}> color rgb <{gain * FLASH[0]},{gain * FLASH[1]}
 sphere {{ 0, 1 texture {{ pigment {{ color rgb <{SKIN[0]},{SKIN[1]},{SKIN[2]}> }}
          finish {{ ambient 0 diffuse {diffuse} phong {phong} phong_size {exponent} }} }} }}
 """
-    pov = tmp_path / f"s{exponent}_{gain}.pov"
-    out = tmp_path / f"s{exponent}_{gain}.png"
+    return _run_povray(tmp_path / f"s{exponent}_{gain}", scene, SIZE)
+
+
+def _run_povray(stem, scene, size):
+    """Render a POV-Ray scene at size² (no anti-aliasing, linear 16-bit PNG) → H×W×3 float."""
+    import OpenImageIO as oiio
+
+    pov, out = stem.with_suffix(".pov"), stem.with_suffix(".png")
     pov.write_text(scene)
-    r = subprocess.run([_povray(), f"+I{pov}", f"+O{out}", f"+W{SIZE}", f"+H{SIZE}", "-D", "-V", "-A",
+    r = subprocess.run([_povray(), f"+I{pov}", f"+O{out}", f"+W{size}", f"+H{size}", "-D", "-V", "-A",
                         "+FN16", "File_Gamma=1.0", "+WT1"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     inp = oiio.ImageInput.open(str(out))
@@ -142,8 +146,6 @@ RED_CLIP_GAIN = 1.4           # light × 1.4: the red channel clips at the highl
 def _render_pinhole(tmp_path, exponent, gain=1.0, light=(0.0, 0.0, -1.0)):
     """The sphere (radius 1, centre (0, 0, PIPE_D), OpenCV camera frame) through a pinhole at
     the origin; linear 16-bit PNG, clipped at 1 like a camera."""
-    import OpenImageIO as oiio
-
     l = np.asarray(light, float) / np.linalg.norm(light)
     loc = np.array([0.0, 0.0, PIPE_D]) + 1000 * l
     fov = np.degrees(2 * np.arctan(HALF_EXTENT / PIPE_D))
@@ -155,16 +157,8 @@ light_source {{ <{loc[0]},{-loc[1]},{loc[2]}> color rgb <{col[0]},{col[1]},{col[
 sphere {{ <0,0,{PIPE_D}>, 1 texture {{ pigment {{ color rgb <{SKIN[0]},{SKIN[1]},{SKIN[2]}> }}
          finish {{ ambient 0 diffuse 0.55 phong 0.4 phong_size {exponent} }} }} }}
 """
-    name = f"p{exponent}_{gain}_{abs(hash(tuple(l))) % 10000}"
-    pov, out = tmp_path / f"{name}.pov", tmp_path / f"{name}.png"
-    pov.write_text(scene)
-    r = subprocess.run([_povray(), f"+I{pov}", f"+O{out}", f"+W{PIPE_SIZE}", f"+H{PIPE_SIZE}", "-D", "-V", "-A",
-                        "+FN16", "File_Gamma=1.0", "+WT1"], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr[-2000:]
-    inp = oiio.ImageInput.open(str(out))
-    px = np.asarray(inp.read_image(0, 0, 0, 3, "float"))
-    inp.close()
-    return px
+    name = f"p{exponent}_{gain}_" + "_".join(f"{c:+.3f}" for c in l)
+    return _run_povray(tmp_path / name, scene, PIPE_SIZE)
 
 
 @pytest.fixture(scope="module")
