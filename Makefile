@@ -9,8 +9,9 @@ STAMP  := $(VENV)/.installed
 # Debian's pocl (an OpenCL platform that builds kernels on any x86-64 CPU: pip's
 # pocl-binary-distribution cannot on some, e.g. AMD Zen 5; pyopencl's wheel brings the ICD
 # loader, so ocl-icd-libopencl1 is not needed),
-# Chromium (the studio's browser tests, driven by playwright with executable_path; no browser download).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium
+# Chromium (the studio's browser tests, driven by playwright with executable_path; no browser download),
+# blender-data (CC0 HDR environments for the ProbeLight probes).
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium blender-data
 
 .PHONY: demo test bench sysdeps clean lock wheel-check mutate-nodes
 demo: $(STAMP)
