@@ -169,10 +169,15 @@ def encode_record(record: dict) -> bytes:
     return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body
 
 
+LEGACY_RECORD = "was written by an older graphkit (no integrity line): it is recomputed when next used"
+
+
 def decode_record(raw: bytes, key: str) -> tuple[dict | None, str | None]:
     """(record, None) or (None, why it cannot be trusted)."""
     if not raw.startswith(RECORD_MAGIC):
-        return None, "has no integrity line (unreadable, or written by an older graphkit)"
+        if raw.startswith(b"{"):
+            return None, LEGACY_RECORD
+        return None, "has no integrity line (damaged)"
     nl = raw.find(b"\n")
     check, body = raw[len(RECORD_MAGIC):nl], raw[nl + 1:]
     if nl < 0 or xxhash.xxh3_128_hexdigest(body).encode() != check:
@@ -646,7 +651,7 @@ class Store:
         if raw is None:
             return None
         rec, why = decode_record(raw, key)
-        if rec is None:
+        if rec is None and why is not LEGACY_RECORD:  # a legacy record is a plain miss
             self.quarantine(rel, f"cache record {key[:16]} {why}")
         return rec
 
@@ -663,7 +668,10 @@ class Store:
         moved = (not self.read_only) and self.fs.move_aside(
             rel, f"quarantine/{name}.{time.strftime('%Y%m%dT%H%M%S')}.{uuid.uuid4().hex[:6]}")
         where = "moved to quarantine/" if moved else "left in place (the cache cannot be written)"
-        self.notice(f"notice: {what}: {where}; recomputing it")
+        msg = f"notice: {what}: {where}; recomputing it"
+        if msg not in self._noticed:
+            self._noticed.add(msg)
+            self.notice(msg)
 
     # -- objects -------------------------------------------------------------------------
     def put_value(self, ptype: PortType, value: Any, parts=None) -> str:
