@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 # Debian packages the tests use: Mesa's EGL/llvmpipe (moderngl backend), POV-Ray (oracle).
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray
 
-.PHONY: demo test bench sysdeps clean lock
+.PHONY: demo test bench sysdeps clean lock mutate
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/contact_sheet.png)"
@@ -18,6 +18,14 @@ test: $(STAMP) sysdeps
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# Mutation testing of graphkit's key, hashing and store code ([tool.mutmut] in pyproject.toml
+# lists the modules and the tests that guard them).  Slow; not part of `make test`.
+mutate: $(STAMP)
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[mutate]'
+	rm -rf mutants
+	$(BIN)/mutmut run --max-children 2 || true
+	$(BIN)/mutmut results
 
 $(STAMP): pyproject.toml constraints.txt $(PLUGINS)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -41,4 +49,4 @@ lock: $(STAMP)
 	$(PIP) freeze --exclude-editable | grep -v -i -E '^(relightkit|graphkit)' > constraints.txt
 
 clean:
-	rm -rf $(VENV) out .graphkit-cache
+	rm -rf $(VENV) out .graphkit-cache mutants

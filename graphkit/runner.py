@@ -17,7 +17,6 @@ engine's ``--jobs`` and from deterministic row bands inside nodes.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import math
 import os
 import sys
@@ -28,7 +27,8 @@ from typing import Any, Callable
 
 from .errors import BadInput, GraphkitError, NodeFailed
 from .graphfile import GNode, Graph
-from .hashing import RECIPE_VERSION, canonical_items, canonical_merge, file_digest
+from . import keys
+from .hashing import file_digest
 from .node import Context, probe
 from .registry import NUMPY, Registry
 from .store import DamagedEntry, Store, value_parts
@@ -134,32 +134,16 @@ class Session:
         """The key parts of ``g`` that do not depend on its inputs, and their encoding."""
         if g.name not in self._static:
             bname, _, bver = self.backend_for(g)
-            parts = {
-                "recipe": RECIPE_VERSION,
-                "node_type": g.type,
-                "node_version": g.cls.version,
-                "backend": bname,
-                "backend_version": bver,
-                "params": g.params,
-            }
-            if g.files:
-                parts["files"] = {p: self.file_digest(path) for p, path in sorted(g.files.items())}
-            if g.cls.provenance:
-                parts["recipe_digest"] = self.graph.recipe_digest(g.name)
-            self._static[g.name] = (parts, canonical_items(parts))
+            files = {p: self.file_digest(path) for p, path in sorted(g.files.items())} if g.files else None
+            recipe = self.graph.recipe_digest(g.name) if g.cls.provenance else None
+            parts = keys.static_parts(g.type, g.cls.version, bname, bver, g.params, files, recipe)
+            self._static[g.name] = (parts, keys.encode_static(parts))
         return self._static[g.name]
 
     def key(self, g: GNode, input_digests: dict) -> tuple[str, dict]:
-        """(cache key, key parts) of node ``g`` given the digests of its inputs.
-
-        key = BLAKE2b-128(canonical(parts)), parts = recipe version, node type and version,
-        backend name and version, params, input digests, input-file digests and, for nodes that
-        embed provenance, the recipe digest.
-        """
+        """(cache key, key parts) of node ``g`` given the digests of its inputs (graphkit.keys)."""
         static, encoded = self.static_parts(g)
-        inputs = {"inputs": dict(sorted(input_digests.items()))}
-        key = hashlib.blake2b(canonical_merge(encoded, inputs), digest_size=16).hexdigest()
-        return key, {**static, **inputs}
+        return keys.node_key(static, encoded, input_digests)
 
     def readable_parts(self, g: GNode, parts: dict) -> dict:
         if g.name not in self._readable:
