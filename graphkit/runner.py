@@ -223,10 +223,10 @@ class Session:
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
         key, parts = self.key(g, input_digests)
-        rec = self.store.get_record(key, touch=True)
+        rec = self._lookup(g, key, parts, touch=True)
         if rec is None:
             with self.store.key_lock(key):
-                rec = self.store.get_record(key)  # another process may have made it meanwhile
+                rec = self._lookup(g, key, parts)  # another process may have made it meanwhile
                 if rec is None:
                     outputs = self._compute(g, bcls, key, parts, input_digests)
                     o = NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver, outputs, parts)
@@ -235,6 +235,31 @@ class Session:
                 return self._remember(o)
         outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
         return self._remember(NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts))
+
+    _BOUND = ("recipe", "node_type", "node_version", "backend", "backend_version")
+
+    def _lookup(self, g: GNode, key: str, parts: dict, touch: bool = False) -> dict | None:
+        """The record of ``key`` if it is intact (Store.get_record) and describes this very
+        computation: same type, versions, backend and input digests as ``parts``."""
+        rec = self.store.get_record(key, touch=touch)
+        if rec is None:
+            return None
+        rp = rec.get("parts") or {}
+        if (rp.get("inputs") != parts["inputs"] or any(rp.get(k) != parts.get(k) for k in self._BOUND)
+                or not self._same_params(rp.get("params"), g)):
+            self.store.quarantine(self.store._krel(key), f"cache record {key[:16]} describes another computation")
+            return None
+        return rec
+
+    def _same_params(self, stored, g: GNode) -> bool:
+        if g.name not in self._readable:
+            self._readable[g.name] = readable_params(g.params)
+        mine = self._readable[g.name]
+        if stored == mine:
+            return True
+        import json  # NaN != NaN: compare the JSON texts before calling it another computation
+
+        return json.dumps(stored, sort_keys=True) == json.dumps(mine, sort_keys=True)
 
     def _remember(self, o: NodeOutcome) -> NodeOutcome:
         self._outcomes[o.name] = o

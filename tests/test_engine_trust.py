@@ -111,6 +111,27 @@ def test_record_copied_under_another_key_is_caught(tmp_path, write):
     assert "notice:" in r.stderr
 
 
+def test_record_rewritten_whole_for_another_key_is_caught(tmp_path, write):
+    """Even with its key field and check line rewritten to match, a record of another
+    computation (y's params and output) under x's key is not served: it must describe x."""
+    import xxhash
+
+    g, cache, out = write("g.yaml", TWO), tmp_path / "c", tmp_path / "o"
+    run_ok(g, cache, out)
+    m = manifest(out)["nodes"]
+    kx, ky = m["x"]["key"], m["y"]["key"]
+    raw = rec_path(cache, ky).read_bytes()
+    body = raw.split(b"\n", 1)[1] if raw.startswith(b"GKREC1 ") else raw
+    rec = json.loads(body)
+    rec["key"] = kx
+    body = json.dumps(rec, sort_keys=True, separators=(",", ":")).encode()
+    rec_path(cache, kx).write_bytes(b"GKREC1 " + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body
+                                    if raw.startswith(b"GKREC1 ") else body)
+    run_ok(g, cache, out)
+    np.testing.assert_array_equal(np.load(out / "x.npy"), np.full(64, 1.0))
+    assert manifest(out)["nodes"]["x"]["hit"] is False
+
+
 READ = """\
 graphkit: 1
 name: read
