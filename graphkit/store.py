@@ -664,6 +664,8 @@ class Store:
 
     def quarantine(self, rel: str, what: str) -> None:
         """Move a damaged entry to quarantine/ (out of every lookup) and say so in one line."""
+        if not self.fs.exists(rel):
+            return  # another thread or run has moved it already (and said so)
         name = rel.replace("/", "_")
         moved = (not self.read_only) and self.fs.move_aside(
             rel, f"quarantine/{name}.{time.strftime('%Y%m%dT%H%M%S')}.{uuid.uuid4().hex[:6]}")

@@ -74,3 +74,72 @@ def test_split_key_equals_plain_key(tmp_path, engine_registry):
     key, parts = s.key(s.graph.nodes["d"], {"a": "0" * 32})
     assert key == key_digest(parts)
     assert key != s.key(s.graph.nodes["d"], {"a": "1" * 32})[0]
+
+
+def test_errors_name_the_place():
+    with pytest.raises(CanonicalError, match=r"^params\.a\.b\[1\]: sets have no canonical order"):
+        canonical({"a": {"b": [1, {2}]}})
+    with pytest.raises(CanonicalError, match=r"^params\.m\.x: cannot encode a value of type builtins\.object"):
+        class M(BaseModel):
+            model_config = {"arbitrary_types_allowed": True}
+            x: object = None
+
+        canonical({"m": M(x=object())})
+    with pytest.raises(CanonicalError, match=r"^params\.d: dict keys must be strings, got int"):
+        canonical({"d": {1: 2}})
+    with pytest.raises(CanonicalError, match="fail closed"):
+        canonical(object())
+
+
+def test_file_memo_entries(tmp_path):
+    import json
+    import os
+
+    import graphkit.hashing as h
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"abc")
+    memo = tmp_path / "memo.json"
+    h._memo.clear()
+    d = file_digest(p, memo)
+    import xxhash
+
+    assert d == xxhash.xxh3_128_hexdigest(b"abc")
+    st = os.stat(p)
+    entry = json.loads(memo.read_text())[str(p)]
+    assert entry[0] == [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino] and entry[1] == d
+    assert entry[2] == h._memo_check(str(p), entry[0], d)
+    assert not list(tmp_path.glob("memo.json.*.tmp"))
+    # a memo with one edited, one old-format and one good entry: only the good one is used
+    q = tmp_path / "g.bin"
+    q.write_bytes(b"q")
+    h._memo.clear()
+    file_digest(q, memo)
+    data = json.loads(memo.read_text())
+    data[str(p)][1] = "0" * 32  # edited
+    data["/old"] = [[1, 2, 3], "1" * 32]  # written by an older graphkit
+    memo.write_text(json.dumps(data))
+    h._memo.clear()
+    h._load_memo(memo)
+    assert str(p) not in h._memo and "/old" not in h._memo and h._memo[str(q)][1] == data[str(q)][1]
+    assert file_digest(p, memo) == d
+    h._memo.clear()
+    memo.write_text("[not a dict")
+    h._load_memo(memo)
+    assert h._memo == {}
+
+
+def test_file_memo_hit_does_not_read_the_file(tmp_path, monkeypatch):
+    import builtins
+
+    import graphkit.hashing as h
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"abc" * 1000)
+    h._memo.clear()
+    d = file_digest(p, tmp_path / "memo.json")
+    h._memo.clear()
+    real = builtins.open
+    monkeypatch.setattr(builtins, "open", lambda f, *a, **k: (_ for _ in ()).throw(AssertionError(f))
+                        if str(f) == str(p) else real(f, *a, **k))
+    assert file_digest(p, tmp_path / "memo.json") == d  # from the memo file, not the content

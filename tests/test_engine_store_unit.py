@@ -303,3 +303,121 @@ def test_verify_follows_the_chain(store, tmp_path):
     store.verify(repair=True)
     assert {k for k, _, _ in store.records()} == {"d3" * 16, "e1" * 16, "f5" * 16}
     assert store.verify() == []
+
+
+def test_ls_rows(store, tmp_path):
+    d1 = store.put_value(ARRAY, np.arange(1000.0))
+    d2 = store.put_value(ARRAY, np.arange(10.0))
+    store.put_record("a1" * 16, {"key": "a1" * 16, "node": "a", "parts": {"node_type": "Const"}, "seconds": 0.5,
+                                 "outputs": {"x": {"digest": d1, "type": "Array"}, "y": {"digest": d2, "type": "Array"},
+                                             "z": {"digest": d1, "type": "Array"}}})
+    c = tmp_path / "c"
+    t = time.time() - 500
+    os.utime(c / store._krel("a1" * 16), (t, t))
+    (c / "keys" / "b2").mkdir()
+    (c / "keys" / "b2" / ("b2" * 16 + ".json")).write_bytes(b"junk")
+    rows = store.ls()
+    assert [r["key"] for r in rows] == ["b2" * 16, "a1" * 16]  # most recently used first
+    bad, good = rows
+    assert bad["corrupt"] is True and bad["bytes"] == 0 and bad["node"] == "?" and bad["type"] == "?"
+    size = lambda d: (c / "objects" / d[:2] / d).stat().st_size  # noqa: E731
+    assert good == {"key": "a1" * 16, "node": "a", "type": "Const", "bytes": size(d1) + size(d2),
+                    "used": good["used"], "seconds": 0.5, "objects": sorted([d1, d2])}
+    assert abs(good["used"] - t) < 1 and "corrupt" not in good
+
+
+def test_fsspec_store(tmp_path):
+    import uuid
+
+    from graphkit.store import FsspecFS
+
+    s = Store(f"memory://unit-{uuid.uuid4().hex}").open()
+    assert isinstance(s.fs, FsspecFS) and not s.read_only and s.memo_file is None
+    for d in ("objects", "keys", "runs", "tmp"):
+        assert s.fs.fs.isdir(s.fs._p(d)), d
+    d = s.put_value(ARRAY, np.arange(100.0))
+    assert s.fs.exists(s._orel(d)) and not s.fs.exists(s._orel("ab" * 16))
+    np.testing.assert_array_equal(s.load_value(d, ARRAY), np.arange(100.0))
+    rec = {"key": "ab" * 16, "node": "n", "outputs": {"out": {"digest": d, "type": "Array"}}}
+    s.put_record("ab" * 16, rec)
+    assert s.get_record("ab" * 16, touch=True) == rec
+    assert s.fs.read_touch(s._krel("ab" * 16), 0) == s.fs.read(s._krel("ab" * 16))
+    listed = {rel: size for rel, size, _ in s.fs.listdir("objects")}
+    assert list(listed) == [s._orel(d)] and listed[s._orel(d)] > 800
+    assert list(s.fs.listdir("nothing-here")) == []
+    assert list(s.fs.listdir("tmp")) == []  # the temp file was moved, not left
+    assert s.fs.move_aside(s._krel("ab" * 16), "quarantine/x") and s.fs.read("quarantine/x") is not None
+    assert not s.fs.move_aside(s._krel("ab" * 16), "quarantine/y")  # gone already
+    s.fs.remove("quarantine/x")
+    s.fs.remove("quarantine/x")  # absent: no error
+    assert s.fs.read("quarantine/x") is None
+    s.put_record("ab" * 16, rec)
+    assert s.verify() == [] and s.usage()["objects"] == listed[s._orel(d)]
+    info = s.gc(0)
+    assert (info["removed_records"], info["removed_objects"]) == (1, 1) and s.size() == 0
+    order = []
+    with s.key_lock("ab" * 16):
+        t = threading.Thread(target=lambda: (s.key_lock("ab" * 16).__enter__(), order.append("b")))
+        t.start()
+        time.sleep(0.2)
+        order.append("a")
+    t.join(5)
+    assert order == ["a", "b"]
+    with s.fs.lock("store.lock", shared=True), s.fs.lock("store.lock", shared=True):
+        pass
+    s.commit()  # nothing to sync on an object store
+
+
+def test_quarantine_names_and_notices(store, tmp_path):
+    c = tmp_path / "c"
+    d = store.put_value(ARRAY, np.arange(5.0))
+    store.quarantine(store._orel(d), "cache object X is bad")
+    q = list((c / "quarantine").iterdir())
+    assert len(q) == 1 and q[0].name.startswith(f"objects_{d[:2]}_{d}.")
+    assert store.notes == ["notice: cache object X is bad: moved to quarantine/; recomputing it"]
+    store.quarantine(store._orel(d), "cache object X is bad")  # the same damage: said once
+    assert len(store.notes) == 1
+    store.read_only = True
+    d = store.fs.write_atomic(store._orel("ab" * 16), [b"x"])
+    store.quarantine(store._orel("ab" * 16), "cache object Y is bad")
+    assert store.notes[-1] == ("notice: cache object Y is bad: left in place (the cache cannot be written); "
+                               "recomputing it")
+
+
+def test_notice_without_listener_and_last_runs(tmp_path):
+    s = Store(tmp_path / "c").open()
+    s.notice("nobody listens")  # no error
+    assert s.last_run("g") is None
+    s.save_run("g", {"a": 1})
+    assert s.last_run("g") == {"a": 1}
+    (tmp_path / "c" / "runs" / "g.json").write_text("{not json")
+    assert s.last_run("g") is None
+    s.read_only = True
+    s.save_run("h", {"a": 1})
+    assert s.last_run("h") is None
+
+
+def test_models_load_without_a_port_type(store):
+    from graphkit.types import port_type
+
+    from graphkit.types import Light
+
+    pt = port_type(Light)
+    d = store.put_value(pt, Light())
+    assert store.load_value(d) == Light().model_dump(mode="json") or store.load_value(d) is not None
+    assert store.load_value(d, pt) == Light()
+
+
+def test_cache_errors_name_the_reason(store):
+    import errno as E
+
+    for code, text in ((E.ENOSPC, "the disk is full"), (E.EDQUOT, "the disk quota is exceeded"),
+                       (E.EROFS, "the file system is read-only"), (E.EACCES, "permission denied"),
+                       (E.EPERM, "permission denied"), (E.EFBIG, "the file size limit was reached")):
+        with pytest.raises(CacheError) as e:
+            with store._errors("write a thing"):
+                raise OSError(code, "x")
+        assert str(e.value) == f"cache {store.location}: cannot write a thing: {text}"
+    with pytest.raises(CacheError, match="cannot do: odd"):
+        with store._errors("do"):
+            raise OSError(E.EIO, "odd")
