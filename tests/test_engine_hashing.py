@@ -143,3 +143,66 @@ def test_file_memo_hit_does_not_read_the_file(tmp_path, monkeypatch):
     monkeypatch.setattr(builtins, "open", lambda f, *a, **k: (_ for _ in ()).throw(AssertionError(f))
                         if str(f) == str(p) else real(f, *a, **k))
     assert file_digest(p, tmp_path / "memo.json") == d  # from the memo file, not the content
+
+
+def test_subclasses_and_numpy_scalars_encode_as_their_base():
+    class I(int):
+        pass
+
+    class F(float):
+        pass
+
+    class S(str):
+        pass
+
+    class D(dict):
+        pass
+
+    class L(list):
+        pass
+
+    import collections
+
+    T = collections.namedtuple("T", "a b")
+    assert canonical(I(3)) == b"i3;" and canonical(F(0.5)) == b"f" + (0.5).hex().encode() + b";"
+    assert canonical(S("ab")) == b"s2:ab" and canonical(D(a=1)) == b"d1{s1:ai1;}"
+    assert canonical(L([1])) == b"l1[i1;]" and canonical(T(1, 2)) == b"l2[i1;i2;]"
+    assert canonical(np.bool_(True)) == b"T" and canonical(np.float64(0.25)) == canonical(0.25)
+    assert canonical(Color.RED) == canonical("red")
+    assert canonical(np.arange(3)) == b"a" + array_digest(np.arange(3)).encode()
+    with pytest.raises(CanonicalError, match="dict keys must be strings"):
+        canonical({1: "a", "b": 2})
+
+
+def test_merge_of_pre_encoded_parts_equals_canonical():
+    from graphkit.hashing import canonical_items, canonical_merge
+
+    parts = {"b": "x", "a": [1, 2.5], "c": {"z": None}}
+    enc = canonical_items({k: v for k, v in parts.items() if k != "c"})
+    assert canonical_merge(enc, {"c": parts["c"]}) == canonical(parts)
+    assert canonical_items({"k": "v"}) == {"k": canonical("k") + canonical("v")}
+
+
+def test_value_digests():
+    from graphkit.hashing import meta_bytes, parts_digest
+
+    a = [np.arange(3.0)]
+    base = parts_digest("Array", {}, a)
+    assert base != parts_digest("Vector", {}, a)
+    assert base != parts_digest("Array", {"x": 1}, a)
+    assert base != parts_digest("Array", {}, a + [np.zeros(0)])
+    assert base != parts_digest("Array", {}, [np.arange(3.0).reshape(3, 1)])
+    assert meta_bytes({"b": 1, "a": "é"}) == b'{"a":"\\u00e9","b":1}'
+    with pytest.raises(ValueError):
+        meta_bytes({"x": float("nan")})
+    with pytest.raises(CanonicalError):
+        array_digest(np.array([object()]))
+    import xxhash
+
+    h = xxhash.xxh3_128()
+    h.update(b"Array\0")
+    h.update(b"{}\0")
+    h.update(b"1;")
+    h.update(b"<f8(3,);")
+    h.update(np.arange(3.0).tobytes())
+    assert base == h.hexdigest()  # the documented layout: type, meta, count, then dtype+shape+bytes

@@ -421,3 +421,103 @@ def test_cache_errors_name_the_reason(store):
     with pytest.raises(CacheError, match="cannot do: odd"):
         with store._errors("do"):
             raise OSError(E.EIO, "odd")
+
+
+def test_verify_messages(store, tmp_path):
+    c = tmp_path / "c"
+    d = store.put_value(ARRAY, np.arange(10.0))
+    _rec(store, "a1" * 16, [d], node="one")
+    _rec(store, "b2" * 16, ["ee" * 16], node="two")  # its object was never written
+    _rec(store, "c3" * 16, [store.put_value(ARRAY, np.arange(3.0))], [d], node="three")
+    (c / "keys" / "d4").mkdir()
+    (c / "keys" / "d4" / ("d4" * 16 + ".json")).write_bytes(b"GKREC1 00\n{}")
+    (c / "keys" / "e5").mkdir()
+    (c / "keys" / "e5" / ("e5" * 16 + ".json")).write_text('{"key": "x", "outputs": {}}')
+    p = c / "objects" / d[:2] / d
+    raw = bytearray(p.read_bytes())
+    raw[-1] ^= 1
+    p.write_bytes(bytes(raw))
+    problems = store.verify()
+    assert sorted(problems) == sorted([
+        f"object {d}: does not match its digest",
+        f"record {'a1' * 16} (one): output 'o0' object missing or corrupt",
+        f"record {'b2' * 16} (two): output 'o0' object missing or corrupt",
+        f"record {'c3' * 16} (three): computed from a damaged value ({d[:16]})",
+        f"record {'d4' * 16}: does not match its check line (damaged or edited)",
+        f"record {'e5' * 16}: {LEGACY_RECORD}",
+    ]), problems
+    assert store.verify(repair=True) and store.verify() == []
+    assert not list((c / "keys").rglob("*.json")) and not p.exists()
+
+
+def test_ls_of_sparse_records(store, tmp_path):
+    store.put_record("a1" * 16, {"key": "a1" * 16, "outputs": {"o": {"digest": "ff" * 16}}})
+    (row,) = store.ls()
+    assert row == {"key": "a1" * 16, "node": "?", "type": "?", "bytes": 0, "used": row["used"],
+                   "seconds": 0.0, "objects": ["ff" * 16]}
+    assert abs(row["used"] - time.time()) < 60
+
+
+def test_quarantine_file_names(store, tmp_path):
+    import re
+
+    d = store.put_value(ARRAY, np.arange(5.0))
+    store.quarantine(store._orel(d), "bad")
+    (q,) = (tmp_path / "c" / "quarantine").iterdir()
+    assert re.fullmatch(rf"objects_{d[:2]}_{d}\.\d{{8}}T\d{{6}}\.[0-9a-f]{{6}}", q.name), q.name
+    d2 = store.put_value(ARRAY, np.arange(6.0))
+    p = tmp_path / "c" / "objects" / d2[:2] / d2
+    p.write_bytes(p.read_bytes()[:-1] + b"\x01")
+    with pytest.raises(CorruptObject):
+        store.load_value(d2)
+    assert store.notes[-1] == (f"notice: cache object {d2[:16]} does not match its digest: moved to quarantine/; "
+                               "recomputing it")
+
+
+def test_values_of_model_ports_without_a_type(store):
+    from graphkit.types import Light, port_type
+
+    pt = port_type(Light)
+    d = store.put_value(pt, Light())
+    raw = store.load_value(d)  # no port type given and not a builtin one: the stored model data
+    meta = pt.to_parts(Light())[0]
+    assert raw == meta.get("model", meta)
+
+
+def test_fsspec_listing_and_moves(tmp_path):
+    import uuid
+
+    s = Store(f"memory://unit-{uuid.uuid4().hex}").open()
+    s.fs.write_atomic("deep/er/x.bin", [b"abc", memoryview(b"de")])
+    assert s.fs.read("deep/er/x.bin") == b"abcde"
+    ((rel, size, mtime),) = list(s.fs.listdir("deep"))
+    assert rel == "deep/er/x.bin" and size == 5 and abs(mtime - time.time()) < 600
+    assert s.fs.move_aside("deep/er/x.bin", "q/a/b/x") and s.fs.read("q/a/b/x") == b"abcde"
+    assert s.fs.move_aside("q/a/b/x", "q/a/b/y")  # into a folder that exists
+    with s.fs.key_lock("ab" * 16), s.fs.key_lock("cd" * 16):
+        pass
+    s2 = Store(s.location).open()
+    assert s2.fs.read("q/a/b/y") == b"abcde"  # the same store, seen again
+
+
+def test_group_commit_uses_syncfs(store, monkeypatch):
+    import graphkit.store as st
+
+    monkeypatch.setattr(os, "sync", lambda: (_ for _ in ()).throw(AssertionError("fell back to sync(2)")))
+    store.put_value(ARRAY, np.arange(3.0))
+    store.commit()
+    assert callable(st._libc_syncfs)
+    monkeypatch.setattr(st, "_libc_syncfs", False)
+    called = []
+    monkeypatch.setattr(os, "sync", lambda: called.append(1))
+    store.put_value(ARRAY, np.arange(4.0))
+    store.commit()
+    assert called == [1]  # where there is no syncfs, sync(2)
+
+
+def test_local_move_aside(store, tmp_path):
+    c = tmp_path / "c"
+    store.fs.write_atomic("tmp/a", [b"1"])
+    assert store.fs.move_aside("tmp/a", "quarantine/new/dir/a") and (c / "quarantine/new/dir/a").read_bytes() == b"1"
+    assert not store.fs.move_aside("tmp/none", "quarantine/b")
+    assert store.fs.move_aside("quarantine/new/dir/a", "quarantine/new/dir/b")
