@@ -319,9 +319,8 @@ def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
             try:
                 for name, data in files + [(MANIFEST, manifest)]:
                     with _parent(sfd, name, create=True) as (pfd, base):
-                        _write(pfd, base, data)
-                        os.fsync(pfd)
-                os.fsync(sfd)
+                        _write(pfd, base, data)  # written and fsynced
+                _fsync_dirs(sfd, [n for n, _ in files])  # each folder once, after its files
             finally:
                 os.close(sfd)
             os.rename(stage, PUBLISH_PREFIX + token, src_dir_fd=dfd, dst_dir_fd=dfd)  # the commit point
@@ -364,8 +363,8 @@ def _roll_forward(dfd: int, out: Path | None, pname: str) -> None:
                         continue  # already published
                     with _parent(dfd, name, create=True) as (dp, _):
                         os.rename(base, base, src_dir_fd=sp, dst_dir_fd=dp)
-                        os.fsync(dp)
-            os.rename(MANIFEST, MANIFEST, src_dir_fd=pfd, dst_dir_fd=dfd)
+            _fsync_dirs(dfd, list(new.get("files", {})))  # the renames are durable ...
+            os.rename(MANIFEST, MANIFEST, src_dir_fd=pfd, dst_dir_fd=dfd)  # ... before the manifest
             os.fsync(dfd)
         else:
             new = json.loads(_read(dfd, MANIFEST) or b"{}")
@@ -412,6 +411,15 @@ def _clean_legacy_temps(dfd: int, names: list[str]) -> None:
                 if _LEGACY_TMP.match(entry):
                     with contextlib.suppress(OSError):
                         os.unlink(entry, dir_fd=fd)
+
+
+def _fsync_dirs(base_fd: int, names: list[str]) -> None:
+    """fsync every folder that holds one of ``names`` below ``base_fd`` (each once)."""
+    for d in sorted({n.rsplit("/", 1)[0] for n in names if "/" in n}):
+        with _parent(base_fd, f"{d}/x", create=False) as (fd, _):
+            if fd is not None:
+                os.fsync(fd)
+    os.fsync(base_fd)
 
 
 def _fsync_path(p: Path) -> None:

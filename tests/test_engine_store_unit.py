@@ -521,3 +521,37 @@ def test_local_move_aside(store, tmp_path):
     assert store.fs.move_aside("tmp/a", "quarantine/new/dir/a") and (c / "quarantine/new/dir/a").read_bytes() == b"1"
     assert not store.fs.move_aside("tmp/none", "quarantine/b")
     assert store.fs.move_aside("quarantine/new/dir/a", "quarantine/new/dir/b")
+
+
+def test_gc_budget_is_exact(store, tmp_path):
+    """gc stops as soon as the folder fits: every byte is counted (records, objects once, tmp,
+    run notes, memo), and the counts it returns are those of what it removed."""
+    c = tmp_path / "c"
+    shared = store.put_value(ARRAY, np.full(3000, -1.0))
+    ds = [store.put_value(ARRAY, np.full(1000 * (i + 1), float(i))) for i in range(3)]
+    keys = ["a1" * 16, "b2" * 16, "c3" * 16]
+    for i, key in enumerate(keys):
+        _rec(store, key, [ds[i], shared])
+        t = time.time() - 1000 + i * 100
+        os.utime(c / store._krel(key), (t, t))
+    store.save_run("old", {"x": 1})
+    store.save_run("new", {"y": 2})
+    t = time.time() - 5000
+    os.utime(c / "runs" / "old.json", (t, t))
+    (c / "filememo.json").write_text("{}")
+    (c / "tmp" / "partial").write_bytes(b"x" * 1234)
+    size = lambda p: p.stat().st_size  # noqa: E731
+    first = size(c / store._krel(keys[0])) + size(c / "objects" / ds[0][:2] / ds[0])
+    budget = store.size() - 1234 - first  # room for all but the stale temp and the oldest entry
+    info = store.gc(budget)
+    assert info == {"removed_records": 1, "removed_objects": 1, "stale_files": 1, "stale_bytes": 1234,
+                    "bytes": budget}
+    assert {k for k, _, _ in store.records()} == set(keys[1:]) and (c / "objects" / shared[:2] / shared).exists()
+    notes = size(c / "runs" / "old.json") + size(c / "runs" / "new.json") + size(c / "filememo.json")
+    info = store.gc(notes - 1)  # no entry left, then the oldest run note, then the memo
+    assert info["removed_records"] == 2 and info["removed_objects"] == 3
+    assert not (c / "runs" / "old.json").exists() and (c / "runs" / "new.json").exists()
+    assert (c / "filememo.json").exists()
+    assert info["bytes"] == size(c / "runs" / "new.json") + size(c / "filememo.json")
+    info = store.gc(0)
+    assert store.size() == 0 and info["bytes"] == 0 and not (c / "filememo.json").exists()
