@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 # blender-data (CC0 HDR environments for the ProbeLight probes).
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium blender-data
 
-.PHONY: demo test bench sysdeps clean lock wheel-check mutate-nodes
+.PHONY: demo test bench sysdeps clean lock wheel-check mutate mutate-nodes
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/contact_sheet.png)"
@@ -23,6 +23,14 @@ test: $(STAMP) sysdeps
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# Mutation testing of graphkit's key, hashing and store code ([tool.mutmut] in pyproject.toml
+# lists the modules and the tests that guard them).  Slow; not part of `make test`.
+mutate: $(STAMP)
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[mutate]'
+	rm -rf mutants
+	$(BIN)/mutmut run --max-children 2 || true
+	$(BIN)/mutmut results
 
 # Mutation testing of the node maths (tests/mutate/nodes_mutmut.toml: nodes/common, KM, ratio,
 # histogram matching), in a copy of the checkout so its [tool.mutmut] list stays apart from the
@@ -62,4 +70,4 @@ lock: $(STAMP)
 	$(PIP) freeze --exclude-editable | grep -v -i -E '^(relightkit|graphkit)' > constraints.txt
 
 clean:
-	rm -rf $(VENV) out .graphkit-cache
+	rm -rf $(VENV) out .graphkit-cache mutants

@@ -83,7 +83,7 @@ def build_parser():
         cp = csub.add_parser(name, help=hlp)
         _cache_arg(cp)
         if name == "gc":
-            cp.add_argument("--max-size", required=True, help="e.g. 500M, 2G")
+            cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
         if name == "verify":
             cp.add_argument("--repair", action="store_true", help="remove what is corrupt")
     return ap
@@ -295,31 +295,47 @@ def cmd_nodes(args) -> int:
 
 
 def _parse_size(s: str) -> int:
-    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", s)
-    if not m:
-        raise UsageError(f"--max-size: cannot read {s!r} (examples: 500M, 2G, 100000)")
-    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    """A size in bytes; suffixes are binary (K = KiB = 2^10, M = MiB = 2^20, G, T), as shown by
+    `cache ls` and gc.  Decimal-looking suffixes (MB, GB) are refused rather than guessed."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*(?:([kKmMgGtT])(i?)([bB]?))?\s*", s)
+    if not m or (m.group(4) and not m.group(3)):
+        hint = ""
+        if m:
+            hint = f"; sizes are binary: write {m.group(1)}{m.group(2).upper()} or {m.group(1)}{m.group(2).upper()}iB"
+        raise UsageError(f"--max-size: cannot read {s!r}{hint} (examples: 500M = 500 MiB, 2G = 2 GiB, 100000 bytes)")
+    unit = (m.group(2) or "").lower()
+    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[unit]
     return int(float(m.group(1)) * mult)
 
 
 def cmd_cache(args) -> int:
+    from .store import fmt_size
+
     store = _store(args.cache)
     if args.cache_cmd == "ls":
         rows = store.ls()
-        total = sum(r["bytes"] for r in rows)
         for r in rows:
             flag = "  CORRUPT" if r.get("corrupt") else ""
-            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {r['bytes'] / 1e6:10.3f} MB{flag}")
-        print(f"{len(rows)} entries, {total / 1e6:.3f} MB in {store.location}")
+            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {fmt_size(r['bytes']):>14}{flag}")
+        u = store.usage()
+        print(f"{len(rows)} entries, {fmt_size(u['total'])} in {store.location} (objects {fmt_size(u['objects'])}, "
+              f"each counted once; records {fmt_size(u['keys'])}; tmp {fmt_size(u['tmp'])}; "
+              f"quarantine {fmt_size(u['quarantine'])}; other {fmt_size(u['runs'] + u['locks'] + u['other'])}; "
+              "MiB = 2^20 bytes)")
         return 0
     if args.cache_cmd == "gc":
         info = store.gc(_parse_size(args.max_size))
-        print(f"removed {info['removed_records']} records and {info['removed_objects']} objects; "
-              f"{info['bytes'] / 1e6:.3f} MB left in {store.location}")
+        print(f"removed {info['removed_records']} records, {info['removed_objects']} objects and "
+              f"{info['stale_files']} stale temp/lock/quarantined files ({fmt_size(info['stale_bytes'])}); "
+              f"{fmt_size(info['bytes'])} left in {store.location}")
         return 0
+    stale = store.clean_stale(dry_run=True)
     problems = store.verify(repair=args.repair)
     for p in problems:
         print(p)
+    if stale["files"]:
+        print(f"{stale['files']} stale temp/lock/quarantined files ({fmt_size(stale['bytes'])})"
+              + (" removed" if args.repair else "; `verify --repair` or `gc` removes them"))
     print(f"{len(problems)} problems" + (" (repaired)" if args.repair and problems else "") + f" in {store.location}")
     return 0 if not problems or args.repair else 1
 
