@@ -30,7 +30,7 @@ def test_recovers_known_phong_parameters():
     skin = photo["coverage"]
     # the probe's ambient is known only up to scale: give it 3× too strong
     probe_light = flash.model_copy(update={"ambient": (0.15, 0.15, 0.15)})
-    out = FitSkinPhong(FitSkinPhong.Params(starts=3, seed=1)).compute(
+    out = FitSkinPhong(FitSkinPhong.Params(starts=3, seed=1, ambient="fit")).compute(
         image=photo["image"], skin=skin, mesh=m, camera=CAM, light=probe_light, shininess=9.0)
     mat = out["material"]
     np.testing.assert_allclose(mat.diffuse, true.diffuse, rtol=2e-3)
@@ -61,7 +61,7 @@ def test_fifty_random_starts_agree_within_2_5_percent(mitsuba_capture):
     m, cam, photo, skin, flash, s = mitsuba_capture
     ends = []
     for seed in range(50):
-        mat = FitSkinPhong(FitSkinPhong.Params(starts=1, seed=seed, fit_ambient=False)).compute(
+        mat = FitSkinPhong(FitSkinPhong.Params(starts=1, seed=seed, ambient="probe")).compute(
             image=photo, skin=skin, mesh=m, camera=cam, light=flash, shininess=s)["material"]
         ends.append([*mat.diffuse, mat.specular])
     ends = np.array(ends)

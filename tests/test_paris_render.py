@@ -185,7 +185,7 @@ def test_bad_inputs():
                          detail=Image(np.ones((50, 40, 3))), texture_camera=CAM)
     assert e.value.port == "texture_camera"
     # mesh not in front of the camera
-    with pytest.raises(BadInput, match="covers 0 pixels") as e:
+    with pytest.raises(BadInput, match="behind the camera") as e:
         ShadeFace().compute(mesh=_sphere(4, centre=(0, 0, -4)), camera=CAM,
                             map=Image(np.ones((180, 360, 3))))
     assert e.value.port == "mesh"

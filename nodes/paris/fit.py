@@ -1,6 +1,8 @@
 """FitSkinPhong — the skin parameters of Paris, Sillion, Quan 2003 §4.2."""
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
@@ -16,16 +18,23 @@ class FitSkinPhong(Node):
     minimise the L2 distance in CIE L*u*v* (colour-science, D65) between the photo and the
     render over the skin pixels:  sqrt(Σ_skin ΔL² + Δu² + Δv²).
 
+    The flash is in the world frame; a point flash falls off as I/d² (d in metres, through the
+    camera's ``metres_per_unit``), always.
+
     Minimisation: a varying-step descent (Levenberg–Marquardt steps whose damping is divided on
     success and multiplied on failure), coarse to fine over growing subsets of the skin pixels
     (1/16, 1/4, all, up to ``max_pixels``), from ``starts`` random starting points drawn with
-    ``seed``; the best end point is kept.  Then the ambient intensity relative to the flash is
-    optimised with the skin parameters (the probe's ambient colour, or the flash colour when the
-    light has no ambient), as in §4.1.  Outputs the material (with the residual), the light with
-    its ambient rescaled, and the fitted render.  Units: linear RGB relative to the flash.
+    ``seed``; the best end point is kept.
+
+    Ambient (``ambient``): "probe" takes the light's ambient as measured (ProbeLight gives it in
+    flash units); "fit" then optimises its intensity relative to the flash with the skin
+    parameters, as in §4.1 (the probe's ambient colour, or the flash colour when the light has
+    none); "auto" (default) is "probe" when the light has an ambient and "fit" when it has
+    none.  Outputs the material (with the residual), the light with its ambient, and the fitted
+    render.  Units: linear RGB relative to the flash.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"image": In(Image, "the flash photo (linear RGB)"),
               "skin": In(Mask, "skin pixels"),
               "mesh": In(Mesh, "face mesh registered to the photo"),
@@ -41,14 +50,16 @@ class FitSkinPhong(Node):
         seed: int = Field(0, description="seed of the random starting points")
         starts: int = Field(4, ge=1, le=1000, description="random starting points")
         max_pixels: int = Field(4000, ge=100, description="skin pixels used at the finest level")
-        fit_ambient: bool = Field(True, description="optimise the ambient intensity afterwards (§4.1)")
+        ambient: Literal["auto", "probe", "fit"] = Field(
+            "auto", description="probe: the light's ambient as measured; fit: optimise its intensity (§4.1); "
+                                "auto: probe if the light has an ambient, else fit")
         iterations: int = Field(60, ge=1, description="descent iterations per level")
         skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
         shininess: float = Field(10.0, gt=0, description="Phong exponent used when the input is not connected")
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
-        from .render import check_camera_matches, light_vectors, surface
+        from .render import check_camera_matches, light_vectors, surface, world_lights
         from . import phong
 
         p = self.params
@@ -67,7 +78,8 @@ class FitSkinPhong(Node):
         use = sk[s.coverage]
         if use.sum() < 20:
             raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
-        ldir, L = light_vectors(light, s.points, inverse_square=False)
+        (lw,) = world_lights([light], camera, mesh, "light")
+        ldir, L = light_vectors(lw, s.points)
         diff, spec = phong.lobes(s.normals, ldir, s.view, float(shininess))
         if not (diff[use] > 0).any():
             raise BadInput("light", f"the light (direction {light.direction}) is behind the "
@@ -77,7 +89,8 @@ class FitSkinPhong(Node):
         if len(idx) > p.max_pixels:  # deterministic even subsample
             idx = idx[np.linspace(0, len(idx) - 1, p.max_pixels).round().astype(np.int64)]
         amb_base = np.asarray(light.ambient, np.float64)
-        if not amb_base.any() and p.fit_ambient:
+        fit_ambient = p.ambient == "fit" or (p.ambient == "auto" and not amb_base.any())
+        if not amb_base.any() and fit_ambient:
             # no probe ambient: fit a grey (flash-coloured) ambient, starting small
             amb_base = np.asarray(light.color, np.float64) * 0.01
         prob = _Problem(photo[idx], diff[idx], spec[idx], L[idx], amb_base)
@@ -91,7 +104,7 @@ class FitSkinPhong(Node):
                 best = (x, e)
             self.ctx.progress((i + 1) / p.starts, f"start {i + 1}/{p.starts}")
         x = best[0]
-        if p.fit_ambient and amb_base.any():
+        if fit_ambient and amb_base.any():
             x = prob.descend(x, free=[4], iters=p.iterations)
             x = prob.descend(x, free=[0, 1, 2, 3, 4], iters=p.iterations)
         amb_rgb = amb_base * x[4]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Camera, Field, Image, In, Mask, Mesh, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
 
 class ReflectanceMap(Node):
@@ -25,7 +25,10 @@ class ReflectanceMap(Node):
     inputs = {"image": In(Image, "the photo (linear RGB)"),
               "mesh": In(Mesh, "face mesh registered to the photo"),
               "camera": In(Camera, "the photo camera"),
-              "skin": In(Mask, "skin pixels")}
+              "skin": In(Mask, "skin pixels"),
+              "light": In(Light, "the flash (world frame): samples are divided by its irradiance "
+                                 "(a point flash's 1/d² fall-off), ShadeFace multiplies it back",
+                          optional=True)}
     outputs = {"map": Out(Image, "reflectance map (lat-long, sphere.py convention)"),
                "samples": Out(Image, "kept samples per map pixel (1 channel)")}
 
@@ -37,8 +40,8 @@ class ReflectanceMap(Node):
         neighbours: int = Field(96, ge=4, description="nearest clusters considered per map pixel")
         skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
 
-    def compute(self, image: Image, mesh, camera: Camera, skin: Mask):
-        from .render import check_camera_matches, surface
+    def compute(self, image: Image, mesh, camera: Camera, skin: Mask, light: Light | None = None):
+        from .render import check_camera_matches, irradiance, surface, world_lights
 
         p = self.params
         check_camera_matches(camera, image)
@@ -54,7 +57,13 @@ class ReflectanceMap(Node):
             raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh: the skin "
                                    "mask and the mesh do not overlap")
         cols = image.pixels[s.coverage][use][:, :3].astype(np.float64)
-        normals = s.normals[use] @ camera.pose[:3, :3].T
+        if light is not None:
+            (lw,) = world_lights([light], camera, mesh, "light")
+            e = irradiance(lw, s.points[use])
+            if not (e > 0).all():
+                raise BadInput("light", "the flash has intensity 0: it lights nothing")
+            cols = cols / e[:, None]
+        normals = camera.dir_to_camera(s.normals[use])
         rmap, count = build_map(normals, cols, p.res_deg, p.cluster_deg, p.falloff_deg,
                                 p.min_samples, p.neighbours)
         return {"map": Image(rmap.astype(np.float32)),
