@@ -17,8 +17,9 @@ pytest.importorskip("mitsuba", reason="the oracle renders with Mitsuba 3 (pip in
 from graphkit import Image, Light, Mask  # noqa: E402
 
 SIZE = 128
-SPP = 48
+SPP = 64
 DEBUG = False
+RMAP = {}  # ReflectanceMap params (defaults: smoothing chosen from the data)
 # light directions (towards the light, camera frame: x right, y down, z forward), name, angle
 LIGHTS = {
     "front": (0.0, 0.0),
@@ -82,15 +83,18 @@ def run(request):
     else:
         flash = Light(direction=tuple(mc.flash_light_direction()))
         notes.append("ProbeLight not installed: the known flash direction is used")
-    rmap = ReflectanceMap().compute(image=photo, mesh=m, camera=cam, skin=skin)
+    rmap = ReflectanceMap(ReflectanceMap.Params(**RMAP)).compute(image=photo, mesh=m, camera=cam, skin=skin,
+                                                                  light=flash)
+    notes.append(f"ReflectanceMap: cluster {rmap['cluster_deg']}°")
     if "ShininessFromSaturation" in reg.node_names():
-        res = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash)
+        res = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash,
+                                                                  camera=cam)
         s = float(res["shininess"] if isinstance(res, dict) else res)
         notes.append(f"ShininessFromSaturation: s = {s:.1f}")
     else:
         s = mc.phong_exponent_of_beckmann()
         notes.append(f"ShininessFromSaturation not installed: s = (2/α²−2)/4 = {s:.1f}")
-    shaded = ShadeFace().compute(mesh=m, camera=cam, map=rmap["map"])["image"]
+    shaded = ShadeFace().compute(mesh=m, camera=cam, map=rmap["map"], light=flash)["image"]
     detail = RatioImage().compute(a=photo, b=shaded)
     fit = FitSkinPhong(FitSkinPhong.Params(starts=2)).compute(
         image=photo, skin=skin, mesh=m, camera=cam, light=flash, shininess=s)
@@ -101,7 +105,7 @@ def run(request):
     rows, dbg = {}, {}
     for name, (az, el) in LIGHTS.items():
         d = _dir(az, el)
-        ref = mc.render_scene(m, alb, cam, [d], SPP)
+        ref = mc.render_scene(m, alb, cam, [d], SPP, seed=100 + len(rows))
         light = Light(direction=tuple(d), ambient=flash_fit.ambient)
         out = Render(Render.Params(shadow_map_size=512)).compute(
             mesh=m, camera=cam, material=mat, lights=[light], detail=detail,
