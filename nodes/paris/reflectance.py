@@ -187,8 +187,16 @@ def predict(cn, cv, Q, res_deg, falloff_deg, neighbours) -> np.ndarray:
     # v(d): mean of the clusters in the same distance bin; w(d) = exp(-d / falloff)
     nb = int(np.ceil(180.0 / res_deg)) + 1
     b = np.minimum((d / res_deg).astype(np.int64), nb - 1)
-    key = np.arange(len(Q))[:, None] * nb + b
-    per_bin = np.bincount(key.ravel(), minlength=len(Q) * nb)[key]  # clusters sharing the bin
+    # clusters sharing each one's bin: the neighbours come sorted by distance, so equal bins
+    # are runs along each row (run lengths, O(N·k))
+    key = (np.arange(len(Q), dtype=np.int64)[:, None] * nb + b).ravel()
+    step = np.diff(key)
+    if (step < 0).any():  # pragma: no cover - cKDTree sorts by distance
+        per_bin = np.bincount(key)[key].reshape(b.shape)
+    else:
+        starts = np.concatenate([[0], np.flatnonzero(step) + 1])
+        runs = np.diff(np.concatenate([starts, [key.size]]))
+        per_bin = np.repeat(runs, runs).reshape(b.shape)
     dmin = d[:, :1]
     w = np.exp(-((b + 0.5) * res_deg - (dmin // res_deg + 0.5) * res_deg) / falloff_deg) / per_bin
     return np.einsum("pk,pkc->pc", w, cv[idx]) / w.sum(1, keepdims=True)

@@ -277,6 +277,19 @@ def projective_texture(detail: Image, tex_cam: Camera, mesh, P: np.ndarray,
     return out
 
 
+def _mediapipe_ids(mesh) -> np.ndarray | None:
+    """Vertex index of each mediapipe landmark id in ``mesh`` (a FaceMesh mesh, or one made
+    from it by SmoothMesh, whose ``source_vertex`` attribute keeps the ids), or None."""
+    n = len(mesh.vertices)
+    src = mesh.vertex_attributes.get("source_vertex") if hasattr(mesh, "vertex_attributes") else None
+    if src is not None:
+        src = np.asarray(src, np.int64)
+        if int((src >= 0).sum()) in (468, 478) and np.array_equal(src[src >= 0], np.arange((src >= 0).sum())):
+            return np.nonzero(src >= 0)[0]
+        return None
+    return np.arange(n) if n in (468, 478) else None
+
+
 def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
                 protrude_mm: float, towards: np.ndarray):
     """Centres (2×3), outward axes (2×3) and radius (mesh units) of the cornea hemispheres.
@@ -292,10 +305,10 @@ def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
         vn = vertex_normals(mesh)
         near = np.argmin(np.linalg.norm(V[None] - cen[:, None], axis=2), axis=1)
         axes = vn[near]
-    elif len(V) in (468, 478):
-        cen = np.stack([V[list(ids)].mean(0) for ids in MP_EYES])
+    elif (ids := _mediapipe_ids(mesh)) is not None:
+        cen = np.stack([V[ids[list(e)]].mean(0) for e in MP_EYES])
         vn = vertex_normals(mesh)
-        axes = np.stack([vn[list(ids)].mean(0) for ids in MP_EYES])
+        axes = np.stack([vn[ids[list(e)]].mean(0) for e in MP_EYES])
     else:
         return None
     axes = unit(axes)

@@ -94,7 +94,7 @@ def camera(size: int = 128):
     from graphkit import Camera
 
     f = size * DISTANCE_MM / 270.0
-    return Camera(width=size, height=size, fx=f, fy=f, cx=size / 2, cy=size / 2)
+    return Camera(width=size, height=size, fx=f, fy=f, cx=size / 2, cy=size / 2, metres_per_unit=0.001)
 
 
 def flash_intensity(peak: float = 0.7) -> float:
@@ -214,7 +214,7 @@ def main(out_dir: str | None = None, size: int = 128, spp: int = 64):
             f.write(encode_image(img, ".exr", 16))
     m.export(os.path.join(out_dir, "mesh.ply"))
     with open(os.path.join(out_dir, "camera.json"), "w") as f:
-        json.dump(cam.model_dump(), f, indent=1)
+        json.dump(cam.model_dump(exclude_none=True), f, indent=1)
     print("wrote", out_dir)
 
 
