@@ -323,10 +323,17 @@ class ShadowMap:
     _ref_dist: float = 1.0
 
 
-def _look_frame(forward: np.ndarray) -> np.ndarray:
-    """3×3 rotation whose rows are the light-view x, y, z axes (z = forward)."""
+def _look_frame(forward: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """3×3 rotation whose rows are the light-view x, y, z axes (z = forward).  ``up`` (world)
+    orients the texel grid (e.g. the viewing camera's y axis, so that the map is laid out the
+    same way whatever the world's axes); world y by default."""
     f = forward / np.linalg.norm(forward)
-    up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    if up is not None:
+        up = np.asarray(up, np.float64)
+        if np.linalg.norm(np.cross(up, f)) < 0.1 * np.linalg.norm(up):
+            up = None
+    if up is None:
+        up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
     x = np.cross(up, f)
     x /= np.linalg.norm(x)
     y = np.cross(f, x)
@@ -353,14 +360,16 @@ class ShadowFrame:
     perspective: bool
 
 
-def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0.02) -> ShadowFrame:
-    """The frame of a shadow map of ``vertices`` seen from ``light`` (see :func:`shadow_map`).
+def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0.02,
+                 up: np.ndarray | None = None) -> ShadowFrame:
+    """The frame of a shadow map of ``vertices`` seen from ``light`` (see :func:`shadow_map`;
+    ``up``: the world direction the texel grid's y axis follows, e.g. the camera's y).
 
     Shared by every rasteriser that renders shadow maps (the numpy one here, the OpenGL backend).
     """
     V = np.asarray(vertices, np.float64)
     if light.kind == "directional":
-        R = _look_frame(-np.asarray(light.direction, np.float64))
+        R = _look_frame(-np.asarray(light.direction, np.float64), up)
         q = V @ R.T
         lo, hi = q[:, :2].min(0), q[:, :2].max(0)
         ext = float(max(hi - lo)) * (1 + 2 * margin) or 1.0
@@ -371,7 +380,7 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
         return ShadowFrame("directional", M, q, scale, offset, ext / size, 1.0, False)
     pos = np.asarray(light.position, np.float64)
     c = V.mean(0)
-    R = _look_frame(c - pos)
+    R = _look_frame(c - pos, up)
     M = np.eye(4)
     M[:3, :3] = R
     M[:3, 3] = -R @ pos
@@ -385,13 +394,13 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
 
 
 def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
-               margin: float = 0.02) -> ShadowMap:
+               margin: float = 0.02, up: np.ndarray | None = None) -> ShadowMap:
     """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
 
     Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
     perspective view from the light's position whose field of view fits the mesh.
     """
-    fr = shadow_frame(vertices, light, size, margin)
+    fr = shadow_frame(vertices, light, size, margin, up)
     xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
     r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
                          perspective=fr.perspective, near=NEAR if fr.perspective else None)

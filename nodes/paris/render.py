@@ -493,7 +493,8 @@ class Render(Node):
                                          f"lights none of the {M} visible pixels")
             if p.shadows:
                 try:
-                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size)
+                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
+                                           up=camera.rotation[1])
                     vis = sm.visibility(s.points, s.normals)
                 except ValueError as e:
                     raise BadInput("lights", f"light {i}: {e}") from None

@@ -95,7 +95,7 @@ class RenderGL(Backend):
             sms = []
             for i, light in enumerate(lights):
                 try:
-                    sms.append(_shadow_setup(V, F, light, p.shadow_map_size))
+                    sms.append(_shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1]))
                 except ValueError as e:
                     sm_errors[i] = str(e)
                     sms.append(None)
@@ -232,13 +232,13 @@ def _light_uniforms(light: Light):
     return (0 if light.kind == "directional" else 1, d, np.asarray(light.position, np.float64), rgb)
 
 
-def _shadow_setup(V, F, light, size: int, margin: float = 0.02):
+def _shadow_setup(V, F, light, size: int, margin: float = 0.02, up=None):
     """The light frame of ``nodes.common.raster.shadow_map`` (one implementation:
     ``shadow_frame``) and the clip matrix that rasterises it in GL: dict(to_light 4×4,
     proj (sx, sy, ox, oy), bias (texel, dref), clip, faces, q)."""
     from nodes.common.raster import shadow_frame
 
-    fr = shadow_frame(V, light, size, margin)
+    fr = shadow_frame(V, light, size, margin, up)
     (sx, sy), (ox, oy) = fr.scale, fr.offset
     if fr.perspective:
         P = pinhole_proj(sx, sy, ox, oy, size, size)
