@@ -26,6 +26,14 @@ class FitSkinPhong(Node):
     (1/16, 1/4, all, up to ``max_pixels``), from ``starts`` random starting points drawn with
     ``seed``; the best end point is kept.
 
+    Exponent: the given s (ShininessFromSaturation, §4.2) is refined unless
+    ``shininess_search`` is off: the fit is repeated (warm-started, colour and i_s only) for s
+    on a log grid 1…256 and the given value, then by a golden-section step in log s around
+    the best, and the s of least Luv residual is kept.  §4.2 warns that optimising s *with* the
+    other parameters by descent is unstable (s trades against ambient and i_s); a 1-D search
+    with the ambient measured by the probe is not, and it guards against a saturation
+    estimate thrown off by the map (clipped or blurred highlights).
+
     Ambient (``ambient``): "probe" takes the light's ambient as measured (ProbeLight gives it in
     flash units); "fit" then optimises its intensity relative to the flash with the skin
     parameters, as in §4.1 (the probe's ambient colour, or the flash colour when the light has
@@ -34,7 +42,7 @@ class FitSkinPhong(Node):
     render.  Units: linear RGB relative to the flash.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"image": In(Image, "the flash photo (linear RGB)"),
               "skin": In(Mask, "skin pixels"),
               "mesh": In(Mesh, "face mesh registered to the photo"),
@@ -56,6 +64,9 @@ class FitSkinPhong(Node):
         iterations: int = Field(60, ge=1, description="descent iterations per level")
         skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
         shininess: float = Field(10.0, gt=0, description="Phong exponent used when the input is not connected")
+        shininess_search: bool = Field(True, description="refine the exponent: the one (of the given one "
+                                       "and a log grid 1…256, then a golden-section step) whose fit has the "
+                                       "least Luv residual")
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
@@ -80,7 +91,9 @@ class FitSkinPhong(Node):
             raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
         (lw,) = world_lights([light], camera, mesh, "light")
         ldir, L = light_vectors(lw, s.points)
-        diff, spec = phong.lobes(s.normals, ldir, s.view, float(shininess))
+        diff, rv = phong.lobes(s.normals, ldir, s.view, 1.0)  # rv: max(r·v, 0) where lit
+        with np.errstate(under="ignore"):
+            spec = rv ** float(shininess)
         if not (diff[use] > 0).any():
             raise BadInput("light", f"the light (direction {light.direction}) is behind the "
                                     "face: it lights none of the skin pixels")
@@ -107,6 +120,14 @@ class FitSkinPhong(Node):
         if fit_ambient and amb_base.any():
             x = prob.descend(x, free=[4], iters=p.iterations)
             x = prob.descend(x, free=[0, 1, 2, 3, 4], iters=p.iterations)
+        if p.shininess_search:
+            shininess, x = _search_exponent(photo[idx], diff[idx], rv[idx], L[idx], amb_base, x,
+                                            float(shininess), p.iterations)
+            with np.errstate(under="ignore"):
+                spec = rv ** shininess
+            prob = _Problem(photo[idx], diff[idx], spec[idx], L[idx], amb_base)
+            x = prob.descend(x, free=[0, 1, 2, 3, 4] if fit_ambient and amb_base.any() else [0, 1, 2, 3],
+                             iters=p.iterations)
         amb_rgb = amb_base * x[4]
         # residual over all skin pixels
         full = _Problem(photo[use], diff[use], spec[use], L[use], amb_base)
@@ -121,6 +142,43 @@ class FitSkinPhong(Node):
         ren = np.zeros((camera.height, camera.width, 3), np.float32)
         ren[s.coverage] = phong.shade(x[:3], x[3], amb_rgb, L, diff, spec)
         return {"material": mat, "light": out_light, "rendered": Image(ren)}
+
+
+def _search_exponent(photo, diff, rv, L, amb, x, s0, iters):
+    """The Phong exponent whose fit (colour and i_s, warm-started from x) has the least Luv
+    residual: the given s0 and a log grid 1…256 (√2 steps) on every 4th pixel, then a
+    golden-section search in log s around the best → (s, x)."""
+    sub = slice(0, len(diff), 4) if len(diff) >= 400 else slice(None)
+
+    def fit(s, x0):
+        with np.errstate(under="ignore"):
+            sp = rv[sub] ** s
+        prob = _Problem(photo[sub], diff[sub], sp, L[sub], amb)
+        xs = prob.descend(x0, free=[0, 1, 2, 3], iters=max(10, iters // 3))
+        return prob.energy(xs), xs
+
+    grid = sorted(set(np.round(2.0 ** np.arange(0, 8.01, 0.5), 6)) | {round(s0, 6)})
+    res = [fit(s, x) for s in grid]
+    k = int(np.argmin([e for e, _ in res]))
+    lo, hi = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
+    g = (np.sqrt(5) - 1) / 2
+    best = (res[k][0], grid[k], res[k][1])
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = fit(np.exp(c), best[2]), fit(np.exp(d), best[2])
+    for _ in range(6):
+        if fc[0] < fd[0]:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = fit(np.exp(c), best[2])
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = fit(np.exp(d), best[2])
+    for e, s, xs in ((fc[0], np.exp(c), fc[1]), (fd[0], np.exp(d), fd[1])):
+        if e < best[0]:
+            best = (e, s, xs)
+    return float(best[1]), best[2]
 
 
 class _Problem:
