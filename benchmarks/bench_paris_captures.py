@@ -61,7 +61,9 @@ def main(argv=None) -> int:
         print(f"\n{spec.name}: {spec.mesh} {spec.subdivisions if spec.mesh == 'head' else ''} "
               f"{spec.projection}, {spec.albedo} albedo, {r['skin_px']} skin px, pipeline {r['seconds']:.1f} s")
         print(f"  ProbeLight from the ball beside the face (parallax-corrected, no flash offset): direction error at the face {r['dir_err_deg']:.2f}°; flash used: {r['flash']['kind']}")
-        print(f"  shininess {r['shininess']:.2f} (truth ≈ {tr['s']:.2f}); kd {tuple(round(x, 3) for x in m['diffuse'])} "
+        print(f"  shininess: ShininessFromSaturation {r['shininess']:.2f}, after FitSkinPhong's search "
+              f"{m['shininess']:.2f} (Beckmann α ≈ Phong {tr['s']:.2f}); map clusters {r['cluster_deg']:g}°")
+        print(f"  kd {tuple(round(x, 3) for x in m['diffuse'])} "
               f"(truth {tuple(round(x, 3) for x in tr['kd'])}); i_s {m['specular']:.3f}; ambient "
               f"{tuple(round(x, 4) for x in m['ambient'])} (truth {tuple(round(x, 4) for x in tr['ambient'])})")
         print(f"  {'light':>16} {'kind':>11} {'dist':>5} {'angle':>6} {'lit':>7} {'all':>7} {'cast':>7} cast/px")
