@@ -163,7 +163,9 @@ class ProbeLight(Node):
         if white is not None:
             white_k = self._white_intensity(white, ldir, (cx, cy, r) if white.pixels.shape[:2] == (h, w) else None,
                                             fov_deg)
-        energy = flash_irradiance(px, dirs, sat | halo, ambient_refl, inside) / p.ball_reflectance
+        energy = flash_irradiance(px, dirs, sat | halo, ambient_refl, inside)
+        if energy is not None:
+            energy /= p.ball_reflectance
         light = self._light(ldir, color, ambient_refl / p.ball_reflectance, energy, white_k, camera)
         cls = np.zeros((h, w, 3), np.float32)
         circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
