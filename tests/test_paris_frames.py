@@ -84,7 +84,8 @@ def _pipeline(mesh, cam, pcam, photo, probe, ball):
         image=photo["image"], mesh=mesh, camera=cam, skin=skin, light=light)
     from nodes.paris.shininess import ShininessFromSaturation
 
-    s = float(ShininessFromSaturation().compute(reflectance=rmap["map"], light=light, camera=cam))
+    s = float(ShininessFromSaturation().compute(reflectance=rmap["map"], light=light, camera=cam,
+                                                image=photo["image"], mesh=mesh, skin=skin))
     shaded = ShadeFace().compute(mesh=mesh, camera=cam, map=rmap["map"], light=light)["image"]
     detail = RatioImage(RatioImage.Params(eps=0.01)).compute(a=photo["image"], b=shaded)
     fit = FitSkinPhong(FitSkinPhong.Params(starts=1, seed=3)).compute(

@@ -104,7 +104,7 @@ class ProbeLight(Node):
         px = _rgb(probe, "probe")
         h, w = px.shape[:2]
         fov_deg = self._probe_fov(camera, w, h)
-        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius)
+        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg)
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
@@ -173,14 +173,14 @@ class ProbeLight(Node):
             cls[m] = CLASS_COLOURS[name]
         return {"light": light, "classes": Image(cls)}
 
-    def _ball(self, px, port, cx, cy, r):
+    def _ball(self, px, port, cx, cy, r, fov_deg=None):
         given = [x is not None for x in (cx, cy, r)]
         if all(given):
             return float(cx), float(cy), float(r)
         if any(given):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
-        return _find_ball_or_refuse(px, port, self.params.fov_deg, highlight=True)
+        return _find_ball_or_refuse(px, port, fov_deg, highlight=True)
 
     def _probe_fov(self, camera: Camera | None, w: int, h: int) -> float | None:
         """The probe photo's vertical field of view: ``fov_deg``, else the camera's (None:
@@ -259,7 +259,7 @@ class ProbeLight(Node):
         p = self.params
         px = _rgb(white, "white")
         h, w = px.shape[:2]
-        found = circle if circle is not None else _find_ball_or_refuse(px, "white", p.fov_deg, highlight=False)
+        found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5

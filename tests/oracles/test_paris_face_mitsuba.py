@@ -95,7 +95,7 @@ def run(request):
     notes.append(f"ReflectanceMap: cluster {rmap['cluster_deg']}°")
     if "ShininessFromSaturation" in reg.node_names():
         res = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash,
-                                                                  camera=cam)
+                                                                  camera=cam, image=photo, mesh=m, skin=skin)
         s = float(res["shininess"] if isinstance(res, dict) else res)
         notes.append(f"ShininessFromSaturation: s = {s:.1f}")
     else:

@@ -4,7 +4,7 @@ Mitsuba (used by benchmarks/bench_paris_captures.py and tests/oracles/test_paris
 Pipeline, with the graph nodes called directly: ProbeLight (ball centre/radius from the
 scene's truth — the automatic ball finding is another issue's work —, flash offset, ball and
 face positions, the probe camera) → ReflectanceMap (skin samples, the flash's fall-off divided
-out) → ShininessFromSaturation (the photo camera) → ShadeFace → RatioImage (the detail
+out) → ShininessFromSaturation (the photo's own pixels and camera) → ShadeFace → RatioImage (the detail
 texture) → FitSkinPhong → Render under each relight with the detail texture.
 
 Measure: PSNR (peak 1) between Render and Mitsuba's render under the same light (same ambient,
@@ -105,7 +105,8 @@ def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shi
     rnode = ReflectanceMap(ReflectanceMap.Params(**(reflectance or {})))
     rmap = rnode.compute(image=photo, mesh=mesh, camera=cam, skin=skin, light=flash)
     reg = default_registry()
-    sh = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash, camera=cam)
+    sh = reg.node_class("ShininessFromSaturation")().compute(reflectance=rmap["map"], light=flash, camera=cam,
+                                                             image=photo, mesh=mesh, skin=skin)
     s_est = float(sh["shininess"] if isinstance(sh, dict) else sh)
     s = s_est if shininess is None else float(shininess)
     shaded = ShadeFace().compute(mesh=mesh, camera=cam, map=rmap["map"], light=flash)["image"]
