@@ -9,6 +9,8 @@ from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node
 
 #: cluster sizes (degrees) tried when ``cluster_deg`` is chosen from the data
 CANDIDATES_DEG = (2.0, 3.0, 4.0, 6.0, 8.0, 11.0, 15.0)
+#: samples used to choose the cluster size (an even subsample of the skin pixels beyond that)
+CV_SAMPLES = 12000
 
 
 class ReflectanceMap(Node):
@@ -36,14 +38,17 @@ class ReflectanceMap(Node):
        the v(d) are combined with weights w(d) = exp(−d / falloff), falloff = ``falloff_deg``
        (default 0.75 × the cluster size, the paper's 1.5° for 2°).
 
-    The smoothing is chosen from the data (``cluster_deg`` unset): for each candidate size
-    (``CANDIDATES_DEG``), the skin pixels are split into ``folds`` sets of image blocks
-    (``block_frac`` of the skin region's size, assigned with ``seed``), each set is predicted
-    by the map built from the others, and the size whose map best predicts the held-out
-    pixels (relative squared colour error, the worst 5 % left out) is used.  Held-out blocks
-    must be predicted from other places of the face with similar normals, so a map that
-    follows the albedo of one place (too fine) or blurs the shading (too coarse) predicts them
-    badly.
+    The smoothing is chosen from the data (``cluster_deg`` unset), by held-out pixels: for
+    each candidate size (``CANDIDATES_DEG``), each side of the mirror plane is predicted by the
+    map built from the other side's samples entered at their mirror normals — the same shading,
+    by isotropy, seen at other places of the face with their own albedo — and the size whose
+    map predicts best is used.  The error is the squared log-ratio of sample to prediction less
+    its smooth trend over the image (a quadratic in x, y: a slow albedo drift such as a tan or
+    a texture lit from one side is no map's to predict), the worst 5 % left out.  A map that
+    follows one place's albedo (too fine) or blurs the shading (too coarse) predicts the other
+    side badly.  Without a mirror plane (no light, or the flash on the lens axis) ``folds``
+    sets of image blocks (``block_frac`` of the skin region's size, assigned with ``seed``)
+    are the held-out sets.  At most ``CV_SAMPLES`` samples (an even subsample) take part.
 
     Output: the map (rows θ 0…180°, columns φ −180…180°, ``res_deg`` per pixel, linear RGB),
     the number of kept samples per map pixel (``samples``) and the cluster size used
@@ -232,7 +237,11 @@ def choose_cluster(normals, colours, xy, mirror, p, candidates=CANDIDATES_DEG):
 
     With a mirror plane the two sides of the face are the folds: each side is predicted by the
     map of the other side's samples entered at their mirror normals — the same shading seen at
-    other places of the face, with their own albedo.  Without one, image blocks are the folds."""
+    other places of the face, with their own albedo.  Without one, image blocks are the folds.
+    At most ``CV_SAMPLES`` samples (an even subsample) take part."""
+    if len(normals) > CV_SAMPLES:
+        keep = np.linspace(0, len(normals) - 1, CV_SAMPLES).round().astype(np.int64)
+        normals, colours, xy = normals[keep], colours[keep], xy[keep]
     if mirror is not None:
         side = (normals @ mirror) >= 0
         folds = [side, ~side]

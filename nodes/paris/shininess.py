@@ -108,7 +108,8 @@ class ShininessFromSaturation(Node):
         photo = {"image": image, "mesh": mesh, "skin": skin}
         given = [k for k, v in photo.items() if v is not None]
         if given and (len(given) < 3 or camera is None):
-            missing = [k for k, v in {**photo, "camera": camera}.items() if v is None]
+            missing = [k for k, v in {"image": image, "mesh": mesh, "camera": camera, "skin": skin}.items()
+                       if v is None]
             raise BadInput(missing[0], f"the photo path needs image, mesh, camera and skin together; "
                                        f"{', '.join(given)} given, {', '.join(missing)} missing")
         h = highlight_normal(ldir)
