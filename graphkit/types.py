@@ -6,8 +6,9 @@ hashing and storage, and rebuild it from those parts.  Values are plain Python o
 * :class:`Image`  float32 H×W×C pixels, linear, with a colour-space tag
 * :class:`Mask`   float32 H×W weights in [0, 1]
 * ``Mesh``        a ``trimesh.Trimesh`` (trimesh is imported only when a mesh is handled)
-* :class:`Camera` pinhole intrinsics + world→camera pose (OpenCV axes: x right, y down, z forward)
-* :class:`Light`  a light source (directional or point) with ambient term
+* :class:`Camera` perspective or orthographic intrinsics + world→camera pose (OpenCV axes: x right,
+  y down, z forward) and the world's length unit
+* :class:`Light`  a light source (directional or point, world frame, metres) with ambient term
 * :class:`Spectrum` values sampled at wavelengths in nm
 * :class:`File`   encoded bytes with a file name; ``graphkit run`` writes these into ``--out``
 * ``Scalar`` (float), ``Vector`` (1-D float64 array), ``Array`` (any ndarray), ``Json``
@@ -17,10 +18,10 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 
 # --------------------------------------------------------------------------------------------
@@ -99,50 +100,256 @@ class File:
 
 
 class Camera(BaseModel):
-    """Pinhole camera. Intrinsics in pixels; ``world_to_camera`` is a 4×4 row-major matrix.
+    """A calibrated camera: ``projection`` "perspective" (pinhole) or "orthographic".
 
+    * perspective: focal lengths ``fx``, ``fy`` in pixels; a camera-frame point (X, Y, Z) lands
+      on pixel (fx·X/Z + cx, fy·Y/Z + cy);
+    * orthographic: ``pixels_per_m``, the image scale in pixels per metre; (X, Y, Z) lands on
+      pixel (s·X + cx, s·Y + cy) with s = pixels_per_m · metres_per_unit pixels per world unit,
+      whatever Z; the view direction is the camera's +z everywhere.
+
+    ``world_to_camera`` is a rigid 4×4 row-major matrix (rotation + translation, no scale) from
+    the world frame (the frame of the meshes and of every :class:`Light`) to the camera frame.
     Axes follow OpenCV: camera x right, y down, z forward (into the scene), pixel centres at
-    integer + 0.5 coordinates.
+    integer + 0.5 coordinates.  ``metres_per_unit`` is the world's length unit in metres (1:
+    metres, 0.001: a mesh in mm); point-light positions (metres) and the orthographic scale use
+    it.  Points at camera depth z ≤ 0 are behind the camera for both projections.
+
+    Every node that projects or casts view rays uses the methods here (``project``, ``rays``,
+    ``view_dirs``, ``pixel_matrix``, ``reframed``): the projection maths lives in one place.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    fx: float = Field(gt=0)
-    fy: float = Field(gt=0)
-    cx: float
-    cy: float
+    width: int = Field(gt=0, description="image width (pixels)")
+    height: int = Field(gt=0, description="image height (pixels)")
+    projection: Literal["perspective", "orthographic"] = Field(
+        "perspective", description="perspective (pinhole: fx, fy) or orthographic (pixels_per_m)")
+    fx: Optional[float] = Field(None, gt=0, description="perspective: focal length along x (pixels)")
+    fy: Optional[float] = Field(None, gt=0, description="perspective: focal length along y (pixels)")
+    pixels_per_m: Optional[float] = Field(None, gt=0, description="orthographic: image scale (pixels per metre)")
+    cx: float = Field(description="principal point x (pixels; the image centre is width / 2)")
+    cy: float = Field(description="principal point y (pixels)")
     world_to_camera: list[list[float]] = Field(
-        default_factory=lambda: np.eye(4).tolist()
-    )
+        default_factory=lambda: np.eye(4).tolist(),
+        description="rigid 4×4 world → camera matrix (row-major, OpenCV axes)")
+    metres_per_unit: float = Field(1.0, gt=0, description="world length unit in metres (0.001: mm)")
+
+    @field_validator("world_to_camera")
+    @classmethod
+    def _rigid(cls, v):
+        M = np.asarray(v, dtype=np.float64)
+        if M.shape != (4, 4):
+            raise ValueError(f"world_to_camera must be a 4×4 matrix, got shape {M.shape}")
+        if not np.isfinite(M).all():
+            raise ValueError("world_to_camera holds NaN or infinite values")
+        if not np.allclose(M[3], [0, 0, 0, 1], atol=1e-9):
+            raise ValueError(f"world_to_camera's last row must be [0, 0, 0, 1], got {M[3].tolist()}")
+        R = M[:3, :3]
+        err = float(np.abs(R @ R.T - np.eye(3)).max())
+        if err > 1e-6:
+            raise ValueError("world_to_camera's 3×3 part is not a rotation (R·Rᵀ differs from I by "
+                             f"{err:.2g}): give a rigid pose; set metres_per_unit for the units")
+        if np.linalg.det(R) < 0:
+            raise ValueError("world_to_camera's 3×3 part is a reflection (det −1), not a rotation")
+        return v
+
+    @model_validator(mode="after")
+    def _intrinsics(self):
+        if self.projection == "perspective":
+            missing = [k for k in ("fx", "fy") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"a perspective camera needs {' and '.join(missing)} (focal length "
+                                 "in pixels); an orthographic one needs projection: orthographic "
+                                 "and pixels_per_m")
+            if self.pixels_per_m is not None:
+                raise ValueError("pixels_per_m is for orthographic cameras; this one is perspective "
+                                 "(set projection: orthographic, or drop pixels_per_m)")
+        else:
+            if self.pixels_per_m is None:
+                raise ValueError("an orthographic camera needs pixels_per_m (image scale, pixels per metre)")
+            extra = [k for k in ("fx", "fy") if getattr(self, k) is not None]
+            if extra:
+                raise ValueError(f"{' and '.join(extra)} are perspective focal lengths; an orthographic "
+                                 "camera takes pixels_per_m instead")
+        return self
+
+    # -- frames ---------------------------------------------------------------------------
 
     @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+    def orthographic(self) -> bool:
+        return self.projection == "orthographic"
 
     @property
     def pose(self) -> np.ndarray:
+        """The 4×4 world → camera matrix."""
         return np.asarray(self.world_to_camera, dtype=np.float64)
 
     @property
+    def rotation(self) -> np.ndarray:
+        """3×3 rotation world → camera (rows: the camera's x, y, z axes in world coordinates)."""
+        return self.pose[:3, :3]
+
+    @property
     def position(self) -> np.ndarray:
-        """Camera centre in world coordinates."""
-        return np.linalg.inv(self.pose)[:3, 3]
+        """Camera centre in world coordinates (orthographic: the origin of its image plane)."""
+        R, t = self.rotation, self.pose[:3, 3]
+        return -R.T @ t
+
+    @property
+    def forward(self) -> np.ndarray:
+        """The camera's viewing axis (+z) in world coordinates (unit)."""
+        return self.rotation[2].copy()
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """World points (N×3) → camera-frame points (N×3)."""
+        p = np.asarray(points, dtype=np.float64)
+        return p @ self.rotation.T + self.pose[:3, 3]
+
+    def to_world(self, points: np.ndarray) -> np.ndarray:
+        """Camera-frame points (N×3) → world points (N×3)."""
+        p = np.asarray(points, dtype=np.float64)
+        return (p - self.pose[:3, 3]) @ self.rotation
+
+    def dir_to_camera(self, v) -> np.ndarray:
+        """World direction vector(s) (…×3) → camera frame."""
+        return np.asarray(v, dtype=np.float64) @ self.rotation.T
+
+    def dir_to_world(self, v) -> np.ndarray:
+        """Camera-frame direction vector(s) (…×3) → world frame."""
+        return np.asarray(v, dtype=np.float64) @ self.rotation
+
+    # -- projection -----------------------------------------------------------------------
+
+    @property
+    def scale(self) -> float:
+        """Orthographic: pixels per world unit (pixels_per_m · metres_per_unit)."""
+        if not self.orthographic:
+            raise ValueError("scale is defined for orthographic cameras only")
+        return float(self.pixels_per_m) * self.metres_per_unit
+
+    @property
+    def K(self) -> np.ndarray:
+        """3×3 pinhole intrinsics (perspective cameras only; see :meth:`pixel_matrix`)."""
+        if self.orthographic:
+            raise ValueError("an orthographic camera has no pinhole matrix K; use pixel_matrix()")
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    def pixel_matrix(self) -> np.ndarray:
+        """3×4 P with (u·w, v·w, w) = P · (X, Y, Z, 1) for camera-frame points: w = Z
+        (perspective) or 1 (orthographic)."""
+        if self.orthographic:
+            s = self.scale
+            return np.array([[s, 0, 0, self.cx], [0, s, 0, self.cy], [0, 0, 0, 1.0]])
+        return np.array([[self.fx, 0, self.cx, 0], [0, self.fy, self.cy, 0], [0, 0, 1.0, 0]])
+
+    def world_pixel_matrix(self) -> np.ndarray:
+        """3×4 matrix from world points (homogeneous) to homogeneous pixels (pixel_matrix · pose)."""
+        return self.pixel_matrix() @ self.pose
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points (N×3) → pixel coordinates (N×2) and camera-space depth z (N)."""
-        p = np.asarray(points, dtype=np.float64) @ self.pose[:3, :3].T + self.pose[:3, 3]
+        """World points (N×3) → pixel coordinates (N×2) and camera-frame depth z (N)."""
+        p = self.to_camera(points)
         z = p[:, 2]
+        if self.orthographic:
+            s = self.scale
+            return np.stack([s * p[:, 0] + self.cx, s * p[:, 1] + self.cy], 1), z
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], 1)
         return uv, z
 
+    def ray_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """(O, D), 3×3 each: the world ray through pixel (x, y) starts at O·(x, y, 1) and runs
+        along D·(x, y, 1) (not normalised).  Perspective: every ray starts at the centre;
+        orthographic: every ray runs along the camera's +z."""
+        Rt = self.rotation.T
+        C = self.position
+        if self.orthographic:
+            s = self.scale
+            A = np.array([[1 / s, 0, -self.cx / s], [0, 1 / s, -self.cy / s], [0, 0, 0.0]])
+            O = Rt @ A
+            O[:, 2] += C
+            D = np.zeros((3, 3))
+            D[:, 2] = self.forward
+            return O, D
+        O = np.zeros((3, 3))
+        O[:, 2] = C
+        return O, Rt @ np.linalg.inv(self.K)
+
+    def rays(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (N×2, centres at +0.5) → world ray origins (N×3) and unit
+        directions (N×3) into the scene."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        h = np.column_stack([xy, np.ones(len(xy))])
+        O, D = self.ray_matrices()
+        d = h @ D.T
+        return h @ O.T, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def view_dirs(self, points: np.ndarray) -> np.ndarray:
+        """Unit directions from world points (N×3) towards the viewer: towards the centre
+        (perspective) or −forward (orthographic)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if self.orthographic:
+            return np.broadcast_to(-self.forward, p.shape).copy()
+        v = self.position[None, :] - p
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
+
+    def units_per_pixel(self, depth) -> np.ndarray:
+        """Size of one pixel (world units) on a fronto-parallel surface at camera depth ``depth``."""
+        d = np.asarray(depth, dtype=np.float64)
+        if self.orthographic:
+            return np.full_like(d, 1.0 / self.scale)
+        return d / np.sqrt(self.fx * self.fy)
+
+    def reframed(self, width: int, height: int, zoom: float, centre: tuple[float, float]) -> "Camera":
+        """The same pose, the image magnified ``zoom`` times about pixel ``centre`` of this
+        camera, which lands at the middle of a ``width``×``height`` image."""
+        k = float(zoom)
+        cx = (self.cx - centre[0]) * k + width / 2
+        cy = (self.cy - centre[1]) * k + height / 2
+        upd: dict = {"width": int(width), "height": int(height), "cx": cx, "cy": cy}
+        if self.orthographic:
+            upd["pixels_per_m"] = self.pixels_per_m * k
+        else:
+            upd["fx"], upd["fy"] = self.fx * k, self.fy * k
+        return Camera.model_validate({**self.model_dump(), **upd})
+
+    # -- lights -----------------------------------------------------------------------------
+
+    def light_to_world(self, light: "Light") -> "Light":
+        """A Light given in this camera's frame (directions in camera axes, a point light's
+        position in metres from the camera centre) → the same light in the world frame."""
+        return _move_light(light, self.rotation.T, self.position * self.metres_per_unit)
+
+    def light_to_camera(self, light: "Light") -> "Light":
+        """A world-frame Light → this camera's frame (inverse of :meth:`light_to_world`)."""
+        R = self.rotation
+        return _move_light(light, R, -(R @ self.position) * self.metres_per_unit)
+
+
+def _move_light(light: "Light", R: np.ndarray, t_m: np.ndarray) -> "Light":
+    d = R @ np.asarray(light.direction, np.float64)
+    p = R @ np.asarray(light.position, np.float64) + t_m
+    return light.model_copy(update={"direction": tuple(float(x) for x in d),
+                                    "position": tuple(float(x) for x in p)})
+
 
 class Light(BaseModel):
-    """A light source. Directions point *from the surface towards the light* (unit, world).
+    """A light source in the WORLD frame (the meshes' frame; a Camera maps it to its own).
 
-    ``color`` is linear RGB, ``intensity`` a scale on it; ``ambient`` is the linear-RGB
-    ambient radiance (already multiplied by its intensity).
+    * ``directional``: ``direction`` is the unit vector from the surface towards the light;
+      ``color`` × ``intensity`` is the irradiance at normal incidence in flash units (1 = what
+      the photo's flash gives the face).
+    * ``point``: ``position`` in metres in the world frame (world coordinates ×
+      Camera.metres_per_unit); ``color`` × ``intensity`` is the radiant intensity in flash
+      units × m²: it gives the irradiance E = I·cos θ / d² (d in metres) — always, there is no
+      opt-in fall-off.  A point light of intensity d² at d metres lights a surface facing it like
+      a directional light of intensity 1.  ``direction`` is informative (from the subject towards
+      the light; ShininessFromSaturation reads it).
+    * ``ambient``: linear-RGB ambient term in flash units (already multiplied by its intensity;
+      a white surface of diffuse colour k shows k·ambient).
+
+    ``color`` is linear RGB.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -152,6 +359,15 @@ class Light(BaseModel):
     color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     intensity: float = Field(1.0, ge=0)
     ambient: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def in_world_units(self, metres_per_unit: float) -> "Light":
+        """The light with a point light's position and intensity in world units of
+        ``metres_per_unit`` metres (position / u, intensity / u², so I/d² is unchanged)."""
+        if self.kind != "point" or metres_per_unit == 1.0:
+            return self
+        u = float(metres_per_unit)
+        return self.model_copy(update={"position": tuple(float(x) / u for x in self.position),
+                                       "intensity": self.intensity / (u * u)})
 
 
 # --------------------------------------------------------------------------------------------

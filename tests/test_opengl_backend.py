@@ -1,8 +1,9 @@
 """The opengl backend of Render (plugins/graphkit-moderngl) against the numpy reference.
 
 Directly in Python on scenes that exercise what the conformance examples do not: perspective-
-correct interpolation on large receding triangles, a rotated off-centre camera, several
-directional and point lights with 1/d², exposure with and without the clamp, cast shadows on
+correct interpolation on large receding triangles, a rotated off-centre camera, rotated
+orthographic cameras (also as the texture camera, and with a world in mm: point lights in
+metres), several directional and point lights with 1/d², exposure with and without the clamp, cast shadows on
 and off (directional and point), a detail texture seen from another camera (occlusion), eye
 highlights and a background.  Each case prints the image PSNR and the share of values outside
 RenderGL.tolerance; both backends must agree within it.
@@ -94,12 +95,29 @@ def cases():
     near_pt = Light(kind="point", position=(0.0, -0.2, 4.0), intensity=1.5)
     S = sphere()
     eyes = [[-0.33, -0.25, 3.06], [0.33, -0.25, 3.06]]
+    # orthographic views: a rotated off-centre one in mm (metres_per_unit 0.001: point lights
+    # are placed in metres) and an orthographic texture camera
+    ortho_mm = Camera(width=104, height=80, projection="orthographic", pixels_per_m=32.0,
+                      cx=50.3, cy=41.7, metres_per_unit=0.001,
+                      world_to_camera=look_at((900.0, -500.0, -1200.0), (0.0, 0.0, 4000.0)))
+    S_mm = sphere(1000.0, (0.0, 0.0, 4000.0))
+    pt_m = Light(kind="point", position=(1.5, -1.0, 1.0), color=(0.6, 0.8, 1.0), intensity=6.0)
+    ortho_tex = Camera(width=64, height=64, projection="orthographic", pixels_per_m=18.0, cx=32, cy=32,
+                       world_to_camera=look_at((-1.2, 0.3, 0.2), (0.0, 0.0, 4.5)))
     return {
+        "orthographic_rotated_mm_point_light_eyes": (
+            {"shadow_map_size": 256, "eye_highlights": "on", "eyes": [[-330.0, -250.0, 3060.0], [330.0, -250.0, 3060.0]],
+             "eye_shininess": 40.0, "background": (0.05, 0.1, 0.15)},
+            {"mesh": S_mm, "camera": ortho_mm, "material": mat, "lights": [key, pt_m]}),
+        "orthographic_texture_camera": (
+            {"shadow_map_size": 256},
+            {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "lights": [key, point],
+             "detail": detail, "texture_camera": ortho_tex}),
         "perspective_correct_point_light": (
-            {"shadows": False, "inverse_square": True},
+            {"shadows": False},
             {"mesh": receding_quad(), "camera": CAM, "material": mat, "lights": [near_pt]}),
         "rotated_offcentre_camera_3_lights": (
-            {"shadows": False, "inverse_square": True, "background": (0.1, 0.2, 0.3)},
+            {"shadows": False, "background": (0.1, 0.2, 0.3)},
             {"mesh": S, "camera": rot_cam, "material": mat, "lights": [key, side, point]}),
         "exposure_clamp": (
             {"exposure": 3.0, "shadows": False},
@@ -203,7 +221,7 @@ nodes:
   cam: {{type: LoadCameraJson, params: {{path: cam.json}}}}
   mat: {{type: TestMaterial}}
   key: {{type: MakeLight, params: {{azimuth_deg: 30.0, elevation_deg: 20.0}}}}
-  fill: {{type: MakeLight, params: {{kind: point, position: [-3.0, 0.0, 0.0], color: [0.3, 0.5, 1.0]}}}}
+  fill: {{type: MakeLight, params: {{kind: point, position_m: [-3.0, 0.0, 0.0], color: [0.3, 0.5, 1.0], intensity: 9.0}}}}
   render:
     type: Render
     inputs: {{mesh: mesh.mesh, camera: cam.camera, material: mat.material, lights: [key.light, fill.light]}}

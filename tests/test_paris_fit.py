@@ -30,7 +30,7 @@ def test_recovers_known_phong_parameters():
     skin = photo["coverage"]
     # the probe's ambient is known only up to scale: give it 3× too strong
     probe_light = flash.model_copy(update={"ambient": (0.15, 0.15, 0.15)})
-    out = FitSkinPhong(FitSkinPhong.Params(starts=3, seed=1)).compute(
+    out = FitSkinPhong(FitSkinPhong.Params(starts=3, seed=1, ambient="fit")).compute(
         image=photo["image"], skin=skin, mesh=m, camera=CAM, light=probe_light, shininess=9.0)
     mat = out["material"]
     np.testing.assert_allclose(mat.diffuse, true.diffuse, rtol=2e-3)
@@ -61,7 +61,7 @@ def test_fifty_random_starts_agree_within_2_5_percent(mitsuba_capture):
     m, cam, photo, skin, flash, s = mitsuba_capture
     ends = []
     for seed in range(50):
-        mat = FitSkinPhong(FitSkinPhong.Params(starts=1, seed=seed, fit_ambient=False)).compute(
+        mat = FitSkinPhong(FitSkinPhong.Params(starts=1, seed=seed, ambient="probe", shininess_search=False)).compute(
             image=photo, skin=skin, mesh=m, camera=cam, light=flash, shininess=s)["material"]
         ends.append([*mat.diffuse, mat.specular])
     ends = np.array(ends)
@@ -90,3 +90,19 @@ def test_bad_inputs(mitsuba_capture):
         node.compute(image=photo, skin=Mask(np.ones((10, 10))), mesh=m, camera=cam, light=flash,
                      shininess=s)
     assert e.value.port == "skin"
+
+
+def test_exponent_search_recovers_from_a_wrong_estimate():
+    """Given s = 120 for a photo rendered with s = 9 (a saturation estimate thrown off), the 1-D
+    search over log s finds 9 again; with the search off the given exponent is kept."""
+    m = _head()
+    true = PhongMaterial(diffuse=(0.55, 0.38, 0.29), specular=0.22, shininess=9.0)
+    flash = Light(direction=(0.05, -0.1, -1.0), ambient=(0.04, 0.04, 0.04))
+    photo = Render(Render.Params(shadows=False, clamp=False)).compute(
+        mesh=m, camera=CAM, material=true, lights=[flash])
+    fit = lambda **kw: FitSkinPhong(FitSkinPhong.Params(starts=1, **kw)).compute(  # noqa: E731
+        image=photo["image"], skin=photo["coverage"], mesh=m, camera=CAM, light=flash, shininess=120.0)["material"]
+    found = fit()
+    assert found.shininess == pytest.approx(9.0, rel=0.05)
+    np.testing.assert_allclose(found.diffuse, true.diffuse, rtol=5e-3)
+    assert fit(shininess_search=False).shininess == 120.0

@@ -94,7 +94,7 @@ def test_bad_inputs():
     assert e.value.port == "camera"
     far = m.copy()
     far.apply_translation([50, 0, 0])  # the mesh misses the photo entirely
-    with pytest.raises(BadInput, match="covers 0 pixels") as e:
+    with pytest.raises(BadInput, match="beside the camera") as e:
         node.compute(image=photo, mesh=far, camera=CAM, skin=skin)
     assert e.value.port == "mesh"
     with pytest.raises(BadInput) as e:

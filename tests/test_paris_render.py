@@ -6,7 +6,7 @@ import trimesh
 from graphkit import BadInput, Camera, Image, Light
 from nodes.paris.models import PhongMaterial
 from nodes.io.cameras import LoadCameraJson
-from nodes.paris.render import (FrameFace, MakeLight, Render, ShadeFace,
+from nodes.paris.render import (FrameFace, MakeLight, MeshMask, Render, ShadeFace,
                                 close_holes)
 
 CAM = Camera(width=96, height=96, fx=160, fy=160, cx=48, cy=48)
@@ -173,6 +173,88 @@ def test_make_light_and_camera_json(tmp_path):
         node.compute()
 
 
+def _load(tmp_path, doc):
+    p = tmp_path / "camera.json"
+    p.write_text(doc if isinstance(doc, str) else __import__("json").dumps(doc))
+    return LoadCameraJson(LoadCameraJson.Params(path=str(p))).compute()
+
+
+def test_camera_json_orthographic_and_one_clear_message(tmp_path):
+    ortho = {"width": 64, "height": 48, "projection": "orthographic", "pixels_per_m": 250.0,
+             "cx": 32.0, "cy": 24.0, "metres_per_unit": 0.001}
+    cam = _load(tmp_path, ortho)
+    assert cam.orthographic and cam.scale == 0.25
+    uv, z = cam.project(np.array([[40.0, -20.0, 900.0]]))
+    np.testing.assert_allclose(uv[0], [42.0, 19.0]) and np.testing.assert_allclose(z, [900.0])
+    # camera_to_world is inverted
+    M = np.eye(4)
+    M[:3, 3] = [0.0, 0.0, -500.0]
+    cam = _load(tmp_path, {**ortho, "camera_to_world": M.tolist()})
+    np.testing.assert_allclose(cam.position, [0.0, 0.0, -500.0])
+    bad = [  # (file, what the single message must name)
+        ({**ortho, "pixels_per_m": None, "scale": 250.0}, "unknown field 'scale'; did you mean pixels_per_m"),
+        ({k: v for k, v in ortho.items() if k != "pixels_per_m"}, "needs pixels_per_m"),
+        ({**ortho, "fx": 100.0}, "fx are perspective focal lengths"),
+        ({"width": 64, "height": 48, "cx": 32.0, "cy": 24.0}, "needs fx and fy"),
+        ({**ortho, "world_to_camera": (np.eye(4) * 2).tolist()}, "field 'world_to_camera'"),
+        ({**ortho, "width": -3}, "field 'width'"),
+        ('{"width": 64,', "is not valid JSON"),
+        ({**ortho, "projection": "fisheye"}, "field 'projection'"),
+    ]
+    for doc, expect in bad:
+        with pytest.raises(BadInput) as e:
+            _load(tmp_path, doc)
+        msg = str(e.value)
+        assert e.value.port == "path" and "camera.json" in msg and expect in msg, msg
+        assert "\n" not in msg and msg.count("validation error") == 0, msg
+
+
+def test_orthographic_phong_sphere_matches_closed_form():
+    """Orthographic camera: every view vector is the camera's −z."""
+    cam = Camera(width=96, height=96, projection="orthographic", pixels_per_m=40.0, cx=48, cy=48)
+    ld = np.array([0.4, -0.3, -1.0])
+    ld /= np.linalg.norm(ld)
+    out = Render(Render.Params(shadows=False, clamp=False)).compute(
+        mesh=_sphere(), camera=cam, material=MAT, lights=[Light(direction=tuple(ld))])
+    yy, xx = np.mgrid[0:96, 0:96]
+    X, Y = (xx + 0.5 - 48) / 40.0, (yy + 0.5 - 48) / 40.0
+    hit = X ** 2 + Y ** 2 < 1
+    n = np.stack([X, Y, -np.sqrt(np.clip(1 - X ** 2 - Y ** 2, 0, None))], -1)
+    v = np.array([0.0, 0.0, -1.0])
+    nl = np.clip(n @ ld, 0, None)
+    r = 2 * (n @ ld)[..., None] * n - ld
+    spec = np.where(nl > 0, np.clip(r @ v, 0, None) ** MAT.shininess, 0)
+    ref = np.asarray(MAT.diffuse) * nl[..., None] + MAT.specular * spec[..., None]
+    inner = hit & (out["coverage"].alpha > 0) & (X ** 2 + Y ** 2 < 0.9)
+    err = np.abs(out["image"].pixels - ref)[inner]
+    assert np.median(err) < 2e-3 and err.max() < 0.03
+    # its depth is the sphere's (centre z = 4)
+    np.testing.assert_allclose(out["depth"].pixels[..., 0][inner], (4 + n[..., 2])[inner], atol=2e-3)
+
+
+def test_frame_face_default_keeps_the_photo_pixels():
+    photo = Image(np.random.default_rng(2).random((96, 96, 3)).astype(np.float32))
+    for cam in (CAM, Camera(width=96, height=96, projection="orthographic", pixels_per_m=30.0, cx=48, cy=48)):
+        fr = FrameFace().compute(mesh=_sphere(4, r=0.5), camera=cam, image=photo)
+        c, crop = fr["camera"], fr["image"].pixels
+        assert c.projection == cam.projection and crop.shape[0] < 96
+        # a whole-pixel crop: its pixels are the photo's (no resampling blur)
+        ox, oy = cam.cx - c.cx, cam.cy - c.cy
+        assert ox == int(ox) and oy == int(oy)
+        np.testing.assert_array_equal(crop, photo.pixels[int(oy):int(oy) + crop.shape[0], int(ox):int(ox) + crop.shape[1]])
+
+
+def test_mesh_mask_refuses_meshes_out_of_view():
+    node = MeshMask()
+    assert node.compute(mesh=_sphere(4), camera=CAM).alpha.sum() > 100
+    for mesh, what in ((_sphere(4, centre=(0, 0, -4)), "behind the camera"),
+                       (_sphere(4, centre=(40, 0, 4)), "beside the camera"),
+                       (_sphere(4, centre=(0, 0, 0.5)), "crosses the camera's image plane")):
+        with pytest.raises(BadInput, match=what) as e:
+            node.compute(mesh=mesh, camera=CAM)
+        assert e.value.port == "mesh"
+
+
 def test_bad_inputs():
     light = Light(direction=(0, 0, -1))
     # light behind the face
@@ -185,7 +267,7 @@ def test_bad_inputs():
                          detail=Image(np.ones((50, 40, 3))), texture_camera=CAM)
     assert e.value.port == "texture_camera"
     # mesh not in front of the camera
-    with pytest.raises(BadInput, match="covers 0 pixels") as e:
+    with pytest.raises(BadInput, match="behind the camera") as e:
         ShadeFace().compute(mesh=_sphere(4, centre=(0, 0, -4)), camera=CAM,
                             map=Image(np.ones((180, 360, 3))))
     assert e.value.port == "mesh"

@@ -17,7 +17,7 @@ def test_edits_change_only_the_value_and_keep_comments():
                                     ("save_over", "bits", 32)])
     new = d.text
     assert "  flash_azimuth: 20.0     # degrees, + = towards the image's right\n" in new  # comment column kept
-    assert "l_left60: {type: MakeLight, params: {azimuth_deg: -50.0, elevation_deg: 10.0}}" in new
+    assert "l_left60: {type: MakeLight, inputs: {camera: face.camera}, params: {azimuth_deg: -50.0, elevation_deg: 10.0}}" in new
     assert "    inputs: {image: photo.image}\n    params: {min_score: 0.3}\n" in new  # a new params mapping
     assert "params: {path: relit/overexposed.exr, bits: 32}}" in new  # a key added to a flow mapping
     data = yaml.safe_load(new)

@@ -3,16 +3,19 @@
 One implementation (CONTRIBUTING: one copy of each piece of maths).  It samples every pixel at
 its centre (integer + 0.5, the :class:`graphkit.Camera` convention), keeps the nearest
 triangle per pixel (z-buffer) and returns, per pixel, the camera-space depth, the coverage,
-the triangle id and **perspective-correct** barycentric coordinates, so any node can shade
-with :func:`interpolate`.  Shared edges follow a tie-breaking rule (a pixel centre exactly on
+the triangle id and barycentric coordinates — **perspective-correct** (linear in 1/z) through a
+perspective camera, affine (linear in screen space, which is exact there) through an
+orthographic one — so any node can shade with :func:`interpolate`.  Projection goes through
+:meth:`graphkit.Camera.project` (one implementation of the camera maths).  Shared edges follow a tie-breaking rule (a pixel centre exactly on
 an edge shared by two triangles belongs to exactly one of them), so the covered pixel count of
 a mesh equals its projected area up to boundary sampling.
 
 Work is vectorised: per (triangle, row of its bounding box) the span of pixel centres allowed
 by the three edge functions (scanline conversion), then per covered (triangle, pixel) pair the
 barycentrics and depth, and a scatter-min z-buffer; in batches that bound the memory, with no
-per-pixel Python loop.  Triangles with a vertex at or behind the near plane
-are dropped (no clipping: meshes here lie in front of the camera).
+per-pixel Python loop.  Triangles with a vertex at or behind the camera's
+near plane (z ≤ ``near``, both projections) are dropped (no clipping: the nodes refuse meshes
+that cross the camera plane, ``nodes.paris.render.check_in_view``).
 
 Shadow maps (Williams 1978, used by Paris 2003 §5 "Cast shadows") are built on the same
 rasteriser: :func:`shadow_map` renders depth from a directional (orthographic) or point
@@ -45,6 +48,11 @@ class Raster:
         return self.coverage.shape
 
 
+#: the near limit of camera views (camera-frame z, world units): triangles with a vertex at or
+#: in front of it are dropped
+NEAR = 1e-6
+
+
 def project_vertices(vertices: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
     """World vertices → (pixel xy N×2, camera-space z N) with a :class:`graphkit.Camera`."""
     xy, z = camera.project(np.asarray(vertices, np.float64))
@@ -52,24 +60,26 @@ def project_vertices(vertices: np.ndarray, camera) -> tuple[np.ndarray, np.ndarr
 
 
 def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "none",
-              near: float = 1e-6) -> Raster:
-    """Rasterise a triangle mesh (world coordinates) through a pinhole ``camera``.
+              near: float = NEAR) -> Raster:
+    """Rasterise a triangle mesh (world coordinates) through a perspective or orthographic
+    ``camera`` (:class:`graphkit.Camera`).
 
     ``cull``: "none", "back" (drop triangles seen from behind, counter-clockwise = front in
     OpenCV image axes for outward-facing, right-handed meshes) or "front".
     """
     xy, z = project_vertices(vertices, camera)
-    return rasterize_screen(xy, z, faces, camera.width, camera.height, perspective=True,
-                            cull=cull, near=near)
+    return rasterize_screen(xy, z, faces, camera.width, camera.height,
+                            perspective=not camera.orthographic, cull=cull, near=near)
 
 
 def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
                      *, perspective: bool = True, cull: str = "none",
-                     near: float = 1e-6) -> Raster:
+                     near: float | None = NEAR) -> Raster:
     """Rasterise triangles given vertex screen positions (pixels) and depths.
 
     With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
-    (linear in 1/z); without it (orthographic views) linearly in screen space.
+    (linear in 1/z); without it (orthographic views) linearly in screen space.  Triangles with
+    a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -85,7 +95,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     p = xy[faces]  # F×3×2
     fz = z[faces]  # F×3
     ok = np.all(np.isfinite(p), axis=(1, 2)) & np.all(np.isfinite(fz), axis=1)
-    if perspective:
+    if near is not None:
         ok &= np.all(fz > near, axis=1)
     x0, y0 = p[:, 0, 0], p[:, 0, 1]
     x1, y1 = p[:, 1, 0], p[:, 1, 1]
@@ -313,10 +323,17 @@ class ShadowMap:
     _ref_dist: float = 1.0
 
 
-def _look_frame(forward: np.ndarray) -> np.ndarray:
-    """3×3 rotation whose rows are the light-view x, y, z axes (z = forward)."""
+def _look_frame(forward: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """3×3 rotation whose rows are the light-view x, y, z axes (z = forward).  ``up`` (world)
+    orients the texel grid (e.g. the viewing camera's y axis, so that the map is laid out the
+    same way whatever the world's axes); world y by default."""
     f = forward / np.linalg.norm(forward)
-    up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    if up is not None:
+        up = np.asarray(up, np.float64)
+        if np.linalg.norm(np.cross(up, f)) < 0.1 * np.linalg.norm(up):
+            up = None
+    if up is None:
+        up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
     x = np.cross(up, f)
     x /= np.linalg.norm(x)
     y = np.cross(f, x)
@@ -343,14 +360,16 @@ class ShadowFrame:
     perspective: bool
 
 
-def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0.02) -> ShadowFrame:
-    """The frame of a shadow map of ``vertices`` seen from ``light`` (see :func:`shadow_map`).
+def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0.02,
+                 up: np.ndarray | None = None) -> ShadowFrame:
+    """The frame of a shadow map of ``vertices`` seen from ``light`` (see :func:`shadow_map`;
+    ``up``: the world direction the texel grid's y axis follows, e.g. the camera's y).
 
     Shared by every rasteriser that renders shadow maps (the numpy one here, the OpenGL backend).
     """
     V = np.asarray(vertices, np.float64)
     if light.kind == "directional":
-        R = _look_frame(-np.asarray(light.direction, np.float64))
+        R = _look_frame(-np.asarray(light.direction, np.float64), up)
         q = V @ R.T
         lo, hi = q[:, :2].min(0), q[:, :2].max(0)
         ext = float(max(hi - lo)) * (1 + 2 * margin) or 1.0
@@ -361,7 +380,7 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
         return ShadowFrame("directional", M, q, scale, offset, ext / size, 1.0, False)
     pos = np.asarray(light.position, np.float64)
     c = V.mean(0)
-    R = _look_frame(c - pos)
+    R = _look_frame(c - pos, up)
     M = np.eye(4)
     M[:3, :3] = R
     M[:3, 3] = -R @ pos
@@ -375,15 +394,16 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
 
 
 def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
-               margin: float = 0.02) -> ShadowMap:
+               margin: float = 0.02, up: np.ndarray | None = None) -> ShadowMap:
     """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
 
     Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
     perspective view from the light's position whose field of view fits the mesh.
     """
-    fr = shadow_frame(vertices, light, size, margin)
+    fr = shadow_frame(vertices, light, size, margin, up)
     xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
-    r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size, perspective=fr.perspective)
+    r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
+                         perspective=fr.perspective, near=NEAR if fr.perspective else None)
     sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist

@@ -12,4 +12,5 @@ NODES = {
     "MakeLight": "nodes.paris.render:MakeLight",
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
+    "SmoothMesh": "nodes.paris.mesh:SmoothMesh",
 }

@@ -1,6 +1,8 @@
 """FitSkinPhong — the skin parameters of Paris, Sillion, Quan 2003 §4.2."""
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
@@ -16,16 +18,31 @@ class FitSkinPhong(Node):
     minimise the L2 distance in CIE L*u*v* (colour-science, D65) between the photo and the
     render over the skin pixels:  sqrt(Σ_skin ΔL² + Δu² + Δv²).
 
+    The flash is in the world frame; a point flash falls off as I/d² (d in metres, through the
+    camera's ``metres_per_unit``), always.
+
     Minimisation: a varying-step descent (Levenberg–Marquardt steps whose damping is divided on
     success and multiplied on failure), coarse to fine over growing subsets of the skin pixels
     (1/16, 1/4, all, up to ``max_pixels``), from ``starts`` random starting points drawn with
-    ``seed``; the best end point is kept.  Then the ambient intensity relative to the flash is
-    optimised with the skin parameters (the probe's ambient colour, or the flash colour when the
-    light has no ambient), as in §4.1.  Outputs the material (with the residual), the light with
-    its ambient rescaled, and the fitted render.  Units: linear RGB relative to the flash.
+    ``seed``; the best end point is kept.
+
+    Exponent: the given s (ShininessFromSaturation, §4.2) is refined unless
+    ``shininess_search`` is off: the fit is repeated (warm-started, colour and i_s only) for s
+    on a log grid 1…256 and the given value, then by a golden-section step in log s around
+    the best, and the s of least Luv residual is kept.  §4.2 warns that optimising s *with* the
+    other parameters by descent is unstable (s trades against ambient and i_s); a 1-D search
+    with the ambient measured by the probe is not, and it guards against a saturation
+    estimate thrown off by the map (clipped or blurred highlights).
+
+    Ambient (``ambient``): "probe" takes the light's ambient as measured (ProbeLight gives it in
+    flash units); "fit" then optimises its intensity relative to the flash with the skin
+    parameters, as in §4.1 (the probe's ambient colour, or the flash colour when the light has
+    none); "auto" (default) is "probe" when the light has an ambient and "fit" when it has
+    none.  Outputs the material (with the residual), the light with its ambient, and the fitted
+    render.  Units: linear RGB relative to the flash.
     """
 
-    version = "1"
+    version = "3"
     inputs = {"image": In(Image, "the flash photo (linear RGB)"),
               "skin": In(Mask, "skin pixels"),
               "mesh": In(Mesh, "face mesh registered to the photo"),
@@ -41,14 +58,19 @@ class FitSkinPhong(Node):
         seed: int = Field(0, description="seed of the random starting points")
         starts: int = Field(4, ge=1, le=1000, description="random starting points")
         max_pixels: int = Field(4000, ge=100, description="skin pixels used at the finest level")
-        fit_ambient: bool = Field(True, description="optimise the ambient intensity afterwards (§4.1)")
+        ambient: Literal["auto", "probe", "fit"] = Field(
+            "auto", description="probe: the light's ambient as measured; fit: optimise its intensity (§4.1); "
+                                "auto: probe if the light has an ambient, else fit")
         iterations: int = Field(60, ge=1, description="descent iterations per level")
         skin_threshold: float = Field(0.5, ge=0, le=1, description="mask value counted as skin")
         shininess: float = Field(10.0, gt=0, description="Phong exponent used when the input is not connected")
+        shininess_search: bool = Field(True, description="refine the exponent: the one (of the given one "
+                                       "and a log grid 1…256, then a golden-section step) whose fit has the "
+                                       "least Luv residual")
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
-        from .render import check_camera_matches, light_vectors, surface
+        from .render import check_camera_matches, light_vectors, surface, world_lights
         from . import phong
 
         p = self.params
@@ -67,8 +89,11 @@ class FitSkinPhong(Node):
         use = sk[s.coverage]
         if use.sum() < 20:
             raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
-        ldir, L = light_vectors(light, s.points, inverse_square=False)
-        diff, spec = phong.lobes(s.normals, ldir, s.view, float(shininess))
+        (lw,) = world_lights([light], camera, mesh, "light")
+        ldir, L = light_vectors(lw, s.points)
+        diff, rv = phong.lobes(s.normals, ldir, s.view, 1.0)  # rv: max(r·v, 0) where lit
+        with np.errstate(under="ignore"):
+            spec = rv ** float(shininess)
         if not (diff[use] > 0).any():
             raise BadInput("light", f"the light (direction {light.direction}) is behind the "
                                     "face: it lights none of the skin pixels")
@@ -77,7 +102,8 @@ class FitSkinPhong(Node):
         if len(idx) > p.max_pixels:  # deterministic even subsample
             idx = idx[np.linspace(0, len(idx) - 1, p.max_pixels).round().astype(np.int64)]
         amb_base = np.asarray(light.ambient, np.float64)
-        if not amb_base.any() and p.fit_ambient:
+        fit_ambient = p.ambient == "fit" or (p.ambient == "auto" and not amb_base.any())
+        if not amb_base.any() and fit_ambient:
             # no probe ambient: fit a grey (flash-coloured) ambient, starting small
             amb_base = np.asarray(light.color, np.float64) * 0.01
         prob = _Problem(photo[idx], diff[idx], spec[idx], L[idx], amb_base)
@@ -91,9 +117,17 @@ class FitSkinPhong(Node):
                 best = (x, e)
             self.ctx.progress((i + 1) / p.starts, f"start {i + 1}/{p.starts}")
         x = best[0]
-        if p.fit_ambient and amb_base.any():
+        if fit_ambient and amb_base.any():
             x = prob.descend(x, free=[4], iters=p.iterations)
             x = prob.descend(x, free=[0, 1, 2, 3, 4], iters=p.iterations)
+        if p.shininess_search:
+            shininess, x = _search_exponent(photo[idx], diff[idx], rv[idx], L[idx], amb_base, x,
+                                            float(shininess), p.iterations)
+            with np.errstate(under="ignore"):
+                spec = rv ** shininess
+            prob = _Problem(photo[idx], diff[idx], spec[idx], L[idx], amb_base)
+            x = prob.descend(x, free=[0, 1, 2, 3, 4] if fit_ambient and amb_base.any() else [0, 1, 2, 3],
+                             iters=p.iterations)
         amb_rgb = amb_base * x[4]
         # residual over all skin pixels
         full = _Problem(photo[use], diff[use], spec[use], L[use], amb_base)
@@ -108,6 +142,43 @@ class FitSkinPhong(Node):
         ren = np.zeros((camera.height, camera.width, 3), np.float32)
         ren[s.coverage] = phong.shade(x[:3], x[3], amb_rgb, L, diff, spec)
         return {"material": mat, "light": out_light, "rendered": Image(ren)}
+
+
+def _search_exponent(photo, diff, rv, L, amb, x, s0, iters):
+    """The Phong exponent whose fit (colour and i_s, warm-started from x) has the least Luv
+    residual: the given s0 and a log grid 1…256 (√2 steps) on every 4th pixel, then a
+    golden-section search in log s around the best → (s, x)."""
+    sub = slice(0, len(diff), 4) if len(diff) >= 400 else slice(None)
+
+    def fit(s, x0):
+        with np.errstate(under="ignore"):
+            sp = rv[sub] ** s
+        prob = _Problem(photo[sub], diff[sub], sp, L[sub], amb)
+        xs = prob.descend(x0, free=[0, 1, 2, 3], iters=max(10, iters // 3))
+        return prob.energy(xs), xs
+
+    grid = sorted(set(np.round(2.0 ** np.arange(0, 8.01, 0.5), 6)) | {round(s0, 6)})
+    res = [fit(s, x) for s in grid]
+    k = int(np.argmin([e for e, _ in res]))
+    lo, hi = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
+    g = (np.sqrt(5) - 1) / 2
+    best = (res[k][0], grid[k], res[k][1])
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = fit(np.exp(c), best[2]), fit(np.exp(d), best[2])
+    for _ in range(6):
+        if fc[0] < fd[0]:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = fit(np.exp(c), best[2])
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = fit(np.exp(d), best[2])
+    for e, s, xs in ((fc[0], np.exp(c), fc[1]), (fd[0], np.exp(d), fd[1])):
+        if e < best[0]:
+            best = (e, s, xs)
+    return float(best[1]), best[2]
 
 
 class _Problem:

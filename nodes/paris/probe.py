@@ -5,7 +5,7 @@ from typing import Optional
 
 import numpy as np
 
-from graphkit import BadInput, Field, Image, In, Light, Node, Out
+from graphkit import BadInput, Camera, Field, Image, In, Light, Node, Out
 
 #: linear sRGB → luminance Y (Rec. 709 / sRGB primaries, D65)
 _Y = np.array([0.2126, 0.7152, 0.0722])
@@ -15,7 +15,7 @@ CLASS_COLOURS = {"outside": (0.0, 0.0, 0.0), "ball": (0.18, 0.18, 0.18), "satura
 
 
 class ProbeLight(Node):
-    """Mirror-ball probe photo → the flash as a directional Light (Paris 2003 §4.1, Fig. 7).
+    """Mirror-ball probe photo → the flash as a Light in the world frame (Paris 2003 §4.1, Fig. 7).
 
     * **Ball**: ``centre_x``, ``centre_y``, ``radius`` (pixels, continuous coordinates, pixel
       centres at +0.5) or found automatically by :func:`nodes.paris.ballfind.find_ball`: the
@@ -42,7 +42,24 @@ class ProbeLight(Node):
       uses the probe's circle, otherwise the white ball is found): then intensity = k / ``white_albedo`` where k fits the white ball's
       luminance as k·max(n·l, 0) + a (Phong diffuse with the flash direction).
     * **Ambient**: robust mean of the probe in a ring (``ring_deg`` wide, in directions)
-      around the halo, divided by ``ball_reflectance``: linear RGB radiance in probe units.
+      around the halo, divided by ``ball_reflectance``: the environment's radiance L_env.  It is
+      put in flash units with the flash's irradiance E measured on the same probe: a mirror
+      ball shows the flash's radiance over its solid angle, so E = Σ (pixel − ambient)·dω /
+      ball_reflectance over the highlight and its halo (dω: each pixel's solid angle of
+      reflected directions); the ambient term is then π·L_env / E (a white diffuse surface
+      shows L_env, the flash gives it E/π).  This needs an unclipped (HDR) highlight; with a
+      ``white`` ball the intensity is E/π in photo units and the ambient L_env.  A clipped
+      highlight without a white ball leaves the ambient in probe units (the paper's case:
+      set FitSkinPhong ``ambient: fit``).
+    * **Frames and the flash's position** (metres, the probe camera's frame: x right, y
+      down, z forward; the ``camera`` input gives that camera's pose, and the light is turned
+      into the world frame with it; without it the probe camera's frame is the world):
+      ``flash_offset_m`` makes the flash a point light at that offset from the lens, with a
+      radiant intensity giving irradiance 1 at the face (I = d²).  ``ball_position_m`` and
+      ``face_position_m`` (the ball's and the face's centres) correct the parallax of a ball
+      beside the face: the direction is measured at the ball, the flash is found on that ray
+      (nearest the lens, or at ``flash_offset_m``, which must then agree with the ball within
+      ``max_disagreement_deg``), and the direction returned is the one at the face.
 
     The ``classes`` output shows the classification (Fig. 7): red saturated, orange halo, blue
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
@@ -51,8 +68,12 @@ class ProbeLight(Node):
     version = "2"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
-                          optional=True)}
-    outputs = {"light": Out(Light, "the flash: directional, camera frame, hue, intensity, ambient"),
+                          optional=True),
+              "camera": In(Camera, "the camera that took the probe photo (its pose maps the light "
+                                   "to the world frame; its field of view is the default fov_deg)",
+                           optional=True)}
+    outputs = {"light": Out(Light, "the flash in the world frame: directional, or a point light at "
+                                   "flash_offset_m; hue, intensity, ambient in flash units"),
                "classes": Out(Image, "saturated / halo / ambient classification of the probe pixels (Fig. 7)")}
 
     class Params(Node.Params):
@@ -68,18 +89,28 @@ class ProbeLight(Node):
         white_albedo: float = Field(1.0, gt=0, description="albedo of the white calibration ball")
         refine_with_halo: bool = Field(True, description="refine the direction with the halo's excess-weighted mean")
         edge_margin: float = Field(0.97, gt=0, le=1, description="use ball pixels within this fraction of the radius")
+        flash_offset_m: Optional[tuple[float, float, float]] = Field(
+            None, description="the flash's position from the lens (metres, probe camera frame: x right, "
+                              "y down, z forward; (0, -0.06, 0) = 6 cm above): the flash becomes a point light")
+        ball_position_m: Optional[tuple[float, float, float]] = Field(
+            None, description="the probe ball's centre (metres, probe camera frame), for the parallax correction")
+        face_position_m: Optional[tuple[float, float, float]] = Field(
+            None, description="the face's centre (metres, probe camera frame); default: at the ball")
+        max_disagreement_deg: float = Field(
+            5.0, gt=0, description="refuse when flash_offset_m and the ball's highlight disagree by more (degrees)")
 
-    def compute(self, probe: Image, white: Image | None = None):
+    def compute(self, probe: Image, white: Image | None = None, camera: Camera | None = None):
         p = self.params
         px = _rgb(probe, "probe")
         h, w = px.shape[:2]
-        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius)
+        fov_deg = self._probe_fov(camera, w, h)
+        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg)
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
         if inside.sum() < 50:
             raise BadInput("probe", f"the ball (centre {cx:.1f}, {cy:.1f}, radius {r:.1f} px) covers too few pixels")
-        dirs = reflected_directions(u, v, cx, cy, r, w, h, p.fov_deg)
+        dirs = reflected_directions(u, v, cx, cy, r, w, h, fov_deg)
         peak = px[inside].max()
         if peak <= 0:
             raise BadInput("probe", "the ball is black: no highlight")
@@ -128,37 +159,112 @@ class ProbeLight(Node):
         if (excess @ _Y) <= 0:
             raise BadInput("probe", "no unsaturated halo around the highlight: the flash's hue cannot be measured")
         color = excess / float(excess @ _Y)
-        intensity = 1.0
+        white_k = None
         if white is not None:
-            intensity = self._white_intensity(white, ldir, (cx, cy, r) if white.pixels.shape[:2] == (h, w) else None)
-        light = Light(kind="directional", direction=tuple(float(x) for x in ldir),
-                      color=tuple(float(x) for x in color), intensity=float(intensity),
-                      ambient=tuple(float(x) for x in ambient_refl / p.ball_reflectance))
+            white_k = self._white_intensity(white, ldir, (cx, cy, r) if white.pixels.shape[:2] == (h, w) else None,
+                                            fov_deg)
+        energy = flash_irradiance(px, dirs, sat | halo, ambient_refl, inside)
+        if energy is not None:
+            energy /= p.ball_reflectance
+        light = self._light(ldir, color, ambient_refl / p.ball_reflectance, energy, white_k, camera)
         cls = np.zeros((h, w, 3), np.float32)
         circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
         for name, m in (("ball", circle), ("ambient", ring), ("halo", halo), ("saturated", sat)):
             cls[m] = CLASS_COLOURS[name]
         return {"light": light, "classes": Image(cls)}
 
-    def _ball(self, px, port, cx, cy, r):
+    def _ball(self, px, port, cx, cy, r, fov_deg=None):
         given = [x is not None for x in (cx, cy, r)]
         if all(given):
             return float(cx), float(cy), float(r)
         if any(given):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
-        return _find_ball_or_refuse(px, port, self.params.fov_deg, highlight=True)
+        return _find_ball_or_refuse(px, port, fov_deg, highlight=True)
 
-    def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None) -> float:
+    def _probe_fov(self, camera: Camera | None, w: int, h: int) -> float | None:
+        """The probe photo's vertical field of view: ``fov_deg``, else the camera's (None:
+        orthographic); checks the camera against the probe photo."""
+        p = self.params
+        if camera is None:
+            return p.fov_deg
+        if (camera.width, camera.height) != (w, h):
+            raise BadInput("camera", f"camera is {camera.width}×{camera.height} but the probe photo is "
+                                     f"{w}×{h}: give the camera that took the probe")
+        if camera.orthographic:
+            if p.fov_deg is not None:
+                raise BadInput("fov_deg", "the probe camera is orthographic: leave fov_deg unset")
+            return None
+        cam_fov = float(np.degrees(2 * np.arctan(0.5 * h / camera.fy)))
+        if p.fov_deg is not None and abs(p.fov_deg - cam_fov) > 0.05 * cam_fov:
+            raise BadInput("fov_deg", f"fov_deg = {p.fov_deg}° but the probe camera's vertical field of "
+                                      f"view is {cam_fov:.3f}°")
+        return cam_fov if p.fov_deg is None else p.fov_deg
+
+    def _light(self, d_ball, color, ambient_rad, energy, white_k, camera: Camera | None) -> Light:
+        """The output Light (see the class docstring, "Ambient" and "Frames"): the direction
+        measured at the ball, the flash position (given or triangulated), the parallax-corrected
+        direction at the face, intensity and ambient in flash units, then the world frame."""
+        p = self.params
+        d_ball = np.asarray(d_ball, np.float64)
+        B = None if p.ball_position_m is None else np.asarray(p.ball_position_m, np.float64)
+        C = None if p.face_position_m is None else np.asarray(p.face_position_m, np.float64)
+        if C is None:
+            C = B
+        F = None if p.flash_offset_m is None else np.asarray(p.flash_offset_m, np.float64)
+        if F is not None and B is not None:
+            pred = (F - B) / max(np.linalg.norm(F - B), 1e-12)
+            err = float(np.degrees(np.arccos(np.clip(pred @ d_ball, -1, 1))))
+            if err > p.max_disagreement_deg:
+                raise BadInput("flash_offset_m", f"a flash at {tuple(F)} m would be seen {err:.1f}° away from the "
+                                                 f"highlight on the ball at {tuple(B)} m (more than "
+                                                 f"max_disagreement_deg = {p.max_disagreement_deg}°): check "
+                                                 "flash_offset_m and ball_position_m (metres, camera frame)")
+        Fh = F
+        if Fh is None and B is not None:
+            # the flash is on the ray from the ball along d_ball; take its point nearest the lens
+            t = max(float(-(B @ d_ball)), 0.0)
+            Fh = B + t * d_ball
+        d_face = d_ball
+        if Fh is not None and C is not None:
+            v = Fh - C
+            if np.linalg.norm(v) > 1e-9:
+                d_face = v / np.linalg.norm(v)
+        # the flash's irradiance at the face relative to the ball (inverse square)
+        rel = 1.0
+        if Fh is not None and B is not None and C is not None:
+            rel = (np.linalg.norm(Fh - B) / max(np.linalg.norm(Fh - C), 1e-12)) ** 2
+        if white_k is not None:  # photo units: a white diffuse surface facing the flash shows E/π
+            e_pi_face = white_k * rel
+            intensity, ambient = e_pi_face, ambient_rad
+        elif energy is not None:  # flash units: the flash gives the face irradiance 1
+            e_pi_face = energy * rel / np.pi
+            intensity, ambient = 1.0, ambient_rad / e_pi_face
+        else:  # clipped highlight: probe units (see the docstring)
+            intensity, ambient = 1.0, ambient_rad
+        kind, pos = "directional", np.zeros(3)
+        if F is not None:
+            if C is None:
+                raise BadInput("face_position_m", "a point flash (flash_offset_m) needs the face's position "
+                                                  "(face_position_m, or ball_position_m for a ball at the face) "
+                                                  "to set its intensity")
+            kind, pos = "point", F
+            intensity = intensity * float(np.sum((F - C) ** 2))
+        light = Light(kind=kind, direction=tuple(float(x) for x in d_face), position=tuple(float(x) for x in pos),
+                      color=tuple(float(x) for x in color), intensity=float(intensity),
+                      ambient=tuple(float(x) for x in ambient))
+        return camera.light_to_world(light) if camera is not None else light
+
+    def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None, fov_deg=None) -> float:
         p = self.params
         px = _rgb(white, "white")
         h, w = px.shape[:2]
-        found = circle if circle is not None else _find_ball_or_refuse(px, "white", p.fov_deg, highlight=False)
+        found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
-        n = ball_normals(u[inside], v[inside], cx, cy, r, w, h, p.fov_deg)
+        n = ball_normals(u[inside], v[inside], cx, cy, r, w, h, fov_deg)
         ndl = n @ ldir
         lit = ndl > 0.05  # the lit side: Phong diffuse k·(n·l) + ambient a
         ndl, lum = ndl[lit], px[inside][lit] @ _Y
@@ -190,6 +296,23 @@ def robust_mean(x: np.ndarray) -> np.ndarray:
     mad = 1.4826 * np.median(np.abs(y - med))
     keep = np.abs(y - med) <= 3 * mad + 1e-12
     return x[keep].mean(0)
+
+
+def flash_irradiance(px: np.ndarray, dirs: np.ndarray, core: np.ndarray, ambient: np.ndarray,
+                     inside: np.ndarray) -> float | None:
+    """The flash's irradiance (luminance, probe pixel units × sr) from its reflection on the
+    mirror ball: Σ over the highlight and halo (``core``) of (pixel − ambient)·dω, dω the solid
+    angle of reflected directions each pixel covers (|∂d/∂x × ∂d/∂y|).  None when the highlight
+    is clipped (three or more pixels at the image's peak value: its energy is unknown)."""
+    lum = px @ _Y
+    peak = px[inside].max()
+    if int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3:
+        return None
+    gx = np.gradient(dirs, axis=1)
+    gy = np.gradient(dirs, axis=0)
+    domega = np.linalg.norm(np.cross(gx, gy), axis=-1)
+    e = float(np.sum(np.clip(lum[core] - float(ambient @ _Y), 0, None) * domega[core]))
+    return e if e > 0 else None
 
 
 def _largest_component(m: np.ndarray) -> np.ndarray:

@@ -1,9 +1,14 @@
 """ShadeFace and Render — the rendering side of Paris, Sillion, Quan 2003 (§3 shaded face, §5).
 
-Both rasterise the mesh with the shared numpy z-buffer (``nodes.common.raster``): per pixel the
-nearest triangle, perspective-correct barycentrics, world position and a smooth (vertex-
-interpolated) normal.  Normals are turned towards the viewer (two-sided lighting), so meshes
-with either winding render the same.
+Both rasterise the mesh with the shared numpy z-buffer (``nodes.common.raster``) through a
+perspective or orthographic :class:`graphkit.Camera`: per pixel the nearest triangle, its
+barycentrics (perspective-correct, or affine for orthographic views), world position and a
+smooth (vertex-interpolated) normal.  Normals are turned towards the viewer (two-sided
+lighting), so meshes with either winding render the same.
+
+Frames and units: meshes and lights are in the world frame; the camera's ``metres_per_unit``
+gives the world's unit, so point lights (positions in metres) fall off as I/d² with d in
+metres (:func:`world_lights` converts them to world units once).
 """
 from __future__ import annotations
 
@@ -55,13 +60,59 @@ def check_camera_matches(camera: Camera, image: Image | Mask, port: str = "camer
                              f"{w}×{h}: the camera must be the one that took the photo")
 
 
+def _in_front_and_frame(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, bool]:
+    """(vertices in front of the camera, does their projection overlap the image?)"""
+    from nodes.common.raster import NEAR
+
+    xy, z = camera.project(V)
+    front = z > NEAR
+    if not front.any():
+        return front, False
+    lo, hi = xy[front].min(0), xy[front].max(0)
+    overlap = bool(hi[0] > 0 and hi[1] > 0 and lo[0] < camera.width and lo[1] < camera.height)
+    return front, overlap
+
+
+def check_in_view(mesh, camera: Camera, port: str = "mesh", camera_port: str = "camera") -> None:
+    """BadInput unless the whole mesh lies in front of the camera and its projection meets the
+    image: a mesh behind the camera, crossing its image plane, or beside it (no overlap) is
+    refused, with a hint when ``world_to_camera`` looks inverted (the camera's own pose,
+    camera → world, given in its place)."""
+    V = np.asarray(mesh.vertices, np.float64)
+    front, overlap = _in_front_and_frame(V, camera)
+    if front.all() and overlap:
+        return
+    hint = ""
+    try:
+        inv = camera.model_copy(update={"world_to_camera": np.linalg.inv(camera.pose).tolist()})
+        f2, o2 = _in_front_and_frame(V, inv)
+        if f2.all() and o2:
+            hint = (f"; with world_to_camera inverted it would be in view: the camera's pose "
+                    f"(camera → world) seems to be given instead of world → camera (port "
+                    f"'{camera_port}')")
+    except np.linalg.LinAlgError:  # pragma: no cover - rigid poses are invertible
+        pass
+    n = len(V)
+    if not front.any():
+        raise BadInput(port, f"the mesh is behind the camera: all {n} vertices have camera depth "
+                             f"z ≤ 0{hint or ' (wrong pose or mesh frame?)'}")
+    if not front.all():
+        raise BadInput(port, f"the mesh crosses the camera's image plane: {int((~front).sum())} of "
+                             f"{n} vertices are behind the camera (z ≤ 0){hint}; the renderers do "
+                             "not clip")
+    raise BadInput(port, f"the mesh is beside the camera: its projection misses the "
+                         f"{camera.width}×{camera.height} image{hint or ' (wrong pose, units or image size?)'}")
+
+
 def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Surface:
-    """Rasterise ``mesh`` through ``camera``; BadInput when it covers < ``min_pixels`` pixels."""
+    """Rasterise ``mesh`` through ``camera`` (perspective or orthographic); BadInput when the
+    mesh is not in view or covers < ``min_pixels`` pixels."""
     from nodes.common import raster
 
     from .phong import unit
 
     check_mesh(mesh, port)
+    check_in_view(mesh, camera, port)
     faces = np.asarray(mesh.faces, np.int64)
     V = np.asarray(mesh.vertices, np.float64)
     r = raster.rasterize(V, faces, camera)
@@ -75,7 +126,7 @@ def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Su
     b = r.bary[cov]
     P = V[f[:, 0]] * b[:, 0:1] + V[f[:, 1]] * b[:, 1:2] + V[f[:, 2]] * b[:, 2:3]
     N = unit(vn[f[:, 0]] * b[:, 0:1] + vn[f[:, 1]] * b[:, 1:2] + vn[f[:, 2]] * b[:, 2:3])
-    Vd = unit(camera.position[None, :] - P)
+    Vd = camera.view_dirs(P)
     flip = np.sum(N * Vd, axis=1) < 0
     N[flip] *= -1
     return Surface(r, cov, P, N, Vd)
@@ -124,8 +175,50 @@ def vertex_normals(mesh) -> np.ndarray:
     return n
 
 
-def light_vectors(light: Light, P: np.ndarray, inverse_square: bool) -> tuple[np.ndarray, np.ndarray]:
-    """(unit directions towards the light M×3, light RGB per point M×3) for surface points."""
+def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> list:
+    """The lights (world frame, point positions in metres) in the camera's world units
+    (``Light.in_world_units``), checked: a point light inside the mesh (its convex hull) or
+    with a non-finite position is refused."""
+    out = []
+    hull = None
+    for i, light in enumerate(lights):
+        if light.kind == "point":
+            pos = np.asarray(light.position, np.float64)
+            if not np.isfinite(pos).all():
+                raise BadInput(port, f"light {i}: the point light's position {tuple(pos)} is not finite")
+        lw = light.in_world_units(camera.metres_per_unit)
+        if lw.kind == "point" and mesh is not None:
+            if hull is None:
+                hull = _hull_equations(mesh)
+            p = np.asarray(lw.position, np.float64)
+            if hull is not None and np.all(hull[:, :3] @ p + hull[:, 3] < 0):
+                raise BadInput(port, f"light {i}: the point light at {tuple(light.position)} m (world) "
+                                     "is inside the mesh: it must be outside the face (positions are "
+                                     "in metres, world frame)")
+        elif lw.kind == "directional":
+            d = np.asarray(lw.direction, np.float64)
+            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
+                raise BadInput(port, f"light {i}: the direction {tuple(d)} is zero or not finite")
+        out.append(lw)
+    return out
+
+
+def _hull_equations(mesh) -> np.ndarray | None:
+    """Outward half-space equations (K×4: n·x + c ≤ 0 inside) of the mesh's convex hull, or
+    None for a flat mesh."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    V = np.asarray(mesh.vertices, np.float64)
+    try:
+        return ConvexHull(V).equations
+    except (QhullError, ValueError):
+        return None
+
+
+def light_vectors(light: Light, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unit directions towards the light M×3, light RGB per point M×3) for surface points P
+    (world units; the light in the same units, see :func:`world_lights`).  Point lights
+    always fall off as I/d²."""
     from .phong import unit
 
     rgb = np.asarray(light.color, np.float64) * light.intensity
@@ -133,9 +226,17 @@ def light_vectors(light: Light, P: np.ndarray, inverse_square: bool) -> tuple[np
         d = unit(np.asarray(light.direction, np.float64))
         return np.broadcast_to(d, P.shape), np.broadcast_to(rgb, P.shape)
     v = np.asarray(light.position, np.float64)[None, :] - P
-    dist = np.linalg.norm(v, axis=1, keepdims=True)
-    L = rgb[None, :] / np.maximum(dist, 1e-12) ** 2 if inverse_square else np.broadcast_to(rgb, P.shape)
-    return unit(v), L
+    dist2 = np.maximum(np.einsum("ij,ij->i", v, v), 1e-24)[:, None]
+    return unit(v), rgb[None, :] / dist2
+
+
+def irradiance(light: Light, P: np.ndarray) -> np.ndarray:
+    """Scalar irradiance scale of the light at points P (M,), at normal incidence: its
+    intensity (directional) or intensity / d² (point; light and P in world units)."""
+    if light.kind == "directional":
+        return np.full(len(P), float(light.intensity))
+    v = np.asarray(light.position, np.float64)[None, :] - P
+    return float(light.intensity) / np.maximum(np.einsum("ij,ij->i", v, v), 1e-24)
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -159,6 +260,7 @@ def projective_texture(detail: Image, tex_cam: Camera, mesh, P: np.ndarray,
 
     xy, z = tex_cam.project(P)
     H, W = detail.pixels.shape[:2]
+    # (the camera and texture camera describe one world: the same unit)
     ok = (z > 0) & (xy[:, 0] >= 0) & (xy[:, 0] < W) & (xy[:, 1] >= 0) & (xy[:, 1] < H)
     out = np.ones((len(P), detail.channels))
     if occlusion and ok.any():
@@ -173,6 +275,19 @@ def projective_texture(detail: Image, tex_cam: Camera, mesh, P: np.ndarray,
         ok[idx[~vis]] = False
     out[ok] = _bilinear(detail.pixels.astype(np.float64), xy[ok, 0], xy[ok, 1])
     return out
+
+
+def _mediapipe_ids(mesh) -> np.ndarray | None:
+    """Vertex index of each mediapipe landmark id in ``mesh`` (a FaceMesh mesh, or one made
+    from it by SmoothMesh, whose ``source_vertex`` attribute keeps the ids), or None."""
+    n = len(mesh.vertices)
+    src = mesh.vertex_attributes.get("source_vertex") if hasattr(mesh, "vertex_attributes") else None
+    if src is not None:
+        src = np.asarray(src, np.int64)
+        if int((src >= 0).sum()) in (468, 478) and np.array_equal(src[src >= 0], np.arange((src >= 0).sum())):
+            return np.nonzero(src >= 0)[0]
+        return None
+    return np.arange(n) if n in (468, 478) else None
 
 
 def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
@@ -190,10 +305,10 @@ def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
         vn = vertex_normals(mesh)
         near = np.argmin(np.linalg.norm(V[None] - cen[:, None], axis=2), axis=1)
         axes = vn[near]
-    elif len(V) in (468, 478):
-        cen = np.stack([V[list(ids)].mean(0) for ids in MP_EYES])
+    elif (ids := _mediapipe_ids(mesh)) is not None:
+        cen = np.stack([V[ids[list(e)]].mean(0) for e in MP_EYES])
         vn = vertex_normals(mesh)
-        axes = np.stack([vn[list(ids)].mean(0) for ids in MP_EYES])
+        axes = np.stack([vn[ids[list(e)]].mean(0) for e in MP_EYES])
     else:
         return None
     axes = unit(axes)
@@ -216,14 +331,19 @@ class ShadeFace(Node):
     reflectance map.
 
     Each covered pixel looks up the map (``nodes.paris.sphere`` lat-long convention, normals in
-    the photo camera's frame) at its interpolated normal.  The photo divided by this image is
-    the detail texture (RatioImage).  Uncovered pixels are 0.  Units: linear RGB.
+    the photo camera's frame) at its interpolated normal.  With the flash ``light`` (the one
+    ReflectanceMap divided out), the value is multiplied by the flash's irradiance at that
+    point (I/d² for a point flash, d in metres), so the flash's fall-off across the face is in
+    the shaded face and not in the detail texture.  The photo divided by this image is the
+    detail texture (RatioImage).  Uncovered pixels are 0.  Perspective and orthographic
+    cameras.  Units: linear RGB.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"mesh": In(Mesh, "face mesh in world coordinates"),
               "camera": In(Camera, "the photo camera"),
-              "map": In(Image, "reflectance map (ReflectanceMap.map)")}
+              "map": In(Image, "reflectance map (ReflectanceMap.map)"),
+              "light": In(Light, "the flash (world frame), as given to ReflectanceMap", optional=True)}
     outputs = {"image": Out(Image, "shaded face, the photo's size"),
                "coverage": Out(Mask, "pixels covered by the mesh")}
 
@@ -231,7 +351,7 @@ class ShadeFace(Node):
         res_deg: float = Field(1.0, gt=0, le=10, description="map resolution (degrees/pixel)")
         fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) as Render does")
 
-    def compute(self, mesh, camera: Camera, map: Image):
+    def compute(self, mesh, camera: Camera, map: Image, light: Light | None = None):
         from . import sphere
 
         rows, cols = sphere.shape(self.params.res_deg)
@@ -239,15 +359,35 @@ class ShadeFace(Node):
             raise BadInput("map", f"map is {map.size_str()}, a {self.params.res_deg}° map is "
                                   f"{cols}×{rows}")
         check_mesh(mesh)
-        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera)
-        Ncam = s.normals @ camera.pose[:3, :3].T
+        m = close_holes(mesh) if self.params.fill_holes else mesh
+        s = surface(m, camera)
+        Ncam = camera.dir_to_camera(s.normals)
         vals = sphere.sample(map.pixels.astype(np.float64), Ncam, self.params.res_deg)
+        if light is not None:
+            (lw,) = world_lights([light], camera, m, "light")
+            vals = vals * irradiance(lw, s.points)[:, None]
         out = np.zeros((camera.height, camera.width, map.channels), np.float32)
         out[s.coverage] = vals
         return {"image": Image(out), "coverage": Mask(s.coverage.astype(np.float32))}
 
+    @classmethod
+    def examples(cls):
+        import trimesh
 
-def check_render_inputs(lights, detail, texture_camera) -> list:
+        from . import sphere
+
+        m = trimesh.creation.icosphere(subdivisions=3)
+        m.apply_translation([0, 0, 4.0])
+        rmap = Image((0.5 + 0.5 * sphere.pixel_normals(1.0)).astype(np.float32))
+        persp = Camera(width=40, height=32, fx=60, fy=60, cx=20, cy=16)
+        ortho = Camera(width=40, height=32, projection="orthographic", pixels_per_m=14.0,
+                       cx=20, cy=16)
+        return [({}, {"mesh": m, "camera": persp, "map": rmap}),
+                ({}, {"mesh": m, "camera": ortho, "map": rmap,
+                      "light": Light(kind="point", position=(0.0, -0.5, 0.0), intensity=16.0)})]
+
+
+def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None) -> list:
     """Render's input checks, shared by its backends: the lights as a list."""
     lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
     if not lights:
@@ -256,15 +396,35 @@ def check_render_inputs(lights, detail, texture_camera) -> list:
         raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
     if detail is not None:
         check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
+    if camera is not None and texture_camera is not None and \
+            texture_camera.metres_per_unit != camera.metres_per_unit:
+        raise BadInput("texture_camera", f"the texture camera's world unit ({texture_camera.metres_per_unit} m) "
+                                         f"is not the camera's ({camera.metres_per_unit} m): both must "
+                                         "describe the same world")
     return lights
+
+
+def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_holes: bool):
+    """Render's checks and set-up shared by every backend: (lights in world units, the mesh
+    to draw (inner holes closed when asked))."""
+    lights = check_render_inputs(lights, detail, texture_camera, camera)
+    check_mesh(mesh)
+    m = close_holes(mesh) if fill_holes else mesh
+    check_in_view(m, camera)
+    if texture_camera is not None:
+        check_in_view(m, texture_camera, "mesh", "texture_camera")
+    return world_lights(lights, camera, m), m
 
 
 class Render(Node):
     """Paris 2003 §5 rendering engine: Phong (ambient + diffuse + specular, §4) × detail texture.
 
     * Phong per light: kd·(A + L (n·l)) + i_s·L·(r·v)^s with the skin material of
-      FitSkinPhong; L = light colour × intensity (point lights optionally fall off as 1/d²,
-      d in mesh units); A = the light's ambient × the material's ambient scale.
+      FitSkinPhong; L = light colour × intensity, for point lights divided by d² (always: the
+      light's position and d in metres, through the camera's ``metres_per_unit``); A = the
+      light's ambient × the material's ambient scale.  Lights are in the world frame.
+    * Perspective or orthographic ``camera`` (view vectors towards the centre, or the camera's
+      −z everywhere).
     * Detail texture multiplied in (GL_MODULATE), carried on the mesh by projective texture
       coordinates from ``texture_camera`` (the photo camera, §3); no [0, 2ⁿ] range limit.
     * ``exposure`` multiplies the light; the result is clamped to [0, 1] *after* the texture
@@ -273,13 +433,14 @@ class Render(Node):
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
+    A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)"),
               "camera": In(Camera, "the camera to render from"),
               "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),
-              "lights": In(Light, "light sources (any number)", variadic=True),
+              "lights": In(Light, "light sources, world frame (any number)", variadic=True),
               "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
               "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
                                    optional=True),
@@ -295,7 +456,6 @@ class Render(Node):
         clamp: bool = Field(True, description="sensor saturation: clamp to [0, 1] after the texture")
         shadows: bool = Field(True, description="cast shadows with shadow maps")
         shadow_map_size: int = Field(1024, ge=16, le=8192, description="shadow-map pixels per side")
-        inverse_square: bool = Field(False, description="point lights fall off as 1/d² (d in mesh units)")
         background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="linear RGB")
         eye_highlights: Literal["auto", "on", "off"] = Field(
             "auto", description="auto: on when the eyes are known (mediapipe mesh or `eyes`)")
@@ -315,28 +475,26 @@ class Render(Node):
 
         from . import phong
 
-        lights = check_render_inputs(lights, detail, texture_camera)
         p = self.params
         eye_mesh = mesh
-        check_mesh(mesh)
-        if p.fill_holes:
-            mesh = close_holes(mesh)
-        s = surface(mesh, camera, min_pixels=0)
+        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
+        s = surface(mesh, camera, min_pixels=1)
         H, W = camera.height, camera.width
         M = len(s.points)
         kd = np.asarray(material.diffuse, np.float64)
         col = np.zeros((M, 3))
         amb = np.zeros(3)
         for i, light in enumerate(lights):
-            ldir, L = light_vectors(light, s.points, p.inverse_square)
+            ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
-            if M and not (diff > 0).any():
+            if not (diff > 0).any():
                 raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
                                          f"position {light.position}) is behind the face: it "
                                          f"lights none of the {M} visible pixels")
-            if p.shadows and M:
+            if p.shadows:
                 try:
-                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size)
+                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
+                                           up=camera.rotation[1])
                     vis = sm.visibility(s.points, s.normals)
                 except ValueError as e:
                     raise BadInput("lights", f"light {i}: {e}") from None
@@ -346,12 +504,12 @@ class Render(Node):
         if ambient is not None:
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
         col += kd * amb
-        if detail is not None and M:
+        if detail is not None:
             col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
         img = np.empty((H, W, 3))
         img[:] = np.asarray(p.background)
         img[s.coverage] = col
-        if M and p.eye_highlights != "off":
+        if p.eye_highlights != "off":
             img += self._eyes(eye_mesh, camera, s, lights, H, W).reshape(H, W, 3)
         img *= p.exposure
         if p.clamp:
@@ -363,20 +521,31 @@ class Render(Node):
 
     @classmethod
     def examples(cls):
+        """Both camera kinds: perspective and orthographic, directional and point lights
+        (positions in metres: the world unit here is 0.25 m), shadows, a detail texture."""
         import trimesh
 
         m = trimesh.creation.icosphere(subdivisions=3)
         m.vertices *= [0.8, 1.0, 0.9]
         m.apply_translation([0, 0, 4.0])
-        cam = Camera(width=48, height=40, fx=70, fy=70, cx=24, cy=20)
+        cam = Camera(width=48, height=40, fx=70, fy=70, cx=24, cy=20, metres_per_unit=0.25)
+        ortho = Camera(width=48, height=40, projection="orthographic", pixels_per_m=64.0,
+                       cx=24, cy=20, metres_per_unit=0.25)
         mat = PhongMaterial(diffuse=(0.6, 0.4, 0.3), specular=0.3, shininess=15.0)
         lights = [Light(direction=(0.5, -0.3, -0.8)),
-                  Light(kind="point", position=(-3.0, 0.0, 0.0), color=(0.3, 0.5, 1.0))]
+                  Light(kind="point", position=(-0.75, 0.0, 0.0), color=(0.3, 0.5, 1.0), intensity=1.2)]
         detail = Image(np.random.default_rng(0).uniform(0.5, 1.5, (40, 48, 3)).astype(np.float32))
         return [({}, {"mesh": m, "camera": cam, "material": mat, "lights": lights[:1]}),
                 ({"exposure": 2.0, "shadow_map_size": 128},
                  {"mesh": m, "camera": cam, "material": mat, "lights": lights, "detail": detail,
-                  "texture_camera": cam})]
+                  "texture_camera": cam}),
+                ({}, {"mesh": m, "camera": ortho, "material": mat, "lights": lights[:1]}),
+                ({"exposure": 1.5, "shadow_map_size": 128},
+                 {"mesh": m, "camera": ortho, "material": mat, "lights": lights, "detail": detail,
+                  "texture_camera": cam}),
+                ({"shadow_map_size": 128},
+                 {"mesh": m, "camera": cam, "material": mat, "lights": lights[1:], "detail": detail,
+                  "texture_camera": ortho})]
 
     def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
         """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
@@ -392,81 +561,110 @@ class Render(Node):
             return np.zeros((H * W, 3))
         centres, axes, R = info
         out = np.zeros((H * W, 3))
-        cov_idx = np.arange(H * W)
-        o = camera.position
-        # rays through the covered pixel centres
-        yy, xx = np.divmod(cov_idx, W)
-        Kinv = np.linalg.inv(camera.K)
-        dcam = np.stack([xx + 0.5, yy + 0.5, np.ones_like(xx, dtype=np.float64)], 1) @ Kinv.T
-        d = phong.unit(dcam @ camera.pose[:3, :3])  # world ray directions
-        depth = s.raster.depth.ravel()[cov_idx]
-        fwd = np.linalg.inv(camera.pose)[:3, 2]
+        # rays through every pixel centre (perspective or orthographic)
+        yy, xx = np.divmod(np.arange(H * W), W)
+        o, d = camera.rays(np.stack([xx + 0.5, yy + 0.5], 1))
+        depth = s.raster.depth.ravel()
+        C, fwd = camera.position, camera.forward
         for c, a in zip(centres, axes):
             oc = o - c
             bq = np.sum(d * oc, 1)
-            disc = bq ** 2 - (np.dot(oc, oc) - R * R)
+            disc = bq ** 2 - (np.sum(oc * oc, 1) - R * R)
             hit = disc > 0
             t = -bq - np.sqrt(np.where(hit, disc, 0))
             X = o + d * t[:, None]
             hit &= (t > 0) & (np.sum((X - c) * a, 1) >= 0)
-            zc = t * np.sum(d * fwd, 1)
+            zc = (X - C) @ fwd
             hit &= zc <= depth + R * 0.35  # the cap shows where it is not behind the eyelids
             if not hit.any():
                 continue
             n = (X[hit] - c) / R
             v = -d[hit]
             for light in lights:
-                ldir, L = light_vectors(light, X[hit], p.inverse_square)
+                ldir, L = light_vectors(light, X[hit])
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
                 out[hit] += p.eye_specular * L * spec[:, None]
         return out
 
 
 class MakeLight(Node):
-    """A light source from params (Paris 2003 §4: the flash, or a light to relight with).
+    """A light source from params, in the WORLD frame (Paris 2003 §4: the flash, or a light to
+    relight with).
 
-    The direction (towards the light, camera frame, OpenCV axes) is given either as a vector
-    or by ``azimuth_deg`` (positive: towards the image's right) and ``elevation_deg``
-    (positive: up) around the axis pointing back at the camera; 0, 0 is a frontal light.
-    Units: degrees; ``position`` in mesh units (point lights).
+    The direction (towards the light, OpenCV axes: x right, y down, z forward) is given either
+    as a vector or by ``azimuth_deg`` (positive: towards the image's right) and
+    ``elevation_deg`` (positive: up) around the axis pointing back at the camera (−z); 0, 0 is
+    a frontal light.  Without a ``camera`` these axes are the world's; with one, they are that
+    camera's (and ``position_m`` / ``target_m`` are metres from its centre along its axes), and
+    the light is turned into the world frame with the camera's pose.
+
+    A point light sits at ``position_m``, or, with ``distance_m``, at ``target_m`` +
+    ``distance_m`` × the direction; its ``intensity`` is a radiant intensity (flash units × m²:
+    the irradiance at d metres is intensity / d², always), and its ``direction`` is the unit
+    vector from ``target_m`` towards it.  Units: degrees, metres.
     """
 
-    version = "1"
-    outputs = {"light": Out(Light, "the light")}
+    version = "2"
+    inputs = {"camera": In(Camera, "express the angles and positions in this camera's frame",
+                           optional=True)}
+    outputs = {"light": Out(Light, "the light (world frame)")}
 
     class Params(Node.Params):
         kind: Literal["directional", "point"] = Field("directional", description="light kind")
         azimuth_deg: float = Field(0.0, ge=-180, le=180, description="left/right angle from the camera axis (degrees, + = right)")
         elevation_deg: float = Field(0.0, ge=-90, le=90, description="up/down angle (degrees, + = up)")
         direction: Optional[tuple[float, float, float]] = Field(None, description="explicit direction towards the light (overrides the angles)")
-        position: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="point-light position (mesh units)")
+        position_m: Optional[tuple[float, float, float]] = Field(None, description="point light: position (metres; world, or the camera's frame when a camera is connected)")
+        distance_m: Optional[float] = Field(None, gt=0, description="point light: distance from target_m along the direction (metres), instead of position_m")
+        target_m: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="what a point light at distance_m is placed around, and lights (metres, same frame as position_m)")
         color: tuple[float, float, float] = Field((1.0, 1.0, 1.0), description="linear RGB hue")
-        intensity: float = Field(1.0, ge=0, description="scale on the colour (1 = the flash of the photo)")
-        ambient: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ambient radiance, linear RGB")
+        intensity: float = Field(1.0, ge=0, description="directional: irradiance (1 = the flash of the photo); point: radiant intensity (flash units × m²)")
+        ambient: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="ambient, linear RGB (flash units)")
 
-    def compute(self):
+    def compute(self, camera: Camera | None = None):
         p = self.params
         if p.direction is not None:
             d = np.asarray(p.direction, np.float64)
-            if not np.linalg.norm(d) > 0:
+            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
                 raise BadInput("direction", "the light direction is the zero vector")
             d = d / np.linalg.norm(d)
         else:
             a, e = np.radians(p.azimuth_deg), np.radians(p.elevation_deg)
             d = np.array([np.sin(a) * np.cos(e), -np.sin(e), -np.cos(a) * np.cos(e)])
-        return Light(kind=p.kind, direction=tuple(float(v) for v in d), position=p.position,
-                     color=p.color, intensity=p.intensity, ambient=p.ambient)
+        pos = np.zeros(3)
+        if p.kind == "point":
+            target = np.asarray(p.target_m, np.float64)
+            if p.position_m is not None and p.distance_m is not None:
+                raise BadInput("distance_m", "give position_m or distance_m (with the angles), not both")
+            if p.position_m is not None:
+                pos = np.asarray(p.position_m, np.float64)
+                v = pos - target
+                if np.linalg.norm(v) > 0:
+                    d = v / np.linalg.norm(v)
+            elif p.distance_m is not None:
+                pos = target + p.distance_m * d
+            else:
+                raise BadInput("position_m", "a point light needs position_m, or distance_m with the "
+                                             "angles (metres)")
+        elif p.position_m is not None or p.distance_m is not None:
+            raise BadInput("position_m" if p.position_m is not None else "distance_m",
+                           "position_m / distance_m are for point lights (set kind: point)")
+        light = Light(kind=p.kind, direction=tuple(float(v) for v in d),
+                      position=tuple(float(v) for v in pos), color=p.color,
+                      intensity=p.intensity, ambient=p.ambient)
+        return camera.light_to_world(light) if camera is not None else light
 
 
 class FrameFace(Node):
-    """A camera framing the mesh: the same pose as ``camera``, intrinsics zoomed so the mesh's
-    projection fills a ``size``² image with a margin; with ``image`` (taken by ``camera``)
-    also that image resampled into the new view (bilinear).  For close-ups of a face that is
-    small in its photo (Render takes the camera; the photo keeps its own camera as
-    ``texture_camera``).  Units: pixels.
+    """A camera framing the mesh: the same pose and projection as ``camera`` (perspective or
+    orthographic), the image magnified so the mesh's projection fills a ``size``² image with a
+    margin; with ``image`` (taken by ``camera``) also that image resampled into the new view
+    (bilinear).  ``size`` unset keeps the photo's own pixel scale (a crop, no magnification: the
+    detail texture is not blurred).  For close-ups of a face that is small in its photo (Render
+    takes the camera; the photo keeps its own camera as ``texture_camera``).  Units: pixels.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"mesh": In(Mesh, "the mesh to frame"),
               "camera": In(Camera, "the original camera"),
               "image": In(Image, "an image taken by `camera`, to resample", optional=True)}
@@ -474,27 +672,30 @@ class FrameFace(Node):
                "image": Out(Image, "the image in the framing camera (black if no image)")}
 
     class Params(Node.Params):
-        size: int = Field(256, ge=8, le=8192, description="output width and height (pixels)")
+        size: Optional[int] = Field(None, ge=8, le=8192, description="output width and height (pixels); "
+                                                                     "default: the photo's pixel scale")
         margin: float = Field(0.12, ge=0, lt=2, description="margin around the mesh, fraction of its size")
 
     def compute(self, mesh, camera: Camera, image: Image | None = None):
         check_mesh(mesh)
         if image is not None:
             check_camera_matches(camera, image, "image", "image")
+        check_in_view(mesh, camera)
         xy, z = camera.project(np.asarray(mesh.vertices, np.float64))
-        ok = z > 0
-        if not ok.any():
-            raise BadInput("mesh", "the mesh is behind the camera")
-        lo, hi = xy[ok].min(0), xy[ok].max(0)
+        lo, hi = xy.min(0), xy.max(0)
         side = float(max(hi - lo)) * (1 + 2 * self.params.margin)
         if not side > 0:
             raise BadInput("mesh", "the mesh projects to a point")
-        n = self.params.size
-        k = n / side  # new pixels per old pixel
+        if self.params.size is None:
+            n = int(np.ceil(side))
+            k = 1.0
+        else:
+            n = self.params.size
+            k = n / side  # new pixels per old pixel
         c = (lo + hi) / 2
-        cam = Camera(width=n, height=n, fx=camera.fx * k, fy=camera.fy * k,
-                     cx=(camera.cx - c[0]) * k + n / 2, cy=(camera.cy - c[1]) * k + n / 2,
-                     world_to_camera=camera.world_to_camera)
+        if self.params.size is None:  # whole-pixel crop: the new pixel centres are the photo's
+            c = np.round(c - n / 2) + n / 2
+        cam = camera.reframed(n, n, k, (float(c[0]), float(c[1])))
         out = np.zeros((n, n, image.channels if image is not None else 3), np.float32)
         if image is not None:
             yy, xx = np.mgrid[0:n, 0:n]
@@ -505,10 +706,12 @@ class FrameFace(Node):
 
 
 class MeshMask(Node):
-    """The pixels a mesh covers through a camera, as a Mask (e.g. the face region of the photo
-    for SkinSegment, Paris 2003 §3), optionally with its inner holes (eyes, mouth) left open."""
+    """The pixels a mesh covers through a camera (perspective or orthographic), as a Mask (e.g.
+    the face region of the photo for SkinSegment, Paris 2003 §3), optionally with its inner
+    holes (eyes, mouth) left open.  A mesh behind or beside the camera, or one covering no
+    pixel, is refused here (BadInput on ``mesh``), not passed on as an empty mask."""
 
-    version = "1"
+    version = "2"
     inputs = {"mesh": In(Mesh, "the mesh"), "camera": In(Camera, "the camera")}
     outputs = {"mask": Out(Mask, "1 where the mesh is seen")}
 
@@ -517,5 +720,5 @@ class MeshMask(Node):
 
     def compute(self, mesh, camera: Camera):
         check_mesh(mesh)
-        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera, min_pixels=0)
+        s = surface(close_holes(mesh) if self.params.fill_holes else mesh, camera, min_pixels=1)
         return Mask(s.coverage.astype(np.float32))

@@ -10,9 +10,12 @@ from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node
 from . import sphere
 
 
-def _light_dir_camera(light: Light) -> np.ndarray:
-    """The light's direction (towards the light) in the camera frame of the map / photo."""
-    return np.asarray(light.direction, np.float64)
+def _light_dir_camera(light: Light, camera: Camera | None = None) -> np.ndarray:
+    """The light's direction (towards the light) in the camera frame of the map / photo: the
+    light is in the world frame, and ``camera`` (the photo camera) turns it into its own
+    frame; without a camera the world is taken as the camera frame."""
+    d = np.asarray(light.direction, np.float64)
+    return d if camera is None else camera.dir_to_camera(d)
 
 
 class ShininessFromSaturation(Node):
@@ -65,18 +68,22 @@ class ShininessFromSaturation(Node):
     map that averages samples (ReflectanceMap) blurs the flat top away, and a highlight clipped
     in red then gives exponents 2–4× too high — one more reason to connect the photo.
 
-    Inputs: ``light`` in the camera frame of the map/photo (see ``_light_dir_camera``).
+    Inputs: ``light`` in the world frame, brought into the photo camera's frame (that of the
+    map and of the photo's normals) with ``camera`` (see ``_light_dir_camera``; without a
+    camera the world is taken as the camera frame, as for a map alone).
     Output: s (unitless).  Units: angles in degrees.
     """
 
-    version = "2"
+    version = "3"  # 3: the light is in the world frame (turned into the camera frame with `camera`)
     inputs = {"reflectance": In(Image, "reflectance map on the Gaussian sphere (nodes.paris.sphere layout)",
                                 optional=True),
-              "light": In(Light, "the flash of the photo (direction towards the light, camera frame)"),
+              "light": In(Light, "the flash of the photo (direction towards the light, world frame: "
+                                 "ProbeLight.light)"),
               "image": In(Image, "the photo (linear RGB): with mesh, camera and skin, the profile is read "
                                  "from its pixels instead of the map", optional=True),
               "mesh": In(Mesh, "face mesh registered to the photo (with image)", optional=True),
-              "camera": In(Camera, "the photo camera (with image)", optional=True),
+              "camera": In(Camera, "the photo camera: brings the world-frame light into the map's / photo's "
+                                   "camera frame (needed with image)", optional=True),
               "skin": In(Mask, "skin pixels of the photo (with image)", optional=True)}
     outputs = {"shininess": Out(Scalar, "Phong exponent s (unitless)")}
 
@@ -93,15 +100,16 @@ class ShininessFromSaturation(Node):
 
     def compute(self, light: Light, reflectance: Image | None = None, image: Image | None = None,
                 mesh=None, camera: Camera | None = None, skin: Mask | None = None):
-        ldir = _light_dir_camera(light)
+        ldir = _light_dir_camera(light, camera)
         color = np.asarray(light.color, np.float64)
         if not (color > 0).all():
             raise BadInput("light", f"the light colour {tuple(color)} must be positive in every channel")
         white = color / color.max()
-        photo = {"image": image, "mesh": mesh, "camera": camera, "skin": skin}
+        photo = {"image": image, "mesh": mesh, "skin": skin}
         given = [k for k, v in photo.items() if v is not None]
-        if given and len(given) < 4:
-            missing = [k for k, v in photo.items() if v is None]
+        if given and (len(given) < 3 or camera is None):
+            missing = [k for k, v in {"image": image, "mesh": mesh, "camera": camera, "skin": skin}.items()
+                       if v is None]
             raise BadInput(missing[0], f"the photo path needs image, mesh, camera and skin together; "
                                        f"{', '.join(given)} given, {', '.join(missing)} missing")
         h = highlight_normal(ldir)

@@ -1,7 +1,8 @@
 #version 330
 // Render/opengl composite pass: background where uncovered, the eye highlights of Paris 2003
-// §5 (Render._eyes: two specular cornea hemispheres hit by the pixel-centre rays), exposure,
-// then the clamp to [0, 1].  Ray-sphere maths in a cancellation-free form (h = oc − (d·oc) d).
+// §5 (Render._eyes: two specular cornea hemispheres hit by the pixel-centre rays of a
+// perspective or orthographic camera, graphkit.Camera.ray_matrices), exposure, then the clamp
+// to [0, 1].  Ray-sphere maths in a cancellation-free form (h = oc − (d·oc) d).
 #define MAX_LIGHTS 32
 out vec4 o;
 uniform sampler2D color;                  // main pass: rgb, a = coverage
@@ -11,10 +12,11 @@ uniform float exposure;
 uniform bool clamp01;
 
 uniform bool eyes;
-uniform mat3 ray_mat;                     // pixel (x+.5, y+.5, 1) → world direction (R^T K^-1)
+uniform mat3 ray_org;                     // pixel (x+.5, y+.5, 1) → world ray origin
+uniform mat3 ray_dir;                     // pixel (x+.5, y+.5, 1) → world ray direction
+uniform vec3 cam_pos;                     // camera centre (world)
 uniform vec3 fwd;                         // camera +z in world
 uniform vec3 eye_c[2];                    // sphere centres (world)
-uniform vec3 eye_oc[2];                   // camera centre − sphere centre
 uniform vec3 eye_axis[2];
 uniform float eye_R;
 uniform float eye_s;
@@ -24,7 +26,6 @@ uniform int light_kind[MAX_LIGHTS];
 uniform vec3 light_dir[MAX_LIGHTS];
 uniform vec3 light_pos[MAX_LIGHTS];
 uniform vec3 light_rgb[MAX_LIGHTS];
-uniform bool inverse_square;
 
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
@@ -32,10 +33,12 @@ void main() {
     bool cov = c.a > 0.5;
     vec3 img = cov ? c.rgb : background;
     if (eyes) {
-        vec3 d = normalize(ray_mat * vec3(gl_FragCoord.xy, 1.0));
+        vec3 pix = vec3(gl_FragCoord.xy, 1.0);
+        vec3 ro = ray_org * pix;
+        vec3 d = normalize(ray_dir * pix);
         float depth = cov ? texelFetch(aux, px, 0).r : 3.0e38;
         for (int k = 0; k < 2; ++k) {
-            vec3 oc = eye_oc[k];
+            vec3 oc = ro - eye_c[k];
             float bq = dot(d, oc);
             vec3 h = oc - bq * d;
             float disc = eye_R * eye_R - dot(h, h);
@@ -44,7 +47,7 @@ void main() {
             float t = -bq - sq;
             vec3 XC = h - sq * d;                 // X − c
             if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) continue;
-            float zc = t * dot(d, fwd);
+            float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
             if (!(zc <= depth + eye_R * 0.35)) continue;
             vec3 n = XC / eye_R;
             vec3 X = eye_c[k] + XC;
@@ -58,7 +61,7 @@ void main() {
                     vec3 dl = light_pos[i] - X;
                     float dist = length(dl);
                     l = dist > 0.0 ? dl / dist : vec3(0.0);
-                    if (inverse_square) L = L / (max(dist, 1e-12) * max(dist, 1e-12));
+                    L = L / max(dot(dl, dl), 1e-24);
                 }
                 float nl = dot(n, l);
                 vec3 r = 2.0 * nl * n - l;

@@ -1,8 +1,11 @@
 #version 330
 // Render/opengl fragment shader: the numpy reference (nodes/paris/render.py, Render.compute)
-// per covered pixel: two-sided smooth normal, Phong per light (nodes/paris/phong.py lobes/shade),
+// per covered pixel: two-sided smooth normal, Phong per light (nodes/paris/phong.py lobes/shade;
+// point lights always fall off as 1/d², positions and intensities in world units),
 // shadow-map visibility (nodes/common/raster.py ShadowMap.visibility: slope bias, 3×3 PCF),
 // ambient, projective detail texture (render.projective_texture: occlusion + bilinear).
+// Cameras are perspective or orthographic (graphkit.Camera): the view vector runs towards the
+// camera centre, or along the camera's −z (cam_back) everywhere.
 #define MAX_LIGHTS 32
 in vec3 vP;
 in vec3 vN;
@@ -10,13 +13,14 @@ in float vz;
 layout(location = 0) out vec4 o_color;  // rgb = shaded colour (before exposure), a = coverage
 layout(location = 1) out vec4 o_aux;    // r = camera z, g/b = bit mask of lights with n·l > 0
 
-uniform vec3 cam_pos;
+uniform vec3 cam_pos;                     // camera centre (world)
+uniform bool cam_ortho;                   // orthographic camera: the view vector is cam_back
+uniform vec3 cam_back;                    // −(camera +z) in world
 uniform int n_lights;
 uniform int light_kind[MAX_LIGHTS];       // 0 directional, 1 point
 uniform vec3 light_dir[MAX_LIGHTS];       // unit, towards the light
 uniform vec3 light_pos[MAX_LIGHTS];
-uniform vec3 light_rgb[MAX_LIGHTS];       // colour × intensity
-uniform bool inverse_square;
+uniform vec3 light_rgb[MAX_LIGHTS];       // colour × intensity (point: radiant intensity)
 uniform vec3 kd;
 uniform float i_s;
 uniform float shininess;
@@ -32,8 +36,7 @@ uniform vec2 sm_bias[MAX_LIGHTS];         // (texel, reference distance)
 uniform bool has_detail;
 uniform sampler2D detail;                 // RGB32F, texel (x, y) = detail.pixels[y, x]
 uniform sampler2D tex_depth;              // texture camera depth (r) and coverage (g)
-uniform mat4 tex_pose;                    // world → texture camera
-uniform vec4 tex_K;                       // fx, fy, cx, cy
+uniform mat4 tex_proj;                    // world → (u·w, v·w, w, camera z) of the texture camera
 uniform ivec2 tex_size;                   // W, H
 uniform float occl_tol;                   // 0.02 × mesh scale
 
@@ -63,10 +66,10 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
 vec3 fetch(int x, int y) { return texelFetch(detail, ivec2(x, y), 0).rgb; }
 
 vec3 detail_factor(vec3 P) {
-    vec3 p = (tex_pose * vec4(P, 1.0)).xyz;
-    float z = p.z;
-    float x = tex_K.x * p.x / z + tex_K.z;
-    float y = tex_K.y * p.y / z + tex_K.w;
+    vec4 h = tex_proj * vec4(P, 1.0);
+    float z = h.w;
+    float x = h.x / h.z;
+    float y = h.y / h.z;
     float W = float(tex_size.x), H = float(tex_size.y);
     if (!(z > 0.0 && x >= 0.0 && x < W && y >= 0.0 && y < H)) return vec3(1.0);
     int ix = clamp(int(x), 0, tex_size.x - 1);
@@ -87,9 +90,12 @@ void main() {
     vec3 n = vN;
     float nn = length(n);
     n = nn > 0.0 ? n / nn : vec3(0.0);
-    vec3 v = cam_pos - P;
-    float vl = length(v);
-    v = vl > 0.0 ? v / vl : vec3(0.0);
+    vec3 v = cam_back;
+    if (!cam_ortho) {
+        v = cam_pos - P;
+        float vl = length(v);
+        v = vl > 0.0 ? v / vl : vec3(0.0);
+    }
     if (dot(n, v) < 0.0) n = -n;
     vec3 col = vec3(0.0);
     float mask0 = 0.0, mask1 = 0.0;
@@ -102,7 +108,7 @@ void main() {
             vec3 d = light_pos[i] - P;
             float dist = length(d);
             l = dist > 0.0 ? d / dist : vec3(0.0);
-            if (inverse_square) L = L / (max(dist, 1e-12) * max(dist, 1e-12));
+            L = L / max(dot(d, d), 1e-24);
         }
         float nl = dot(n, l);
         vec3 r = 2.0 * nl * n - l;

@@ -94,7 +94,7 @@ def camera(size: int = 128):
     from graphkit import Camera
 
     f = size * DISTANCE_MM / 270.0
-    return Camera(width=size, height=size, fx=f, fy=f, cx=size / 2, cy=size / 2)
+    return Camera(width=size, height=size, fx=f, fy=f, cx=size / 2, cy=size / 2, metres_per_unit=0.001)
 
 
 def flash_intensity(peak: float = 0.7) -> float:
@@ -132,13 +132,14 @@ def _mesh(mi, m, albedo, bsdf):
     return mesh
 
 
-def _sensor(mi, cam, spp):
+def _sensor(mi, cam, spp, seed=7):
     fov = float(np.degrees(2 * np.arctan(cam.width / (2 * cam.fx))))
     return {"type": "perspective", "fov": fov, "fov_axis": "x",
             "to_world": mi.ScalarTransform4f.look_at(origin=[0, 0, 0], target=[0, 0, 1], up=[0, -1, 0]),
             "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
                      "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-            "sampler": {"type": "independent", "sample_count": spp, "seed": 7}}
+            # stratified: far less noise than independent sampling at the same spp
+            "sampler": {"type": "stratified", "sample_count": spp, "seed": seed}}
 
 
 def skin_bsdf():
@@ -155,7 +156,8 @@ def _flash(mi):
             "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}}
 
 
-def render_scene(m, albedo, cam, lights, spp: int = 32, flash: bool = False, probe: bool = False):
+def render_scene(m, albedo, cam, lights, spp: int = 32, flash: bool = False, probe: bool = False,
+                 seed: int = 7):
     """Render the head (or, with ``probe``, a rough mirror ball at its place) in Mitsuba.
 
     ``lights``: list of unit directions towards directional lights, each with the flash's
@@ -164,7 +166,7 @@ def render_scene(m, albedo, cam, lights, spp: int = 32, flash: bool = False, pro
     """
     mi = _mi()
     scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 2},
-             "sensor": _sensor(mi, cam, spp),
+             "sensor": _sensor(mi, cam, spp, seed),
              "env": {"type": "constant", "radiance": {"type": "rgb", "value": ENV_RADIANCE}}}
     if probe:
         scene["ball"] = {"type": "sphere", "center": [0.0, 0.0, DISTANCE_MM], "radius": 60.0,
@@ -212,7 +214,7 @@ def main(out_dir: str | None = None, size: int = 128, spp: int = 64):
             f.write(encode_image(img, ".exr", 16))
     m.export(os.path.join(out_dir, "mesh.ply"))
     with open(os.path.join(out_dir, "camera.json"), "w") as f:
-        json.dump(cam.model_dump(), f, indent=1)
+        json.dump(cam.model_dump(exclude_none=True), f, indent=1)
     print("wrote", out_dir)
 
 

@@ -2,14 +2,16 @@
 
 The same image, depth and coverage as the numpy reference (``nodes/paris/render.py``):
 
-* camera: OpenCV pinhole intrinsics → a GL projection whose window coordinates *are* the
-  reference's pixel coordinates (x = fx·X/Z + cx, y = fy·Y/Z + cy, pixel centres at +0.5); no
-  y flip is needed because the framebuffer is read back bottom row first, i.e. image row 0
-  first.  Vertices are transformed into the camera frame in float64 on the host; GL then
-  interpolates world position, normal and z perspective-correctly like the reference's
-  barycentrics.  Triangles with a vertex at z ≤ 1e-6 are dropped, as the reference does.
+* camera: perspective or orthographic (``graphkit.Camera``): its ``pixel_matrix`` (the one
+  implementation of the projection) → a GL clip matrix whose window coordinates *are* the
+  reference's pixel coordinates (pixel centres at +0.5); no y flip is needed because the
+  framebuffer is read back bottom row first, i.e. image row 0 first.  Vertices are transformed
+  into the camera frame in float64 on the host; GL then interpolates world position, normal
+  and z perspective-correctly (perspective) or linearly (orthographic: w = 1), like the
+  reference's barycentrics.  Triangles with a vertex at z ≤ 1e-6 are dropped, as the
+  reference does (which refuses meshes crossing the camera plane anyway).
 * shading: ``shaders/glsl/render.frag`` — the Phong lobes of ``nodes/paris/phong.py``, point
-  lights (optionally 1/d²), ambient, shadow maps rendered by GL in the *same* light frames,
+  lights (always 1/d², in world units), ambient, shadow maps rendered by GL in the *same* light frames,
   resolution, bias and 3×3 PCF as ``nodes.common.raster.shadow_map``/``ShadowMap.visibility``,
   and the projective detail texture with the reference's occlusion test and bilinear lookup.
 * ``shaders/glsl/composite.frag``: background, eye highlights (``Render._eyes``), exposure,
@@ -37,7 +39,7 @@ class RenderGL(Backend):
 
     node = "Render"
     name = "opengl"
-    version = "1"  # bump when the output for the same inputs changes
+    version = "2"  # bump when the output for the same inputs changes
     # float32 vs float64 maths and GL's fill rule move pixels whose centre lies on a
     # silhouette, shadow-map or texture-occlusion boundary (or a PCF tap at a texel boundary):
     # 0.5% of the values may differ (measured: ≤ 0.06% on tests/test_opengl_backend.py, 0.02%
@@ -56,18 +58,14 @@ class RenderGL(Backend):
 
     def compute(self, mesh, camera: Camera, material, lights, detail: Image | None = None,
                 texture_camera: Camera | None = None, ambient: Light | None = None):
-        from nodes.paris.render import (check_mesh, check_render_inputs, close_holes, eye_spheres,
-                                        vertex_normals)
+        from nodes.paris.render import eye_spheres, prepare_render, vertex_normals
 
-        lights = check_render_inputs(lights, detail, texture_camera)
+        p = self.params
+        eye_mesh = mesh
+        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
         if len(lights) > MAX_LIGHTS:
             raise BadInput("lights", f"{len(lights)} lights: the opengl backend takes at most "
                                      f"{MAX_LIGHTS} (the numpy backend any number)")
-        p = self.params
-        eye_mesh = mesh
-        check_mesh(mesh)
-        if p.fill_holes:
-            mesh = close_holes(mesh)
         V = np.asarray(mesh.vertices, np.float64)
         F = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
         vn = vertex_normals(mesh)
@@ -75,11 +73,12 @@ class RenderGL(Backend):
 
         job = dict(W=W, H=H, p=p)
         # camera pass
-        qc = V @ camera.pose[:3, :3].T + camera.pose[:3, 3]
-        job["main"] = _view_geometry(qc, F, pinhole_proj(camera.fx, camera.fy, camera.cx,
-                                                         camera.cy, W, H))
+        qc = camera.to_camera(V)
+        job["main"] = _view_geometry(qc, F, camera_clip(camera), not camera.orthographic, near=True)
         job["vertices"] = np.hstack([qc, V, vn]).astype(np.float32)
         job["cam_pos"] = camera.position
+        job["cam_ortho"] = camera.orthographic
+        job["cam_back"] = -camera.forward
         # lights
         job["lights"] = [_light_uniforms(light) for light in lights]
         kd = np.asarray(material.diffuse, np.float64)
@@ -96,7 +95,7 @@ class RenderGL(Backend):
             sms = []
             for i, light in enumerate(lights):
                 try:
-                    sms.append(_shadow_setup(V, F, light, p.shadow_map_size))
+                    sms.append(_shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1]))
                 except ValueError as e:
                     sm_errors[i] = str(e)
                     sms.append(None)
@@ -112,11 +111,14 @@ class RenderGL(Backend):
             elif px.shape[2] == 2:
                 raise BadInput("detail", "a 2-channel detail texture cannot multiply RGB")
             tc = texture_camera
-            qt = V @ tc.pose[:3, :3].T + tc.pose[:3, 3]
+            qt = tc.to_camera(V)
             scale = float(np.median(np.ptp(V, axis=0))) or 1.0
+            proj = np.zeros((4, 4))
+            proj[:3] = tc.world_pixel_matrix()
+            proj[3] = tc.pose[2]  # camera z
             job["detail"] = dict(
-                pixels=np.ascontiguousarray(px[..., :3]), cam=tc, tol=0.02 * scale,
-                geom=_view_geometry(qt, F, pinhole_proj(tc.fx, tc.fy, tc.cx, tc.cy, tc.width, tc.height)),
+                pixels=np.ascontiguousarray(px[..., :3]), cam=tc, tol=0.02 * scale, proj=proj,
+                geom=_view_geometry(qt, F, camera_clip(tc), not tc.orthographic, near=True),
                 q=qt.astype(np.float32))
         # eye highlights (Render._eyes)
         eyes = None
@@ -125,9 +127,8 @@ class RenderGL(Backend):
                                p.eye_protrusion_mm, camera.position)
         job["eyes"] = eyes
         if eyes is not None:
-            Rm = camera.pose[:3, :3]
-            job["ray_mat"] = Rm.T @ np.linalg.inv(camera.K)
-            job["fwd"] = np.linalg.inv(camera.pose)[:3, 2]
+            job["ray_org"], job["ray_dir"] = camera.ray_matrices()
+            job["fwd"] = camera.forward
 
         try:
             img, aux, cov = runtime().call(_render, job)
@@ -135,25 +136,22 @@ class RenderGL(Backend):
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
 
         M = int(cov.sum())
-        if M:
-            masks = aux[..., 1][cov].astype(np.int64), aux[..., 2][cov].astype(np.int64)
-            lit = np.bitwise_or.reduce(masks[0]) if len(masks[0]) else 0
-            lit |= (np.bitwise_or.reduce(masks[1]) if len(masks[1]) else 0) << 24
-            for i, light in enumerate(lights):
-                if not (lit >> i) & 1:
-                    raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
-                                             f"position {light.position}) is behind the face: it "
-                                             f"lights none of the {M} visible pixels")
-                if p.shadows and sm_errors[i]:
-                    raise BadInput("lights", f"light {i}: {sm_errors[i]}")
-            if eyes is None and p.eye_highlights == "on":
-                raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
-                                       "is not a mediapipe face mesh; set the `eyes` param")
-        else:  # the reference adds no eye highlights when nothing is covered
-            img = np.empty((H, W, 3), np.float32)
-            img[:] = np.asarray(p.background, np.float64) * p.exposure
-            if p.clamp:
-                img = np.clip(img, 0.0, 1.0)
+        if M == 0:  # as the reference (nodes.paris.render.surface)
+            raise BadInput("mesh", f"the mesh covers 0 pixels of the {W}×{H} camera image: it does "
+                                   "not match the camera (wrong pose, units or image size?)")
+        masks = aux[..., 1][cov].astype(np.int64), aux[..., 2][cov].astype(np.int64)
+        lit = np.bitwise_or.reduce(masks[0]) if len(masks[0]) else 0
+        lit |= (np.bitwise_or.reduce(masks[1]) if len(masks[1]) else 0) << 24
+        for i, light in enumerate(lights):
+            if not (lit >> i) & 1:
+                raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
+                                         f"position {light.position}) is behind the face: it "
+                                         f"lights none of the {M} visible pixels")
+            if p.shadows and sm_errors[i]:
+                raise BadInput("lights", f"light {i}: {sm_errors[i]}")
+        if eyes is None and p.eye_highlights == "on":
+            raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
+                                   "is not a mediapipe face mesh; set the `eyes` param")
         depth = np.where(cov, aux[..., 0], 0.0).astype(np.float32)
         return {"image": Image(np.ascontiguousarray(img, np.float32)),
                 "depth": Image(depth),
@@ -174,14 +172,27 @@ def _probe() -> str | None:
 # host-side set-up (float64)
 
 
-def pinhole_proj(fx, fy, cx, cy, W, H, near=None, far=None) -> np.ndarray:
-    """4×4 clip matrix for view-space points (OpenCV axes) whose window coordinates are the
-    pixel coordinates (fx·X/Z + cx, fy·Y/Z + cy); near/far filled in by :func:`_view_geometry`."""
+def clip_from_pixels(pix: np.ndarray, W: int, H: int) -> np.ndarray:
+    """4×4 clip matrix for view-space points from a 3×4 pixel matrix (u·w, v·w, w) = pix·(q, 1):
+    window coordinates are the pixel coordinates; clip w = w; the z row is filled in by
+    :func:`_view_geometry`."""
+    pix = np.asarray(pix, np.float64)
     P = np.zeros((4, 4))
-    P[0, 0], P[0, 2] = 2 * fx / W, 2 * cx / W - 1
-    P[1, 1], P[1, 2] = 2 * fy / H, 2 * cy / H - 1
-    P[3, 2] = 1.0
+    P[0] = 2 * pix[0] / W - pix[2]
+    P[1] = 2 * pix[1] / H - pix[2]
+    P[3] = pix[2]
     return P
+
+
+def camera_clip(camera: Camera) -> np.ndarray:
+    """The clip matrix of a perspective or orthographic ``graphkit.Camera`` (camera frame in)."""
+    return clip_from_pixels(camera.pixel_matrix(), camera.width, camera.height)
+
+
+def pinhole_proj(fx, fy, cx, cy, W, H) -> np.ndarray:
+    """Clip matrix of a pinhole view (x = fx·X/Z + cx, y = fy·Y/Z + cy), e.g. a point light's
+    shadow-map frame."""
+    return clip_from_pixels(np.array([[fx, 0, cx, 0], [0, fy, cy, 0], [0, 0, 1.0, 0]]), W, H)
 
 
 def _set_depth_range(P: np.ndarray, z: np.ndarray, perspective: bool) -> np.ndarray:
@@ -199,12 +210,14 @@ def _set_depth_range(P: np.ndarray, z: np.ndarray, perspective: bool) -> np.ndar
     return P
 
 
-def _view_geometry(q: np.ndarray, F: np.ndarray, P: np.ndarray, perspective: bool = True):
+def _view_geometry(q: np.ndarray, F: np.ndarray, P: np.ndarray, perspective: bool = True,
+                   near: bool | None = None):
     """(clip matrix, faces kept) for view-space vertices ``q``: the reference rasteriser drops
-    triangles with a non-finite vertex or (perspective) a vertex at z ≤ 1e-6."""
+    triangles with a non-finite vertex or (camera views and perspective light views; ``near``
+    defaults to ``perspective``) a vertex at z ≤ 1e-6."""
     fq = q[F]
     ok = np.all(np.isfinite(fq), axis=(1, 2))
-    if perspective:
+    if perspective if near is None else near:
         ok &= np.all(fq[..., 2] > NEAR, axis=1)
     Fk = np.ascontiguousarray(F[ok], np.int32)
     used = np.unique(Fk) if len(Fk) else np.zeros(0, np.int64)
@@ -219,13 +232,13 @@ def _light_uniforms(light: Light):
     return (0 if light.kind == "directional" else 1, d, np.asarray(light.position, np.float64), rgb)
 
 
-def _shadow_setup(V, F, light, size: int, margin: float = 0.02):
+def _shadow_setup(V, F, light, size: int, margin: float = 0.02, up=None):
     """The light frame of ``nodes.common.raster.shadow_map`` (one implementation:
     ``shadow_frame``) and the clip matrix that rasterises it in GL: dict(to_light 4×4,
     proj (sx, sy, ox, oy), bias (texel, dref), clip, faces, q)."""
     from nodes.common.raster import shadow_frame
 
-    fr = shadow_frame(V, light, size, margin)
+    fr = shadow_frame(V, light, size, margin, up)
     (sx, sy), (ox, oy) = fr.scale, fr.offset
     if fr.perspective:
         P = pinhole_proj(sx, sy, ox, oy, size, size)
@@ -260,7 +273,7 @@ def _write(prog, name, data: bytes):
         prog[name].write(data)
 
 
-def _set_lights(prog, lights, inverse_square):
+def _set_lights(prog, lights):
     n = len(lights)
     kind = np.zeros(MAX_LIGHTS, np.int32)
     arr = {k: np.zeros((MAX_LIGHTS, 3), np.float32) for k in ("dir", "pos", "rgb")}
@@ -271,7 +284,6 @@ def _set_lights(prog, lights, inverse_square):
     _write(prog, "light_kind", kind.tobytes())
     for k, a in arr.items():
         _write(prog, f"light_{k}", a.tobytes())
-    _set(prog, "inverse_square", bool(inverse_square))
 
 
 def _depth_pass(rt, q32, clip, faces, W, H, clear):
@@ -349,8 +361,7 @@ def _render(rt, job):
             dtex.use(location=1)
             tdepth.use(location=2)
             _set(prog, "has_detail", True)
-            _write(prog, "tex_pose", _mat(tc.pose))
-            _set(prog, "tex_K", (tc.fx, tc.fy, tc.cx, tc.cy))
+            _write(prog, "tex_proj", _mat(det["proj"]))
             _set(prog, "tex_size", (tc.width, tc.height))
             _set(prog, "occl_tol", det["tol"])
         else:
@@ -368,7 +379,9 @@ def _render(rt, job):
         _set(prog, "shininess", s)
         _set(prog, "ambient", tuple(amb))
         _set(prog, "cam_pos", tuple(job["cam_pos"]))
-        _set_lights(prog, lights, p.inverse_square)
+        _set(prog, "cam_ortho", bool(job["cam_ortho"]))
+        _set(prog, "cam_back", tuple(job["cam_back"]))
+        _set_lights(prog, lights)
         clip, faces = job["main"]
         prog["proj"].write(_mat(clip))
         color = ctx.texture((W, H), 4, dtype="f4")
@@ -418,16 +431,16 @@ def _render(rt, job):
         _set(comp, "eyes", eyes is not None)
         if eyes is not None:
             centres, axes, R = eyes
-            o = job["cam_pos"]
-            _write(comp, "ray_mat", _mat(job["ray_mat"]))
+            _write(comp, "ray_org", _mat(job["ray_org"]))
+            _write(comp, "ray_dir", _mat(job["ray_dir"]))
+            _set(comp, "cam_pos", tuple(job["cam_pos"]))
             _set(comp, "fwd", tuple(job["fwd"]))
             _write(comp, "eye_c", np.asarray(centres, np.float32).tobytes())
-            _write(comp, "eye_oc", np.asarray(o[None] - centres, np.float32).tobytes())
             _write(comp, "eye_axis", np.asarray(axes, np.float32).tobytes())
             _set(comp, "eye_R", float(R))
             _set(comp, "eye_s", float(p.eye_shininess))
             _set(comp, "eye_ks", float(p.eye_specular))
-            _set_lights(comp, lights, p.inverse_square)
+            _set_lights(comp, lights)
         vao = ctx.vertex_array(comp, [])
         trash.append(vao)
         vao.render(mgl.TRIANGLES, vertices=3)

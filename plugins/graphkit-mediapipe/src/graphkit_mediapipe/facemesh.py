@@ -8,7 +8,8 @@ Geometry (all lengths in mm, "mm-ish": the scale rests on an assumed eye distanc
 * the photo camera is a pinhole with square pixels, principal point at the image centre and a
   vertical field of view ``fov_deg`` (default 40°, a typical portrait lens); it sits at the
   origin of the world frame (``world_to_camera`` = identity, OpenCV axes: x right, y down,
-  z forward);
+  z forward) and says that world is in mm (``metres_per_unit`` 0.001, so point lights given in
+  metres fall off correctly on this mesh);
 * landmark ``k`` has pixel coordinates (u, v) = (x·W, y·H) from mediapipe's normalised (x, y)
   (continuous coordinates, pixel centres at integer + 0.5, as graphkit's Camera);
   mediapipe's z is relative depth in the units of x (image widths), so z·W is a depth in pixels;
@@ -61,7 +62,7 @@ class FaceMesh(Node):
     docstring for the camera model and how depth is built.
     """
 
-    version = "1"
+    version = "2"  # 2: the camera says its world is in mm (metres_per_unit 0.001)
     inputs = {"image": In(Image, "the photograph, linear RGB")}
     outputs = {
         "mesh": Out(Mesh, "468 vertices in the photo camera's frame (mm), 852 triangles facing the camera"),
@@ -140,7 +141,7 @@ def back_project(uv, zpx, w, h, fov_deg, eye_mm, distance_mm=None):
     d = float(distance_mm)
     z = d + zpx * d / f
     verts = np.column_stack([(uv[:, 0] - cx) * z / f, (uv[:, 1] - cy) * z / f, z])
-    cam = Camera(width=w, height=h, fx=f, fy=f, cx=cx, cy=cy)
+    cam = Camera(width=w, height=h, fx=f, fy=f, cx=cx, cy=cy, metres_per_unit=0.001)  # mesh in mm
     return cam, verts
 
 
