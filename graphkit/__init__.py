@@ -7,14 +7,14 @@ from pydantic import Field
 
 from .api import Run, run_graph
 from .errors import BadInput, GraphError, GraphkitError, NodeFailed
-from .node import Backend, Context, In, InputFile, Node, Out
+from .node import Backend, Context, In, InputFile, Node, Out, OutputPath
 from .types import (Array, Camera, File, Image, Json, Light, Mask, Mesh, PortType, Scalar,
                     Spectrum, Vector)
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Node", "Backend", "In", "Out", "InputFile", "Context", "Field",
+    "Node", "Backend", "In", "Out", "InputFile", "OutputPath", "Context", "Field",
     "Image", "Mask", "Mesh", "Camera", "Light", "Spectrum", "File", "Scalar", "Vector", "Array",
     "Json", "PortType", "BadInput", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
 ]

@@ -5,7 +5,7 @@ from pathlib import PurePosixPath
 
 from pydantic import field_validator
 
-from graphkit import BadInput, Field, File, InputFile, Mesh, Node
+from graphkit import BadInput, Field, File, InputFile, Mesh, Node, OutputPath
 
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".off")
 
@@ -40,7 +40,7 @@ class SaveMesh(Node):
     outputs = {"file": File}
 
     class Params(Node.Params):
-        path: str = Field(description="file name inside --out, e.g. face.ply")
+        path: OutputPath = Field(description="file name inside --out, e.g. face.ply")
 
         @field_validator("path")
         @classmethod
