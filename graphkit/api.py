@@ -40,7 +40,8 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
               out: str | os.PathLike | None = None, overrides: dict | None = None,
               backends: list[str] | None = None, jobs: int = 1, outputs: list[str] | None = None,
               executor: str = "local", scheduler: str | None = None,
-              registry: Registry | None = None, progress: Progress | None = None) -> Run:
+              registry: Registry | None = None, progress: Progress | None = None,
+              scheduler_timeout: float = 10.0) -> Run:
     """Load, validate and run a graph (a file, a dict, or a loaded Graph); write its outputs into
     ``out`` when given."""
     registry = registry or default_registry()
@@ -56,7 +57,7 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
         if executor == "dask":
             from .dask_executor import run_dask
 
-            result = run_dask(session, targets, scheduler, jobs, progress)
+            result = run_dask(session, targets, scheduler, jobs, progress, timeout=scheduler_timeout)
         else:
             result = run_local(session, targets, jobs, progress)
         ok = True

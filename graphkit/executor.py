@@ -23,6 +23,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from .errors import GraphkitError, UsageError
+from .report import report_file
 from .runner import NodeOutcome, Session
 from .types import File
 
@@ -172,6 +173,7 @@ def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLi
         seen[name] = name
     manifest = build_manifest(session, result, manifest_extra)
     files.append(("manifest.json", json.dumps(manifest, indent=1, sort_keys=True).encode()))
+    files.append(report_file(session, result, manifest))  # report.html, published with the manifest
     written = []
     staged = []
     try:
