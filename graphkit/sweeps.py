@@ -178,7 +178,7 @@ def _values(doc, path, sname, value, base_dir):
             default = str(v["name"]) if "name" in v else str(i)
         elif isinstance(v, list):
             default = str(i)
-        items.append((fields, default, path + (i,)))
+        items.append((fields, default, path + (i,), _short(v)))
     return items
 
 
@@ -206,7 +206,7 @@ def _matrix(doc, path, sname, value, base_dir):
     for combo in itertools.product(*(v for _, v in axes)):
         point = {ax: v for (ax, _), v in zip(axes, combo)}
         default = ",".join(f"{ax}={_fmt(v)}" for ax, v in point.items())
-        items.append(({"value": point, **point}, default, path))
+        items.append(({"value": point, **point}, default, path, default))
     return items
 
 
@@ -242,7 +242,7 @@ def _range(doc, path, sname, value, base_dir):
     items = []
     for i in range(count):
         v = start + i * step if ints else round(start + i * step, 12)
-        items.append(({"value": v}, _fmt(v), path))
+        items.append(({"value": v}, _fmt(v), path, _fmt(v)))
     return items
 
 
@@ -267,7 +267,8 @@ def _glob_files(doc, path, sname, value, base_dir):
         rel = os.path.relpath(ap, os.path.abspath(root))
         stem = os.path.splitext(os.path.basename(ap))[0]
         default = os.path.splitext(rel)[0].replace(os.sep, "_")
-        items.append(({"value": ap, "path": ap, "file": os.path.basename(ap), "stem": stem}, default, path))
+        items.append(({"value": ap, "path": ap, "file": os.path.basename(ap), "stem": stem}, default, path,
+                      os.path.relpath(ap, base_dir)))
     return items
 
 
@@ -303,7 +304,7 @@ def _name_instances(doc, path, sname, spec, kind, items) -> list[Instance] | Non
         if used is None:
             return None
     instances, seen = [], {}
-    for i, (fields, default, where) in enumerate(items):
+    for i, (fields, default, where, label) in enumerate(items):
         fields = {**fields, "index": i}
         if tmpl is not None:
             missing = [f for f in used if f not in fields]
@@ -329,10 +330,11 @@ def _name_instances(doc, path, sname, spec, kind, items) -> list[Instance] | Non
             return None
         if name in seen:
             j = seen[name]
-            hint = "" if tmpl is not None else " (set a 'name' template, e.g. name: \"{index}\")"
+            example = "{file}" if kind == "glob" else "{index}"
+            hint = "" if tmpl is not None else f" (set a 'name' template, e.g. name: \"{example}\")"
             doc.at(path + ("name",) if tmpl is not None else where,
-                   f"sweep '{sname}': instances {j} ({_short(items[j][0]['value'])}) and {i} "
-                   f"({_short(fields['value'])}) are both named '{name}', so their outputs would collide{hint}")
+                   f"sweep '{sname}': instances {j} ({items[j][3]}) and {i} ({label}) are both named "
+                   f"'{name}', so their outputs would collide{hint}")
             return None
         seen[name] = i
         fields["name"] = name

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from graphkit import Array, Backend, Field, In, Node
+from graphkit import Array, Backend, Field, Image, In, Node
 
 
 class Count(Node):
@@ -69,3 +69,23 @@ class NoopAlt(Backend):
 
     def compute(self, x=None):
         return x if x is not None else np.zeros(1)
+
+
+class Stack(Node):
+    """The input arrays one after another, in order (fan-in order tests)."""
+
+    inputs = {"xs": In(Array, variadic=True)}
+    outputs = {"out": Array}
+
+    def compute(self, xs):
+        return np.concatenate([np.ravel(x) for x in xs])
+
+
+class ImageMean(Node):
+    """The mean of an image's pixels, per channel."""
+
+    inputs = {"image": In(Image)}
+    outputs = {"out": Array}
+
+    def compute(self, image):
+        return image.pixels.reshape(-1, image.channels).mean(axis=0, dtype=np.float64)
