@@ -6,7 +6,7 @@ backend and a thumbnail of each image output.  :func:`report_file` gives the fil
 bytes for ``export_outputs`` to publish with the manifest.
 
 Thumbnails are small JPEGs (at most :data:`THUMB_PX` pixels on a side) of ``Image`` and
-``Mask`` outputs, shown in sRGB.  They are kept in the cache as ordinary entries keyed by the
+``Mask`` outputs, shown in sRGB, and of exported PNG/JPEG/GIF/WebP files.  They are kept in the cache as ordinary entries keyed by the
 image's digest, so a re-run's report does not decode its images again.
 """
 from __future__ import annotations
@@ -27,6 +27,18 @@ THUMB_VERSION = 1
 #: a report of a very large sweep keeps its first this-many thumbnails
 MAX_THUMBS = 400
 _IMAGE_TYPES = ("Image", "Mask")
+_IMAGE_FILES = (".png", ".jpg", ".jpeg", ".gif", ".webp")
+
+
+def _is_image_output(session, ptype, digest: str) -> bool:
+    """Image and Mask values; File values already in memory (exported) that browsers can show."""
+    if ptype.name in _IMAGE_TYPES:
+        return True
+    if ptype.name != "File":
+        return False
+    with session._memo_lock:
+        v = session.memo.get(digest)
+    return v is not None and str(getattr(v, "name", "")).lower().endswith(_IMAGE_FILES)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -56,6 +68,17 @@ def _display_rgb(ptype_name: str, value: Any) -> np.ndarray:
     return np.round(px * 255).astype(np.uint8)
 
 
+def _file_rgb(value) -> np.ndarray:
+    """8-bit RGB of an encoded PNG/JPEG/GIF/WebP file (its first frame), at most THUMB_PX a side."""
+    from PIL import Image as PILImage
+
+    im = PILImage.open(io.BytesIO(value.data))
+    im.seek(0)
+    im = im.convert("RGB")
+    im.thumbnail((THUMB_PX, THUMB_PX), PILImage.Resampling.BOX)
+    return np.asarray(im)
+
+
 def _jpeg(rgb: np.ndarray) -> bytes:
     from PIL import Image as PILImage
 
@@ -77,7 +100,8 @@ def thumbnail(session, digest: str, ptype) -> bytes | None:
             return store.load_value(rec["outputs"]["jpeg"]["digest"], ftype).data
         except Exception:  # noqa: BLE001 - a damaged thumbnail entry: make it again
             pass
-    jpeg = _jpeg(_display_rgb(ptype.name, session.value(digest, ptype)))
+    value = session.value(digest, ptype)
+    jpeg = _jpeg(_file_rgb(value) if ptype.name == "File" else _display_rgb(ptype.name, value))
     try:  # keep it for the next report; a read-only cache simply does not keep it
         d = store.put_value(ftype, File("thumbnail.jpg", jpeg))
         store.put_record(key, {"key": key, "node": "(report thumbnail)",
@@ -160,7 +184,7 @@ def report_html(session, result, manifest: dict) -> bytes:
         imgs = []
         for port, d in o.outputs.items():
             p = g.cls.out_ports.get(port)
-            if p is None or p.type.name not in _IMAGE_TYPES:
+            if p is None or not _is_image_output(session, p.type, d):
                 continue
             if thumbs >= MAX_THUMBS:
                 skipped += 1

@@ -176,7 +176,8 @@ def reasons(cur: dict, prev: dict | None, graph: Graph, node: str, inputs: bool 
         out.append(Reason("node-type", f"node type {old.get('node_type')} → {cur.get('node_type')}"))
     if changed("node_version"):
         out.append(Reason("node-version", f"node version {old.get('node_version')} → {cur.get('node_version')}"))
-    if changed("backend") or changed("backend_version"):
+    # the numpy reference is the node's own compute: its version is the node version
+    if changed("backend") or (changed("backend_version") and cur.get("backend") != "numpy"):
         a = f"{old.get('backend')} {old.get('backend_version')}"
         b = f"{cur.get('backend')} {cur.get('backend_version')}"
         out.append(Reason("backend", f"backend {a} → {b}"))

@@ -77,7 +77,8 @@ class Check:
         self.doc, self.data, self.reg = doc, data, reg
         self.graph_path, self.base_dir = graph_path, base_dir
         self.overrides, self.check_backends = overrides, check_backends
-        self.name = Path(graph_path).stem
+        stem = Path(graph_path).stem
+        self.name = stem if _NAME_RE.match(stem) else "graph"  # a dict's source is "<dict>"
         self.gparams: dict[str, Any] = {}
         self.sweeps: dict[str, Sweep] = {}
         self.declared: set[str] = set()  # every node name written in the file
