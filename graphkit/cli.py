@@ -168,7 +168,10 @@ def _dispatch(args) -> int:
         return cmd_run(args)
     if args.cmd == "validate":
         g = _load(args)
-        print(f"{args.graph}: ok ({len(g.nodes)} nodes, outputs: {', '.join(g.outputs)})")
+        grouped = {o for v in g.output_groups.values() for o in v}
+        outs = [f"{k} (×{len(v)})" for k, v in g.output_groups.items()] + [o for o in g.outputs if o not in grouped]
+        sweeps = "".join(f", sweep {n} ×{len(s)}" for n, s in g.sweeps.items())
+        print(f"{args.graph}: ok ({len(g.nodes)} nodes{sweeps}; outputs: {', '.join(outs)})")
         return 0
     if args.cmd == "show":
         return cmd_show(args)

@@ -122,7 +122,7 @@ def _connect(scheduler: str | None, jobs: int, timeout: float):
 
     if scheduler is None:
         cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, worker_dashboard_address=None,
+                               dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
                                silence_logs=logging.ERROR)
         return Client(cluster, set_as_default=False), cluster
     kw = {}

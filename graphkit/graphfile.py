@@ -77,7 +77,13 @@ class GNode:
         return out
 
     def sources(self) -> set[str]:
-        return {src for _, src, _ in self.edges()}
+        out = set()
+        for ref in self.inputs.values():
+            if isinstance(ref, list):
+                out.update(src for src, _ in ref)
+            else:
+                out.add(ref[0])
+        return out
 
     def map_inputs(self, fn) -> dict:
         """{port: fn(src, sport)} (a list of those for variadic ports)."""

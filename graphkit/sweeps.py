@@ -66,9 +66,14 @@ class Sweep:
     line: int = 0
     col: int = 0
     _by_name: dict[str, Instance] = field(default_factory=dict, repr=False)
+    _fields: list[str] = field(default_factory=list, repr=False)
 
     def __post_init__(self):
         self._by_name = {i.name: i for i in self.instances}
+        seen: dict[str, None] = {}
+        for i in self.instances:
+            seen.update(dict.fromkeys(i.fields))
+        self._fields = list(seen)
 
     def __len__(self) -> int:
         return len(self.instances)
@@ -80,10 +85,8 @@ class Sweep:
         return self._by_name.get(name)
 
     def fields(self) -> list[str]:
-        seen: dict[str, None] = {}
-        for i in self.instances:
-            seen.update(dict.fromkeys(i.fields))
-        return list(seen)
+        """Every field name some instance has."""
+        return self._fields
 
 
 def instance_node(base: str, instance: str) -> str:
@@ -242,7 +245,8 @@ def _range(doc, path, sname, value, base_dir):
     items = []
     for i in range(count):
         v = start + i * step if ints else round(start + i * step, 12)
-        items.append(({"value": v}, _fmt(v), path, _fmt(v)))
+        name = _fmt(v)
+        items.append(({"value": v}, name, path, name))
     return items
 
 

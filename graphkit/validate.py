@@ -63,6 +63,8 @@ class Spec:
     sweep: Sweep | None = None
     instances: list[str] = field(default_factory=list)  # its GNode names, in sweep order
     refs: dict[str, list[Ref]] = field(default_factory=dict)  # input port -> connections
+    ref_keys: list[str] | None = None  # params that hold a ${...} reference
+    file_params: list[str] = field(default_factory=list)  # its InputFile params
 
     def label(self, instance: str | None = None) -> str:
         n = instance_node(self.name, instance) if instance is not None else self.name
@@ -342,16 +344,21 @@ def check_params(c: Check) -> None:
 
 def _params_and_files(c: Check, spec: Spec, inst, raw: dict):
     """(params model, {InputFile param: path}) of one node or instance, or None (reported)."""
-    label = spec.label(inst.name if inst is not None and spec.sweep is not None else None)
     ppath = spec.path + ("params",)
-    n0 = c.n_diags
-    values = substitute(c, ppath, raw, (spec, inst))
-    if c.n_diags > n0:
+    n0 = len(c.doc.diags)
+    if spec.ref_keys is None:  # which params hold ${...}: only those are substituted per instance
+        spec.ref_keys = [k for k, v in raw.items() if _has_ref(v)]
+        spec.file_params = spec.cls.input_file_params()
+    values = dict(raw)
+    for k in spec.ref_keys:
+        values[k] = substitute(c, ppath + (k,), raw[k], (spec, inst))
+    if len(c.doc.diags) > n0:
         return None
     cls = spec.cls
     try:
         params = cls.Params.model_validate(values)
     except ValidationError as e:
+        label = spec.label(inst.name if inst is not None and spec.sweep is not None else None)
         fields = list(cls.Params.model_fields)
         for err in e.errors():
             loc = tuple(err["loc"])
@@ -367,17 +374,29 @@ def _params_and_files(c: Check, spec: Spec, inst, raw: dict):
                 c.at(ppath + loc, f"{label}, param '{'.'.join(map(str, loc))}': {err['msg']}{got_s}")
         return None
     except Exception as e:  # noqa: BLE001 - a validator that raised something unusual
-        c.at(ppath, f"{label}: bad params: {e}")
+        c.at(ppath, f"{spec.label(inst.name if inst is not None and spec.sweep is not None else None)}: bad params: {e}")
         return None
-    files = _input_files(c, spec, label, params)
+    if not spec.file_params:
+        return params, {}
+    files = _input_files(c, spec, spec.label(inst.name if inst is not None and spec.sweep is not None else None), params)
     return None if files is None else (params, files)
+
+
+def _has_ref(v: Any) -> bool:
+    if isinstance(v, str):
+        return "${" in v
+    if isinstance(v, dict):
+        return any(_has_ref(x) for x in v.values())
+    if isinstance(v, list):
+        return any(_has_ref(x) for x in v)
+    return False
 
 
 def _input_files(c: Check, spec: Spec, label: str, params) -> dict[str, str] | None:
     cls = spec.cls
     files: dict[str, str] = {}
     n0 = c.n_diags
-    for fp in cls.input_file_params():
+    for fp in spec.file_params:
         value = getattr(params, fp)
         if value in (None, ""):
             continue
