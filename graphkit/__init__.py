@@ -6,6 +6,8 @@ The engine knows nothing about faces or light: node types come from plugins (the
 from pydantic import Field
 
 from .api import Run, run_graph
+from .graphfile import load, load_dict
+from .status import status
 from .errors import BadInput, GraphError, GraphkitError, NodeFailed
 from .node import Backend, Context, In, InputFile, Node, Out, OutputPath
 from .types import (Array, Camera, File, Image, Json, Light, Mask, Mesh, PortType, Scalar,
@@ -17,4 +19,5 @@ __all__ = [
     "Node", "Backend", "In", "Out", "InputFile", "OutputPath", "Context", "Field",
     "Image", "Mask", "Mesh", "Camera", "Light", "Spectrum", "File", "Scalar", "Vector", "Array",
     "Json", "PortType", "BadInput", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
+    "load", "load_dict", "status",
 ]

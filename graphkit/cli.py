@@ -215,7 +215,7 @@ def _status_report(args):
     from .status import status
 
     reg = _registry()
-    return status(args.graph, _store(args.cache), registry=reg, backends=_backends(args),
+    return status(args.graph, args.cache, registry=reg, backends=_backends(args),
                   overrides=parse_set(args.set), outputs=getattr(args, "output", None) or None)
 
 

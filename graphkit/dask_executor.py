@@ -141,14 +141,44 @@ def _connect(scheduler: str | None, jobs: int, timeout: float):
         address = scheduler.strip()
     for name in ("distributed.client", "distributed.comm", "distributed.core", "distributed.batched"):
         logging.getLogger(name).setLevel(logging.CRITICAL)  # the error below says it once
+    if address is not None:
+        _identify(address, timeout)  # before a Client exists: a failed Client leaves a noisy __del__
     try:
         client = Client(address, timeout=timeout, set_as_default=False, **kw)
     except (OSError, TimeoutError) as e:
         raise UsageError(f"cannot reach the Dask scheduler at {scheduler} within {timeout:g} s "
                          f"({type(e).__name__}: {e}); is it running, and is the address right?") from None
-    except (ValueError, TypeError) as e:
-        raise UsageError(f"--scheduler {scheduler!r}: {e}") from None
+    except Exception as e:  # noqa: BLE001 - anything else: not a usable scheduler
+        raise UsageError(f"--scheduler {scheduler!r}: cannot use it as a Dask scheduler: {type(e).__name__}: {e}") from None
     return client, None
+
+
+def _identify(address: str, timeout: float) -> None:
+    """Ask the server at ``address`` who it is (Dask's ``identity`` call); UsageError (exit 2)
+    when nothing answers in ``timeout`` seconds or the answer is not a Dask scheduler's."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await asyncio.wait_for(comm.read(), timeout)
+        finally:
+            comm.abort()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(ask(), timeout + 1))
+    except (OSError, TimeoutError, asyncio.TimeoutError) as e:
+        raise UsageError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s "
+                         f"({type(e).__name__}: {e}); is it running, and is the address right?") from None
+    except Exception as e:  # noqa: BLE001 - garbage on the wire (e.g. an HTTP server)
+        raise UsageError(f"the server at {address} does not answer as a Dask scheduler (its reply is "
+                         f"not Dask's protocol: {type(e).__name__}); is the address right?") from None
+    if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+        what = answer.get("type") if isinstance(answer, dict) else type(answer).__name__
+        raise UsageError(f"the server at {address} is not a Dask scheduler (it says it is {what!r})")
 
 
 def _preflight(client, session: Session, order: list[str], timeout: float, scheduler) -> None:

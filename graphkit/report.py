@@ -12,8 +12,10 @@ image's digest, so a re-run's report does not decode its images again.
 from __future__ import annotations
 
 import base64
+import contextlib
 import html
 import io
+import os
 import time
 from typing import Any
 
@@ -147,7 +149,11 @@ def report_html(session, result, manifest: dict) -> bytes:
     out = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
            f"<title>{_e(graph.name)}: graphkit run report</title><style>{_CSS}</style></head><body>",
            f"<h1>{_e(graph.name)}</h1><table class='meta'>"]
-    meta = [("graph", graph.path), ("finished", manifest.get("finished", time.strftime("%Y-%m-%dT%H:%M:%S%z"))),
+    shown_path = graph.path
+    with contextlib.suppress(ValueError):
+        rel = os.path.relpath(graph.path)
+        shown_path = graph.path if rel.startswith("..") else rel
+    meta = [("graph", shown_path), ("finished", manifest.get("finished", time.strftime("%Y-%m-%dT%H:%M:%S%z"))),
             ("executor", result.executor), ("wall time", f"{result.seconds:.2f} s"),
             ("nodes", f"{len(outcomes)}: {n_run} computed ({compute_s:.2f} s of node time), {n_hit} cached"),
             ("host", manifest.get("host", "")), ("cache", manifest.get("cache", "")),
@@ -158,10 +164,10 @@ def report_html(session, result, manifest: dict) -> bytes:
     out.append("</table>")
 
     bases: dict[str, list] = {}
-    for n, o in outcomes.items():
+    for n in [n for n in graph.nodes if n in outcomes]:
         g = graph.nodes[n]
         if g.sweep:
-            bases.setdefault(g.base, []).append(o)
+            bases.setdefault(g.base, []).append(outcomes[n])
     if bases:
         out.append("<h2>Sweeps</h2><table><thead><tr><th>node</th><th>type</th><th>sweep</th><th>instances</th>"
                    "<th>computed</th><th>cached</th><th>node time</th></tr></thead><tbody>")
@@ -179,7 +185,8 @@ def report_html(session, result, manifest: dict) -> bytes:
                "<th>time</th><th></th><th>backend</th><th>key</th><th>image outputs</th></tr></thead><tbody>")
     thumbs = 0
     skipped = 0
-    for n, o in outcomes.items():
+    for n in [n for n in graph.nodes if n in outcomes]:  # graph-file order, instances in sweep order
+        o = outcomes[n]
         g = graph.nodes[n]
         imgs = []
         for port, d in o.outputs.items():

@@ -104,7 +104,7 @@ def status(graph, cache: str | os.PathLike | Store = ".graphkit-cache", *, regis
     graph = load(graph, registry, overrides)
     if outputs:
         graph.select_outputs(outputs)
-    store = cache if isinstance(cache, Store) else Store(cache).open()
+    store = cache if isinstance(cache, Store) else Store(cache)  # not opened: a dry run creates nothing
     session = Session(graph, registry, store, backends)
     targets = sorted({n for n, _ in graph.outputs.values()})
     return StatusReport(graph, walk(session, graph.upstream(targets)))

@@ -27,4 +27,12 @@ def did_you_mean(word: str, choices: Iterable[str]) -> str:
     return f"; did you mean '{c}'?" if c else ""
 
 
-__all__ = ["closest", "did_you_mean"]
+def unknown_keys(doc, path: tuple, mapping: dict, allowed, what: str) -> None:
+    """Report every key of ``mapping`` not in ``allowed`` at its place: ``WHAT: unknown key 'x'; did
+    you mean 'y'?`` (``doc`` is a graph document: ``doc.at(path, message, key=True)``)."""
+    for k in mapping:
+        if k not in allowed:
+            doc.at(path + (k,), f"{what}unknown key '{k}'{did_you_mean(k, allowed)}", key=True)
+
+
+__all__ = ["closest", "did_you_mean", "unknown_keys"]

@@ -38,7 +38,7 @@ import string
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from .suggest import did_you_mean
+from .suggest import unknown_keys
 
 SWEEP_KINDS = ("values", "matrix", "range", "glob")
 SWEEP_KEYS = SWEEP_KINDS + ("name", "doc")
@@ -137,9 +137,7 @@ def parse_sweeps(doc, raw, base_dir: str, substitute: Callable) -> dict[str, Swe
         if not isinstance(spec, dict):
             doc.at(path, f"sweep '{sname}' must be a mapping with one of {', '.join(SWEEP_KINDS)}, got {_kind(spec)}")
             continue
-        for k in spec:
-            if k not in SWEEP_KEYS:
-                doc.at(path + (k,), f"sweep '{sname}': unknown key '{k}'{did_you_mean(k, SWEEP_KEYS)}", key=True)
+        unknown_keys(doc, path, spec, SWEEP_KEYS, f"sweep '{sname}': ")
         kinds = [k for k in SWEEP_KINDS if k in spec]
         if len(kinds) != 1:
             doc.at(path, f"sweep '{sname}' needs exactly one of {', '.join(SWEEP_KINDS)}"
@@ -218,10 +216,10 @@ def _range(doc, path, sname, value, base_dir):
     if not isinstance(value, dict):
         doc.at(path, f"sweep '{sname}': 'range' must be a mapping {{start, stop, step}}, got {_kind(value)}")
         return None
-    for k in value:
-        if k not in keys:
-            doc.at(path + (k,), f"sweep '{sname}': unknown range key '{k}'{did_you_mean(k, keys)}", key=True)
-            return None
+    n0 = len(doc.diags)
+    unknown_keys(doc, path, value, keys, f"sweep '{sname}', range: ")
+    if len(doc.diags) > n0:
+        return None
     nums = {}
     for k, default in (("start", 0), ("stop", None), ("step", 1)):
         v = value.get(k, default)

@@ -29,7 +29,7 @@ from .errors import BadInput, GraphError, GraphkitError, UsageError
 from .graphfile import FORMAT, NODE_KEYS, TOP_KEYS, GNode, Graph, _NAME_RE, _kind
 from .node import probe
 from .registry import NUMPY, Registry
-from .suggest import did_you_mean
+from .suggest import did_you_mean, unknown_keys
 from .sweeps import SUB_RE, Sweep, instance_node, parse_sweeps
 
 #: files ``export_outputs`` writes beside the graph's outputs
@@ -249,9 +249,7 @@ def check_nodes(c: Check) -> None:
         if not isinstance(raw, dict):
             c.at(npath, f"node '{nname}' must be a mapping with 'type', 'inputs', 'params', got {_kind(raw)}")
             continue
-        for k in raw:
-            if k not in NODE_KEYS:
-                c.at(npath + (k,), f"node '{nname}': unknown key '{k}'{did_you_mean(k, NODE_KEYS)}", key=True)
+        unknown_keys(c.doc, npath, raw, NODE_KEYS, f"node '{nname}': ")
         cls = _node_type(c, npath, nname, raw.get("type"), "type" in raw)
         if cls is None:
             continue

@@ -201,7 +201,7 @@ def free_port():
         return s.getsockname()[1]
 
 
-def test_an_unreachable_or_malformed_scheduler_is_exit_2(tmp_path, write):
+def test_an_unreachable_or_malformed_scheduler_is_exit_2(tmp_path, write, engine_registry):
     g = write("g.yaml", "graphkit: 1\nnodes:\n  c: {type: Const}\n")
     addr = f"tcp://127.0.0.1:{free_port()}"
     t = time.monotonic()
@@ -212,7 +212,29 @@ def test_an_unreachable_or_malformed_scheduler_is_exit_2(tmp_path, write):
     assert r.stderr.startswith(f"graphkit: cannot reach the Dask scheduler at {addr} within 2 s"), r.stderr
     assert "Traceback" not in r.stderr and took < 30
     assert not (tmp_path / "o").exists()
+    # something that is not a Dask scheduler answers at the address
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen()
+
+    def answer():
+        while True:
+            try:
+                c, _ = srv.accept()
+            except OSError:
+                return
+            with c:
+                c.sendall(b"HTTP/1.1 200 OK\r\n\r\nnot dask\n" * 20)
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        with pytest.raises(UsageError, match="does not answer as a Dask scheduler") as ei:
+            run_graph(g, cache=tmp_path / "c", executor="dask", scheduler=f"tcp://127.0.0.1:{srv.getsockname()[1]}",
+                      scheduler_timeout=3, registry=engine_registry)
+        assert ei.value.exit_code == 2
+    finally:
+        srv.close()
     for bad in ("tcp//host:1", "tcp://host:99999", "foo://x y"):
         with pytest.raises(UsageError, match="not a Dask scheduler address") as ei:
-            run_graph(g, cache=tmp_path / "c", executor="dask", scheduler=bad)
+            run_graph(g, cache=tmp_path / "c", executor="dask", scheduler=bad, registry=engine_registry)
         assert ei.value.exit_code == 2

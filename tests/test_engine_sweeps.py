@@ -232,13 +232,23 @@ def test_instance_names_that_collide_from_a_glob(tmp_path, write, reg):
             in str(ei.value)), str(ei.value)
 
 
-def test_schema_covers_sweeps(tmp_path):
+def test_an_output_cannot_take_the_report_s_or_manifest_s_name(write, reg):
+    g = write("g.yaml", "graphkit: 1\nnodes:\n  t: {type: WriteText, params: {path: report.html}}\n"
+                        "  u: {type: WriteText, params: {path: ./manifest.json}}\n")
+    with pytest.raises(GraphError) as ei:
+        load_graph(g, reg, {})
+    assert [(d.line, d.col) for d in ei.value.diagnostics] == [(3, 39), (4, 39)], str(ei.value)
+    assert "node 't' (WriteText), param 'path': 'report.html' is the name of the run's own report.html" in str(ei.value)
+
+
+def test_schema_covers_sweeps(reg):
     import jsonschema
     import yaml
 
-    r = graphkit("schema", "-o", tmp_path / "schema.json", env=env())
-    assert r.returncode == 0, r.stderr
-    schema = json.loads((tmp_path / "schema.json").read_text())
+    from graphkit.schema import graph_schema
+
+    schema = graph_schema(reg)
+    jsonschema.Draft202012Validator.check_schema(schema)
     good = yaml.safe_load(BAD_BASE)
     jsonschema.validate(good, schema)
     for bad in ({"v": {"values": []}}, {"v": {"glob": "*.png", "values": [1]}}, {"v": {"matrix": {"a": []}}},
@@ -249,3 +259,73 @@ def test_schema_covers_sweeps(tmp_path):
     bad["nodes"]["c"]["foreach"] = 3
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(bad, schema)
+
+
+# --------------------------------------------------------------------------------------------
+# fuzzing sweep graphs: a located error or a graph, never a traceback
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+FUZZ_SEED = """\
+graphkit: 1
+params: {vals: [1, 2, 3]}
+sweeps:
+  v: {values: "${params.vals}", name: "v{index}"}
+  m: {matrix: {a: [1, 2], b: [x, y]}}
+  r: {range: {start: 0, stop: 4, step: 1}}
+nodes:
+  c: {type: Const, foreach: v, params: {value: "${v.value}", label: "${m[*].name}"}}
+  d: {type: Add, foreach: v, inputs: {a: c.out}}
+  s: {type: Sum, inputs: {xs: ["d[*].out", "c[v1].out"]}}
+  k: {type: Const, foreach: r, params: {value: "${r.value}"}}
+outputs: {s: s.out, d: d.out}
+"""
+FUZZ_TOKENS = ["[*]", "[v1]", "[", "]", "foreach: v", "foreach: m", "${v.value}", "${v[*].name}", "${m.a}",
+               "values: []", "glob: '*.nothing'", "matrix: {}", "range: {step: 0}", "name: '{nope}'",
+               "name: '{index:d'", "sweeps:", "\n", "  ", ",", ":", "{", "}", "${", "*"]
+
+
+@st.composite
+def mutated_sweeps(draw):
+    text = FUZZ_SEED
+    for _ in range(draw(st.integers(1, 3))):
+        i = draw(st.integers(0, len(text)))
+        if draw(st.booleans()):
+            text = text[:i] + draw(st.sampled_from(FUZZ_TOKENS)) + text[i:]
+        else:
+            text = text[:i] + text[i + draw(st.integers(1, 12)):]
+    return text
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(text=mutated_sweeps())
+def test_mutated_sweep_graphs(tmp_path_factory, engine_registry, text):
+    from graphkit.errors import UsageError
+
+    p = tmp_path_factory.mktemp("fz") / "g.yaml"
+    p.write_text(text)
+    try:
+        load_graph(p, engine_registry, {})
+    except GraphError as e:
+        assert e.diagnostics
+        for d in e.diagnostics:
+            assert d.line >= 1 and d.col >= 1 and str(d).startswith(f"{p}:{d.line}:{d.col}: error: "), d
+    except UsageError:
+        pass
+
+
+def test_example_graphs_sweep_as_documented(engine_registry):
+    from conftest import ROOT
+
+    g = load_graph(ROOT / "graphs" / "face_ring.yaml", engine_registry, {})
+    assert len(g.sweeps["light"]) >= 32
+    assert len(g.instances("relit")) == len(g.sweeps["light"])
+    assert g.nodes["sheet"].inputs["images"] == [(n, "image") for n in g.instances("relit")]
+    assert g.nodes["preview"].inputs["frames"] == g.nodes["sheet"].inputs["images"]
+    assert g.output_groups["relit"] == [f"relit/ring{i:02d}" for i in range(32)]
+    assert g.nodes["save[ring07]"].params.path == "relit/ring07.exr"
+    photos = sorted(p.stem for p in (ROOT / "graphs" / "photos").glob("*.png"))
+    g = load_graph(ROOT / "graphs" / "makeup_batch.yaml", engine_registry, {})
+    assert len(photos) >= 3 and [g.nodes[n].instance for n in g.instances("made_up")] == photos
+    assert g.nodes["sheet"].params.labels == photos

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from graphkit import Array, Backend, Field, Image, In, Node
+from graphkit import Array, Backend, Field, File, Image, In, Node, OutputPath
 
 
 class Count(Node):
@@ -89,3 +89,16 @@ class ImageMean(Node):
 
     def compute(self, image):
         return image.pixels.reshape(-1, image.channels).mean(axis=0, dtype=np.float64)
+
+
+class WriteText(Node):
+    """A text file into --out."""
+
+    outputs = {"file": File}
+
+    class Params(Node.Params):
+        path: OutputPath
+        text: str = ""
+
+    def compute(self):
+        return File(self.params.path, self.params.text.encode())
