@@ -121,10 +121,10 @@ _CSS = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222}
 h1{font-size:1.4em;margin:0 0 .2em} h2{font-size:1.1em;margin:1.4em 0 .4em}
 table{border-collapse:collapse} td,th{padding:3px 8px;border-bottom:1px solid #e4e4e4;text-align:left;vertical-align:middle}
-th{background:#f4f4f4;position:sticky;top:0} td.num{text-align:right;font-variant-numeric:tabular-nums}
+th{background:#f4f4f4;position:sticky;top:0} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .hit{color:#2e7d32}.miss{color:#e65100;font-weight:600} .key{font-family:monospace;color:#777}
 .bar{height:8px;background:#90caf9;display:inline-block;vertical-align:middle}
-.meta td{border:0;padding:1px 10px 1px 0} img{display:inline-block;margin-right:4px;border:1px solid #ddd}
+.meta td{border:0;padding:1px 10px 1px 0} img{display:inline-block;margin:1px 4px 1px 0;border:1px solid #ddd;max-height:64px}
 input{margin:.3em 0 .6em;padding:3px 6px;width:18em}
 """
 
