@@ -92,6 +92,7 @@ class Check:
         self.order: list[str] = []
         raw = data.get("sweeps")
         self.raw_sweeps: dict = raw if isinstance(raw, dict) else {}
+        self.silent_misses = 0  # references to a broken sweep: not reported again, but not valid
 
     def at(self, path, message, key=False):
         self.doc.at(path, message, key=key)
@@ -153,7 +154,8 @@ def _resolve(c: Check, path, m, ctx):
     sw = c.sweeps.get(ns)
     if sw is None:
         if ns in c.raw_sweeps:
-            return _MISSING  # a sweep with its own (already reported) problem
+            c.silent_misses += 1  # a sweep with its own (already reported) problem
+            return _MISSING
         known = list(c.sweeps)
         c.at(path, f"unknown sweep '{ns}' in {ref}{did_you_mean(ns, known + ['params'])}"
              + (f" (sweeps: {', '.join(known)})" if known else " (the graph has no sweeps; graph params are ${params.NAME})"))
@@ -348,9 +350,10 @@ def _params_and_files(c: Check, spec: Spec, inst, raw: dict):
         spec.ref_keys = [k for k, v in raw.items() if _has_ref(v)]
         spec.file_params = spec.cls.input_file_params()
     values = dict(raw)
+    m0 = c.silent_misses
     for k in spec.ref_keys:
         values[k] = substitute(c, ppath + (k,), raw[k], (spec, inst))
-    if len(c.doc.diags) > n0:
+    if len(c.doc.diags) > n0 or c.silent_misses > m0:
         return None
     cls = spec.cls
     try:
