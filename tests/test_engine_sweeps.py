@@ -241,12 +241,19 @@ def test_an_output_cannot_take_the_report_s_or_manifest_s_name(write, reg):
     assert "node 't' (WriteText), param 'path': 'report.html' is the name of the run's own report.html" in str(ei.value)
 
 
-def test_schema_covers_sweeps(reg):
+def test_schema_covers_sweeps():
+    import enginenodes
     import jsonschema
+    import sweepnodes
     import yaml
 
+    from graphkit.registry import Registry
     from graphkit.schema import graph_schema
 
+    reg = Registry()  # only the node types BAD_BASE uses: the point here is the sweeps section
+    reg.add_provider("nodes", "io", {"LoadImage": "nodes.io.images:LoadImage", "SaveImage": "nodes.io.images:SaveImage"})
+    reg.add_provider("nodes", "tests", sweepnodes)
+    reg.add_provider("nodes", "tests", enginenodes)
     schema = graph_schema(reg)
     jsonschema.Draft202012Validator.check_schema(schema)
     good = yaml.safe_load(BAD_BASE)
