@@ -210,7 +210,7 @@ def test_an_unreachable_or_malformed_scheduler_is_exit_2(tmp_path, write, engine
     took = time.monotonic() - t
     assert r.returncode == 2, r.stderr
     assert r.stderr.startswith(f"graphkit: cannot reach the Dask scheduler at {addr} within 2 s"), r.stderr
-    assert "Traceback" not in r.stderr and took < 30
+    assert "Traceback" not in r.stderr and took < 2 + 40  # the timeout, plus start-up on a busy machine
     assert not (tmp_path / "o").exists()
     # something that is not a Dask scheduler answers at the address
     srv = socket.socket()
