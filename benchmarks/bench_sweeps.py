@@ -91,7 +91,7 @@ def bench_big(d: Path) -> dict:
     from graphkit.executor import run_local
     from graphkit.graphfile import load_graph
     from graphkit.runner import Session
-    from graphkit.status import walk
+    from graphkit.dryrun import walk
     from graphkit.store import Store
 
     reg = registry()

@@ -1,11 +1,13 @@
 """The `graphkit` command line.
 
-Exit codes: 0 success, 2 bad graph / bad input / bad usage, 1 a node failed.
+Exit codes: 0 success, 2 bad graph / bad input / bad usage / a problem of the environment
+(a missing package, a NUL byte in a path, an unreadable or full disk, input nested too deeply),
+1 a node failed, 130 interrupted (Ctrl-C), 141 the reader of the output went away (``| head``).
+Nothing heavy is imported before :func:`main` runs, so a Ctrl-C at any moment is exit 130
+without a traceback.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import re
 import sys
@@ -41,24 +43,29 @@ def _version() -> str:
     return f"graphkit {__version__} ({dist}Python {platform.python_version()})"
 
 
-class _VersionAction(argparse.Action):
-    """--version, computed only when asked for (importing metadata costs start-up time)."""
+def _version_action(argparse):
+    class VersionAction(argparse.Action):
+        """--version, computed only when asked for (importing metadata costs start-up time)."""
 
-    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
-        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+        def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+            super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
-    def __call__(self, parser, namespace, values, option_string=None):
-        print(_version())
-        parser.exit()
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(_version())
+            parser.exit()
+
+    return VersionAction
 
 
 def _backend_arg(p):
     p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser():
+    import argparse
+
     ap = argparse.ArgumentParser(prog="graphkit", description="Run typed node graphs with a content-hash cache.")
-    ap.add_argument("--version", action=_VersionAction, help="print the version and exit")
+    ap.add_argument("--version", action=_version_action(argparse), help="print the version and exit")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a graph")
@@ -115,6 +122,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("schema", help="print the JSON Schema of graph files")
     p.add_argument("-o", "--output", default=None)
 
+    p = sub.add_parser("serve", help="open the graph in a local web studio")
+    p.add_argument("graph", help="graph file (YAML)")
+    _cache_arg(p)
+    p.add_argument("--out", default="out", help="folder for the outputs and manifest.json of each run (default: out)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine only)")
+    p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+    p.add_argument("--jobs", "-j", type=int, default=1, help="nodes run at once (default: 1)")
+    p.add_argument("--no-run", action="store_true", help="do not run on open or on each change (press Run)")
+    p.add_argument("--open", action="store_true", help="open the URL in a web browser")
+
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
     for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
@@ -128,24 +146,81 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    ap = build_parser()
-    args = ap.parse_args(argv)
+    """Run the command line; returns the exit code (see the module docstring)."""
     try:
+        code = _main(argv)
+        sys.stdout.flush()  # a reader that went away shows here, not at interpreter exit
+        return code
+    except KeyboardInterrupt:
+        _print_err("graphkit: interrupted")
+        return 130
+    except BrokenPipeError:  # `graphkit nodes --json | head`: stop quietly, as Unix tools do
+        _silence_stdout()
+        return 141
+
+
+def _main(argv) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        _check_no_nul(args)
         return _dispatch(args)
     except GraphkitError as e:
         from .errors import GraphError
 
         print(str(e) if isinstance(e, GraphError) else f"graphkit: {e}", file=sys.stderr)
         return e.exit_code
-    except KeyboardInterrupt:
-        print("graphkit: interrupted", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, BrokenPipeError):
+        raise
+    except RecursionError:
+        print("graphkit: input nested too deeply (over Python's recursion limit)", file=sys.stderr)
+        return 2
+    except ImportError as e:  # the environment lacks a package (e.g. s3fs for --cache s3://)
+        print(f"graphkit: a required Python package is missing: {_import_message(e)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("graphkit: out of memory", file=sys.stderr)
+        return 2
+    except OSError as e:  # the disk or the OS refused (full, read-only, permissions)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"graphkit: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
     except Exception as e:  # noqa: BLE001 - a bug in graphkit itself: one line, not a traceback
         if os.environ.get("GRAPHKIT_TRACEBACK"):
             raise
         print(f"graphkit: internal error: {type(e).__name__}: {e} (set GRAPHKIT_TRACEBACK=1 for details)",
               file=sys.stderr)
         return 1
+
+
+def _check_no_nul(args) -> None:
+    """A NUL byte cannot be part of a path (the OS would raise ValueError deep inside)."""
+    for name, value in vars(args).items():
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, str) and "\0" in v:
+                opt = name if name in ("graph", "name", "node") else "--" + name.replace("_", "-")
+                raise UsageError(f"{opt}: {v!r} holds a NUL byte")
+
+
+def _import_message(e: ImportError) -> str:
+    name = e.name or getattr(e.__cause__, "name", None)
+    text = str(e)
+    return text if not name or name in text else f"{text} (package '{name}')"
+
+
+def _print_err(msg: str) -> None:
+    try:
+        print(msg, file=sys.stderr)
+    except (OSError, ValueError):
+        pass
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 def _registry():
@@ -187,6 +262,8 @@ def _dispatch(args) -> int:
     if args.cmd == "nodes":
         return cmd_nodes(args)
     if args.cmd == "schema":
+        import json
+
         from .schema import graph_schema
 
         text = json.dumps(graph_schema(_registry()), indent=1)
@@ -197,6 +274,14 @@ def _dispatch(args) -> int:
         return 0
     if args.cmd == "cache":
         return cmd_cache(args)
+    if args.cmd == "serve":
+        from .studio import serve
+
+        if args.jobs < 1:
+            raise UsageError("--jobs must be at least 1")
+        return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
+                     backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                     jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
     raise UsageError(f"unknown command {args.cmd}")
 
 
@@ -212,7 +297,7 @@ def _backends(args) -> list[str]:
 
 def _status_report(args):
     from .graphfile import parse_set
-    from .status import status
+    from .dryrun import status
 
     reg = _registry()
     return status(args.graph, args.cache, registry=reg, backends=_backends(args),
@@ -220,6 +305,8 @@ def _status_report(args):
 
 
 def cmd_status(args) -> int:
+    import json
+
     report = _status_report(args)
     if getattr(args, "json", False):
         print(json.dumps(report.to_json(), indent=1))
@@ -284,6 +371,7 @@ def cmd_conform(args) -> int:
 
 def cmd_nodes(args) -> int:
     import inspect
+    import json
 
     reg = _registry()
     names = [args.name] if args.name else reg.node_names()
@@ -329,6 +417,7 @@ def cmd_nodes(args) -> int:
 
 def type_name(ann) -> str:
     """A param annotation as a person writes it: float, list[str], 'auto' | 'srgb', float | None."""
+    import json
     import types
     import typing
 

@@ -5,8 +5,6 @@ exits with ``err.exit_code``: 2 for a bad graph or bad input, 1 for a node that 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 
 class GraphkitError(Exception):
     """Base of all errors that the CLI reports as one clear message."""
@@ -14,14 +12,34 @@ class GraphkitError(Exception):
     exit_code = 2
 
 
-@dataclass
 class Diagnostic:
-    """One problem at a place in a graph file."""
+    """One problem at a place in a graph file.
 
-    file: str
-    line: int  # 1-based
-    col: int  # 1-based
-    message: str
+    A plain class rather than a dataclass: this module is imported before the command line
+    catches Ctrl-C, and ``dataclasses`` costs ~10 ms of imports (inspect, ast, …)."""
+
+    __slots__ = ("file", "line", "col", "message")
+
+    def __init__(self, file: str, line: int, col: int, message: str):
+        self.file = file
+        self.line = line  # 1-based
+        self.col = col  # 1-based
+        self.message = message
+
+    def _tuple(self):
+        return (self.file, self.line, self.col, self.message)
+
+    def __eq__(self, other):
+        return self._tuple() == other._tuple() if isinstance(other, Diagnostic) else NotImplemented
+
+    def __hash__(self):
+        return hash(self._tuple())
+
+    def __repr__(self) -> str:
+        return f"Diagnostic(file={self.file!r}, line={self.line!r}, col={self.col!r}, message={self.message!r})"
+
+    def __reduce__(self):
+        return (Diagnostic, self._tuple())
 
     def __str__(self) -> str:
         return f"{self.file}:{self.line}:{self.col}: error: {self.message}"
@@ -68,6 +86,20 @@ class BadInput(GraphkitError):
             where.append(f"port '{self.port}'")
         prefix = ", ".join(where)
         return f"bad input: {prefix}: {self.message}" if prefix else f"bad input: {self.message}"
+
+
+class BackendCannotRun(GraphkitError):
+    """Raised by a backend's ``compute`` when it cannot run *these* inputs here although it is
+    available (e.g. the image does not fit in the device's memory).  The engine then computes
+    the node with the numpy reference (one notice) when the backend was only preferred, and
+    refuses with exit 2 naming the node, the backend and ``reason`` when the node pins it."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+        super().__init__(reason)
+
+    def __reduce__(self):
+        return (BackendCannotRun, (self.reason,))
 
 
 class NodeFailed(GraphkitError):

@@ -19,10 +19,11 @@ import time
 import uuid
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any
 
 from .errors import GraphkitError, UsageError
+from .paths import safe_relpath  # noqa: F401 - the one output-name rule (also graphkit.executor.safe_relpath)
 from .report import report_file
 from .runner import NodeOutcome, Session
 from .types import File
@@ -126,14 +127,6 @@ def _run_pool(session: Session, order: list[str], jobs: int, progress: Progress,
 # outputs
 
 
-def safe_relpath(name: str) -> str:
-    """Check that ``name`` stays inside the output folder; return it normalised."""
-    p = PurePosixPath(name.replace("\\", "/"))
-    if not name or p.is_absolute() or any(part in ("..", "") for part in p.parts) or ":" in name:
-        raise UsageError(f"refusing to write {name!r}: output names must be relative paths inside --out")
-    return str(p)
-
-
 def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
     """How a non-File output is written: arrays as .npy, meshes as .ply, the rest as JSON."""
     import io
@@ -149,6 +142,10 @@ def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
         return f"{stem}.npy", buf.getvalue()
     if ptype.export_ext == ".ply":
         return f"{stem}.ply", value.export(file_type="ply")
+    if ptype.name == "Scalar":  # a plain JSON number (its repr round-trips the float exactly)
+        x = float(value)
+        finite = abs(x) < float("inf")  # JSON has no inf/nan: those are written as "inf", "nan"
+        return f"{stem}.json", json.dumps(x if finite else str(x)).encode()
     meta, _ = ptype.to_parts(value)
     return f"{stem}.json", json.dumps(meta, indent=1, sort_keys=True).encode()
 

@@ -10,7 +10,7 @@ from .errors import UsageError
 
 def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
     from .registry import default_registry
-    from .status import CACHED, walk
+    from .dryrun import CACHED, walk
     from .suggest import did_you_mean
 
     if node not in graph.nodes:
@@ -57,7 +57,7 @@ def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
 
 
 def _diff(cur: dict, prev: dict, graph: Graph, node: str, inputs: bool = True) -> list[str]:
-    from .status import _flat
+    from .dryrun import _flat
 
     a, b = _flat(cur), _flat(prev)
     out = []

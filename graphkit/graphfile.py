@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
 from .errors import Diagnostic, GraphError, UsageError
 from .hashing import key_digest
@@ -48,8 +48,72 @@ _PLAIN_TAGS = {
 }
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
 MAX_YAML_NODES = 200_000
-# libyaml's parser when the wheel has it (≈10× faster); both give the same nodes and marks
-_Loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: deepest nesting of YAML collections a graph file (or a --set value) may have.  libyaml's
+#: composer recurses in C (a file 30 000 levels deep overflows the C stack: a segfault) and the
+#: rest of loading recurses in Python, so depth is checked on the parser's events first.
+MAX_YAML_DEPTH = 100
+
+
+class _CoreResolver(yaml.resolver.BaseResolver):
+    """Plain scalars resolved by the YAML 1.2 core schema, not PyYAML's YAML 1.1 rules: ``yes``,
+    ``no``, ``on``, ``off`` are strings, ``1:20`` is a string (not sexagesimal 80), ``010`` is
+    ten, ``0o17`` and ``0x1F`` are integers, ``1e3`` is a float, ``1_000`` is a string."""
+
+
+for _tag, _regexp, _first in (
+    ("null", r"(?:~|null|Null|NULL|)\Z", ["~", "n", "N", ""]),
+    ("bool", r"(?:true|True|TRUE|false|False|FALSE)\Z", list("tTfF")),
+    ("int", r"(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)\Z", list("-+0123456789")),
+    ("float", r"(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+              r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z", list("-+.0123456789")),
+):
+    _CoreResolver.add_implicit_resolver(f"tag:yaml.org,2002:{_tag}", re.compile(_regexp), _first)
+
+if getattr(yaml, "__with_libyaml__", False):  # libyaml's parser (≈10× faster); same nodes and marks
+    class _Loader(yaml.cyaml.CParser, _CoreResolver):
+        def __init__(self, stream):
+            yaml.cyaml.CParser.__init__(self, stream)
+            _CoreResolver.__init__(self)
+else:  # pragma: no cover - PyYAML built without libyaml
+    class _Loader(yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser, yaml.composer.Composer,
+                  _CoreResolver):
+        def __init__(self, stream):
+            yaml.reader.Reader.__init__(self, stream)
+            yaml.scanner.Scanner.__init__(self)
+            yaml.parser.Parser.__init__(self)
+            yaml.composer.Composer.__init__(self)
+            _CoreResolver.__init__(self)
+
+_INT_RE = re.compile(r"[-+]?[0-9]+\Z")
+_FLOAT_RE = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?\Z")
+
+
+def core_scalar(tag: str, value: str) -> Any:
+    """The python value of a YAML 1.2 core-schema scalar (``tag`` resolved or explicit);
+    ValueError when ``value`` is not a valid text of that tag (e.g. ``!!int 1:20``)."""
+    kind = tag.rpartition(":")[2]
+    if kind == "str":
+        return value
+    if kind == "null":
+        if value in ("~", "null", "Null", "NULL", ""):
+            return None
+    elif kind == "bool":
+        if value in ("true", "True", "TRUE"):
+            return True
+        if value in ("false", "False", "FALSE"):
+            return False
+    elif kind == "int":
+        if _INT_RE.match(value):
+            return int(value, 10)
+        if value[:2] in ("0o", "0x") and len(value) > 2:
+            return int(value[2:], 8 if value[1] == "o" else 16)
+    elif kind == "float":
+        low = value.lower()
+        if low in (".inf", "+.inf", "-.inf", ".nan"):
+            return float(low.replace(".", ""))
+        if _FLOAT_RE.match(value) or _INT_RE.match(value):
+            return float(value)
+    raise ValueError(f"not a YAML 1.2 {kind}")
 
 
 @dataclass
@@ -194,7 +258,7 @@ def _mark(n) -> tuple[int, int]:
     return n.start_mark.line + 1, n.start_mark.column + 1
 
 
-def _to_py(doc: _Doc, n: yaml.Node, path: tuple, ctor) -> Any:
+def _to_py(doc: _Doc, n: yaml.Node, path: tuple) -> Any:
     doc.count += 1
     if doc.count > MAX_YAML_NODES:
         raise GraphError(Diagnostic(doc.file, *_mark(n), f"graph file too large (over {MAX_YAML_NODES} YAML values, aliases included)"))
@@ -217,27 +281,54 @@ def _to_py(doc: _Doc, n: yaml.Node, path: tuple, ctor) -> Any:
                 doc.diags.append(Diagnostic(doc.file, *_mark(kn), f"duplicate key '{k}'"))
                 continue
             doc.key_locs[path + (k,)] = _mark(kn)
-            out[k] = _to_py(doc, vn, path + (k,), ctor)
+            out[k] = _to_py(doc, vn, path + (k,))
         return out
     if isinstance(n, yaml.SequenceNode):
         if n.tag != "tag:yaml.org,2002:seq":
             doc.at(path, f"YAML tag '{short}' is not allowed: graph files hold plain data only")
             return None
-        return [_to_py(doc, x, path + (i,), ctor) for i, x in enumerate(n.value)]
+        return [_to_py(doc, x, path + (i,)) for i, x in enumerate(n.value)]
     if n.tag not in _PLAIN_TAGS:
         doc.at(path, f"YAML tag '{short}' is not allowed: graph files hold plain data only")
         return None
     try:
-        return ctor.construct_object(n, deep=True)
-    except (yaml.YAMLError, ValueError, OverflowError) as e:
+        return core_scalar(n.tag, n.value)
+    except (ValueError, OverflowError) as e:
         doc.at(path, f"bad scalar {n.value!r}: {e}")
         return None
 
 
+def _check_depth(text: str, file: str) -> None:
+    """GraphError at the first collection nested deeper than MAX_YAML_DEPTH.  The parser's
+    events come without recursion (both libyaml's and PyYAML's parsers keep explicit stacks),
+    and the scan stops at the first collection that is too deep, so a 10⁶-deep file costs
+    nothing; on the project's graphs it adds about half the cost of composing."""
+    loader = _Loader(text)
+    start, end = (yaml.MappingStartEvent, yaml.SequenceStartEvent), (yaml.MappingEndEvent, yaml.SequenceEndEvent)
+    depth = 0
+    try:
+        while True:
+            ev = loader.get_event()
+            if ev is None or isinstance(ev, yaml.StreamEndEvent):
+                return
+            if isinstance(ev, start):
+                depth += 1
+                if depth > MAX_YAML_DEPTH:
+                    raise GraphError(Diagnostic(file, *_mark(ev), f"YAML nested too deeply: more than "
+                                                f"{MAX_YAML_DEPTH} levels of lists and mappings"))
+            elif isinstance(ev, end):
+                depth -= 1
+    finally:
+        loader.dispose()
+
+
 def parse_yaml(text: str, file: str) -> _Doc:
+    """Parse YAML text into python data (YAML 1.2 core-schema scalars, plain data only) with
+    the place of every value; GraphError for malformed YAML or nesting over MAX_YAML_DEPTH."""
     doc = _Doc(file)
     loader = None
     try:
+        _check_depth(text, file)
         loader = _Loader(text)
         root = loader.get_single_node()
     except yaml.reader.ReaderError as e:  # a character YAML does not allow
@@ -258,7 +349,10 @@ def parse_yaml(text: str, file: str) -> _Doc:
             loader.dispose()
     if root is None:
         raise GraphError(Diagnostic(file, 1, 1, "the graph file is empty"))
-    doc.data = _to_py(doc, root, (), yaml.constructor.SafeConstructor())
+    try:
+        doc.data = _to_py(doc, root, ())
+    except RecursionError:  # cannot happen below MAX_YAML_DEPTH; kept as a guard
+        raise GraphError(Diagnostic(file, 1, 1, "malformed YAML: nested too deeply")) from None
     return doc
 
 
@@ -267,26 +361,46 @@ def parse_yaml(text: str, file: str) -> _Doc:
 
 
 def parse_set(items: list[str]) -> dict[str, Any]:
-    """``["k=v", ...]`` from ``--set``; values are parsed as YAML scalars/flow values."""
+    """``["k=v", ...]`` from ``--set``; values are parsed as YAML scalars/flow values, read
+    as in graph files (YAML 1.2 core schema: ``--set label=no`` is the string "no")."""
     out = {}
     for it in items or []:
         k, eq, v = it.partition("=")
         k = k.strip()
         if not eq or not k:
             raise UsageError(f"--set expects NAME=VALUE, got {it!r}")
+        if not v.strip():
+            out[k] = ""
+            continue
         try:
-            out[k] = yaml.safe_load(v) if v.strip() else ""
-        except yaml.YAMLError as e:
-            raise UsageError(f"--set {k}: cannot parse value {v!r}: {e}") from None
+            doc = parse_yaml(v, f"--set {k}")
+        except GraphError as e:
+            why = "; ".join(d.message for d in e.diagnostics)
+            raise UsageError(f"--set {k}: cannot parse value {v!r}: {why}") from None
+        if doc.diags:
+            raise UsageError(f"--set {k}: cannot parse value {v!r}: " + "; ".join(d.message for d in doc.diags))
+        out[k] = doc.data
     return out
 
 
 def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | None = None,
-               check_backends: bool = True) -> Graph:
-    """Load, resolve and validate a graph file; raise GraphError listing every problem."""
-    path = str(path)
+               check_backends: bool = True, text: str | bytes | None = None) -> Graph:
+    """Load, resolve and validate a graph file; raise GraphError listing every problem.
+
+    ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
+    it in messages and anchors its relative paths."""
+    path = os.fspath(path)
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if "\0" in path:
+        raise UsageError(f"{path!r}: a graph file path cannot hold a NUL byte")
+    if text is None and os.path.isdir(path):
+        raise UsageError(f"{path}: is a folder, not a graph file")
+    if text is None and os.path.exists(path) and not os.path.isfile(path):
+        raise UsageError(f"{path}: is not a regular file (a FIFO, socket or device), not a graph file")
     try:
-        raw = Path(path).read_bytes()
+        raw = Path(path).read_bytes() if text is None else (
+            text.encode() if isinstance(text, str) else text)
     except FileNotFoundError:
         raise UsageError(f"{path}: graph file not found") from None
     except OSError as e:
@@ -303,8 +417,11 @@ def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | No
         raise GraphError(Diagnostic(path, 1, 1, f"a graph file must be a mapping, got {_kind(data)}"))
     from .validate import validate
 
-    return validate(doc, data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
-                    overrides or {}, check_backends)
+    try:
+        return validate(doc, data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
+                        overrides or {}, check_backends)
+    except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
+        raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
 
 
 def load_dict(data: dict, registry: Registry, overrides: dict | None = None, *, base_dir: str | os.PathLike = ".",

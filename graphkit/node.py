@@ -152,10 +152,20 @@ class Node(_Computable):
 
     @classmethod
     def resolve_file(cls, param: str, value: str, base_dir: str) -> str:
-        """Turn an ``InputFile`` param into a real path (override for schemes like builtin:)."""
+        """Turn an ``InputFile`` param into a real path (override for schemes like builtin:).
+
+        BadInput when the path cannot be an input file (a NUL byte, a folder, a FIFO, socket
+        or device: opening a FIFO would wait forever); a missing file is reported by the caller."""
         import os
 
-        return value if os.path.isabs(value) else os.path.join(base_dir, value)
+        from .errors import BadInput
+        from .paths import input_file_problem
+
+        path = value if os.path.isabs(value) else os.path.join(base_dir, value)
+        problem = input_file_problem(path)
+        if problem:
+            raise BadInput(param, problem)
+        return path
 
     @classmethod
     def referenced_files(cls, param: str, path: str) -> dict[str, str]:
@@ -197,6 +207,14 @@ class Backend(_Computable):
     @classmethod
     def why_unavailable(cls) -> str:
         return "available() returned False"
+
+    @classmethod
+    def declines_preference(cls) -> str | None:
+        """None when a run's preference order (``--backend``) may choose this backend here;
+        else why not (e.g. an OpenCL backend that is slower than numpy on a CPU device): the
+        run then uses the next backend and says so once.  A node that pins the backend still
+        gets it.  Called only when the backend is available."""
+        return None
 
     def compute(self, **inputs) -> Any:  # pragma: no cover - abstract
         raise NotImplementedError

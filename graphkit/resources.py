@@ -1,8 +1,14 @@
-"""Finding shader sources (GLSL, OpenCL C) in a checkout or an installed wheel."""
+"""Finding shader sources (GLSL, OpenCL C) in an installed wheel or a checkout.
+
+``shaders/`` at the top of the checkout is installed as the package ``graphkit.shaders``
+(setup.py), so an installed graphkit finds its shaders relative to its own package with
+importlib.resources, as trimesh finds its resources: in a venv, a user site, or a
+``pip install --target`` folder alike, never under ``sys.prefix``.  In a checkout (and an
+editable install) they are the checkout's ``shaders/``.  ``$GRAPHKIT_SHADERS`` comes first.
+"""
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 
@@ -10,8 +16,12 @@ def shader_dirs() -> list[Path]:
     dirs = []
     if os.environ.get("GRAPHKIT_SHADERS"):
         dirs.append(Path(os.environ["GRAPHKIT_SHADERS"]))
+    from importlib.resources import files
+
+    packaged = files("graphkit").joinpath("shaders")  # an installed wheel
+    if isinstance(packaged, Path) and packaged.is_dir():
+        dirs.append(packaged)
     dirs.append(Path(__file__).resolve().parents[1] / "shaders")  # a checkout / editable install
-    dirs.append(Path(sys.prefix) / "share" / "relightkit" / "shaders")  # an installed wheel
     return dirs
 
 

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from .errors import BadInput, GraphkitError, NodeFailed
+from .errors import BackendCannotRun, BadInput, GraphkitError, NodeFailed
 from .graphfile import GNode, Graph
 from .hashing import RECIPE_VERSION, canonical_items, canonical_merge, file_digest
 from .node import Context, probe
@@ -78,13 +78,17 @@ class Session:
                     break
                 if b not in reg.backends.get(g.type, {}):
                     continue
-                why = probe(reg.backend_class(g.type, b))
-                if why is None:
+                bcls = reg.backend_class(g.type, b)
+                why = probe(bcls)
+                declined = why is None and _declines(bcls)
+                if why is None and not declined:
                     choice = b
                     break
                 if (g.type, b) not in self._noticed:
                     self._noticed.add((g.type, b))
-                    self.notice(f"notice: backend '{b}' for {g.type} is not available here ({why}); using numpy")
+                    self.notice(f"notice: backend '{b}' for {g.type} is not chosen by preference here ({declined}); using numpy"
+                                if declined else
+                                f"notice: backend '{b}' for {g.type} is not available here ({why}); using numpy")
         cls = reg.backend_class(g.type, choice)
         version = cls.version
         self._backends[g.name] = (choice, cls, version)
@@ -147,6 +151,26 @@ class Session:
 
     # -- the unit of work ------------------------------------------------------------------
     def run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
+        try:
+            return self._run_node(name, input_digests)
+        except BackendCannotRun as e:
+            g = self.graph.nodes[name]
+            bname = self._backends[name][0]
+            if g.backend or bname == NUMPY:  # pinned: refuse, naming node, backend and reason
+                err = BadInput(None, f"backend '{bname}' cannot run here: {e.reason}")
+                err.node, err.node_type = g.name, g.type
+                raise err from None
+            with self._memo_lock:  # preferred: this node runs (and is keyed) as numpy
+                cls = self.registry.backend_class(g.type, NUMPY)
+                self._backends[name] = (NUMPY, cls, cls.version)
+                self._static.pop(name, None)
+                first = (g.type, bname, "run") not in self._noticed
+                self._noticed.add((g.type, bname, "run"))
+            if first:
+                self.notice(f"notice: backend '{bname}' for {g.type} cannot run node '{name}' here ({e.reason}); using numpy")
+            return self._run_node(name, input_digests)
+
+    def _run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
         g = self.graph.nodes[name]
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
@@ -214,3 +238,11 @@ class Session:
         }
         self.store.put_record(key, record)
         return digests
+
+
+def _declines(bcls) -> str | None:
+    """The backend's reason not to be chosen by preference here (None: it may be)."""
+    try:
+        return bcls.declines_preference()
+    except Exception as e:  # noqa: BLE001 - a broken hook must not break the run
+        return f"{type(e).__name__}: {e}"

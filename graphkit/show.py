@@ -1,7 +1,7 @@
 """`graphkit show`: the graph as a mermaid flowchart or a Graphviz DOT digraph.
 
 A swept node is drawn once, as ``NAME ×N`` (``instances=True`` draws every instance).  Given a
-:class:`graphkit.status.StatusReport`, nodes are coloured by what a run would do: green
+:class:`graphkit.dryrun.StatusReport`, nodes are coloured by what a run would do: green
 cached, orange would run, yellow some instances of a swept node would run.
 """
 from __future__ import annotations

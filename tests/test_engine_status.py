@@ -5,7 +5,7 @@ import pytest
 
 from conftest import engine_env, graphkit
 from graphkit import run_graph
-from graphkit.status import CACHED, WOULD_RUN, status
+from graphkit.dryrun import CACHED, WOULD_RUN, status
 
 G = """\
 graphkit: 1

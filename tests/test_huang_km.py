@@ -279,3 +279,21 @@ def test_lookup_matches_float64_multilinear(sizes, shape):
          for i, (g, N) in enumerate(zip(grids, sizes))]
     for tab, out in zip(tabs, got):
         np.testing.assert_array_equal(out[on], tab[tuple(ki[on] for ki in k)])
+
+
+def test_float32_inputs_are_computed_in_float64():
+    """(mutants that dropped dtype=np.float64 survived) float32 coefficients give the float64
+    result of the same values, not a float32 one."""
+    S32, K32, X32 = np.float32([0.9, 30.6, 3.3]), np.float32([0.757, 10.7, 1e-3]), np.float32([0.03, 0.2, 7.0])
+    S, K, X = (v.astype(np.float64) for v in (S32, K32, X32))
+    for got, want in ((km.layer_R0_T(S32, K32, X32), km.layer_R0_T(S, K, X)),
+                      ((km.r_infinity(S32, K32),), (km.r_infinity(S, K),))):
+        for g, w in zip(got, want):
+            assert g.dtype == np.float64
+            np.testing.assert_array_equal(g, w)
+
+
+def test_empty_stack_is_vacuum():
+    Rt, Rb, T = km.stack([], [], [])
+    for v, want in ((Rt, 0.0), (Rb, 0.0), (T, 1.0)):
+        assert v.shape == (1,) and v[0] == want

@@ -3,12 +3,15 @@ from __future__ import annotations
 
 from graphkit import BadInput, Camera, Field, InputFile, Node, Out
 
+from .builtin import BuiltinFiles
 
-class LoadCameraJson(Node):
+
+class LoadCameraJson(BuiltinFiles, Node):
     """Read a :class:`graphkit.Camera` (pinhole intrinsics in pixels + 4×4 world→camera pose,
     OpenCV axes) from a JSON file with the Camera's fields (Paris 2003 §1: the calibrated
     photograph's projection)."""
 
+    builtin_what = "camera"
     version = "1"
     outputs = {"camera": Out(Camera, "the camera")}
 

@@ -6,18 +6,23 @@ from pathlib import PurePosixPath
 from pydantic import field_validator
 
 from graphkit import BadInput, Field, File, InputFile, Mesh, Node, OutputPath
+from graphkit.paths import safe_relpath
+
+from .builtin import BuiltinFiles
 
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".off")
 
 
-class LoadMesh(Node):
-    """Read a triangle mesh file with trimesh (vertices are kept as stored: no merging)."""
+class LoadMesh(BuiltinFiles, Node):
+    """Read a triangle mesh file with trimesh (vertices are kept as stored: no merging);
+    ``builtin:sample_capture/mesh.ply`` names the Paris sample capture's head."""
 
+    builtin_what = "mesh"
     version = "1"
     outputs = {"mesh": Mesh}
 
     class Params(Node.Params):
-        path: InputFile = Field(description="mesh file, relative to the graph file")
+        path: InputFile = Field(description="mesh file, relative to the graph file, or builtin:NAME")
 
     def compute(self):
         import trimesh
@@ -45,10 +50,7 @@ class SaveMesh(Node):
         @field_validator("path")
         @classmethod
         def _relative(cls, v: str) -> str:
-            p = PurePosixPath(v)
-            if p.is_absolute() or ".." in p.parts or p.suffix.lower() not in MESH_EXTS:
-                raise ValueError(f"must be a relative path ending in one of {', '.join(MESH_EXTS)}")
-            return str(p)
+            return safe_relpath(v, MESH_EXTS)
 
     def compute(self, mesh):
         data = mesh.export(file_type=PurePosixPath(self.params.path).suffix[1:].lower())

@@ -174,11 +174,9 @@ class LoadScene(Node):
     @classmethod
     def resolve_file(cls, param, value, base_dir):
         if value.startswith("builtin:"):
-            name = value[len("builtin:"):]
-            if name not in BUILTIN:
-                raise BadInput(param, f"unknown builtin scene '{value}' (known: "
-                               + ", ".join("builtin:" + k for k in BUILTIN) + ")")
-            return os.path.join(DATA, BUILTIN[name])
+            from nodes.io.builtin import builtin_path
+
+            return builtin_path(value, param, BUILTIN, package=__package__, folder="data", what="scene")
         return super().resolve_file(param, value, base_dir)
 
     @classmethod

@@ -100,8 +100,55 @@ def test_spectral_to_rgb_matches_colour_science(illuminant):
     assert worst < 0.1
 
 
+def _kubelka_over(S, K, X, Rg):
+    """Kubelka's closed form for a layer of thickness X (mm) over a background of reflectance Rg,
+    written out independently of nodes.huang.km (hyperbolic form, a = 1 + K/S, b = √(a² − 1)):
+
+        R = (1 − Rg (a − b coth(bSX))) / (a − Rg + b coth(bSX))
+
+    (Kubelka 1948; Huang 2013 eqs. 1–4 give the same number by adding the layer's R0, T to Rg)."""
+    S, K, Rg = (np.asarray(v, np.float64) for v in (S, K, Rg))
+    if X == 0:
+        return Rg
+    a = 1.0 + K / S
+    b = np.sqrt(a * a - 1.0)
+    coth = 1.0 / np.tanh(b * S * X)
+    return (1.0 - Rg * (a - b * coth)) / (a - Rg + b * coth)
+
+
+def _kubelka_stack_over(S_list, K_list, X_list, Rg):
+    """Layers listed bottom first, each laid over what lies beneath it (the background first)."""
+    R = np.asarray(Rg, np.float64)
+    for S, K, X in zip(S_list, K_list, X_list):
+        R = _kubelka_over(S, K, X, R)
+    return R
+
+
+def test_km_stack_equals_kubelka_closed_form_layer_by_layer():
+    """km.stack + over_background (the stack's Rt, Rb, T, eqs. 3–4) against laying each layer
+    over the one beneath with Kubelka's closed form: a layering bug (order, a term of the
+    inter-reflection series, Rb vs Rt) fails here whatever the table path does."""
+    from nodes.huang.library import get_cosmetic, layer_arrays, skin_spectrum
+
+    names = ["foundation_light", "blush_rose", "lipstick_red"]
+    wl, S, K = layer_arrays([get_cosmetic(n) for n in names])
+    bg = skin_spectrum(wl)
+    rng = np.random.default_rng(7)
+    for X in [(0.03, 0.0, 0.0), (0.0, 0.02, 0.06), (0.03, 0.02, 0.06), (0.1, 0.005, 0.01)] + \
+             [tuple(rng.random(3) * (0.08, 0.05, 0.12)) for _ in range(8)]:
+        Rt, Rb, T = km.stack(list(S), list(K), list(X))
+        ours = km.over_background(Rt, Rb, T, bg)
+        ref = _kubelka_stack_over(S, K, X, bg)
+        np.testing.assert_allclose(ours, ref, rtol=1e-10, atol=1e-12, err_msg=str(X))
+    # the order matters (a check that the test can tell): lipstick under foundation is another colour
+    X = (0.03, 0.02, 0.06)
+    flipped = _kubelka_stack_over(S[::-1], K[::-1], X[::-1], bg)
+    assert np.abs(flipped - _kubelka_stack_over(S, K, X, bg)).max() > 0.01
+
+
 def test_kmstack_pixels_match_colour_science_on_the_spectral_result():
-    """The KMStack node (table path, binary cosmetic map) vs per-pixel spectra through colour-science."""
+    """The KMStack node (table path, binary cosmetic map) vs per-pixel spectra through colour-science;
+    the spectra come from Kubelka's closed form layer by layer, not from the km.stack under test."""
     from graphkit import Image
     from nodes.huang.library import get_cosmetic, layer_arrays, skin_spectrum
     from nodes.huang.stack import KMStack
@@ -119,8 +166,7 @@ def test_kmstack_pixels_match_colour_science_on_the_spectral_result():
         worst = 0.0
         for y in range(h):
             for x in range(w):
-                Rt, Rb, T = km.stack(list(S), list(K), [float(v) for v in t[y, x]])
-                spec = km.over_background(Rt, Rb, T, bg)
+                spec = _kubelka_stack_over(S, K, [float(v) for v in t[y, x]], bg)  # not km.stack
                 worst = max(worst, float(_delta_e00(out["reflectance"].pixels[y, x], _reference_rgb(spec, wl, ill))))
         print(f"KMStack {ill}: max ΔE00 vs colour-science {worst:.2e}")
         assert worst < 0.1
@@ -139,8 +185,7 @@ def test_kmstack_soft_thicknesses_match_colour_science():
     wl, S, K = layer_arrays([get_cosmetic(n) for n in names])
     worst = 0.0
     for y, x in [(y, x) for y in range(0, 12, 2) for x in range(0, 12, 2)]:
-        Rt, Rb, T = km.stack(list(S), list(K), [float(v) for v in t[y, x]])
-        ref = _reference_rgb(km.over_background(Rt, Rb, T, skin_spectrum(wl)), wl, "D65")
+        ref = _reference_rgb(_kubelka_stack_over(S, K, [float(v) for v in t[y, x]], skin_spectrum(wl)), wl, "D65")
         worst = max(worst, float(_delta_e00(out[y, x], ref)))
     print(f"KMStack, soft thicknesses (table of 25 nodes per layer): max ΔE00 {worst:.3f}")
     assert worst < 0.1

@@ -261,3 +261,88 @@ def test_banded_eq3_equals_resizing_whole():
         a = grid_resize(s, c, (H, W))
         b = grid_resize(mu - s * mu_n, c, (H, W))
         np.testing.assert_allclose(out, np.maximum(a * hn + b, 0), atol=1e-7, rtol=0)
+
+
+# --------------------------------------------------------------------------------------------
+# the fast path's grid, structurally: where its values sit (issue 10: shifting the grid by half
+# a cell passed the fast-vs-exact bounds above, which allow for the approximation itself)
+
+
+def _disc_mean_std_by_sampling(h, cy, cx, r, n=400):
+    """Mean and σ of a piecewise-constant pixel map over the disc of radius r px centred at
+    (cy, cx) (continuous coordinates, pixel p covering [p, p + 1)), by point sampling the disc
+    on an n × n lattice: an independent reference (no code of nodes.jimenez)."""
+    t = (np.arange(n) + 0.5) / n * 2 - 1
+    yy, xx = np.meshgrid(t * r, t * r, indexing="ij")
+    inside = yy ** 2 + xx ** 2 <= r * r
+    v = h[np.floor(cy + yy[inside]).astype(int), np.floor(cx + xx[inside]).astype(int)]
+    return v.mean(), v.std()
+
+
+@pytest.mark.parametrize("r,c", [(16.0, 4), (20.0, 5), (30.0, 7)])
+def test_grid_statistics_are_the_disc_statistics_at_the_cell_centres(r, c):
+    """On a map constant within c × c cells the fast path's grid statistics are exact (its
+    docstring) and sit at the cell centres ((i + ½)·c px).  Checked at interior cells against
+    point sampling of the disc; a grid or kernel shifted by half a cell is off by ~5 % of σ."""
+    from nodes.jimenez.histmatch import grid_mean_std, stats_cell
+
+    rng = np.random.default_rng(int(r))
+    g = 24
+    cells = rng.random((g, g))
+    h = np.kron(cells, np.ones((c, c))).astype(np.float32)  # H = W = g·c
+    assert stats_cell(*h.shape, r) == c
+    mu, sd, _ = grid_mean_std([h], r)
+    assert mu.shape == (1, g, g)
+    R = int(np.ceil(r / c)) + 1
+    errs_mu, errs_sd = [], []
+    for i in range(R, g - R, 3):
+        for j in range(R + 1, g - R, 4):
+            m_ref, s_ref = _disc_mean_std_by_sampling(h, (i + 0.5) * c, (j + 0.5) * c, r)
+            errs_mu.append(abs(mu[0, i, j] - m_ref))
+            errs_sd.append(abs(sd[0, i, j] - s_ref))
+    sigma = h.std()
+    print(f"grid stats vs sampled disc, r={r}, c={c}: max |Δμ| = {max(errs_mu) / sigma:.4f} σ, "
+          f"max |Δσ| = {max(errs_sd) / sigma:.4f} σ")
+    assert max(errs_mu) <= 0.006 * sigma and max(errs_sd) <= 0.006 * sigma
+
+
+@pytest.mark.parametrize("shape,c", [((96, 120), 4), ((95, 121), 5), ((65, 35), 5), ((64, 64), 8), ((97, 141), 2)])
+def test_grid_resize_puts_cell_values_at_cell_centres(shape, c):
+    """grid_resize is bilinear with the value of cell i at (i + ½)·c px, held flat beyond the
+    outer centres: the same as numpy's np.interp along each axis (separable).  Where the last
+    cells stick out of the image the grid is first re-sampled (np.interp at the centres of g
+    cells tiling the image), then spread the same way."""
+    from nodes.jimenez.histmatch import grid_resize
+
+    H, W = shape
+    gH, gW = -(-H // c), -(-W // c)
+    rng = np.random.default_rng(H + W + c)
+    a = rng.random((gH, gW)).astype(np.float64)
+    out = grid_resize(a.astype(np.float32), c, shape)
+
+    def axis(vals, n):  # one axis of the reference: vals (g,) on cells of c px -> (n,) pixels
+        g = len(vals)
+        if g * c != n:  # cells of n/g px tiling the image, values interpolated at their centres
+            vals = np.interp((np.arange(g) + 0.5) * (n / g) / c - 0.5, np.arange(g), vals)
+        return np.interp((np.arange(n) + 0.5) / (n / g) - 0.5, np.arange(g), vals)
+
+    rows = np.stack([axis(a[i], W) for i in range(gH)])
+    ref = np.stack([axis(rows[:, x], H) for x in range(W)], axis=1)
+    np.testing.assert_allclose(out, ref, atol=2e-6, rtol=0)
+    if H % c == 0 and W % c == 0 and c % 2 == 1:  # cell centres are pixel centres: the cell's value
+        np.testing.assert_allclose(out[c // 2::c, c // 2::c], a, atol=2e-6)
+    # onto another resolution covering the same image (the eq. 5 maps at stats_size)
+    small = grid_resize(a.astype(np.float32), c, shape, (H // 3, W // 2))
+    assert small.shape == (H // 3, W // 2)
+
+
+def test_stats_cell_follows_its_rule():
+    """c = ⌊r/4⌋ (1 below 8 px); 1 (the global limit) exactly when the disc covers the image
+    from every pixel, r² ≥ (H − 1)² + (W − 1)²: a 24-32-40 triangle puts r on the boundary."""
+    from nodes.jimenez.histmatch import stats_cell
+
+    assert stats_cell(25, 33, 40.0) == 1  # r² = 24² + 32²
+    assert stats_cell(25, 33, 39.99) == 9
+    assert stats_cell(33, 25, 39.99) == 9
+    assert stats_cell(1000, 1000, 7.99) == 1 and stats_cell(1000, 1000, 8.0) == 2
+    assert stats_cell(1000, 1000, 31.9) == 7

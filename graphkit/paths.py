@@ -1,0 +1,72 @@
+"""Paths from users: output names that must stay inside ``--out``, and input files.
+
+One rule for every output name (``SaveImage`` / ``SaveMesh`` params and the names of ``File``
+values the executor writes), so the nodes that check a name early (when the graph is loaded)
+and the executor that checks it again before writing cannot drift apart.
+"""
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import PurePosixPath
+
+from .errors import UsageError
+
+#: characters refused in output names: NUL (no OS accepts it), the Windows drive/stream
+#: separator ':' (also refused on POSIX so a graph writes the same files everywhere)
+_BAD_CHARS = {"\0": "a NUL byte", ":": "':'"}
+
+
+class UnsafePath(UsageError, ValueError):
+    """An output name that would leave the output folder (or cannot be a file name): exit 2.
+    Also a ValueError, so a pydantic validator turns it into a param error at load time."""
+
+
+def safe_relpath(name: str, suffixes: tuple[str, ...] | None = None) -> str:
+    """``name`` as a normalised POSIX relative path that stays inside the output folder.
+
+    Backslashes count as separators (``a\\b.exr`` is ``a/b.exr``); ``.`` and empty parts are
+    dropped (``./a//b.exr`` is ``a/b.exr``).  Refused with :class:`UnsafePath` (a
+    ``ValueError`` too, so in a pydantic validator it is a param error at load time): empty
+    names, absolute paths, ``..`` parts, names ending in '/', ':' (drive letters, NTFS streams)
+    and NUL bytes.  With ``suffixes``, the extension (lower-cased) must be one of them.
+    """
+    if not isinstance(name, str) or not name:
+        raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder, not empty")
+    for ch, what in _BAD_CHARS.items():
+        if ch in name:
+            raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder "
+                             f"({what} is not allowed)")
+    text = name.replace("\\", "/")
+    parts = [p for p in text.split("/") if p not in ("", ".")]
+    if text.startswith("/") or text.endswith("/") or ".." in parts or not parts:
+        raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder "
+                         "to a file (no '..' part, no leading or trailing '/')")
+    p = PurePosixPath(*parts)
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise UnsafePath(f"output name {name!r}: unknown extension {p.suffix!r}; use one of {', '.join(suffixes)}")
+    return str(p)
+
+
+def input_file_problem(path: str) -> str | None:
+    """Why ``path`` cannot be read as an input file (None when it is a regular file, or does
+    not exist: the caller reports a missing file its own way).  A FIFO, socket or device is
+    refused before anyone opens it (opening a FIFO would wait for a writer forever)."""
+    if "\0" in path:
+        return f"{path!r} holds a NUL byte"
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    except OSError as e:
+        return f"cannot read {path}: {e.strerror or e}"
+    if stat.S_ISREG(st.st_mode):
+        return None
+    if stat.S_ISDIR(st.st_mode):
+        return f"{path} is a folder, not a file"
+    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode)
+            else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
+    return f"{path} is {kind}, not a regular file"
+
+
+__all__ = ["safe_relpath", "input_file_problem", "UnsafePath"]
