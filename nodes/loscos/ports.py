@@ -81,14 +81,25 @@ class Projection:
     """The photograph projected onto the polygons from the fixed viewpoint (§3, §4).
 
     textures (P,R,R,3): linear RGB radiance per texel (s, t) of each polygon; coverage (P,R,R)
-    1 where the texel is seen by the camera; pix_poly (H,W) polygon seen at each pixel (-1:
-    none); pix_st (H,W,2) its polygon coordinates.
+    1 where the texel is seen by the camera (and sampled from pixels that see only its
+    polygon); pix_poly (H,W) polygon seen at each pixel centre (-1: none); pix_st (H,W,2) its
+    polygon coordinates; sub_pix (n,) the flat indices of the pixels that see more than one
+    polygon, sub_poly (n,k²) and sub_st (n,k²,2) what their k×k subsamples see; em_pix,
+    em_poly, em_cover, em_st (m,): the exact share of pixel em_pix covered by emitter
+    polygon em_poly, and the (s, t) on it at the centroid of that share.
     """
 
     textures: np.ndarray
     coverage: np.ndarray
     pix_poly: np.ndarray
     pix_st: np.ndarray
+    sub_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    sub_poly: np.ndarray = field(default_factory=lambda: np.zeros((0, 1), np.int64))
+    sub_st: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 2)))
+    em_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    em_poly: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    em_cover: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    em_st: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 @dataclass(eq=False)

@@ -193,7 +193,7 @@ class RadiositySolve(Node):
     The solution keeps one response per light (radiosity is linear in the emittances).
     """
 
-    version = "2"
+    version = "3"
     inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
@@ -392,7 +392,7 @@ class TextureRefine(Node):
     Colours are of the leaf's mean texture, normalised by the photo's 99th percentile.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
