@@ -46,7 +46,9 @@ class RoomScene:
     verts (P,4,3) in metres, vertices counter-clockwise seen from the front side;
     reflectance (P,3) diffuse albedo (linear RGB, unitless); emittance (P,3) exitant
     radiosity of emitters in W/m² (= π × radiance); light (P,) name of the light a polygon
-    belongs to ("" if none); virtual (P,) bool — inserted, not in the photograph.
+    belongs to ("" if none); virtual (P,) bool — inserted, not in the photograph;
+    emit_given (P,) bool — False on the polygons of a light whose emittance the scene file
+    leaves to be estimated from the photograph (their emittance is then 0 here).
     """
 
     names: list
@@ -55,6 +57,7 @@ class RoomScene:
     emittance: np.ndarray
     light: list
     virtual: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    emit_given: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self):
         self.verts = np.asarray(self.verts, np.float64).reshape(-1, 4, 3)
@@ -66,6 +69,9 @@ class RoomScene:
         if len(self.virtual) != P:
             self.virtual = np.zeros(P, bool)
         self.virtual = np.asarray(self.virtual, bool)
+        if len(self.emit_given) != P:
+            self.emit_given = np.ones(P, bool)
+        self.emit_given = np.asarray(self.emit_given, bool)
 
     @property
     def light_names(self) -> list[str]:
@@ -74,6 +80,11 @@ class RoomScene:
             if n and n not in out:
                 out.append(n)
         return out
+
+    def light_given(self) -> np.ndarray:
+        """(S,) bool per light (light_names order): the scene file gives its emittance."""
+        return np.array([bool(self.emit_given[self.light.index(s)]) for s in self.light_names],
+                        bool)
 
 
 @dataclass(eq=False)
@@ -110,7 +121,8 @@ class RadiositySolution:
     T (L,3) mean texture radiance (NaN where unseen), resp (L,S,3) radiosity for unit
     emittance of each light S (linearity of radiosity in emittances), resp_H and resp_Hu
     (L,S,3) irradiance with and without occlusion for the same unit emittances;
-    emit (S,3) the emittance of each light in W/m²; lights: names.
+    emit (S,3) the emittance of each light in W/m²; lights: names; info: how it was made
+    (info["lights"]: per light its emittance, where it came from, the eq. 2 start).
     """
 
     P_o: np.ndarray
