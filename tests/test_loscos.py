@@ -238,8 +238,11 @@ def test_emitter_coverage_and_mixed_pixels():
     got = np.zeros(256)
     np.add.at(got, pr.em_pix, pr.em_cover)
     assert np.allclose(got.reshape(16, 16), cover, atol=1e-9)
-    # texels next to the rim are not used (their pixels mix two polygons)
+    # texels next to the rim are not used (their pixels mix two polygons); the lamp's
+    # radiance is measured from every pixel it covers
     assert np.allclose(pr.textures[1][pr.coverage[1] > 0], L, atol=1e-5)
+    assert np.allclose(pr.em_radiance[1], L, rtol=1e-6) and pr.em_seen[1] == pytest.approx(
+        cover.sum())
     h = HR.Hierarchy.roots(sc.verts)
     plan = pixel_plan(h, pr, photo, np.array([False, True]), np.array([[0, 0, 0], L]))
     c = np.zeros(256)
@@ -257,7 +260,7 @@ def test_emitter_coverage_and_mixed_pixels():
 
 def synthetic_fit_problem(seed=0):
     """Leaves on 5 polygons lit by 3 lights (unit irradiance responses RH), reflectance per
-    polygon; lights 0 and 1 have emitter leaves the camera sees, light 2 none."""
+    polygon; the photograph shows lights 0 and 1 (their radiance), not light 2."""
     rng = np.random.default_rng(seed)
     L, P, S = 400, 5, 3
     poly = rng.integers(0, P, L)
@@ -265,38 +268,38 @@ def synthetic_fit_problem(seed=0):
     RH = np.stack([np.exp(-3 * x), 0.3 + x, 1 + np.sin(4 * x + poly)], 1)[:, :, None] \
         * rng.uniform(0.8, 1.2, (1, 1, 3)) * 0.05
     light_of = np.full(L, -1)
-    light_of[:10], light_of[10:20] = 0, 1
+    light_of[:10], light_of[10:20], light_of[20:30] = 0, 1, 2
     rho_p = rng.uniform(0.2, 0.8, (P, 3))
     rho_leaf = np.where(light_of[:, None] >= 0, 0.5, rho_p[poly])
     e = np.array([[40.0, 30, 20], [10, 20, 30], [25, 25, 25]])
     H = np.einsum("lsc,sc->lc", RH, e)
-    B = rho_leaf * H + np.where(light_of[:, None] >= 0, e[np.maximum(light_of, 0)], 0)
-    return RH, B / np.pi, poly, P, light_of, rho_leaf, rho_p, e
+    T = np.where(light_of[:, None] >= 0, np.nan, rho_leaf * H / np.pi)
+    obs = np.array([(e[s] + (0.5 * H[light_of == s]).mean(0)) / np.pi for s in range(S)])
+    obs[2] = np.nan
+    return RH, T, poly, P, light_of, rho_leaf, rho_p, e, obs
 
 
 def test_fit_emittance_recovers_each_light():
-    RH, T, poly, P, light_of, rho_leaf, rho_p, e = synthetic_fit_problem()
+    RH, T, poly, P, light_of, rho_leaf, rho_p, e, obs = synthetic_fit_problem()
     area = np.ones(len(T))
     known = np.zeros(3, bool)
     fit = RS.fit_emittance(RH, T, area, poly, P, light_of, np.full((3, 3), 100.0), known,
-                           rho_leaf, max_iter=2000, tol=1e-12)
+                           rho_leaf, light_obs=obs, light_weight=np.array([0.2, 0.2, 0.2]),
+                           max_iter=2000, tol=1e-12)
     assert np.allclose(fit.emit, e, rtol=1e-4)  # light 2 from the light it casts alone
     assert np.allclose(fit.rho_poly, rho_p, rtol=1e-4)
-    assert fit.emitter_area[2] == 0 and fit.residual < 1e-5
+    assert list(fit.seen) == [True, True, False] and fit.residual < 1e-5
     # nothing seen, nothing known: the level per channel is Fournier's ρ̂ assumption, the
     # ratios between lights still come from the photograph
-    hidden = np.where(light_of >= 0, -1, light_of)
-    T2 = np.where(light_of[:, None] >= 0, np.nan, T)
-    fit = RS.fit_emittance(RH, T2, area, poly, P, hidden, np.full((3, 3), 100.0), known,
+    fit = RS.fit_emittance(RH, T, area, poly, P, light_of, np.full((3, 3), 100.0), known,
                            rho_leaf, rho_hat=0.4, max_iter=3000, tol=1e-13)
-    surf = hidden < 0
-    mean_rho = (fit.rho_poly[poly[surf & np.isfinite(T2[:, 0])]]).mean(0)
-    assert np.allclose(mean_rho, 0.4, rtol=1e-6)
+    surf = np.isfinite(T[:, 0])
+    assert np.allclose(fit.rho_poly[poly[surf]].mean(0), 0.4, rtol=1e-6)
     assert np.allclose(fit.emit / fit.emit[0], e / e[0], rtol=1e-3)
 
 
 def test_unestimable_light_is_named():
-    fit = RS.EmittanceFit(np.ones((2, 3)), np.zeros((1, 3)), np.array([0.3, 0.0]),
+    fit = RS.EmittanceFit(np.ones((2, 3)), np.zeros((1, 3)), np.array([True, False]),
                           np.array([0.9, 0.001]), 0.0)
     with pytest.raises(BadInput, match="light 'C' cannot be estimated") as e:
         RS.check_estimable(fit, np.zeros(2, bool), ["A", "C"], 0.01)

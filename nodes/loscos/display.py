@@ -123,16 +123,6 @@ def surround_radiance(photo: np.ndarray, pure: np.ndarray, sigma: float = 1.0):
     return out
 
 
-def emitter_radiance(proj, emitter: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """(P,3) mean photo radiance over each emitter polygon's seen texels (else fallback)."""
-    out = np.asarray(fallback, float).copy()
-    for p in np.flatnonzero(emitter[:len(proj.coverage)]):
-        w = proj.coverage[p] > 0
-        if w.any():
-            out[p] = proj.textures[p][w].mean(0)
-    return out
-
-
 def pixel_plan(h: Hierarchy, proj, photo: np.ndarray, emitter: np.ndarray, L_em: np.ndarray,
                interp: Interpolation | None = None, virtual=None) -> PixelPlan:
     """Samples, weights and emitter coverage of every pixel that sees a polygon of h.
@@ -220,8 +210,8 @@ class PixelResponses:
     photo: np.ndarray  # (H,W,3) float32
     index: np.ndarray  # (n,) flat pixel indices
     base: np.ndarray  # (n,3) float32
-    R: np.ndarray  # (n,S,3) float32
-    G: np.ndarray  # (n,S,3) float32
+    R: np.ndarray  # (S,n,3) float32
+    G: np.ndarray  # (S,n,3) float32
 
 
 def pixel_responses(plan: PixelPlan, surface_resp: np.ndarray, glow_resp: np.ndarray):
@@ -230,22 +220,25 @@ def pixel_responses(plan: PixelPlan, surface_resp: np.ndarray, glow_resp: np.nda
     R = plan.surface @ surface_resp.reshape(L, S * 3)
     G = plan.glow @ glow_resp.reshape(L, S * 3)
     n = len(plan.index)
-    return PixelResponses(plan.photo, plan.index, plan.base,
-                          np.ascontiguousarray(R.reshape(n, S, 3), np.float32),
-                          np.ascontiguousarray(G.reshape(n, S, 3), np.float32))
+    per_light = lambda M: np.ascontiguousarray(  # noqa: E731
+        np.asarray(M).reshape(n, S, 3).transpose(1, 0, 2), np.float32)
+    return PixelResponses(plan.photo, plan.index, plan.base, per_light(R), per_light(G))
 
 
 def modulate_pixels(px: PixelResponses, e: np.ndarray) -> np.ndarray:
     """Relight's per-pixel maths (§4.4, eq. 3 per pixel, with emitters by coverage).
 
     For each drawn pixel p and channel c, with emittances e (S,3) in W/m²:
-        out[p, c] = base[p, c] · Σ_s R[p, s, c] e[s, c]  +  Σ_s G[p, s, c] e[s, c]
+        out[p, c] = base[p, c] · Σ_s R[s, p, c] e[s, c]  +  Σ_s G[s, p, c] e[s, c]
     (base × interpolated modulation·B/D, plus the emitters' radiance times their coverage);
     every other pixel keeps the photograph.  Returns (H,W,3) float32 linear radiance.
     """
     e = np.asarray(e, np.float32)
-    ratio = np.einsum("psc,sc->pc", px.R, e)
-    glow = np.einsum("psc,sc->pc", px.G, e)
+    ratio = px.R[0] * e[0]
+    glow = px.G[0] * e[0]
+    for s in range(1, len(e)):
+        ratio += px.R[s] * e[s]
+        glow += px.G[s] * e[s]
     out = px.photo.copy()
     flat = out.reshape(-1, 3)
     flat[px.index] = px.base * ratio + glow

@@ -97,7 +97,9 @@ class Projection:
     polygon coordinates; sub_pix (n,) the flat indices of the pixels that see more than one
     polygon, sub_poly (n,k²) and sub_st (n,k²,2) what their k×k subsamples see; em_pix,
     em_poly, em_cover, em_st (m,): the exact share of pixel em_pix covered by emitter
-    polygon em_poly, and the (s, t) on it at the centroid of that share.
+    polygon em_poly, and the (s, t) on it at the centroid of that share; em_radiance (P,3)
+    each emitter's radiance measured in the photograph from those pixels (NaN: unseen),
+    em_seen (P,) the area it covers, in pixels.
     """
 
     textures: np.ndarray
@@ -111,6 +113,8 @@ class Projection:
     em_poly: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     em_cover: np.ndarray = field(default_factory=lambda: np.zeros(0))
     em_st: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    em_radiance: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    em_seen: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(eq=False)

@@ -166,44 +166,60 @@ class EmittanceFit:
 
     emit: np.ndarray  # (S,3) W/m²
     rho_poly: np.ndarray  # (P,3) reflectance per polygon the fit used
-    emitter_area: np.ndarray  # (S,) seen area of each light's own polygons, m²
+    seen: np.ndarray  # (S,) bool: the photograph shows the light itself
     share: np.ndarray  # (S,) largest share of a seen leaf's irradiance from each light
     residual: float  # weighted rms of the fit relative to the rms of πT
 
 
 def fit_emittance(RH, T, seen_area, leaf_poly, P, light_of, emit, known, rho_leaf,
-                  rho_fixed=None, rho_hat=0.5, max_iter=200, tol=1e-7) -> EmittanceFit:
+                  rho_fixed=None, rho_hat=0.5, light_obs=None, light_weight=None,
+                  max_iter=200, tol=1e-7) -> EmittanceFit:
     """Emittances of the unknown lights from the photograph (radiosity is linear in them).
 
-    For each seen leaf l (weight: its seen area) and channel: a surface leaf shows
-    π T_l = ρ_p Σ_s H_ls e_s, an emitter leaf of light s₀ shows π T_l = e_s₀ + ρ_l Σ_s H_ls e_s,
-    with H_ls the irradiance per unit emittance of light s (the responses, interreflections
-    included) and ρ_p one reflectance per polygon — a leaf's own reflectance would explain any
-    pixel.  Alternating least squares: ρ_p in closed form, then the unknown e by
-    non-negative least squares (scipy.optimize.nnls), from the given start, until e settles.
-    ``rho_fixed`` (P,3): known reflectances (no ρ step).  When no light is seen or known,
-    the level and colour of the lights are not in the photograph: they are set so that the
-    mean seen reflectance is ρ̂ per channel (Fournier's assumption).
+    For each seen surface leaf l (weight: its seen area, m²) and channel:
+    π T_l = ρ_p Σ_s H_ls e_s, with H_ls the irradiance per unit emittance of light s (the
+    responses, interreflections included) and ρ_p one reflectance per polygon — a leaf's own
+    reflectance would explain any pixel.  For each light s the photograph shows (its
+    radiance ``light_obs`` (S,3), NaN if unseen; weight ``light_weight`` (S,) m²):
+    π L_s = e_s + ρ̄_s Σ_s' H̄_ss' e_s', H̄ and ρ̄ the mean over the light's own leaves.
+    Alternating least squares: ρ_p in closed form, then the unknown e by non-negative least
+    squares (scipy.optimize.nnls), from the given start, until e settles.  ``rho_fixed``
+    (P,3): known reflectances (no ρ step).  When no light is seen or known, the level and
+    colour of the lights are not in the photograph: they are set so that the mean seen
+    reflectance is ρ̂ per channel (Fournier's assumption).
     """
     from scipy.optimize import nnls
 
     L, S, _ = RH.shape
-    seen = np.all(np.isfinite(T), 1) & (seen_area > 0)
     em = light_of >= 0
-    surf = seen & ~em
-    emr = seen & em
-    rows = np.flatnonzero(surf | emr)
+    surf = np.all(np.isfinite(T), 1) & (seen_area > 0) & ~em
+    rows = np.flatnonzero(surf)
     w = np.sqrt(seen_area)
     piT = np.pi * np.nan_to_num(T)
     unknown = ~known
-    emitter_area = np.bincount(light_of[emr], seen_area[emr], minlength=S)[:S]
-    anchored = known.any() or (emitter_area[unknown] > 0).any() or rho_fixed is not None
+    obs = np.full((S, 3), np.nan) if light_obs is None else np.asarray(light_obs, float)
+    lw2 = np.zeros(S) if light_weight is None else np.asarray(light_weight, float)
+    seen = np.all(np.isfinite(obs), 1) & (lw2 > 0)
+    lw = np.sqrt(np.where(seen, lw2, 0.0))
+    # mean irradiance response and reflectance over each light's own leaves
+    Hbar = np.zeros((S, S, 3))
+    rbar = np.zeros((S, 3))
+    for s in range(S):
+        m = light_of == s
+        if m.any():
+            Hbar[s] = RH[m].mean(0)
+            rbar[s] = rho_leaf[m].mean(0)
+    anchored = known.any() or seen[unknown].any() or rho_fixed is not None
     out = np.asarray(emit, float).copy()
     rho_poly = np.zeros((P, 3)) if rho_fixed is None else np.asarray(rho_fixed, float).copy()
     num_res = den_res = 0.0
+    ls = np.flatnonzero(seen)
     for c in range(3):
         e = out[:, c].copy()
         Hc = RH[:, :, c]
+        Al = rbar[ls, c][:, None] * Hbar[ls, :, c]
+        Al[np.arange(len(ls)), ls] += 1.0
+        bl = np.pi * np.nan_to_num(obs[ls, c])
         for _ in range(max_iter if unknown.any() else 1):
             if rho_fixed is None:
                 Htot = Hc @ e
@@ -214,11 +230,10 @@ def fit_emittance(RH, T, seen_area, leaf_poly, P, light_of, emit, known, rho_lea
                 rho_poly[:, c] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0)
             if not unknown.any():
                 break
-            A = np.where(em, rho_leaf[:, c], rho_poly[leaf_poly, c])[:, None] * Hc
-            A[np.flatnonzero(em), light_of[em]] += 1.0
-            Aw = A[rows] * w[rows, None]
-            bw = (piT[rows, c] - A[rows][:, known] @ e[known]) * w[rows]
-            x, _ = nnls(Aw[:, unknown], bw, maxiter=50 * S)
+            A = np.concatenate([(rho_poly[leaf_poly[rows], c][:, None] * Hc[rows])
+                                * w[rows, None], Al * lw[ls, None]])
+            b = np.concatenate([piT[rows, c] * w[rows], bl * lw[ls]])
+            x, _ = nnls(A[:, unknown], b - A[:, known] @ e[known], maxiter=50 * S)
             new = e.copy()
             new[unknown] = x
             done = np.abs(new - e).max() <= tol * max(np.abs(new).max(), 1e-300)
@@ -227,35 +242,57 @@ def fit_emittance(RH, T, seen_area, leaf_poly, P, light_of, emit, known, rho_lea
                 break
         if not anchored:
             # the overall level per channel: mean seen reflectance ρ̂ (ρ × k, e / k)
-            a = seen_area[surf]
-            mean_rho = (a * rho_poly[leaf_poly[surf], c]).sum() / max(a.sum(), 1e-300)
+            sa = seen_area[surf]
+            mean_rho = (sa * rho_poly[leaf_poly[surf], c]).sum() / max(sa.sum(), 1e-300)
             k = mean_rho / rho_hat if mean_rho > 0 else 1.0
             e[unknown] *= k
             rho_poly[:, c] /= k
         out[:, c] = e
-        rp = np.where(em, rho_leaf[:, c], rho_poly[leaf_poly, c])
-        model = rp * (Hc @ e) + np.where(em, e[np.maximum(light_of, 0)], 0.0)
-        num_res += np.sum(((model - piT[:, c]) * w)[rows] ** 2)
-        den_res += np.sum((piT[:, c] * w)[rows] ** 2)
+        model = rho_poly[leaf_poly[rows], c] * (Hc[rows] @ e)
+        num_res += np.sum(((model - piT[rows, c]) * w[rows]) ** 2)
+        num_res += np.sum(((Al @ e - bl) * lw[ls]) ** 2)
+        den_res += np.sum((piT[rows, c] * w[rows]) ** 2) + np.sum((bl * lw[ls]) ** 2)
     share = np.zeros(S)
     if S and surf.any():
         H = np.einsum("lsc,sc->ls", RH * LUM[None, None, :], out)
         share = (H[surf] / np.maximum(H[surf].sum(1, keepdims=True), 1e-300)).max(0)
-    return EmittanceFit(out, rho_poly, emitter_area, share,
+    return EmittanceFit(out, rho_poly, seen, share,
                         float(np.sqrt(num_res / max(den_res, 1e-300))))
 
 
+def light_observations(scene: RoomScene, proj: Projection, lights):
+    """(S,3) each light's radiance in the photograph (Projection.em_radiance, over its
+    polygons by covered pixels; NaN if unseen) and (S,) its polygons' area, m² (0: unseen)."""
+    from .geometry import frame
+
+    A = frame(scene.verts)[4]
+    obs = np.full((len(lights), 3), np.nan)
+    weight = np.zeros(len(lights))
+    rad = getattr(proj, "em_radiance", np.zeros((0, 3)))
+    if len(rad) != len(scene.verts):
+        return obs, weight
+    for k, s in enumerate(lights):
+        ps = [p for p, n in enumerate(scene.light) if n == s and np.all(np.isfinite(rad[p]))
+              and proj.em_seen[p] > 0]
+        if ps:
+            px = proj.em_seen[ps]
+            obs[k] = (px[:, None] * rad[ps]).sum(0) / px.sum()
+            weight[k] = A[[p for p, n in enumerate(scene.light) if n == s]].sum()
+    return obs, weight
+
+
 def estimate_emittance(scene, h, ops, leaves, Lm, T, seen_area, emit, known, rho_mode,
-                       rho_hat, n_iter, tol, lights, min_share=0.01):
+                       rho_hat, n_iter, tol, lights, observed=(None, None), min_share=0.01):
     """Reflectances and emittances refined together (§4 with per-light emittances).
 
     Starting from eq. (1) reflectances and the given (or eq. 2) emittances, each pass solves
     the unit responses for the current reflectances, fits the unknown emittances
-    (:func:`fit_emittance`) and, in photo mode, sets ρ_i = π T_i / H_i (§4); a last pass
+    (:func:`fit_emittance`; ``observed``: the lights' radiance in the photo and weights,
+    :func:`light_observations`) and, in photo mode, sets ρ_i = π T_i / H_i (§4); a last pass
     solves the responses for the final reflectances and fits once more.  Refuses (BadInput)
     a light that the camera does not see and that gives under ``min_share`` of the
-    irradiance of every seen surface leaf (at the start emittances): nothing in the
-    photograph says how bright it is.  Returns (emit, rho, responses, fit).
+    irradiance of every seen surface leaf: nothing in the photograph says how bright it is.
+    Returns (emit, rho, responses, fit).
     """
     emitting = Lm.any(1) if len(lights) else np.zeros(len(leaves), bool)
     light_of = np.where(emitting, Lm.argmax(1), -1) if len(lights) else \
@@ -273,7 +310,7 @@ def estimate_emittance(scene, h, ops, leaves, Lm, T, seen_area, emit, known, rho
     for k in range(passes + 1):
         resp = responses(h, ops, Lm, rho, tol)
         fit = fit_emittance(resp[1], T, seen_area, leaf_poly, P, light_of, emit, known, rho,
-                            rho_fixed, rho_hat)
+                            rho_fixed, rho_hat, *observed)
         if k == 0:
             check_estimable(fit, known, lights, min_share)
         emit = fit.emit
@@ -286,7 +323,7 @@ def estimate_emittance(scene, h, ops, leaves, Lm, T, seen_area, emit, known, rho
 
 def check_estimable(fit: EmittanceFit, known, lights, min_share):
     """BadInput naming the lights that neither the camera sees nor anything they light."""
-    bad = [s for s in range(len(lights)) if not known[s] and fit.emitter_area[s] <= 0
+    bad = [s for s in range(len(lights)) if not known[s] and not fit.seen[s]
            and fit.share[s] < min_share]
     if bad:
         names = ", ".join(f"'{lights[s]}'" for s in bad)
@@ -315,7 +352,7 @@ def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol
     if estimate is not None and np.any(estimate):
         emit, rho, (R, RH, RHu, it), fit = estimate_emittance(
             scene, h, ops, leaves, Lm, T, seen_area, emit, ~np.asarray(estimate), rho_mode,
-            rho_hat, n_iter, tol, lights)
+            rho_hat, n_iter, tol, lights, light_observations(scene, proj, lights))
         info = dict(info, fit_residual=round(fit.residual, 5))
     else:
         emit_leaf = Lm @ emit if len(lights) else np.zeros((len(leaves), 3))

@@ -57,18 +57,22 @@ def emitter_polygons(h: HR.Hierarchy, leaves: np.ndarray, emits: np.ndarray) -> 
 
 
 def photo_emitter_radiance(sol: RadiositySolution, proj: Projection, emit_poly: np.ndarray):
-    """(P,3) each emitter's radiance in the photograph (its seen texels; else B/π)."""
-    from .display import emitter_radiance
-
+    """(P,3) each emitter's radiance in the photograph (ProjectTextures measures it from the
+    pixels it covers); B/π of the solution where the photo does not show it."""
     h = sol.hierarchy()
     B = sol.B()
     poly = h.poly[sol.leaves]
     a = h.area(sol.leaves)
-    model = np.zeros((len(h.P_o), 3))
+    out = np.zeros((len(h.P_o), 3))
+    rad = proj.em_radiance if len(proj.em_radiance) == len(h.P_o) else \
+        np.full((len(h.P_o), 3), np.nan)
     for p in np.flatnonzero(emit_poly):
-        m = poly == p
-        model[p] = (a[m, None] * B[m]).sum(0) / a[m].sum() / np.pi
-    return emitter_radiance(proj, emit_poly, model)
+        if np.all(np.isfinite(rad[p])):
+            out[p] = rad[p]
+        else:
+            m = poly == p
+            out[p] = (a[m, None] * B[m]).sum(0) / a[m].sum() / np.pi
+    return out
 
 
 class Unocclude(Node):

@@ -259,9 +259,47 @@ def project(scene: RoomScene, cam: Camera, photo: np.ndarray, res: int) -> Proje
     cov[c[~ok]] = False
     tex = np.zeros((len(pts), 3))
     tex[cov] = sample_bilinear(photo, uv[cov, 0], uv[cov, 1])
+    radiance, seen = emitter_photo_radiance(photo, pp, sub_pix, em, emitters, P)
     return Projection(tex.reshape(P, res, res, 3).astype(np.float32),
                       cov.reshape(P, res, res).astype(np.float32), pp, pst,
-                      sub_pix, sub_poly, sub_st.astype(np.float64), *em)
+                      sub_pix, sub_poly, sub_st.astype(np.float64), *em, radiance, seen)
+
+
+def emitter_photo_radiance(photo, pix_poly, sub_pix, em, emitters, P):
+    """Each emitter's radiance in the photograph, from every pixel it covers.
+
+    A pixel that an emitter covers by c shows P = c·L + (1 − c)·S, S the radiance of the
+    nearest pixels that see one non-emitter polygon alone (display.surround_radiance), so
+    L = Σ c (P − (1 − c) S) / Σ c² over the pixels that emitter alone covers.  An emitter seen
+    at a grazing angle may fill no pixel: its rim pixels still measure it.  Returns (P,3)
+    radiance (NaN where not seen) and (P,) the covered area in pixels.
+    """
+    from .display import surround_radiance
+
+    em_pix, em_poly, em_cover, _ = em
+    H, W = pix_poly.shape
+    radiance = np.full((P, 3), np.nan)
+    seen = np.bincount(em_poly, em_cover, minlength=P)[:P].astype(float)
+    if not len(em_pix):
+        return radiance, seen
+    is_em = np.zeros(P + 1, bool)
+    is_em[list(emitters)] = True
+    pure = pure_pixels(pix_poly, sub_pix, em_pix, em_cover).reshape(-1)
+    S = surround_radiance(photo, ((pure >= 0) & ~is_em[pure]).reshape(H, W)).reshape(-1, 3)
+    n_em = np.bincount(em_pix, minlength=H * W)
+    c_tot = np.bincount(em_pix, em_cover, minlength=H * W)
+    alone = n_em[em_pix] == 1
+    flat = photo.reshape(-1, 3)
+    rest = np.where((c_tot[em_pix] < 1 - 1e-6)[:, None], S[em_pix], 0.0)
+    ok = alone & np.isfinite(rest).all(1)
+    c = em_cover[ok]
+    y = flat[em_pix[ok]] - (1 - c)[:, None] * np.nan_to_num(rest[ok])
+    num = np.zeros((P, 3))
+    np.add.at(num, em_poly[ok], c[:, None] * y)
+    den = np.bincount(em_poly[ok], c * c, minlength=P)[:P]
+    has = den > 1e-9
+    radiance[has] = num[has] / den[has, None]
+    return radiance, seen
 
 
 class ProjectTextures(Node):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is the outside reference for these tests")
+pytestmark = pytest.mark.xdist_group("loscos-cornell2")  # one worker builds the pipeline once
 
 from graphkit import Context  # noqa: E402
 from nodes.common.color import linear_to_srgb  # noqa: E402

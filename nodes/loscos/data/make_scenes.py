@@ -4,7 +4,9 @@ to scene files by nodes/loscos/mitsuba_scene.py — and photograph them with Mit
 Run from the repository root:  nice .venv/bin/python nodes/loscos/data/make_scenes.py
 Writes nodes/loscos/data/{room,cornell3}.yaml (emittances given) and {room,cornell3}.exr (the
 "photograph": a Mitsuba 3 path-traced render of the scene dict itself, linear radiance,
-128×128, float16 EXR).
+128×128, float16 EXR), and cornell3's references for the oracle test,
+cornell3_{A_off,B_x2,virtual}.exr (512 spp, seed 11; rendering them in the test would cost
+about 30 s).  benchmarks/loscos_scenes.py renders the room's (slow: a closed room).
 
 * ``room`` (not a Cornell box): a 4 × 2.6 × 3.5 m room, closed, camera inside; a bluish
   window-like emitter on the back wall (1.2 × 1.0 m), a warm pendant lamp (0.4 × 0.4 m, five
@@ -181,6 +183,13 @@ def reference(name: str, case: str, spp: int, seed: int = 11) -> np.ndarray:
     return render(relit(name, case, spp), spp, seed)
 
 
+REFERENCES = {"cornell3": ("A off", "B x2", "virtual")}  # committed: the oracle test reads them
+
+
+def reference_file(name: str, case: str) -> str:
+    return os.path.join(HERE, f"{name}_{case.replace(' ', '_')}.exr")
+
+
 def main(names=None):
     from nodes.io.images import encode_image
     from nodes.loscos.mitsuba_ref import set_variant
@@ -195,6 +204,10 @@ def main(names=None):
         write_scene_file(d, os.path.join(HERE, f"{name}.yaml"), photo=f"{name}.exr",
                          photo_sha256=hashlib.sha256(data).hexdigest())
         print("wrote", f"{name}.yaml", f"{name}.exr")
+        for case in REFERENCES.get(name, ()):
+            with open(reference_file(name, case), "wb") as f:
+                f.write(encode_image(reference(name, case, SPP), ".exr", 16))
+            print("wrote", os.path.basename(reference_file(name, case)))
 
 
 if __name__ == "__main__":
