@@ -108,6 +108,27 @@ class PixelPlan:
     coverage: np.ndarray
 
 
+def nearest_seen(h: Hierarchy, seen: np.ndarray) -> np.ndarray:
+    """(L,) for each leaf of h: itself if ``seen``, else the nearest seen leaf of its polygon
+    (centre to centre; itself when its polygon has none).  A leaf the camera does not see —
+    under a box, or a strip along an edge whose texels all mix two polygons — has values the
+    photograph never checked (T_final/T there can be 100 where H ≈ 0); drawn or averaged
+    into a vertex it takes its nearest seen neighbour's."""
+    from scipy.spatial import cKDTree
+
+    lv = h.leaves
+    o, u, v, _, _ = h.geom(lv)
+    c = o + 0.5 * (u + v)
+    poly = h.poly[lv]
+    out = np.arange(len(lv))
+    for p in np.unique(poly[~seen]):
+        on = np.flatnonzero((poly == p) & seen)
+        off = np.flatnonzero((poly == p) & ~seen)
+        if len(on):
+            out[off] = on[cKDTree(c[on]).query(c[off])[1]]
+    return out
+
+
 def surround_radiance(photo: np.ndarray, pure: np.ndarray, sigma: float = 1.0):
     """Photo radiance seen by the nearest pure non-emitter pixels (normalised convolution
     with a Gaussian of ``sigma`` px); NaN where none is within about 3 px."""
@@ -124,11 +145,13 @@ def surround_radiance(photo: np.ndarray, pure: np.ndarray, sigma: float = 1.0):
 
 
 def pixel_plan(h: Hierarchy, proj, photo: np.ndarray, emitter: np.ndarray, L_em: np.ndarray,
-               interp: Interpolation | None = None, virtual=None) -> PixelPlan:
+               interp: Interpolation | None = None, virtual=None,
+               leaf_radiance: np.ndarray | None = None) -> PixelPlan:
     """Samples, weights and emitter coverage of every pixel that sees a polygon of h.
 
     emitter (P,) bool: polygons of lights; L_em (P,3): their radiance in the photograph.
-    Surface samples: the pixel centre, or the non-emitter subsamples of a mixed pixel.
+    Surface samples: the pixel centre, or the non-emitter subsamples of a mixed pixel, each
+    weighted by ``leaf_radiance`` (L,), the luminance of the leaf it falls on (NaN: unseen).
     Emitter part: the projection's exact coverage rows (em_*), the share c from the photo
     where a pixel mixes.  ``virtual`` (pixel, poly, cover, st) rows: polygons of h the
     photograph does not show (inserted), drawn over the rest by their coverage.
@@ -151,6 +174,18 @@ def pixel_plan(h: Hierarchy, proj, photo: np.ndarray, emitter: np.ndarray, L_em:
     m = f_poly >= 0
     m[m] &= ~emitter[f_poly[m]]
     f_pix, f_poly, f_st = f_pix[m], f_poly[m], f_st[m]
+    # a mixed pixel's subsamples count by the radiance of the leaf they see (its mean texture
+    # luminance): the pixel is Σ c_i L_i, so its modulation is Σ c_i L_i r_i / Σ c_i L_i — a
+    # dark strip (the floor in a box's contact shadow, r large) moves it little
+    f_w = np.ones(len(f_pix))
+    if leaf_radiance is not None:
+        lum = np.asarray(leaf_radiance, float)[interp.pos[h.locate(f_poly, f_st[:, 0],
+                                                                   f_st[:, 1], interp.grid)]]
+        f_w = np.where(np.isfinite(lum) & (lum > 0), lum, np.nan)
+        mean = np.bincount(f_pix, np.nan_to_num(f_w), minlength=H * W) / np.maximum(
+            np.bincount(f_pix, np.isfinite(f_w), minlength=H * W), 1)
+        f_w = np.where(np.isfinite(f_w), f_w, mean[f_pix])  # unseen leaves: the pixel's mean
+        f_w = np.where(f_w > 0, f_w, 1.0)
     # emitter samples with their share of the pixel (photographed ones, then inserted ones)
     if virtual is None:
         virtual = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
@@ -193,7 +228,7 @@ def pixel_plan(h: Hierarchy, proj, photo: np.ndarray, emitter: np.ndarray, L_em:
                                                              vid.reshape(-1))), shape=(n, V))
         return (M @ interp.average).tocsr()
 
-    surface = matrix(f_row, f_poly, f_st, 1.0 / n_sf[f_row])
+    surface = matrix(f_row, f_poly, f_st, f_w / np.bincount(f_row, f_w, minlength=n)[f_row])
     share = c * (1 - c_virt) / np.maximum(c_geo, 1e-12)
     glow = matrix(np.concatenate([g_row, v_row]), np.concatenate([proj.em_poly, v_poly]),
                   np.concatenate([proj.em_st, v_st]),

@@ -467,9 +467,10 @@ class RadiositySolve(Node):
                               else ~known)
         source = np.where(known, "scene", "homogeneous" if p.emittance == "homogeneous"
                           else "estimated")
+        r6 = lambda v: [round(float(x), 6) for x in v]  # noqa: E731
         sol.info["lights"] = {
-            s: {"emittance": [round(float(x), 6) for x in sol.emit[k]], "source": str(source[k]),
-                "fournier_eq2": [round(float(x), 6) for x in start[k]]}
+            s: {"emittance": r6(sol.emit[k]), "source": str(source[k]),
+                **({} if known[k] else {"fournier_eq2": r6(start[k])})}
             for k, s in enumerate(lights)}
         return {"solution": sol, "lights": {"unit": "W/m² (π × radiance)",
                                             "lights": sol.info["lights"],

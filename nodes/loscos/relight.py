@@ -272,26 +272,29 @@ def relight_plan(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo
                  rho_fix=(0.5, 0.5, 0.5)):
     """Everything that does not depend on the emittances (once per preprocess): per drawn
     pixel its modulation and emitted radiance per unit emittance (display.PixelResponses)."""
-    from .display import pixel_plan, pixel_responses
+    from .display import nearest_seen, pixel_plan, pixel_responses
 
     h = sol.hierarchy()
     emit_poly = emitter_polygons(h, sol.leaves, emitter_leaves(sol))
-    plan = pixel_plan(h, proj, photo, emit_poly, photo_emitter_radiance(sol, proj, emit_poly))
-    return pixel_responses(plan, leaf_multiplier(sol, un),
+    plan = pixel_plan(h, proj, photo, emit_poly, photo_emitter_radiance(sol, proj, emit_poly),
+                      leaf_radiance=sol.T @ LUM)
+    near = nearest_seen(h, np.all(np.isfinite(sol.T), 1))
+    return pixel_responses(plan, leaf_multiplier(sol, un)[near],
                            fixture_glow(sol, np.asarray(rho_fix, float)))
 
 
 def unoccluded_image(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo):
     """The photograph with the real shadows removed: photo × T_final/T per vertex, emitters
     as photographed."""
-    from .display import pixel_plan, pixel_responses
+    from .display import nearest_seen, pixel_plan, pixel_responses
 
     h = sol.hierarchy()
     emit_poly = emitter_polygons(h, sol.leaves, emitter_leaves(sol))
     L_em = photo_emitter_radiance(sol, proj, emit_poly)
-    plan = pixel_plan(h, proj, photo, emit_poly, L_em)
+    plan = pixel_plan(h, proj, photo, emit_poly, L_em, leaf_radiance=sol.T @ LUM)
     glow = L_em[h.poly[sol.leaves]][:, None, :]
-    px = pixel_responses(plan, un.modulation[:, None, :], glow)
+    near = nearest_seen(h, np.all(np.isfinite(sol.T), 1))
+    px = pixel_responses(plan, un.modulation[near][:, None, :], glow)
     return modulate_pixels(px, np.ones((1, 3)))
 
 
@@ -487,7 +490,7 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
     T_final/T × B₀/D₀ (its preprocessed leaf) × B/B_ref, drawn per vertex; pixels whose
     centre sees a virtual polygon show its B/π, fixtures (E + ρ_fixture·H)/π.
     """
-    from .display import pixel_plan, pixel_responses
+    from .display import nearest_seen, pixel_plan, pixel_responses
     from .geometry import corners
     from .textures import edge_subsamples, emitter_coverage, pixel_map
 
@@ -542,8 +545,11 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
     inserted = emitter_coverage(allv, range(P0, len(allv)), camera, pp, *sub[:2])
     L_em = np.zeros((len(h.P_o), 3))
     L_em[:P0] = photo_emitter_radiance(sol, proj, emit_poly[:P0])
-    plan = pixel_plan(h, proj, photo, emit_poly, L_em, virtual=inserted)
-    px = pixel_responses(plan, f[:, None, :], glow[:, None, :])
+    lum = np.full(len(lv), np.nan)
+    lum[~virt] = (sol.T @ LUM)[old[~virt]]
+    plan = pixel_plan(h, proj, photo, emit_poly, L_em, virtual=inserted, leaf_radiance=lum)
+    near = nearest_seen(h, virt | np.isfinite(lum))
+    px = pixel_responses(plan, f[near][:, None, :], glow[:, None, :])
     return modulate_pixels(px, np.ones((1, 3))), {"leaves": int(len(lv)),
                                                   "links": int(len(h.recv))}
 

@@ -195,7 +195,9 @@ class LoadScene(Node):
 
     ``path`` is a scene YAML (format in the module docstring) or ``builtin:cornell2`` — a
     Cornell box with Mitsuba's ``cornell_box()`` geometry and colours plus a second area
-    light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py).
+    light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py) —,
+    ``builtin:room`` (a room with a table, a window-like light and a lamp) or
+    ``builtin:cornell3`` (two other lights), both from Mitsuba scene dicts (make_scenes.py).
     A light may leave its emittance out (RadiositySolve estimates it from the photograph).
     Units: metres, W/m² (emittance = π × radiance), photograph in linear radiance.
     """
