@@ -8,10 +8,12 @@ STAMP  := $(VENV)/.installed
 # Debian packages the tests use: Mesa's EGL/llvmpipe (moderngl backend), POV-Ray (oracle),
 # Debian's pocl (an OpenCL platform that builds kernels on any x86-64 CPU: pip's
 # pocl-binary-distribution cannot on some, e.g. AMD Zen 5; pyopencl's wheel brings the ICD
-# loader, so ocl-icd-libopencl1 is not needed).
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd
+# loader, so ocl-icd-libopencl1 is not needed),
+# Chromium (the studio's browser tests, driven by playwright with executable_path; no browser download),
+# blender-data (CC0 HDR environments for the ProbeLight probes).
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium blender-data
 
-.PHONY: demo test bench sysdeps clean lock wheel-check mutate-nodes
+.PHONY: demo test bench sysdeps clean lock wheel-check mutate mutate-nodes
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/contact_sheet.png)"
@@ -21,6 +23,14 @@ test: $(STAMP) sysdeps
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# Mutation testing of graphkit's key, hashing and store code ([tool.mutmut] in pyproject.toml
+# lists the modules and the tests that guard them).  Slow; not part of `make test`.
+mutate: $(STAMP)
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[mutate]'
+	rm -rf mutants
+	$(BIN)/mutmut run --max-children 2 || true
+	$(BIN)/mutmut results
 
 # Mutation testing of the node maths (tests/mutate/nodes_mutmut.toml: nodes/common, KM, ratio,
 # histogram matching), in a copy of the checkout so its [tool.mutmut] list stays apart from the
@@ -41,7 +51,7 @@ wheel-check: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt $(PLUGINS)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --disable-pip-version-check --upgrade pip
-	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
+	$(PIP) install -q --disable-pip-version-check -c constraints.txt -e '.[test,dask,gl,studio]' $(foreach p,$(PLUGINS),-e $(dir $(p)))
 	$(if $(wildcard plugins/graphkit-mediapipe),$(PIP) install -q --disable-pip-version-check --no-deps -c constraints.txt mediapipe==0.10.14)
 	$(BIN)/graphkit schema -o graph.schema.json   # editors: `# yaml-language-server: $$schema=../graph.schema.json`
 	touch $@
@@ -60,4 +70,4 @@ lock: $(STAMP)
 	$(PIP) freeze --exclude-editable | grep -v -i -E '^(relightkit|graphkit)' > constraints.txt
 
 clean:
-	rm -rf $(VENV) out .graphkit-cache
+	rm -rf $(VENV) out .graphkit-cache mutants

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from importlib import import_module
 
-from .errors import BadInput, GraphError, GraphkitError, NodeFailed
+from .errors import BackendCannotRun, BadInput, GraphError, GraphkitError, NodeFailed
 
 __version__ = "0.1.0"
 
@@ -30,7 +30,7 @@ _LAZY = {
 __all__ = [
     "Node", "Backend", "In", "Out", "InputFile", "Context", "Field",
     "Image", "Mask", "Mesh", "Camera", "Light", "Spectrum", "File", "Scalar", "Vector", "Array",
-    "Json", "PortType", "BadInput", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
+    "Json", "PortType", "BadInput", "BackendCannotRun", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
     "safe_relpath",
 ]
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import UsageError
-from .executor import Progress, RunResult, export_outputs, record_last_run, run_local
+from .executor import Progress, RunResult, check_output_plan, export_outputs, record_last_run, run_local
 from .graphfile import Graph, load_graph
 from .registry import Registry, default_registry
 from .runner import Session
@@ -34,7 +34,7 @@ class Run:
         """The value of a graph output (by output name) or of ``node.port``."""
         node, port = self.graph.outputs.get(output) or tuple(output.rsplit(".", 1))
         o = self.result.outcomes[node]
-        return self.session.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type)
+        return self.session.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type, (node, port))
 
 
 def run_graph(path: str | os.PathLike, *, cache: str | os.PathLike = ".graphkit-cache",
@@ -51,23 +51,29 @@ def run_graph(path: str | os.PathLike, *, cache: str | os.PathLike = ".graphkit-
             raise UsageError(f"unknown output(s) {', '.join(unknown)}; the graph's outputs: "
                              + ", ".join(graph.outputs))
         graph.outputs = {k: v for k, v in graph.outputs.items() if k in outputs}
+    if out is not None:
+        check_output_plan(graph)
     store = Store(cache).open()
     progress = progress or Progress()
     session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)
     targets = sorted({n for n, _ in graph.outputs.values()})
     ok = False
-    try:
-        if executor == "dask":
-            from .dask_executor import run_dask
+    # the store lock is held (shared) from the first lookup until the outputs are exported, on
+    # every executor, so a concurrent `cache gc` waits instead of removing what this run reads
+    with store.run_lock():
+        try:
+            if executor == "dask":
+                from .dask_executor import run_dask
 
-            result = run_dask(session, targets, scheduler, jobs, progress)
-        else:
-            result = run_local(session, targets, jobs, progress)
-        ok = True
-    finally:
-        progress.finish(ok)
-    record_last_run(session, result)
-    run = Run(graph, result, session)
-    if out is not None:
-        run.files = export_outputs(session, result, out, {"targets": list(graph.outputs)})
+                result = run_dask(session, targets, scheduler, jobs, progress)
+            else:
+                result = run_local(session, targets, jobs, progress)
+            ok = True
+        finally:
+            progress.finish(ok)
+        store.commit()  # group commit of this run's writes (Dask workers' too, on this machine)
+        record_last_run(session, result)
+        run = Run(graph, result, session)
+        if out is not None:
+            run.files = export_outputs(session, result, out, {"targets": list(graph.outputs)})
     return run

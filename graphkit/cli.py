@@ -66,13 +66,24 @@ def build_parser():
     p = sub.add_parser("schema", help="print the JSON Schema of graph files")
     p.add_argument("-o", "--output", default=None)
 
+    p = sub.add_parser("serve", help="open the graph in a local web studio")
+    p.add_argument("graph", help="graph file (YAML)")
+    _cache_arg(p)
+    p.add_argument("--out", default="out", help="folder for the outputs and manifest.json of each run (default: out)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default: 127.0.0.1, this machine only)")
+    p.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+    p.add_argument("--jobs", "-j", type=int, default=1, help="nodes run at once (default: 1)")
+    p.add_argument("--no-run", action="store_true", help="do not run on open or on each change (press Run)")
+    p.add_argument("--open", action="store_true", help="open the URL in a web browser")
+
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
     for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
         cp = csub.add_parser(name, help=hlp)
         _cache_arg(cp)
         if name == "gc":
-            cp.add_argument("--max-size", required=True, help="e.g. 500M, 2G")
+            cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
         if name == "verify":
             cp.add_argument("--repair", action="store_true", help="remove what is corrupt")
     return ap
@@ -201,6 +212,14 @@ def _dispatch(args) -> int:
         return 0
     if args.cmd == "cache":
         return cmd_cache(args)
+    if args.cmd == "serve":
+        from .studio import serve
+
+        if args.jobs < 1:
+            raise UsageError("--jobs must be at least 1")
+        return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
+                     backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                     jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
     raise UsageError(f"unknown command {args.cmd}")
 
 
@@ -276,31 +295,47 @@ def cmd_nodes(args) -> int:
 
 
 def _parse_size(s: str) -> int:
-    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)i?[bB]?\s*", s)
-    if not m:
-        raise UsageError(f"--max-size: cannot read {s!r} (examples: 500M, 2G, 100000)")
-    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    """A size in bytes; suffixes are binary (K = KiB = 2^10, M = MiB = 2^20, G, T), as shown by
+    `cache ls` and gc.  Decimal-looking suffixes (MB, GB) are refused rather than guessed."""
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*(?:([kKmMgGtT])(i?)([bB]?))?\s*", s)
+    if not m or (m.group(4) and not m.group(3)):
+        hint = ""
+        if m:
+            hint = f"; sizes are binary: write {m.group(1)}{m.group(2).upper()} or {m.group(1)}{m.group(2).upper()}iB"
+        raise UsageError(f"--max-size: cannot read {s!r}{hint} (examples: 500M = 500 MiB, 2G = 2 GiB, 100000 bytes)")
+    unit = (m.group(2) or "").lower()
+    mult = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[unit]
     return int(float(m.group(1)) * mult)
 
 
 def cmd_cache(args) -> int:
+    from .store import fmt_size
+
     store = _store(args.cache)
     if args.cache_cmd == "ls":
         rows = store.ls()
-        total = sum(r["bytes"] for r in rows)
         for r in rows:
             flag = "  CORRUPT" if r.get("corrupt") else ""
-            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {r['bytes'] / 1e6:10.3f} MB{flag}")
-        print(f"{len(rows)} entries, {total / 1e6:.3f} MB in {store.location}")
+            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {fmt_size(r['bytes']):>14}{flag}")
+        u = store.usage()
+        print(f"{len(rows)} entries, {fmt_size(u['total'])} in {store.location} (objects {fmt_size(u['objects'])}, "
+              f"each counted once; records {fmt_size(u['keys'])}; tmp {fmt_size(u['tmp'])}; "
+              f"quarantine {fmt_size(u['quarantine'])}; other {fmt_size(u['runs'] + u['locks'] + u['other'])}; "
+              "MiB = 2^20 bytes)")
         return 0
     if args.cache_cmd == "gc":
         info = store.gc(_parse_size(args.max_size))
-        print(f"removed {info['removed_records']} records and {info['removed_objects']} objects; "
-              f"{info['bytes'] / 1e6:.3f} MB left in {store.location}")
+        print(f"removed {info['removed_records']} records, {info['removed_objects']} objects and "
+              f"{info['stale_files']} stale temp/lock/quarantined files ({fmt_size(info['stale_bytes'])}); "
+              f"{fmt_size(info['bytes'])} left in {store.location}")
         return 0
+    stale = store.clean_stale(dry_run=True)
     problems = store.verify(repair=args.repair)
     for p in problems:
         print(p)
+    if stale["files"]:
+        print(f"{stale['files']} stale temp/lock/quarantined files ({fmt_size(stale['bytes'])})"
+              + (" removed" if args.repair else "; `verify --repair` or `gc` removes them"))
     print(f"{len(problems)} problems" + (" (repaired)" if args.repair and problems else "") + f" in {store.location}")
     return 0 if not problems or args.repair else 1
 

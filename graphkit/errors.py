@@ -88,6 +88,20 @@ class BadInput(GraphkitError):
         return f"bad input: {prefix}: {self.message}" if prefix else f"bad input: {self.message}"
 
 
+class BackendCannotRun(GraphkitError):
+    """Raised by a backend's ``compute`` when it cannot run *these* inputs here although it is
+    available (e.g. the image does not fit in the device's memory).  The engine then computes
+    the node with the numpy reference (one notice) when the backend was only preferred, and
+    refuses with exit 2 naming the node, the backend and ``reason`` when the node pins it."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+        super().__init__(reason)
+
+    def __reduce__(self):
+        return (BackendCannotRun, (self.reason,))
+
+
 class NodeFailed(GraphkitError):
     """A node's compute raised an unexpected exception (exit 1)."""
 

@@ -356,19 +356,23 @@ def parse_set(items: list[str]) -> dict[str, Any]:
 
 
 def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | None = None,
-               check_backends: bool = True) -> Graph:
-    """Load, resolve and validate a graph file; raise GraphError listing every problem."""
+               check_backends: bool = True, text: str | bytes | None = None) -> Graph:
+    """Load, resolve and validate a graph file; raise GraphError listing every problem.
+
+    ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
+    it in messages and anchors its relative paths."""
     path = os.fspath(path)
     if isinstance(path, bytes):
         path = os.fsdecode(path)
     if "\0" in path:
         raise UsageError(f"{path!r}: a graph file path cannot hold a NUL byte")
-    if os.path.isdir(path):
+    if text is None and os.path.isdir(path):
         raise UsageError(f"{path}: is a folder, not a graph file")
-    if os.path.exists(path) and not os.path.isfile(path):
+    if text is None and os.path.exists(path) and not os.path.isfile(path):
         raise UsageError(f"{path}: is not a regular file (a FIFO, socket or device), not a graph file")
     try:
-        raw = Path(path).read_bytes()
+        raw = Path(path).read_bytes() if text is None else (
+            text.encode() if isinstance(text, str) else text)
     except FileNotFoundError:
         raise UsageError(f"{path}: graph file not found") from None
     except OSError as e:

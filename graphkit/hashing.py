@@ -4,7 +4,7 @@
   does not know raises :class:`CanonicalError` — a cache key never silently ignores a value.
 * :func:`digest_value` hashes a port value by its type, meta and array contents (dtype, shape,
   raw bytes) at memory speed (xxh3-128, no copies of contiguous arrays).
-* :func:`file_digest` hashes a file by content, memoised on (path, size, mtime_ns, inode).
+* :func:`file_digest` hashes a file by content, memoised on (path, size, mtime_ns, ctime_ns, inode).
 
 Array and file digests use xxh3-128: a non-cryptographic 128-bit hash, chosen for speed
 (≈20 GB/s); the cache is a trusted store, not a defence against crafted collisions.  Cache keys
@@ -196,14 +196,17 @@ _memo: dict[str, tuple[tuple, str]] = {}
 
 
 def file_digest(path: str | os.PathLike, memo_file: Path | None = None) -> str:
-    """Content digest of a file, memoised on (size, mtime_ns, inode).
+    """Content digest of a file, memoised on (size, mtime_ns, ctime_ns, inode).
 
     ``memo_file`` (a JSON file, usually inside the cache folder) keeps the memo across runs so a
-    re-run does not re-read large unchanged inputs.
+    re-run does not re-read large unchanged inputs.  The ctime is part of the memo because an
+    edit in place can restore size, inode and mtime (``touch -r``), but not the ctime.  Each
+    memo entry carries a check over (path, stat signature, digest): an edited entry is dropped
+    and the file hashed again.
     """
     p = os.path.abspath(path)
     st = os.stat(p)
-    sig = (st.st_size, st.st_mtime_ns, st.st_ino)
+    sig = (st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
     with _memo_lock:
         if not _memo and memo_file is not None:
             _load_memo(memo_file)
@@ -222,19 +225,28 @@ def file_digest(path: str | os.PathLike, memo_file: Path | None = None) -> str:
     return d
 
 
+def _memo_check(path: str, sig, digest: str) -> str:
+    return xxhash.xxh3_64_hexdigest(json.dumps([path, list(sig), digest]).encode())
+
+
 def _load_memo(memo_file: Path) -> None:
     try:
         data = json.loads(Path(memo_file).read_text())
-        for k, (sig, d) in data.items():
-            _memo[k] = (tuple(sig), d)
-    except (OSError, ValueError, TypeError):
+        for k, entry in data.items():
+            try:
+                sig, d, check = entry
+                if len(sig) == 4 and check == _memo_check(k, sig, d):
+                    _memo[k] = (tuple(sig), d)
+            except (ValueError, TypeError):
+                continue  # an old or edited entry: the file is hashed again
+    except (OSError, ValueError, TypeError, AttributeError):
         pass
 
 
 def _save_memo(memo_file: Path) -> None:
     try:
         tmp = Path(f"{memo_file}.{os.getpid()}.{threading.get_ident()}.tmp")
-        tmp.write_text(json.dumps({k: [list(s), d] for k, (s, d) in _memo.items()}))
+        tmp.write_text(json.dumps({k: [list(s), d, _memo_check(k, s, d)] for k, (s, d) in _memo.items()}))
         os.replace(tmp, memo_file)
     except OSError:
         pass  # the memo is only an optimisation

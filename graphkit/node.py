@@ -193,6 +193,14 @@ class Backend(_Computable):
     def why_unavailable(cls) -> str:
         return "available() returned False"
 
+    @classmethod
+    def declines_preference(cls) -> str | None:
+        """None when a run's preference order (``--backend``) may choose this backend here;
+        else why not (e.g. an OpenCL backend that is slower than numpy on a CPU device): the
+        run then uses the next backend and says so once.  A node that pins the backend still
+        gets it.  Called only when the backend is available."""
+        return None
+
     def compute(self, **inputs) -> Any:  # pragma: no cover - abstract
         raise NotImplementedError
 

@@ -3,23 +3,58 @@
 :class:`Session` holds what one run shares (graph, registry, store, backend order, in-memory
 values).  :meth:`Session.run_node` is the unit both executors call — the local thread pool
 and Dask workers — so every executor produces the same keys and the same bytes.
+
+Values read back from the store are checked against their digest (:meth:`Store.load_value`);
+a damaged or missing one is recomputed from the node that made it (:meth:`Session.value`),
+with one notice line.
+
+Thread counts.  A node's bytes must not depend on the machine, so a process that computes
+nodes runs every BLAS pool at one thread (threadpoolctl, plus ``OPENBLAS_NUM_THREADS`` and
+friends for libraries a node loads later): a BLAS call splits its sums differently with more
+threads, and a fit (FitSkinPhong) then ends a few ulps apart.  Parallelism comes from the
+engine's ``--jobs`` and from deterministic row bands inside nodes.
 """
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import math
+import os
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from .errors import BadInput, GraphkitError, NodeFailed
+from .errors import BackendCannotRun, BadInput, GraphkitError, NodeFailed
 from .graphfile import GNode, Graph
-from .hashing import RECIPE_VERSION, canonical_items, canonical_merge, file_digest
+from . import keys
+from .hashing import file_digest
 from .node import Context, probe
 from .registry import NUMPY, Registry
-from .store import Store, value_parts
+from .store import DamagedEntry, Store, value_parts
+
+BLAS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+_blas_lock = threading.Lock()
+_blas_seen = -1  # len(sys.modules) when the BLAS pools were last pinned
+
+
+def pin_blas_threads() -> None:
+    """Run every BLAS pool of this process at one thread (see the module docstring).
+
+    Cheap when nothing was imported since the last call: one length compare."""
+    global _blas_seen
+    if len(sys.modules) == _blas_seen:
+        return
+    with _blas_lock:
+        for var in BLAS_ENV:  # libraries loaded from now on start with one thread
+            os.environ[var] = "1"
+        try:
+            from threadpoolctl import threadpool_limits
+
+            threadpool_limits(1, user_api="blas")
+        except ImportError:  # pragma: no cover - a dependency; the env vars still hold
+            pass
+        _blas_seen = len(sys.modules)
 
 
 @dataclass
@@ -55,6 +90,10 @@ class Session:
             self.backend_order.append(NUMPY)
         self.notice = notice
         self.report = report
+        if store.on_notice is None:
+            store.on_notice = notice
+        self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
+        self._producers: dict[str, tuple[str, str]] = {}  # value digest -> (node, port)
         self.memo: dict[str, Any] = {}  # digest -> value, for values made or loaded in this process
         self._memo_lock = threading.Lock()
         self._backends: dict[str, tuple[str, type, str]] = {}
@@ -78,13 +117,17 @@ class Session:
                     break
                 if b not in reg.backends.get(g.type, {}):
                     continue
-                why = probe(reg.backend_class(g.type, b))
-                if why is None:
+                bcls = reg.backend_class(g.type, b)
+                why = probe(bcls)
+                declined = why is None and _declines(bcls)
+                if why is None and not declined:
                     choice = b
                     break
                 if (g.type, b) not in self._noticed:
                     self._noticed.add((g.type, b))
-                    self.notice(f"notice: backend '{b}' for {g.type} is not available here ({why}); using numpy")
+                    self.notice(f"notice: backend '{b}' for {g.type} is not chosen by preference here ({declined}); using numpy"
+                                if declined else
+                                f"notice: backend '{b}' for {g.type} is not available here ({why}); using numpy")
         cls = reg.backend_class(g.type, choice)
         version = cls.version
         self._backends[g.name] = (choice, cls, version)
@@ -95,32 +138,16 @@ class Session:
         """The key parts of ``g`` that do not depend on its inputs, and their encoding."""
         if g.name not in self._static:
             bname, _, bver = self.backend_for(g)
-            parts = {
-                "recipe": RECIPE_VERSION,
-                "node_type": g.type,
-                "node_version": g.cls.version,
-                "backend": bname,
-                "backend_version": bver,
-                "params": g.params,
-            }
-            if g.files:
-                parts["files"] = {p: self.file_digest(path) for p, path in sorted(g.files.items())}
-            if g.cls.provenance:
-                parts["recipe_digest"] = self.graph.recipe_digest(g.name)
-            self._static[g.name] = (parts, canonical_items(parts))
+            files = {p: self.file_digest(path) for p, path in sorted(g.files.items())} if g.files else None
+            recipe = self.graph.recipe_digest(g.name) if g.cls.provenance else None
+            parts = keys.static_parts(g.type, g.cls.version, bname, bver, g.params, files, recipe)
+            self._static[g.name] = (parts, keys.encode_static(parts))
         return self._static[g.name]
 
     def key(self, g: GNode, input_digests: dict) -> tuple[str, dict]:
-        """(cache key, key parts) of node ``g`` given the digests of its inputs.
-
-        key = BLAKE2b-128(canonical(parts)), parts = recipe version, node type and version,
-        backend name and version, params, input digests, input-file digests and, for nodes that
-        embed provenance, the recipe digest.
-        """
+        """(cache key, key parts) of node ``g`` given the digests of its inputs (graphkit.keys)."""
         static, encoded = self.static_parts(g)
-        inputs = {"inputs": dict(sorted(input_digests.items()))}
-        key = hashlib.blake2b(canonical_merge(encoded, inputs), digest_size=16).hexdigest()
-        return key, {**static, **inputs}
+        return keys.node_key(static, encoded, input_digests)
 
     def readable_parts(self, g: GNode, parts: dict) -> dict:
         if g.name not in self._readable:
@@ -136,37 +163,145 @@ class Session:
         return self._files[path]
 
     # -- values ----------------------------------------------------------------------------
-    def value(self, digest: str, ptype) -> Any:
+    def value(self, digest: str, ptype, source: tuple[str, str] | None = None) -> Any:
+        """The value named ``digest`` (port type ``ptype``), from memory or the store.
+
+        ``source`` = (node, port) that made it.  A stored value that is damaged or missing is
+        recomputed by that node (found from the outcomes of this process when not given)."""
         with self._memo_lock:
             if digest in self.memo:
                 return self.memo[digest]
-        v = self.store.load_value(digest, ptype)
+        try:
+            v = self.store.load_value(digest, ptype)
+        except DamagedEntry as e:
+            source = source or self._producers.get(digest)
+            if source is None:
+                raise
+            return self._regenerate(source[0], source[1], digest, e)
         with self._memo_lock:
             self.memo[digest] = v
         return v
 
+    def output_value(self, node: str, port: str) -> Any:
+        """The value of ``node.port`` in this run (after the node has run)."""
+        o = self._outcomes[node]
+        return self.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type, (node, port))
+
+    def _outcome(self, name: str) -> NodeOutcome:
+        """This run's outcome of node ``name``, looking it (and its upstream) up if needed."""
+        o = self._outcomes.get(name)
+        if o is None:
+            g = self.graph.nodes[name]
+            o = self.run_node(name, g.map_inputs(lambda src, sport: self._outcome(src).outputs[sport]))
+        return o
+
+    def _regenerate(self, name: str, port: str, digest: str, why: DamagedEntry) -> Any:
+        """Recompute node ``name`` because its stored output ``port`` (``digest``) is damaged."""
+        from .errors import CacheError
+
+        g = self.graph.nodes[name]
+        o = self._outcome(name)
+        _, bcls, _ = self.backend_for(g)
+        ptype = g.cls.out_ports[port].type
+        with self.store.key_lock(o.key):
+            with self._memo_lock:
+                if digest in self.memo:
+                    return self.memo[digest]
+            with contextlib.suppress(DamagedEntry):  # another run may have repaired it meanwhile
+                v = self.store.load_value(digest, ptype)
+                with self._memo_lock:
+                    self.memo[digest] = v
+                return v
+            if isinstance(why, DamagedEntry) and why.why == "is missing":
+                self.notice(f"notice: cache object {digest[:16]} ({name}.{port}) is missing; recomputing {name}")
+            outputs = self._compute(g, bcls, o.key, o.parts, o.parts.get("inputs", {}))
+        if outputs.get(port) != digest:
+            raise CacheError(f"node '{name}' ({g.type}) gave other bytes when recomputed to replace a damaged "
+                             f"cache entry (is its compute deterministic?); its new result is stored: run again")
+        with self._memo_lock:
+            return self.memo[digest]
+
     # -- the unit of work ------------------------------------------------------------------
     def run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
+        try:
+            return self._run_node(name, input_digests)
+        except BackendCannotRun as e:
+            g = self.graph.nodes[name]
+            bname = self._backends[name][0]
+            if g.backend or bname == NUMPY:  # pinned: refuse, naming node, backend and reason
+                err = BadInput(None, f"backend '{bname}' cannot run here: {e.reason}")
+                err.node, err.node_type = g.name, g.type
+                raise err from None
+            with self._memo_lock:  # preferred: this node runs (and is keyed) as numpy
+                cls = self.registry.backend_class(g.type, NUMPY)
+                self._backends[name] = (NUMPY, cls, cls.version)
+                self._static.pop(name, None)
+                first = (g.type, bname, "run") not in self._noticed
+                self._noticed.add((g.type, bname, "run"))
+            if first:
+                self.notice(f"notice: backend '{bname}' for {g.type} cannot run node '{name}' here ({e.reason}); using numpy")
+            return self._run_node(name, input_digests)
+
+    def _run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
         g = self.graph.nodes[name]
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
         key, parts = self.key(g, input_digests)
-        rec = self.store.get_record(key, touch=True)
+        rec = self._lookup(g, key, parts, touch=True)
         if rec is None:
             with self.store.key_lock(key):
-                rec = self.store.get_record(key)  # another process may have made it meanwhile
+                rec = self._lookup(g, key, parts)  # another process may have made it meanwhile
                 if rec is None:
                     outputs = self._compute(g, bcls, key, parts, input_digests)
-                    return NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver,
-                                       outputs, parts)
+                    o = NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver, outputs, parts)
+            if rec is None:
+                self.store.commit(force=False)  # group commit: at most one syncfs per interval
+                return self._remember(o)
         outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
-        return NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts)
+        return self._remember(NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts))
+
+    _BOUND = ("recipe", "node_type", "node_version", "backend", "backend_version")
+
+    def _lookup(self, g: GNode, key: str, parts: dict, touch: bool = False) -> dict | None:
+        """The record of ``key`` if it is intact (Store.get_record) and describes this very
+        computation: same type, versions, backend and input digests as ``parts``."""
+        rec = self.store.get_record(key, touch=touch)
+        if rec is None:
+            return None
+        rp = rec.get("parts") or {}
+        if (rp.get("inputs") != parts["inputs"] or any(rp.get(k) != parts.get(k) for k in self._BOUND)
+                or not self._same_params(rp.get("params"), g)):
+            self.store.quarantine(self.store._krel(key), f"cache record {key[:16]} describes another computation")
+            return None
+        return rec
+
+    def _same_params(self, stored, g: GNode) -> bool:
+        if g.name not in self._readable:
+            self._readable[g.name] = readable_params(g.params)
+        mine = self._readable[g.name]
+        if stored == mine:
+            return True
+        import json  # NaN != NaN: compare the JSON texts before calling it another computation
+
+        return json.dumps(stored, sort_keys=True) == json.dumps(mine, sort_keys=True)
+
+    def _remember(self, o: NodeOutcome) -> NodeOutcome:
+        self._outcomes[o.name] = o
+        for port, d in o.outputs.items():
+            self._producers.setdefault(d, (o.name, port))
+        return o
 
     def _compute(self, g: GNode, bcls: type, key: str, parts: dict, input_digests: dict[str, str]) -> dict[str, str]:
         inputs = {}
         for port, d in input_digests.items():
             ptype = g.cls.in_ports[port].type
-            inputs[port] = [self.value(x, ptype) for x in d] if isinstance(d, list) else self.value(d, ptype)
+            src = g.inputs.get(port)
+            if isinstance(d, list):
+                srcs = src if isinstance(src, list) and len(src) == len(d) else [None] * len(d)
+                inputs[port] = [self.value(x, ptype, s) for x, s in zip(d, srcs)]
+            else:
+                inputs[port] = self.value(d, ptype, src if isinstance(src, tuple) else None)
+        pin_blas_threads()
         ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
                       recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
                       report=lambda frac, msg: self.report(g.name, frac, msg))
@@ -214,3 +349,11 @@ class Session:
         }
         self.store.put_record(key, record)
         return digests
+
+
+def _declines(bcls) -> str | None:
+    """The backend's reason not to be chosen by preference here (None: it may be)."""
+    try:
+        return bcls.declines_preference()
+    except Exception as e:  # noqa: BLE001 - a broken hook must not break the run
+        return f"{type(e).__name__}: {e}"

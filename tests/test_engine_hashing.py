@@ -74,3 +74,135 @@ def test_split_key_equals_plain_key(tmp_path, engine_registry):
     key, parts = s.key(s.graph.nodes["d"], {"a": "0" * 32})
     assert key == key_digest(parts)
     assert key != s.key(s.graph.nodes["d"], {"a": "1" * 32})[0]
+
+
+def test_errors_name_the_place():
+    with pytest.raises(CanonicalError, match=r"^params\.a\.b\[1\]: sets have no canonical order"):
+        canonical({"a": {"b": [1, {2}]}})
+    with pytest.raises(CanonicalError, match=r"^params\.m\.x: cannot encode a value of type builtins\.object"):
+        class M(BaseModel):
+            model_config = {"arbitrary_types_allowed": True}
+            x: object = None
+
+        canonical({"m": M(x=object())})
+    with pytest.raises(CanonicalError, match=r"^params\.d: dict keys must be strings, got int"):
+        canonical({"d": {1: 2}})
+    with pytest.raises(CanonicalError, match="fail closed"):
+        canonical(object())
+
+
+def test_file_memo_entries(tmp_path):
+    import json
+    import os
+
+    import graphkit.hashing as h
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"abc")
+    memo = tmp_path / "memo.json"
+    h._memo.clear()
+    d = file_digest(p, memo)
+    import xxhash
+
+    assert d == xxhash.xxh3_128_hexdigest(b"abc")
+    st = os.stat(p)
+    entry = json.loads(memo.read_text())[str(p)]
+    assert entry[0] == [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino] and entry[1] == d
+    assert entry[2] == h._memo_check(str(p), entry[0], d)
+    assert not list(tmp_path.glob("memo.json.*.tmp"))
+    # a memo with one edited, one old-format and one good entry: only the good one is used
+    q = tmp_path / "g.bin"
+    q.write_bytes(b"q")
+    h._memo.clear()
+    file_digest(q, memo)
+    data = json.loads(memo.read_text())
+    data[str(p)][1] = "0" * 32  # edited
+    data["/old"] = [[1, 2, 3], "1" * 32]  # written by an older graphkit
+    memo.write_text(json.dumps(data))
+    h._memo.clear()
+    h._load_memo(memo)
+    assert str(p) not in h._memo and "/old" not in h._memo and h._memo[str(q)][1] == data[str(q)][1]
+    assert file_digest(p, memo) == d
+    h._memo.clear()
+    memo.write_text("[not a dict")
+    h._load_memo(memo)
+    assert h._memo == {}
+
+
+def test_file_memo_hit_does_not_read_the_file(tmp_path, monkeypatch):
+    import builtins
+
+    import graphkit.hashing as h
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(b"abc" * 1000)
+    h._memo.clear()
+    d = file_digest(p, tmp_path / "memo.json")
+    h._memo.clear()
+    real = builtins.open
+    monkeypatch.setattr(builtins, "open", lambda f, *a, **k: (_ for _ in ()).throw(AssertionError(f))
+                        if str(f) == str(p) else real(f, *a, **k))
+    assert file_digest(p, tmp_path / "memo.json") == d  # from the memo file, not the content
+
+
+def test_subclasses_and_numpy_scalars_encode_as_their_base():
+    class I(int):
+        pass
+
+    class F(float):
+        pass
+
+    class S(str):
+        pass
+
+    class D(dict):
+        pass
+
+    class L(list):
+        pass
+
+    import collections
+
+    T = collections.namedtuple("T", "a b")
+    assert canonical(I(3)) == b"i3;" and canonical(F(0.5)) == b"f" + (0.5).hex().encode() + b";"
+    assert canonical(S("ab")) == b"s2:ab" and canonical(D(a=1)) == b"d1{s1:ai1;}"
+    assert canonical(L([1])) == b"l1[i1;]" and canonical(T(1, 2)) == b"l2[i1;i2;]"
+    assert canonical(np.bool_(True)) == b"T" and canonical(np.float64(0.25)) == canonical(0.25)
+    assert canonical(Color.RED) == canonical("red")
+    assert canonical(np.arange(3)) == b"a" + array_digest(np.arange(3)).encode()
+    with pytest.raises(CanonicalError, match="dict keys must be strings"):
+        canonical({1: "a", "b": 2})
+
+
+def test_merge_of_pre_encoded_parts_equals_canonical():
+    from graphkit.hashing import canonical_items, canonical_merge
+
+    parts = {"b": "x", "a": [1, 2.5], "c": {"z": None}}
+    enc = canonical_items({k: v for k, v in parts.items() if k != "c"})
+    assert canonical_merge(enc, {"c": parts["c"]}) == canonical(parts)
+    assert canonical_items({"k": "v"}) == {"k": canonical("k") + canonical("v")}
+
+
+def test_value_digests():
+    from graphkit.hashing import meta_bytes, parts_digest
+
+    a = [np.arange(3.0)]
+    base = parts_digest("Array", {}, a)
+    assert base != parts_digest("Vector", {}, a)
+    assert base != parts_digest("Array", {"x": 1}, a)
+    assert base != parts_digest("Array", {}, a + [np.zeros(0)])
+    assert base != parts_digest("Array", {}, [np.arange(3.0).reshape(3, 1)])
+    assert meta_bytes({"b": 1, "a": "é"}) == b'{"a":"\\u00e9","b":1}'
+    with pytest.raises(ValueError):
+        meta_bytes({"x": float("nan")})
+    with pytest.raises(CanonicalError):
+        array_digest(np.array([object()]))
+    import xxhash
+
+    h = xxhash.xxh3_128()
+    h.update(b"Array\0")
+    h.update(b"{}\0")
+    h.update(b"1;")
+    h.update(b"<f8(3,);")
+    h.update(np.arange(3.0).tobytes())
+    assert base == h.hexdigest()  # the documented layout: type, meta, count, then dtype+shape+bytes

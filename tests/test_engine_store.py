@@ -16,9 +16,12 @@ outputs: [b.out]
 
 
 def test_memory_url_store(write, engine_registry):
+    import uuid
+
     g = write("g.yaml", G)
-    r1 = run_graph(g, cache="memory://gk-test-store", registry=engine_registry)
-    r2 = run_graph(g, cache="memory://gk-test-store", registry=engine_registry)
+    url = f"memory://gk-test-store-{uuid.uuid4().hex}"  # memory:// lives as long as the process
+    r1 = run_graph(g, cache=url, registry=engine_registry)
+    r2 = run_graph(g, cache=url, registry=engine_registry)
     assert sorted(r1.computed) == ["a", "b"] and r2.computed == []
     np.testing.assert_array_equal(r2.value("b.out"), np.full(1000, 3.0))
 

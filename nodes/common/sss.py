@@ -105,6 +105,7 @@ class _Levels:
     def __init__(self, sigma: np.ndarray):
         lo, hi = float(sigma.min()), float(sigma.max())
         self.sigma, self.lo = sigma, lo
+        self.scale = 1.0  # the per-pixel σ (px) is scale · sigma (see scaled)
         self._w = {}  # level → weights (shared by the scaled copies)
         self.exact_identity = lo >= self.SMALL  # no identity pixels to separate
         lo = max(lo, self.SMALL)
@@ -134,6 +135,7 @@ class _Levels:
             other = object.__new__(_Levels)
             other.__dict__.update(self.__dict__)
             other.levels = self.levels * k
+            other.scale = self.scale * k
             return other
         return _Levels(k * self.sigma)
 
@@ -267,7 +269,7 @@ def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray 
 
 
 def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np.ndarray | None = None,
-             profile=SKIN_PROFILE, mask: np.ndarray | None = None) -> np.ndarray:
+             profile=SKIN_PROFILE, mask: np.ndarray | None = None, axis_blur=None) -> np.ndarray:
     """Screen-space sum-of-Gaussians subsurface scattering of a diffuse irradiance image.
 
     irradiance   (H, W, 3) linear diffuse lighting (no albedo: post-scatter texturing,
@@ -279,6 +281,10 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
     profile      sequence of (variance in **mm²**, RGB weight) — default d'Eon 2007 skin.
     mask         optional (H, W) skin mask in [0, 1]; pixels with mask ≤ 0.5 neither scatter
                  light into skin nor are changed.
+    axis_blur    optional replacement of the one-axis Gaussian blur (a backend's):
+                 ``axis_blur(planes, sigma, axis, valid) -> planes`` with the semantics of
+                 :func:`_blur_planes_axis` (σ in pixels: a float, or a :class:`_Levels` whose
+                 ``sigma`` is the per-pixel map).
     Returns float32 (H, W, C).
     """
     img = np.asarray(irradiance, dtype=np.float32)
@@ -321,7 +327,9 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
             sy, sx = sd / step_y, sd / step_x
         else:
             sy, sx = plan_y.scaled(sd), plan_x.scaled(sd)
-        if valid is None and isinstance(sy, float):
+        if axis_blur is not None:
+            blurred = axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
+        elif valid is None and isinstance(sy, float):
             blurred = [_blur_1d(_blur_1d(planes[ch], sy, 0), sx, 1) for ch in chans]
         else:  # y then x, each normalised by the blurred mask (light stays in the skin)
             blurred = _blur_planes_axis([planes[ch] for ch in chans], sy, 0, valid)

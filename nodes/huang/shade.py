@@ -5,6 +5,8 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
+from nodes.common.sss import sss_blur
+
 from . import km
 from .layer import _thickness_map
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
@@ -34,6 +36,7 @@ class CosmeticShade(Node):
     """
 
     version = "3"
+    studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
@@ -49,6 +52,9 @@ class CosmeticShade(Node):
     outputs = {"image": Out(Image, "linear RGB radiance: diffuse + specular"),
                "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
+    # the per-pixel maths, hooks a backend replaces (plugins/graphkit-opencl)
+    pixel_stack = staticmethod(pixel_stack)
+    sss_blur = staticmethod(sss_blur)
 
     class Params(Node.Params):
         cosmetics: list[str] = Field(default_factory=list, description="library cosmetics, bottom layer first")
@@ -68,7 +74,6 @@ class CosmeticShade(Node):
                 light: Light | None = None, depth=None, skin: Mask | None = None, mesh=None,
                 camera: Camera | None = None):
         from nodes.common.microfacet import kelemen_specular
-        from nodes.common.sss import sss_blur
 
         p = self.params
         check_illuminant(p.illuminant)
@@ -129,12 +134,12 @@ class CosmeticShade(Node):
             smask = skin.alpha
 
         # §3.1: the stack's reflectance and transmittance per pixel (spectral, through the table)
-        q = pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
+        q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
         # §3.2: light entering the skin (with skin ↔ layer inter-reflections), scattered, leaving
         pre = T * E / (1.0 - Rb * rho)
         if p.sss:
-            pre = sss_blur(pre, mpp, dmap, mask=smask)
+            pre = self.sss_blur(pre, mpp, dmap, mask=smask)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_exit = np.where(T > 1e-12, T2 / T, 0.0)
         diffuse = (Rt * E + t_exit * rho * pre).astype(np.float32)
@@ -168,8 +173,15 @@ class CosmeticShade(Node):
         nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
         rho = np.full((h, w, 3), [0.6, 0.4, 0.3])
         light = Light(direction=(0.3, -0.2, -1.0), intensity=2.0, ambient=(0.1, 0.1, 0.1))
+        depth = Image((300.0 + 40.0 * (xx - 0.5) ** 2 + 2.0 * yy + 20.0 * (xx > 0.7))[..., None])
+        skin = Mask((np.hypot(xx - 0.5, yy - 0.5) < 0.45).astype(np.float32))
+        soft = np.stack([0.03 * xx, 0.05 * np.clip(2 * yy - 0.5, 0, 1)], -1)  # interpolated everywhere
         return [({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 1.0},
-                 {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm), "light": light})]
+                 {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm), "light": light}),
+                # σ per pixel from depth, SSS kept in the skin mask, thicknesses between grid nodes
+                ({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 0.3},
+                 {"albedo": Image(rho), "thickness": Image(soft), "normals": Image(nrm), "light": light,
+                  "depth": depth, "skin": skin})]
 
 
 def _mesh_geometry(mesh, camera: Camera):

@@ -94,6 +94,7 @@ class KMStack(Node):
     # 2: the thickness lookup puts each axis within km.SNAP of a node on it (was: only pixels
     #    with every axis there); values there move by ≤ ~2e-5
     version = "2"
+    studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
@@ -103,6 +104,9 @@ class KMStack(Node):
     outputs = {"reflectance": Out(Image, "linear RGB reflectance of layers + background"),
                "transmittance": Out(Image, "linear RGB diffuse transmittance of the layers")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
+    # the per-pixel maths, as hooks a backend replaces (plugins/graphkit-opencl)
+    pixel_stack = staticmethod(pixel_stack)
+    stack_over_rgb = staticmethod(stack_over_rgb)
 
     class Params(Node.Params):
         cosmetics: list[str] = Field(default_factory=list, description="library cosmetics, bottom layer first")
@@ -123,7 +127,7 @@ class KMStack(Node):
         t = _thickness_map(thickness, "thickness", shape, len(specs))
         if background is not None:
             Rg = check_reflectance_image(background, "background")
-            R, T = stack_over_rgb(S, K, wl, t, Rg, p.illuminant, p.lut_size)
+            R, T = self.stack_over_rgb(S, K, wl, t, Rg, p.illuminant, p.lut_size)
             return {"reflectance": Image(R), "transmittance": Image(T)}
         if background_spectrum is not None:
             v = background_spectrum.values
@@ -133,7 +137,7 @@ class KMStack(Node):
         else:
             bg = {"skin_tcs13": lambda: skin_spectrum(wl), "black": lambda: np.zeros_like(wl),
                   "white": lambda: np.ones_like(wl)}[p.background]()
-        q = pixel_stack(S, K, wl, t, p.illuminant, p.lut_size, bg)
+        q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size, bg)
         return {"reflectance": Image(q["R"]), "transmittance": Image(q["T"])}
 
     @classmethod

@@ -261,7 +261,7 @@ def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarr
 
 
 def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CELLS_PER_RADIUS,
-                  mins: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  mins: list | None = None, moments=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fast eq. (1): local mean and standard deviation of each (H, W) map in ``hs`` (a sequence
     or an (n, H, W) array) on the grid of c × c-pixel cells, c = :func:`stats_cell`, returned
     as (μ, σ, weight), each (n, ⌈H/c⌉, ⌈W/c⌉), values at the cell centres (see
@@ -276,7 +276,8 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     :func:`local_mean_std` (statistics of the in-image, in-mask part of the disc).  float32 on
     data centred on its global mean.  Where c = 1 this is :func:`local_mean_std` (exact).
     ``mins``: a list to which the minimum of each map is appended (taken in the same pass;
-    nothing is appended where c = 1).
+    nothing is appended where c = 1).  ``moments``: the function that takes the per-cell
+    moments (default :func:`_cell_moments`; a backend passes its own).
     """
     import cv2
 
@@ -298,7 +299,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     mom = []  # centred (E[h·m], E[h²·m]) per map
     g = np.empty(n)
     for i in range(n):
-        a1, a2, lo = _cell_moments(np.ascontiguousarray(hs[i], np.float32), m, c)
+        a1, a2, lo = (moments or _cell_moments)(np.ascontiguousarray(hs[i], np.float32), m, c)
         if mins is not None:
             mins.append(lo)
         # centre on the (masked) global mean g: E[(h−g)²m] = E[h²m] − 2g·E[hm] + g²·E[m]
@@ -490,6 +491,9 @@ class LocalHistMatch(Node):
                "bias": Out(Image, "μ (eq. 5), at stats_size"),
                "neutral_mean": Out(Image, "μ_n (eq. 4), at stats_size")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
+    # the per-pixel passes of the fast path, as hooks a backend replaces (plugins/graphkit-opencl)
+    cell_moments = staticmethod(_cell_moments)
+    apply_scale_bias = staticmethod(apply_scale_bias)
 
     class Params(Node.Params):
         radius: float = Field(16.0, description="disc radius r in pixels (> 0)")
@@ -518,7 +522,8 @@ class LocalHistMatch(Node):
                 (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
             else:
                 c = stats_cell(H, W, p.radius)
-                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, mins=mins)
+                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, mins=mins,
+                                                          moments=self.cell_moments)
         if not mins:
             mins = [float(hn.min()), float(ht.min())]
         for port, lo, a in (("neutral", mins[0], mu_n), ("target", mins[1], mu)):
@@ -535,7 +540,7 @@ class LocalHistMatch(Node):
             scale = np.where(ok, scale, 1.0)
             mu = np.where(ok, mu, hn_s)
             mu_n = np.where(ok, mu_n, hn_s)
-        out = apply_scale_bias(hn, scale, mu, mu_n, c)  # eq. (3)
+        out = self.apply_scale_bias(hn, scale, mu, mu_n, c)  # eq. (3)
         if m is not None:  # outside the skin: unchanged
             np.copyto(out, hn, where=m <= 0)
         shp = stats_shape(hn.shape, p.stats_size)
@@ -552,8 +557,18 @@ class LocalHistMatch(Node):
         rng = np.random.default_rng(5)
         a = Image(rng.random((40, 56, 1), dtype=np.float32) * 0.1)
         b = Image(rng.random((40, 56, 1), dtype=np.float32) * 0.2 + 0.05)
+        # the fast grid path (r ≥ 8): whole cells, cells sticking out of the image, a mask
+        yy, xx = np.mgrid[0:96, 0:128] / 64.0
+        hn = (0.05 + 0.03 * np.sin(3 * xx) * np.cos(2 * yy))[..., None] + rng.random((96, 128, 1)) * 0.02
+        ht = (0.08 + 0.05 * np.cos(4 * xx + yy))[..., None] + rng.random((96, 128, 1)) * 0.04
+        skin = np.clip(1.5 - 2.0 * np.hypot(xx - 1.0, yy - 0.75), 0, 1)
+        c, d = Image(hn.astype(np.float32)), Image(ht.astype(np.float32))
+        c2, d2 = Image(c.pixels[:90, :125]), Image(d.pixels[:90, :125])
         return [({"radius": 5.0, "stats_size": 0}, {"neutral": a, "target": b}),
-                ({"radius": 3.5, "stats_size": 20}, {"neutral": a, "target": b})]
+                ({"radius": 3.5, "stats_size": 20}, {"neutral": a, "target": b}),
+                ({"radius": 16.0, "stats_size": 32}, {"neutral": c, "target": d}),
+                ({"radius": 40.0, "stats_size": 0}, {"neutral": c, "target": d}),
+                ({"radius": 16.0, "stats_size": 0}, {"neutral": c2, "target": d2, "mask": Mask(skin[:90, :125])})]
 
 
 class AppearanceRig(Node):
@@ -567,6 +582,7 @@ class AppearanceRig(Node):
     """
 
     version = "1"
+    studio_view = "nodes.jimenez.studio_view:BlushView"  # graphkit serve: weight sliders
     inputs = {"neutral": In(Image, "neutral map H_n (one channel)"),
               "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)"),
               "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True),

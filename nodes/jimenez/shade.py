@@ -12,6 +12,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
 from nodes.common.parallel import run_bands
+from nodes.common.sss import sss_blur
 
 BAND_ROWS = 48  # rows per band of the per-pixel terms (a band's temporaries stay in the cache)
 
@@ -43,6 +44,8 @@ class SkinShade(Node):
                "diffuse": Out(Image, "scattered diffuse irradiance (before the albedo)"),
                "specular": Out(Image, "specular term (before the light colour)")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
+    # the screen-space SSS, a hook a backend replaces (plugins/graphkit-opencl)
+    sss_blur = staticmethod(sss_blur)
 
     class Params(Node.Params):
         mm_per_pixel: float = Field(0.25, gt=0, description="pixel footprint on the skin (mm)")
@@ -57,7 +60,6 @@ class SkinShade(Node):
         import cv2
 
         from nodes.common.microfacet import kelemen_specular
-        from nodes.common.sss import sss_blur
 
         from .skinlut import lut_corners, lut_lookup
 
@@ -135,7 +137,7 @@ class SkinShade(Node):
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
             irr = np.ascontiguousarray(
-                sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
+                self.sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
                          mask=None if mask is None else mask.alpha), np.float32)
         img = np.empty((H, W, 3), np.float32)
 
@@ -154,5 +156,16 @@ class SkinShade(Node):
         lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
         m = Image(rng.random((24, 32, 1), dtype=np.float32) * 0.2)
         h = Image(rng.random((24, 32, 1), dtype=np.float32) * 0.1)
+        yy, xx = np.mgrid[0:24, 0:32] / 32.0
+        nrm = np.dstack([xx - 0.5, yy - 0.4, -np.ones_like(xx)]).astype(np.float32)
+        depth = Image((400.0 + 60.0 * (xx - 0.5) ** 2 + 3.0 * xx + 25.0 * (yy > 0.6))[..., None].astype(np.float32))
+        skin = Mask((np.hypot(xx - 0.5, yy - 0.4) < 0.4).astype(np.float32))
+        cam = Camera(width=32, height=24, fx=900.0, fy=900.0, cx=16.0, cy=12.0)
+        light = Light(direction=(0.3, -0.2, -1.0), ambient=(0.05, 0.05, 0.05))
         return [({"mm_per_pixel": 0.5}, {"melanin": m, "hemoglobin": h, "lut": lut,
-                                         "light": Light(direction=(0.3, -0.2, -1.0))})]
+                                         "light": Light(direction=(0.3, -0.2, -1.0))}),
+                # σ per pixel from the depth gradient, light kept in the skin mask
+                ({"mm_per_pixel": 0.25}, {"melanin": m, "hemoglobin": h, "lut": lut, "light": light,
+                                          "normals": Image(nrm), "depth": depth, "mask": skin}),
+                # footprint depth / fx per pixel (camera)
+                ({}, {"melanin": m, "hemoglobin": h, "lut": lut, "light": light, "depth": depth, "camera": cam})]

@@ -1,6 +1,7 @@
 """Unocclude and Relight (Loscos 2000 §4.2–4.4, §5, eqs. 5–9)."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,10 +185,17 @@ class Relight(Node):
     """
 
     version = "2"
+    studio_view = "nodes.loscos.studio_view:RoomView"  # graphkit serve: light sliders on the fast path
     inputs = {"solution": RADIOSITY, "unoccluded": UNOCCLUDED, "projection": PROJECTION,
               "photo": Image,
               "camera": In(Camera, "needed when inserting virtual lights or boxes", optional=True)}
     outputs = {"image": Image}
+
+    @staticmethod
+    def modulate_pixels(px, e):
+        """The per-pixel maths (:func:`display.modulate_pixels`: per pixel base·Σ R·e + Σ G·e),
+        a hook a backend replaces (plugins/graphkit-opencl)."""
+        return modulate_pixels(px, e)
 
     class Params(Node.Params):
         light_scale: dict[str, float] = Field(default_factory=dict,
@@ -230,7 +238,50 @@ class Relight(Node):
                                      virtual_polygons(p.virtual_lights, p.virtual_boxes), prm,
                                      p.force_level, 1e-6, rho_fix)
             return Image(img)
-        return Image(modulate_pixels(relight_plan(sol, unoccluded, projection, px, rho_fix), e))
+        return Image(self.modulate_pixels(relight_plan(sol, unoccluded, projection, px, rho_fix),
+                                          e))
+
+    @classmethod
+    def examples(cls):
+        """A small room (3 walls, 2 lights, 40×32 px) solved coarsely: lights switched off,
+        scaled and recoloured (the backend conformance cases; solved once per process)."""
+        return _relight_examples()
+
+
+@functools.lru_cache(maxsize=1)
+def _relight_examples():
+    """Relight.examples(): solved once per process."""
+    from graphkit import Context
+
+    from .radiosity import RadiositySolve
+    from .scene import parse_scene
+    from .textures import ProjectTextures
+
+    q = [[-.3, .99, -.6], [.3, .99, -.6], [.3, .99, -.2], [-.3, .99, -.2]]  # facing down
+    doc = {"loscos_scene": 1, "camera": {"width": 40, "height": 32, "fov_deg": 60,
+                                         "position": [0, 0, 2.5], "look_at": [0, 0, 0]},
+           "materials": {"w": [0.7, 0.6, 0.5], "r": [0.6, 0.1, 0.1]},
+           "polygons": [{"name": "back", "material": "w", "vertices": [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1]]},
+                        {"name": "floor", "material": "w", "vertices": [[-1, -1, 1], [1, -1, 1], [1, -1, -1], [-1, -1, -1]]},
+                        {"name": "left", "material": "r", "vertices": [[-1, -1, 1], [-1, -1, -1], [-1, 1, -1], [-1, 1, 1]]}],
+           "lights": [{"name": "A", "material": "w", "emittance": [20, 20, 16], "vertices": q},
+                      {"name": "B", "material": "w", "emittance": [8, 12, 16],
+                       "vertices": [[.5, .99, .1], [.8, .99, .1], [.8, .99, .4], [.5, .99, .4]]}]}
+    sc, cam, _ = parse_scene(doc)
+    yy, xx = np.mgrid[0:32, 0:40] / 40.0
+    photo = Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+
+    def run(node, params, **kw):
+        return node(node.Params(**params), Context()).compute(**kw)
+
+    pr = run(ProjectTextures, {"resolution": 8}, scene=sc, camera=cam, photo=photo)
+    sol = run(RadiositySolve, {"eps_bf": 0.5, "eps_bfv": 0.05, "min_area": 0.05, "max_level": 3},
+              scene=sc, projection=pr)["solution"]
+    un = run(Unocclude, {}, solution=sol, projection=pr, photo=photo)["unoccluded"]
+    inputs = {"solution": sol, "unoccluded": un, "projection": pr, "photo": photo}
+    return [({"light_scale": {"A": 0.0}}, inputs),
+            ({"light_scale": {"A": 1.5}, "emittance": {"B": [1.0, 6.0, 2.0]}}, inputs),
+            ({}, inputs)]
 
 
 def new_emittance(sol, scale: dict, emit: dict) -> np.ndarray:

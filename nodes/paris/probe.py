@@ -18,8 +18,12 @@ class ProbeLight(Node):
     """Mirror-ball probe photo → the flash as a directional Light (Paris 2003 §4.1, Fig. 7).
 
     * **Ball**: ``centre_x``, ``centre_y``, ``radius`` (pixels, continuous coordinates, pixel
-      centres at +0.5) or found automatically (Hough circle, then a sub-pixel least-squares
-      fit of the strongest radial edge).
+      centres at +0.5) or found automatically by :func:`nodes.paris.ballfind.find_ball`: the
+      outermost closed circular edge around the flash's highlight (not the strongest circle,
+      which on a dark backdrop is often the environment's reflection or the cast shadow),
+      fitted to sub-pixel edges (with ``fov_deg``: as the cone tangent to the sphere).  When
+      it is not sure (no closed outline, two candidates, a poor fit, the ball cut by the
+      frame) the node refuses and asks for the three params.
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
@@ -44,7 +48,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "1"
+    version = "2"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True)}
@@ -143,18 +147,13 @@ class ProbeLight(Node):
         if any(given):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
-        found = find_ball(px)
-        if found is None:
-            raise BadInput(port, "no ball found in the image; give centre_x, centre_y and radius (pixels)")
-        return found
+        return _find_ball_or_refuse(px, port, self.params.fov_deg, highlight=True)
 
     def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None) -> float:
         p = self.params
         px = _rgb(white, "white")
         h, w = px.shape[:2]
-        found = circle if circle is not None else find_ball(px)
-        if found is None:
-            raise BadInput("white", "no ball found in the white-ball calibration image")
+        found = circle if circle is not None else _find_ball_or_refuse(px, "white", p.fov_deg, highlight=False)
         cx, cy, r = found
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
@@ -258,65 +257,22 @@ def _hit(d, c):
     return t[..., None] * d
 
 
-def find_ball(px: np.ndarray) -> tuple[float, float, float] | None:
-    """Find the largest bright-edged circle: Hough circle on the luminance, then a robust
-    least-squares circle through sub-pixel radial edge points. → (cx, cy, r) in pixels."""
-    import cv2
+def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) -> tuple[float, float, float]:
+    """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
+    why it is not sure and which params to give."""
+    from .ballfind import find_ball
 
-    lum = px @ _Y
-    h, w = lum.shape
-    lo, hi = np.percentile(lum, [1, 99])
-    g = np.clip((lum - lo) / max(hi - lo, 1e-12), 0, 1)
-    img8 = np.round(np.sqrt(g) * 255).astype(np.uint8)
-    img8 = cv2.GaussianBlur(img8, (5, 5), 1.2)
-    m = min(h, w)
-    circles = None
-    for p2 in (30, 20, 12):
-        circles = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=m, param1=60, param2=p2,
-                                   minRadius=int(0.08 * m), maxRadius=int(0.55 * m))
-        if circles is not None:
-            break
-    if circles is None:
-        return None
-    x0, y0, r0 = (float(c) for c in circles[0][0])
-    x0, y0 = x0 + 0.5, y0 + 0.5  # OpenCV pixel centres are integers
-    return refine_circle(lum, x0, y0, r0)
-
-
-def refine_circle(lum, x0, y0, r0, n_rays=360):
-    """Sub-pixel circle from the strongest radial edge near radius r0 (bilinear profiles,
-    parabolic peak of the gradient), fitted by least squares with outlier rejection."""
-    from scipy import ndimage
-
-    h, w = lum.shape
-    ang = np.arange(n_rays) * 2 * np.pi / n_rays
-    ts = np.linspace(0.75 * r0, 1.25 * r0, int(max(40, r0)))
-    ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    xs, ys = x0 + ts[None] * ca, y0 + ts[None] * sa
-    prof = ndimage.map_coordinates(lum, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
-    grad = np.abs(np.gradient(prof, axis=1))
-    k = np.argmax(grad, axis=1)
-    k = np.clip(k, 1, len(ts) - 2)
-    gm, g0, gp = (grad[np.arange(n_rays), k + o] for o in (-1, 0, 1))
-    den = gm - 2 * g0 + gp
-    off = np.where(np.abs(den) > 1e-12, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
-    t = ts[k] + np.clip(off, -1, 1) * (ts[1] - ts[0])
-    ok = (xs[:, 0] > -1) & (g0 > 0)
-    ex, ey = x0 + t * ca[:, 0], y0 + t * sa[:, 0]
-    strength = g0
-    keep = ok & (strength > 0.2 * np.median(strength[ok]))
-    if keep.sum() < 10:
-        return x0, y0, r0
-    for _ in range(5):
-        a = np.column_stack([ex[keep], ey[keep], np.ones(keep.sum())])
-        b = ex[keep] ** 2 + ey[keep] ** 2
-        sol = np.linalg.lstsq(a, b, rcond=None)[0]
-        cx, cy = sol[0] / 2, sol[1] / 2
-        r = np.sqrt(sol[2] + cx * cx + cy * cy)
-        res = np.abs(np.hypot(ex - cx, ey - cy) - r)
-        mad = 1.4826 * np.median(res[keep]) + 1e-3
-        new = ok & (res < 3 * mad)
-        if new.sum() < 10 or np.array_equal(new, keep):
-            break
-        keep = new
-    return float(cx), float(cy), float(r)
+    what = "mirror ball" if highlight else "white ball"
+    clipped = px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)   # the plateau of a clipped photo
+    share = float(clipped.mean())
+    fit = find_ball(px, fov_deg, highlight=highlight)
+    if fit.confident:
+        return fit.cx, fit.cy, fit.r
+    if highlight and 0.05 < share < 0.98:  # (a flat image is all 'at its maximum')
+        why = (f"the probe is over-exposed: {100 * share:.0f}% of its pixels are clipped (at its maximum "
+               f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
+    else:
+        why = fit.reason
+    params = "centre_x, centre_y and radius (pixels)" if port == "probe" else \
+        "a white-ball photo of the probe's size (it then uses the probe's circle)"
+    raise BadInput(port, f"cannot find the {what} with confidence: {why}; give {params}")

@@ -8,6 +8,11 @@ imports pyopencl until a graph actually uses a backend.
 
 BACKENDS = {
     "RatioImage/opencl": "graphkit_opencl.ratio:RatioImageOpenCL",
+    "KMStack/opencl": "graphkit_opencl.km:KMStackOpenCL",
+    "LocalHistMatch/opencl": "graphkit_opencl.histmatch:LocalHistMatchOpenCL",
+    "SkinShade/opencl": "graphkit_opencl.sss:SkinShadeOpenCL",
+    "CosmeticShade/opencl": "graphkit_opencl.sss:CosmeticShadeOpenCL",
+    "Relight/opencl": "graphkit_opencl.relight:RelightOpenCL",
 }
 
 __version__ = "0.1.0"

@@ -1,0 +1,66 @@
+"""Images for the page: linear float pixels → 8-bit sRGB PNG, with an exposure in stops.
+
+HDR values (EXR outputs) are shown as a camera would: scaled by 2**exposure, clipped to
+[0, 1] and encoded with the sRGB transfer function (IEC 61966-2-1).  One-channel images and
+masks are grey; images with more than three channels show their first three.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+_N = 4096
+_LUT = None
+
+
+def _lut() -> np.ndarray:
+    global _LUT
+    if _LUT is None:
+        x = np.linspace(0.0, 1.0, _N, dtype=np.float64)
+        srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+        _LUT = np.clip(np.round(srgb * 255.0), 0, 255).astype(np.uint8)
+    return _LUT
+
+
+def display_rgb(pixels: np.ndarray, exposure: float = 0.0, srgb_encoded: bool = False) -> np.ndarray:
+    """H×W×3 uint8 sRGB of linear ``pixels`` (H×W, H×W×1, H×W×3 or more channels)."""
+    a = np.asarray(pixels, np.float32)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    elif a.shape[2] == 2:
+        a = np.concatenate([a, np.zeros_like(a[:, :, :1])], axis=2)
+    else:
+        a = a[:, :, :3]
+    scale = np.float32(2.0 ** float(exposure))
+    if srgb_encoded:
+        return np.clip(np.nan_to_num(a * scale) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    idx = np.nan_to_num(a * scale * np.float32(_N - 1), nan=0.0, posinf=_N - 1, neginf=0.0)
+    idx = np.clip(idx + 0.5, 0, _N - 1).astype(np.int32)
+    return _lut()[idx]
+
+
+def png(rgb8: np.ndarray) -> bytes:
+    """PNG bytes of an H×W×3 uint8 sRGB image (OpenCV's encoder, fastest compression)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb8[:, :, ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def preview_png(ptype_name: str, value, exposure: float = 0.0, max_side: int = 0) -> bytes:
+    """PNG of an Image or Mask value for the page."""
+    if ptype_name == "Mask":
+        px, enc = value.alpha, True  # weights in [0, 1]: shown as they are
+    else:
+        px = value.pixels
+        enc = str(getattr(value, "colorspace", "lin_srgb")).lower() in ("srgb", "srgb_rec709_scene")
+    if max_side and max(px.shape[:2]) > max_side:
+        import cv2
+
+        k = max_side / max(px.shape[:2])
+        size = (max(1, round(px.shape[1] * k)), max(1, round(px.shape[0] * k)))
+        px = cv2.resize(np.ascontiguousarray(px, np.float32), size, interpolation=cv2.INTER_AREA)
+    return png(display_rgb(px, exposure, srgb_encoded=enc))

@@ -1,0 +1,356 @@
+// graphkit studio page: state over a websocket, DAG, controls, previews, live views.
+import { Dag } from './dag.js';
+import { makeControl, boundParam } from './controls.js';
+
+const token = new URLSearchParams(location.search).get('token') || sessionStorage.getItem('gk-token') || '';
+sessionStorage.setItem('gk-token', token);
+if (location.search.includes('token=')) history.replaceState(null, '', location.pathname);
+
+const $ = id => document.getElementById(id);
+const studio = window.studio = {
+  state: null, selected: null, preview: null, ws: null, events: 0, previewLoads: 0,
+  previewDigest: null, lastError: null,
+};
+
+async function api(path, body) {
+  const r = await fetch(path, {
+    method: body === undefined ? 'GET' : 'POST',
+    headers: { 'x-graphkit-token': token, 'content-type': 'application/json' },
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  let data = null;
+  try { data = await r.json(); } catch { data = { ok: false, error: `HTTP ${r.status}` }; }
+  return data;
+}
+
+function log(msg) {
+  const f = $('log');
+  f.textContent = msg;
+}
+
+// ---- rendering ------------------------------------------------------------------------
+const dag = new Dag($('dag'), name => selectNode(name));
+let controls = {};  // "node/param" or "/param" -> control
+
+function nodeByName(name) { return (studio.state?.nodes || []).find(n => n.name === name); }
+
+function render(state) {
+  studio.state = state;
+  $('graph-name').textContent = state.graph.name;
+  $('graph-path').textContent = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
+  $('autorun').checked = state.autorun;
+  showRun(state.run);
+  dag.draw(state.nodes);
+  const errs = $('errors');
+  if (state.errors.length) {
+    errs.hidden = false;
+    errs.textContent = state.errors.map(e => e.text).join('\n');
+  } else errs.hidden = true;
+  const banner = $('banner');
+  banner.hidden = !state.problems.length;
+  banner.textContent = state.problems.map(p => 'warning: ' + p).join('\n');
+  renderGraphParams(state);
+  if (!studio.selected || !nodeByName(studio.selected)) {
+    const first = state.preview ? state.preview[0] : (state.nodes[0] || {}).name;
+    if (first) selectNode(first, true);
+  } else renderNodePanel(nodeByName(studio.selected));
+  renderPreviewChoices(state);
+  refreshPreview();
+}
+
+function showRun(run) {
+  const el = $('run-status');
+  const st = run?.status || 'idle';
+  el.className = 'status ' + st;
+  let t = st;
+  if (st === 'ok') t = `ok ${run.seconds?.toFixed(2)}s · ${run.computed?.length ?? 0} computed, ${run.cached?.length ?? 0} cached`;
+  if (st === 'failed') t = `failed: ${Object.keys(run.failed || {}).join(', ') || run.message}`;
+  if (st === 'invalid') t = 'graph does not validate';
+  el.textContent = t;
+  el.dataset.gen = run?.gen ?? 0;
+  el.dataset.status = st;
+}
+
+function renderGraphParams(state) {
+  const box = $('gp-controls');
+  const names = Object.keys(state.graph_params || {});
+  const key = names.join(',') + '|' + JSON.stringify(Object.keys(state.graph_param_schema));
+  if (box.dataset.key !== key) {
+    box.replaceChildren();
+    box.dataset.key = key;
+    for (const k of names) {
+      const sch = state.graph_param_schema[k];
+      const schema = sch ? sch.schema : guessSchema(state.graph_params[k]);
+      const c = makeControl(k, schema, state.graph_params[k], state.defs,
+        v => change(null, k, v, c));
+      if (sch) c.root.title = (c.root.title ? c.root.title + '\n' : '') + `used by ${sch.used_by}`;
+      controls['/' + k] = c;
+      box.append(c.root);
+    }
+  } else {
+    for (const k of names) controls['/' + k]?.set(state.graph_params[k]);
+  }
+  $('graph-params').hidden = !names.length;
+}
+
+function guessSchema(v) {
+  if (typeof v === 'boolean') return { type: 'boolean' };
+  if (typeof v === 'number') return { type: 'number' };
+  if (typeof v === 'string') return { type: 'string' };
+  return {};
+}
+
+function selectNode(name, quiet) {
+  studio.selected = name;
+  dag.select(name);
+  const n = nodeByName(name);
+  renderNodePanel(n, true);
+  if (!quiet) {
+    const img = Object.entries(n?.outputs || {}).find(([, t]) => t === 'Image' || t === 'Mask');
+    if (img) setPreview([name, img[0]]);
+  }
+  mountView(n);
+}
+
+function renderNodePanel(n, rebuild) {
+  const box = $('node-panel');
+  if (!n) { box.replaceChildren(); return; }
+  const key = n.name + '|' + n.type + '|' + JSON.stringify(n.raw_params);
+  if (rebuild || box.dataset.key !== key) {
+    box.dataset.key = key;
+    box.replaceChildren();
+    const h = document.createElement('h3');
+    h.textContent = `${n.name} · ${n.type}`;
+    box.append(h);
+    const msg = document.createElement('div');
+    msg.className = 'node-msg';
+    msg.id = 'node-msg';
+    box.append(msg);
+    const sch = studio.state.schemas[n.type];
+    if (sch?.description) {
+      const d = document.createElement('div');
+      d.className = 'doc';
+      d.textContent = sch.description;
+      box.append(d);
+    }
+    const props = sch?.params?.properties || {};
+    for (const k of Object.keys(props)) {
+      const bound = boundParam((n.raw_params || {})[k]);
+      const c = makeControl(k, props[k], (n.params || {})[k], studio.state.defs,
+        v => change(n.name, k, v, c), { bound });
+      controls[n.name + '/' + k] = c;
+      box.append(c.root);
+    }
+    const thumbs = document.createElement('div');
+    thumbs.className = 'thumbs';
+    thumbs.id = 'thumbs';
+    box.append(thumbs);
+  } else {
+    const props = studio.state.schemas[n.type]?.params?.properties || {};
+    for (const k of Object.keys(props)) controls[n.name + '/' + k]?.set((n.params || {})[k]);
+  }
+  const msg = $('node-msg');
+  if (msg) msg.textContent = (n.state === 'failed' || n.state === 'blocked') ? n.message : '';
+  renderThumbs(n);
+}
+
+function renderThumbs(n) {
+  const box = $('thumbs');
+  if (!box) return;
+  box.replaceChildren();
+  for (const [port, t] of Object.entries(n.outputs || {})) {
+    if (t !== 'Image' && t !== 'Mask') continue;
+    if (!digestOf(n.name, port)) continue;
+    const fig = document.createElement('figure');
+    const img = document.createElement('img');
+    img.src = previewURL(n.name, port, 160);
+    img.onerror = () => { img.style.visibility = 'hidden'; };
+    const cap = document.createElement('figcaption');
+    cap.textContent = port;
+    fig.append(img, cap);
+    fig.addEventListener('click', () => setPreview([n.name, port]));
+    box.append(fig);
+  }
+}
+
+function digestOf(node, port) {
+  return nodeByName(node)?.digests?.[port] || '';
+}
+
+function previewURL(node, port, max = 0) {
+  const e = $('exposure').value;
+  const d = digestOf(node, port);
+  return `/api/preview?node=${encodeURIComponent(node)}&port=${encodeURIComponent(port)}&exposure=${e}` +
+    (max ? `&max=${max}` : '') + `&v=${d}`;
+}
+
+function renderPreviewChoices(state) {
+  const sel = $('preview-select');
+  const opts = [];
+  for (const n of state.nodes) for (const [p, t] of Object.entries(n.outputs || {}))
+    if (t === 'Image' || t === 'Mask') opts.push(`${n.name}.${p}`);
+  const key = opts.join(',');
+  if (sel.dataset.key !== key) {
+    sel.dataset.key = key;
+    sel.replaceChildren(...opts.map(o => { const e = document.createElement('option'); e.value = e.textContent = o; return e; }));
+  }
+  if (!studio.preview && state.preview) studio.preview = state.preview;
+  if (studio.preview) sel.value = studio.preview.join('.');
+}
+
+function setPreview(p) {
+  studio.preview = p;
+  $('preview-select').value = p.join('.');
+  refreshPreview();
+}
+
+function refreshPreview() {
+  const p = studio.preview;
+  const img = $('preview');
+  if (!p) return;
+  const d = digestOf(p[0], p[1]);
+  const url = previewURL(p[0], p[1]);
+  if (!d) { img.removeAttribute('src'); img.dataset.digest = ''; $('preview-info').textContent = `${p.join('.')}: not computed yet`; return; }
+  if (img.dataset.url === url) return;
+  img.dataset.url = url;
+  img.onload = () => {
+    img.dataset.digest = d;
+    studio.previewLoads += 1;
+    studio.previewDigest = d;
+    studio.previewLoadedAt = performance.now();
+    $('preview-info').textContent = `${p.join('.')} · ${img.naturalWidth}×${img.naturalHeight} · ${d.slice(0, 12)}`;
+  };
+  img.src = url;
+}
+
+// ---- edits ----------------------------------------------------------------------------
+// While a change is in flight, newer values wait; only the newest is sent next.
+const pending = new Map();
+let sending = false;
+
+function change(node, param, value, ctl) {
+  pending.set((node ?? '') + '/' + param, { node, param, value, ctl });
+  pump();
+}
+
+async function pump() {
+  if (sending || !pending.size) return;
+  sending = true;
+  const batch = [...pending.values()];
+  pending.clear();
+  try {
+    const res = await api('/api/params', { changes: batch.map(({ node, param, value }) => ({ node, param, value })) });
+    for (const b of batch) b.ctl?.error('');
+    if (!res.ok) {
+      const text = (res.errors || []).map(e => e.text).join('\n') || res.error;
+      studio.lastError = text;
+      for (const b of batch) b.ctl?.error(text);
+      log(text);
+    } else studio.lastError = null;
+  } finally {
+    sending = false;
+    if (pending.size) pump();
+  }
+}
+
+// ---- live views ---------------------------------------------------------------------
+let frameId = 0;
+const frameWaiters = new Map();
+
+async function mountView(n) {
+  const panel = $('view-panel');
+  panel.replaceChildren();
+  panel.hidden = true;
+  if (!n || !n.view) return;
+  panel.hidden = false;
+  const h = document.createElement('h3');
+  h.textContent = `live view · ${n.view.title}`;
+  const body = document.createElement('div');
+  body.id = 'view-body';
+  panel.append(h, body);
+  const res = await api(`/api/view/${encodeURIComponent(n.name)}`);
+  if (!res.ok) { body.textContent = res.error; return; }
+  try {
+    const mod = await import(`/views/${encodeURIComponent(n.type)}.js`);
+    mod.mount(body, {
+      node: n.name, data: res.data, exposure: () => +$('exposure').value,
+      frame: values => sendFrame(n.name, values),
+      commit: values => studio.ws?.send(JSON.stringify({ type: 'commit', node: n.name, values })),
+      token,
+    });
+  } catch (e) { body.textContent = `the view failed: ${e}`; }
+}
+
+function sendFrame(node, values) {
+  const id = ++frameId;
+  return new Promise(resolve => {
+    frameWaiters.set(id, resolve);
+    studio.ws.send(JSON.stringify({ type: 'frame', node, values, id, exposure: +$('exposure').value }));
+  });
+}
+
+async function onBinary(buf) {
+  const dv = new DataView(buf);
+  const n = dv.getUint32(0, true);
+  const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const blob = new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/png' });
+  const w = frameWaiters.get(head.id);
+  frameWaiters.delete(head.id);
+  if (w) w({ url: URL.createObjectURL(blob), info: head });
+}
+
+// ---- websocket --------------------------------------------------------------------------
+function connect() {
+  const ws = new WebSocket(`${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws?token=${encodeURIComponent(token)}`);
+  ws.binaryType = 'arraybuffer';
+  studio.ws = ws;
+  ws.onmessage = ev => {
+    studio.events += 1;
+    if (typeof ev.data !== 'string') return onBinary(ev.data);
+    const m = JSON.parse(ev.data);
+    if (m.type === 'state') {
+      render(m.state);
+    } else if (m.type === 'node') {
+      const n = nodeByName(m.name);
+      if (n) {
+        Object.assign(n, { state: m.state, seconds: m.seconds, message: m.message, progress: m.progress });
+        if (m.digests) n.digests = m.digests;
+        dag.update(n);
+        if (studio.selected === m.name) renderNodePanel(n);
+        if (studio.preview && studio.preview[0] === m.name) refreshPreview();
+      }
+    } else if (m.type === 'run') {
+      showRun(m);
+      if (studio.state) studio.state.run = m;
+    } else if (m.type === 'frame') {
+      const w = frameWaiters.get(m.id);
+      frameWaiters.delete(m.id);
+      if (w) w({ url: '', info: m });
+    } else if (m.type === 'commit') {
+      if (!m.ok) log((m.errors || []).map(e => e.text).join('\n'));
+    } else if (m.type === 'notice') log(m.message);
+  };
+  ws.onclose = () => { $('run-status').textContent = 'disconnected'; setTimeout(connect, 1000); };
+}
+
+$('run-btn').addEventListener('click', async () => {
+  const r = await api('/api/run', {});
+  if (!r.ok) log(r.error);
+});
+$('autorun').addEventListener('change', e => api('/api/autorun', { on: e.target.checked }));
+$('save-btn').addEventListener('click', async () => {
+  const suggestion = (studio.state?.graph.path || 'graph.yaml').replace(/\.ya?ml$/, '') + '_edited.yaml';
+  const path = prompt('save the graph (with the current params) as:', suggestion.split('/').pop());
+  if (!path) return;
+  const r = await api('/api/save', { path });
+  log(r.ok ? `saved ${r.path}` : r.error);
+});
+$('exposure').addEventListener('input', e => {
+  $('exposure-val').textContent = (+e.target.value).toFixed(1);
+  refreshPreview();
+});
+$('preview-select').addEventListener('change', e => {
+  const v = e.target.value, i = v.lastIndexOf('.');
+  setPreview([v.slice(0, i), v.slice(i + 1)]);
+});
+connect();

@@ -1,0 +1,6 @@
+// Studio live view of CosmeticShade / KMStack: a thickness slider per layer, face-cropped preview.
+import { sliderView } from '/static/viewkit.js';
+
+export function mount(el, api) {
+  return sliderView(el, api, { sliders: api.data.sliders, note: api.data.note });
+}

@@ -1,0 +1,590 @@
+"""Find the ball in a light-probe photo: centre and radius in pixels (Paris 2003 §4.1, Fig. 7).
+
+A mirror ball in front of a dark backdrop is hard to see by its outline: its rim reflects
+what is behind the ball (the backdrop, often in the ball's own shadow), so the silhouette is a
+faint step between two dark regions, while the environment's reflection inside the ball and the
+ball's cast shadow on the backdrop make strong circular edges of the wrong size or centre.
+:func:`find_ball` therefore does not take the strongest circle.  It uses what only the
+silhouette has:
+
+0. **Noise-normalised image**: the pixel noise is measured against brightness (2×2 second
+   differences, robust spread per brightness bin) and the luminance is transformed so that
+   the noise has unit σ everywhere (a generalised Anscombe transform): a step's height is then
+   its significance, in dark and bright regions alike.
+1. **Candidates**: OpenCV's Hough transform (``HOUGH_GRADIENT``) on that image gives circles of
+   any origin (silhouette, environment edge, shadow, backdrop pattern).
+2. **Edges on rays**: from each candidate's centre, profiles along 180 rays (each averaged
+   over a short arc), and every significant local maximum of their radial step → edge points;
+   RANSAC circles through edge points of different rays, refined by least squares.
+3. **Sub-pixel fit**: rays are grouped in sectors of 4 (8°) and averaged (a silhouette is at
+   the same radius on neighbouring rays, the noise is not); in each sector the significant
+   step nearest to the circle (not the strongest: the rim often holds a stronger edge of the
+   reflection a few pixels inside) is located at the parabolic peak of the linear luminance
+   gradient; the points are fitted with outlier rejection — a circle (orthographic) or, given
+   the vertical field of view, the cone of rays tangent to the sphere (its axis gives the
+   projected centre, its half-angle the radius in ProbeLight's convention).  Iterated.
+4. **Support**: the fraction of sectors (inside the frame) with a significant step on the
+   fitted outline (within ``SNAP_PX``), and the largest gap.  A silhouette is a closed edge:
+   a step in every sector.  A cast shadow shows only the crescent the ball does not hide; an
+   environment edge is closed but concentric and inside.
+5. **Choice**: among the closed circles (support ≥ ``MIN_SUPPORT``, gap ≤ ``MAX_GAP_DEG``,
+   radius ≥ ``MIN_RADIUS_PX``) that hold one of the clipped blobs (the flash's highlight), the
+   outermost of each family (circles concentric with it or wholly inside it: edges of its own
+   reflection, the flash's halo) is a ball; the family with the best support wins.
+
+The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
+when no closed circle is found, when two unrelated closed circles compete (supports within
+``AMBIGUITY``), when a fainter concentric circle surrounds the one found, when the pixels just
+outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
+the ball is mostly outside the frame.  Tuned on the TUNING probes of
+``nodes/paris/data/make_probes.py``; checked on its CHECK probes
+(tests/oracles/test_paris_probe_mitsuba.py).  Units: pixels (pixel centres at +0.5).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: linear sRGB → luminance Y
+_Y = np.array([0.2126, 0.7152, 0.0722])
+N_RAYS = 180
+RAYS_PER_SECTOR = 4      # rays averaged into one sector (8°) for the support and the sub-pixel fit
+MIN_SUPPORT = 0.8        # fraction of in-frame sectors with an edge on a closed circle
+MAX_GAP_DEG = 60.0       # largest run of sectors without an edge on a closed circle (degrees)
+TOL_PX = 1.5             # an edge point is on a circle within this distance
+MIN_IN_FRAME = 0.6       # fraction of the silhouette inside the image
+LOOSE_SUPPORT = 0.5      # circles considered at all
+AMBIGUITY = 0.1          # two balls whose supports are closer than this: refuse
+EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
+PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
+MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
+SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
+
+
+@dataclass
+class BallFit:
+    """Where the ball is and how sure :func:`find_ball` is about it.
+
+    ``cx``, ``cy``, ``r``: pixels (continuous coordinates, pixel centres at +0.5; with
+    ``fov_deg`` the projected centre of the sphere and ProbeLight's radius).  ``support``:
+    fraction of 8° sectors with a silhouette step on the outline; ``max_gap_deg``: the largest
+    angular run without one; ``residual_px``: RMS distance of the kept edge points;
+    ``in_frame``: fraction of the outline inside the image; ``candidates``: the circles
+    weighed, after their sub-pixel fit (cx, cy, r, support).
+    """
+
+    cx: float
+    cy: float
+    r: float
+    confident: bool
+    reason: str = ""
+    support: float = 0.0
+    max_gap_deg: float = 360.0
+    residual_px: float = float("inf")
+    in_frame: float = 0.0
+    candidates: list = field(default_factory=list)
+
+    def __iter__(self):  # cx, cy, r, fit = find_ball(...)
+        return iter((self.cx, self.cy, self.r, self))
+
+    def summary(self) -> str:
+        return (f"centre ({self.cx:.1f}, {self.cy:.1f}) px, radius {self.r:.1f} px, edge on "
+                f"{100 * self.support:.0f}% of the outline (largest gap {self.max_gap_deg:.0f}°), "
+                f"fit residual {self.residual_px:.2f} px")
+
+
+def luminance(px: np.ndarray) -> np.ndarray:
+    px = np.asarray(px, np.float64)
+    if px.ndim == 2:
+        return px
+    if px.shape[2] == 1:
+        return px[..., 0]
+    return px[..., :3] @ _Y
+
+
+def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = True) -> BallFit:
+    """Find the ball (see the module docstring) in a linear RGB (H×W×3) or luminance image.
+
+    ``fov_deg``: the photo's vertical field of view (pinhole, principal point at the image
+    centre), None for an orthographic view.  ``highlight``: the ball shows a clipped highlight
+    (a mirror ball under the flash); a circle must hold it.  → :class:`BallFit`.
+    """
+    lum = luminance(px)
+    h, w = lum.shape
+    chmax = np.asarray(px, np.float64).max(-1) if np.ndim(px) == 3 else lum
+    clipped = chmax >= (1 - 1e-3) * max(float(chmax.max()), 1e-12)
+    if h < 16 or w < 16:
+        return BallFit(0, 0, 0, False, f"the image is {w}×{h} px: too small to find a ball in")
+    g = stabilise(lum)
+    spots = _highlights(lum) if highlight else []
+    seeds = _seeds(g, spots)
+    if not seeds:
+        return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
+    noise = 1.0          # g has unit noise
+    circles = []
+    for x0, y0, r0 in seeds:
+        for c in _circles_near(g, noise, x0, y0, r0):
+            if not any(_same(c, d) for d in circles):
+                circles.append(c)
+    loose = [c for c in circles if c["support"] >= LOOSE_SUPPORT and c["r"] >= MIN_RADIUS_PX]
+    if spots:
+        loose = [c for c in loose if _holds(c, spots)]
+    fits = []
+    for c in loose:
+        f = _subpixel(lum, g, noise, c, fov_deg)
+        if not np.isfinite(f.residual_px):
+            continue
+        twin = [i for i, o in enumerate(fits) if _same(f, o)]
+        if not twin:
+            fits.append(f)
+        elif f.support > fits[twin[0]].support:
+            fits[twin[0]] = f
+    cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
+    closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
+    where = " around the highlight" if spots else ""
+    if not closed:
+        best = max(fits, key=lambda f: f.support, default=None)
+        if best is None:
+            return BallFit(0, 0, 0, False, f"no ball: no closed circular outline{where}")
+        best.confident = False
+        best.reason = f"no ball: no closed circular outline{where} (best: {best.summary()})"
+        best.candidates = cand
+        return best
+    # families of circles (a ball and the edges of its own reflection inside it): the
+    # outermost closed circle is the ball
+    closed.sort(key=lambda f: -f.r)
+    balls = []
+    for f in closed:
+        if not any(_contains(b, f) for b in balls):
+            balls.append(f)
+    balls.sort(key=lambda f: -f.support)
+    best = balls[0]
+    best.candidates = cand
+    if len(balls) > 1 and balls[1].support >= best.support - AMBIGUITY:
+        o = balls[1]
+        best.confident = False
+        best.reason = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
+                       f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
+        return best
+    if best.confident:
+        ring = _ring_fraction(clipped, best, 1.0, 0.25)
+        if ring > 0.2:
+            best.confident = False
+            best.reason = (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
+                           "are clipped: the ball's silhouette may be lost in them (over-exposed)")
+            return best
+    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    if outer and best.confident:
+        o = max(outer, key=lambda f: f.support)
+        best.confident = False
+        best.reason = (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
+                       f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+    return best
+
+
+# ---------------------------------------------------------------------------------------------
+
+def noise_curve(lum, bins=24, min_count=30):
+    """(levels, σ) of the pixel noise of a linear image against brightness: the robust spread
+    (MAD) of 2×2 second differences in brightness bins spaced evenly in log, made non-
+    decreasing by its lower envelope (the noise of a camera grows with the signal; texture only
+    inflates a bin).  The clipped plateau is left out."""
+    from scipy import ndimage
+
+    d = (lum[1:, 1:] - lum[1:, :-1] - lum[:-1, 1:] + lum[:-1, :-1]) / 2.0   # σ of one pixel
+    lev = ndimage.uniform_filter(lum, 2)[1:, 1:]
+    top = float(lum.max())
+    flat = lev < 0.98 * top
+    d, lev = d[flat], lev[flat]
+    if d.size < min_count:
+        return np.array([0.0, max(top, 1e-12)]), np.full(2, max(1e-4 * top, 1e-12))
+    lo = max(float(np.percentile(lev, 0.5)), 1e-4 * max(float(np.percentile(lev, 99.5)), 1e-12), 1e-12)
+    hi = max(float(lev.max()), lo * 1.001)
+    edges = np.geomspace(lo, hi, bins + 1)
+    idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
+    x, sg = [], []
+    for b in range(bins):
+        sel = idx == b
+        if sel.sum() >= min_count:
+            x.append(float(np.median(lev[sel])))
+            sg.append(1.4826 * float(np.median(np.abs(d[sel]))))
+    if not x:
+        sg0 = max(1.4826 * float(np.median(np.abs(d))), 1e-12)
+        return np.array([0.0, max(top, 1e-12)]), np.full(2, sg0)
+    x, sg = np.array(x), np.array(sg)
+    sg = np.minimum.accumulate(sg[::-1])[::-1]                 # lower non-decreasing envelope
+    sg = np.maximum(sg, 1e-4 * max(float(np.percentile(lum, 99.5)), 1e-12))
+    return x, sg
+
+
+def stabilise(lum):
+    """Brightness transformed so that the pixel noise has unit σ at every level:
+    T(x) = ∫ dx / σ(x) with σ from :func:`noise_curve` (a generalised Anscombe transform;
+    monotone, so edges stay edges and a step's height in T is its height in noise σ)."""
+    x, sg = noise_curve(lum)
+    grid = np.concatenate([[0.0], np.geomspace(max(x[0] * 1e-3, 1e-12), max(float(lum.max()), x[-1]) * 1.01, 512)])
+    sgrid = np.interp(grid, x, sg)
+    t = np.concatenate([[0.0], np.cumsum(np.diff(grid) * 0.5 * (1 / sgrid[1:] + 1 / sgrid[:-1]))])
+    return np.interp(np.clip(lum, 0, None), grid, t)
+
+
+def _highlights(lum, max_blobs=8):
+    """Centroids of the largest blobs of clipped pixels (≥ 98 % of the image maximum); none
+    when over a fifth of the image is clipped."""
+    from scipy import ndimage
+
+    peak = float(lum.max())
+    if peak <= 0:
+        return []
+    m = lum >= 0.98 * peak
+    if m.mean() > 0.2:
+        return []
+    lab, n = ndimage.label(m)
+    if n == 0:
+        return []
+    idx = np.arange(1, n + 1)
+    sizes = ndimage.sum(m, lab, index=idx)
+    top = idx[np.argsort(-sizes)[:max_blobs]]
+    cyx = ndimage.center_of_mass(m, lab, top)
+    return [(float(x) + 0.5, float(y) + 0.5) for y, x in cyx]
+
+
+def _holds(c, spots):
+    cx, cy, r = _xyr(c)
+    return any(np.hypot(x - cx, y - cy) < 0.95 * r for x, y in spots)
+
+
+def _seeds(g, spots, max_seeds=16):
+    import cv2
+
+    h, w = g.shape
+    m = min(h, w)
+    scale = min(1.0, 640.0 / max(h, w))
+    lo, hi = np.percentile(g, [0.5, 99.5])
+    img8 = np.round(np.clip((g - lo) / max(hi - lo, 1e-12), 0, 1) * 255).astype(np.uint8)
+    if scale < 1:
+        img8 = cv2.resize(img8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    img8 = cv2.GaussianBlur(img8, (5, 5), 1.0)
+    ms = min(img8.shape)
+    seeds = []
+    for p2 in (40, 25, 15):
+        cs = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=max(4, int(0.04 * ms)), param1=60,
+                              param2=p2, minRadius=max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms)), maxRadius=int(0.6 * ms))
+        if cs is not None:
+            for x, y, r in cs[0][:max_seeds]:
+                seeds.append(((x + 0.5) / scale, (y + 0.5) / scale, r / scale))
+        if len(seeds) >= max_seeds:
+            break
+    if spots:
+        # the highlight is inside the ball: seeds whose circle holds it come first
+        seeds.sort(key=lambda s: not _holds({"cx": s[0], "cy": s[1], "r": s[2]}, spots))
+    out = []
+    for s in seeds:
+        if not any(abs(s[0] - o[0]) < 0.1 * o[2] and abs(s[1] - o[1]) < 0.1 * o[2] and abs(s[2] / o[2] - 1) < 0.15
+                   for o in out):
+            out.append(s)
+    return out[:max_seeds]
+
+
+def _polar(img, x0, y0, ts, n_rays=N_RAYS, arc_px=1.0, taps=3):
+    """Profiles of img along n_rays rays from (x0, y0) at radii ts, each averaged over `taps`
+    samples spread ±arc_px along the arc (bilinear).  → (profiles (n_rays, len(ts)), angles,
+    in-frame mask of the same shape)."""
+    from scipy import ndimage
+
+    h, w = img.shape
+    ang = np.arange(n_rays) * 2 * np.pi / n_rays
+    r_ref = max(float(np.median(ts)), 1.0)
+    offs = (np.arange(taps) - (taps - 1) / 2) * (arc_px / r_ref)
+    acc = 0.0
+    valid = np.ones((n_rays, len(ts)), bool)
+    for o in offs:
+        a = ang[:, None] + o
+        xs = x0 + ts[None] * np.cos(a)
+        ys = y0 + ts[None] * np.sin(a)
+        valid &= (xs >= 0.5) & (xs <= w - 0.5) & (ys >= 0.5) & (ys <= h - 0.5)
+        acc = acc + ndimage.map_coordinates(img, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
+    return acc / taps, ang, valid
+
+
+def _circles_near(g, noise, x0, y0, r0, step=0.5):
+    """Closed-circle candidates from edge points on rays around (x0, y0)."""
+    ts = np.arange(max(2.0, 0.35 * r0), 1.9 * r0, step)
+    prof, ang, valid = _polar(g, x0, y0, ts)
+    s = _edge_snr(prof, valid, step, noise)
+    peak = (s[:, 1:-1] >= s[:, :-2]) & (s[:, 1:-1] > s[:, 2:]) & (s[:, 1:-1] >= EDGE_SNR)
+    # the strongest few peaks of each ray
+    sp = np.where(peak, s[:, 1:-1], 0)
+    top = np.argsort(-sp, axis=1)[:, :PEAKS_PER_RAY]
+    keep = np.zeros_like(peak)
+    np.put_along_axis(keep, top, True, axis=1)
+    ri, ti = np.nonzero(peak & keep)
+    ti = ti + 1
+    if len(ri) < 8:
+        return []
+    pts_t = ts[ti]
+    px = x0 + pts_t * np.cos(ang[ri])
+    py = y0 + pts_t * np.sin(ang[ri])
+    wgt = np.minimum(s[ri, ti], 12.0)
+    out = []
+    used = np.zeros(len(ri), bool)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        c = _ransac(px, py, ri, wgt, used, rng, r0)
+        if c is None:
+            break
+        cx, cy, r = c
+        sup, gap, _ = _support(g, noise, cx, cy, r)
+        out.append({"cx": cx, "cy": cy, "r": r, "support": sup, "gap": gap})
+        used |= np.abs(np.hypot(px - cx, py - cy) - r) < 2 * TOL_PX
+    return out
+
+
+def _edge_snr(prof, valid, step, noise, taps=3):
+    """|p(t + 1 px) − p(t − 1 px)| / its noise (the profiles are means of `taps` samples)."""
+    k = int(round(1.0 / step))
+    s = np.zeros_like(prof)
+    s[:, k:-k] = np.abs(prof[:, 2 * k:] - prof[:, :-2 * k]) / (noise * np.sqrt(2.0 / taps))
+    ok = np.zeros_like(valid)
+    ok[:, k:-k] = valid[:, 2 * k:] & valid[:, :-2 * k]
+    s[~ok] = 0
+    return s
+
+
+def _ransac(px, py, ray, wgt, used, rng, r0, iters=250):
+    free = np.nonzero(~used)[0]
+    if len(free) < 8:
+        return None
+    i = rng.choice(free, size=(iters, 3))
+    x1, y1, x2, y2, x3, y3 = px[i[:, 0]], py[i[:, 0]], px[i[:, 1]], py[i[:, 1]], px[i[:, 2]], py[i[:, 2]]
+    den = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
+    good = np.abs(den) > 1e-6
+    den = np.where(good, den, 1)
+    s1, s2, s3 = x1 * x1 + y1 * y1, x2 * x2 + y2 * y2, x3 * x3 + y3 * y3
+    cx = (s1 * (y2 - y3) + s2 * (y3 - y1) + s3 * (y1 - y2)) / den
+    cy = (s1 * (x3 - x2) + s2 * (x1 - x3) + s3 * (x2 - x1)) / den
+    r = np.hypot(x1 - cx, y1 - cy)
+    good &= (r > 0.3 * r0) & (r < 2.0 * r0)
+    if not good.any():
+        return None
+    cx, cy, r = cx[good], cy[good], r[good]
+    dist = np.abs(np.hypot(px[free][None] - cx[:, None], py[free][None] - cy[:, None]) - r[:, None])
+    inl = dist < TOL_PX
+    # score: distinct rays with an inlier (a ray counts once, with its strongest inlier)
+    rays = ray[free]
+    order = np.argsort(rays, kind="stable")
+    starts = np.nonzero(np.r_[True, np.diff(rays[order]) > 0])[0]
+    wm = np.where(inl[:, order], wgt[free][order][None], 0.0)
+    score = np.maximum.reduceat(wm, starts, axis=1).sum(1)
+    j = int(np.argmax(score))
+    if score[j] <= 0:
+        return None
+    sel = free[inl[j]]
+    c = _lsq_circle(px[sel], py[sel])
+    for _ in range(3):
+        dist = np.abs(np.hypot(px - c[0], py - c[1]) - c[2])
+        sel = np.nonzero((dist < TOL_PX) & ~used)[0]
+        if len(sel) < 8:
+            break
+        c = _lsq_circle(px[sel], py[sel])
+    return c
+
+
+def _lsq_circle(x, y, wgt=None):
+    a = np.column_stack([x, y, np.ones_like(x)])
+    b = x * x + y * y
+    if wgt is not None:
+        a, b = a * wgt[:, None], b * wgt
+    sol = np.linalg.lstsq(a, b, rcond=None)[0]
+    cx, cy = sol[0] / 2, sol[1] / 2
+    return float(cx), float(cy), float(np.sqrt(max(sol[2] + cx * cx + cy * cy, 0)))
+
+
+def _sectors(prof, valid, per=None):
+    """Ray profiles averaged over sectors of `per` neighbouring rays (the noise falls by √per
+    while the silhouette, at the same radius on every ray, stays sharp) → (profiles, valid)."""
+    per = per or RAYS_PER_SECTOR
+    n, t = prof.shape
+    return prof.reshape(n // per, per, t).mean(1), valid.reshape(n // per, per, t).all(1)
+
+
+def _support(g, noise, cx, cy, r):
+    """(fraction of in-frame sectors with an edge within TOL_PX of radius r, largest gap in
+    degrees, per-sector bool)."""
+    n_sec = N_RAYS // RAYS_PER_SECTOR
+    ts = np.arange(r - 3 * TOL_PX, r + 3 * TOL_PX + 1e-9, 0.5)
+    if ts[0] <= 1:
+        return 0.0, 360.0, np.zeros(n_sec, bool)
+    prof, ang, valid = _polar(g, cx, cy, ts)
+    prof, valid = _sectors(prof, valid)
+    s = _edge_snr(prof, valid, 0.5, noise, taps=3 * RAYS_PER_SECTOR)
+    near = np.abs(ts - r) <= TOL_PX
+    inside = valid[:, np.abs(ts - r) <= TOL_PX + 1.0].all(1)   # the samples the test needs
+    # a significant step within TOL_PX of r (not necessarily the strongest nearby: a mirror
+    # ball's rim often darkens or brightens steeply just inside its silhouette)
+    on = inside & (np.where(near[None], s, 0).max(1) >= EDGE_SNR)
+    n_in = int(inside.sum())
+    if n_in < MIN_IN_FRAME * n_sec:
+        return 0.0, 360.0, on
+    sup = float(on.sum()) / n_in
+    gap = _longest_run(inside & ~on) * 360.0 / n_sec
+    return sup, gap, on
+
+
+def _longest_run(m):
+    if not m.any():
+        return 0
+    if m.all():
+        return len(m)
+    mm = np.concatenate([m, m])
+    best = run = 0
+    for v in mm:
+        run = run + 1 if v else 0
+        best = max(best, run)
+    return min(best, len(m))
+
+
+def _xyr(c):
+    return (c["cx"], c["cy"], c["r"]) if isinstance(c, dict) else (c.cx, c.cy, c.r)
+
+
+def _same(a, b):
+    (ax, ay, ar), (bx, by, br) = _xyr(a), _xyr(b)
+    return np.hypot(ax - bx, ay - by) < 1.0 and abs(ar - br) < 1.0
+
+
+def _concentric(outer, inner):
+    """inner is concentric with outer and not larger."""
+    (ox, oy, orr), (ix, iy, ir) = _xyr(outer), _xyr(inner)
+    return np.hypot(ox - ix, oy - iy) < 0.15 * orr and ir <= orr + 1.0
+
+
+def _contains(outer, inner):
+    """inner is part of the ball outer: concentric with it (an edge of its reflection), or
+    wholly inside it (a round feature of its content, the flash's halo)."""
+    (ox, oy, orr), (ix, iy, ir) = _xyr(outer), _xyr(inner)
+    return _concentric(outer, inner) or np.hypot(ox - ix, oy - iy) + ir <= orr + 1.0
+
+
+def _subpixel(lum, g, noise, c, fov_deg):
+    """Sub-pixel silhouette: per sector of rays, the steepest point of the (sector-averaged)
+    linear luminance profile within 1.5 px of the circle (parabolic peak of the gradient);
+    robust circle (or cone) fit; iterated from the candidate circle."""
+    h, w = lum.shape
+    cx, cy, r = _xyr(c)
+    n_sec = N_RAYS // RAYS_PER_SECTOR
+    for it in range(8):
+        ts = np.arange(r - 4, r + 4 + 1e-9, 0.25)
+        prof, ang, valid = _polar(lum, cx, cy, ts)
+        prof, valid = _sectors(prof, valid)
+        ang = ang.reshape(n_sec, RAYS_PER_SECTOR).mean(1)
+        d = np.gradient(prof, ts, axis=1)
+        band = np.abs(ts - r) <= (2.5 if it == 0 else 1.5)
+        inside = valid[:, np.abs(ts - r) <= (3.0 if it == 0 else 2.0)].all(1)
+        # in each sector: the significant step (in noise σ, on the stabilised image) nearest to
+        # the circle, not the strongest one in the band (the rim often holds a stronger edge of
+        # the reflection a few pixels inside)
+        gp_, _, _ = _polar(g, cx, cy, ts)
+        gp_, _ = _sectors(gp_, valid.repeat(RAYS_PER_SECTOR, 0))
+        snr = _edge_snr(gp_, np.ones_like(gp_, bool), ts[1] - ts[0], noise, taps=3 * RAYS_PER_SECTOR)
+        a_ = np.abs(d)
+        lmax = np.zeros_like(band[None] & inside[:, None])
+        lmax[:, 1:-1] = (a_[:, 1:-1] >= a_[:, :-2]) & (a_[:, 1:-1] >= a_[:, 2:])
+        cand = lmax & band[None] & (snr >= EDGE_SNR)
+        dist = np.where(cand, np.abs(ts - r)[None], np.inf)
+        k = np.where(cand.any(1), np.argmin(dist, axis=1), np.argmax(np.where(band[None], a_, -1), axis=1))
+        kk = np.clip(k, 1, len(ts) - 2)
+        rows = np.arange(n_sec)
+        a = np.abs(d)
+        gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
+        den = gm - 2 * g0 + gp
+        off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
+        te = np.where(inside, ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0]), np.nan)
+        good = np.isfinite(te)
+        if good.sum() < 8:
+            break
+        ex, ey = cx + te * np.cos(ang), cy + te * np.sin(ang)
+        keep = good.copy()
+        for _ in range(5):
+            nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
+            res = _residual(ex, ey, nc, w, h, fov_deg)
+            mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
+            new = good & (np.abs(res) < max(3 * mad, 0.3))
+            if new.sum() < 8 or np.array_equal(new, keep):
+                break
+            keep = new
+        moved = np.hypot(nc[0] - cx, nc[1] - cy) + abs(nc[2] - r)
+        cx, cy, r = nc
+        if moved < 0.01 and it > 0:
+            break
+    if good.sum() < 8:
+        return BallFit(float(cx), float(cy), float(r), False, "too few edge points on the outline")
+    rms = float(np.sqrt(np.mean(res[keep] ** 2)))
+    # support: sectors (inside the frame) whose edge is on the fitted outline and significant
+    _, _, on = _support(g, noise, cx, cy, r)
+    res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
+    ok = on & good & (np.abs(res) <= SNAP_PX)
+    n_ok = int(inside.sum())
+    sup = ok.sum() / max(n_ok, 1) if n_ok >= MIN_IN_FRAME * n_sec else 0.0
+    gap = _longest_run(inside & ~ok) * 360.0 / n_sec
+    n_in = _in_frame(cx, cy, r, w, h)
+    fit = BallFit(float(cx), float(cy), float(r), True, support=sup, max_gap_deg=gap, residual_px=rms,
+                  in_frame=n_in)
+    if n_in < MIN_IN_FRAME:
+        fit.confident, fit.reason = False, f"only {100 * n_in:.0f}% of the ball's outline is inside the image"
+    elif sup < MIN_SUPPORT or gap > MAX_GAP_DEG:
+        fit.confident, fit.reason = False, f"the outline is not closed ({fit.summary()})"
+    elif rms > 0.75:
+        fit.confident, fit.reason = False, f"the outline is not a circle ({fit.summary()})"
+    return fit
+
+
+def _ring_fraction(mask, c, gap_px, width):
+    """Fraction of the pixels of `mask` set in the ring r + gap_px … r·(1 + width) around c."""
+    h, w = mask.shape
+    cx, cy, r = _xyr(c)
+    x0, x1 = max(int(cx - r * (1 + width)) - 1, 0), min(int(cx + r * (1 + width)) + 2, w)
+    y0, y1 = max(int(cy - r * (1 + width)) - 1, 0), min(int(cy + r * (1 + width)) + 2, h)
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    d = np.hypot(xx + 0.5 - cx, yy + 0.5 - cy)
+    ring = (d >= r + gap_px) & (d <= r * (1 + width))
+    return float(mask[y0:y1, x0:x1][ring].mean()) if ring.any() else 0.0
+
+
+def _in_frame(cx, cy, r, w, h):
+    a = np.arange(N_RAYS) * 2 * np.pi / N_RAYS
+    x, y = cx + r * np.cos(a), cy + r * np.sin(a)
+    return float(np.mean((x >= 0) & (x <= w) & (y >= 0) & (y <= h)))
+
+
+def _fit(x, y, w, h, fov_deg):
+    if fov_deg is None:
+        return _lsq_circle(x, y)
+    f = 0.5 * h / np.tan(np.radians(fov_deg) / 2)
+    d = np.column_stack([(x - 0.5 * w) / f, (y - 0.5 * h) / f, np.ones_like(x)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # rays tangent to the sphere: d·a = cos α, i.e. d·b = 1 with b = a / cos α
+    b = np.linalg.lstsq(d, np.ones(len(d)), rcond=None)[0]
+    cos_a = 1.0 / np.linalg.norm(b)
+    a = b * cos_a
+    cx, cy = f * a[0] / a[2] + 0.5 * w, f * a[1] / a[2] + 0.5 * h
+    dist = np.linalg.norm([(cx - 0.5 * w) / f, (cy - 0.5 * h) / f, 1.0])
+    r = f * dist * np.tan(np.arccos(np.clip(cos_a, -1, 1)))
+    return float(cx), float(cy), float(r)
+
+
+def _residual(x, y, c, w, h, fov_deg):
+    """Signed distance (pixels, approximately) of points from the fitted outline."""
+    cx, cy, r = c
+    if fov_deg is None:
+        return np.hypot(x - cx, y - cy) - r
+    f = 0.5 * h / np.tan(np.radians(fov_deg) / 2)
+    d = np.column_stack([(x - 0.5 * w) / f, (y - 0.5 * h) / f, np.ones_like(x)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a = np.array([(cx - 0.5 * w) / f, (cy - 0.5 * h) / f, 1.0])
+    dist = np.linalg.norm(a)
+    a /= dist
+    alpha = np.arctan(r / (f * dist))
+    ang = np.arccos(np.clip(d @ a, -1, 1))
+    return (ang - alpha) * f * dist

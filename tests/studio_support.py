@@ -1,0 +1,106 @@
+"""Shared helpers of the studio tests: a real `graphkit serve` process and headless Chromium.
+
+Chromium is Debian's (``/usr/bin/chromium``, installed by ``make sysdeps``), driven by
+playwright with ``executable_path`` (no browser download).
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import engine_env
+
+CHROMIUM = os.environ.get("GRAPHKIT_TEST_CHROMIUM", "/usr/bin/chromium")
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+        "--disable-sync", "--no-first-run", "--disable-quic"]
+WEBGL_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def need_browser():
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        pytest.skip(reason="playwright is not installed (make test installs the test extra)")
+    if not (os.path.exists(CHROMIUM) or shutil.which(CHROMIUM)):
+        pytest.skip(reason=f"{CHROMIUM} not found (make sysdeps installs Debian's chromium)")
+
+
+class Server:
+    """`graphkit serve` in a subprocess; ``url`` holds the token."""
+
+    def __init__(self, graph, tmp: Path, *extra, env=None, plugins="studionodes", cache=None):
+        self.cache, self.out = Path(cache) if cache else tmp / "cache", tmp / "out"
+        e = engine_env({"GRAPHKIT_PLUGINS": plugins} if plugins else None)
+        if env:
+            e.update(env)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "graphkit", "serve", str(graph), "--cache", str(self.cache),
+             "--out", str(self.out), *map(str, extra)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=e)
+        line = self.proc.stdout.readline()
+        m = re.search(r"(http://127\.0\.0\.1:(\d+)/)\?token=(\S+)", line)
+        if not m:
+            self.proc.kill()
+            raise AssertionError(f"no URL printed: {line!r} {self.proc.stderr.read()}")
+        self.base, self.port, self.token = m.group(1), int(m.group(2)), m.group(3)
+        self.url = f"{self.base}?token={self.token}"
+
+    def api(self, path, body=None, token=True):
+        import json
+        import urllib.request
+
+        req = urllib.request.Request(self.base.rstrip("/") + path, method="POST" if body is not None else "GET",
+                                     data=None if body is None else json.dumps(body).encode(),
+                                     headers={"x-graphkit-token": self.token} if token else {})
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return json.loads(r.read())
+
+    def stop(self, sig=signal.SIGINT, timeout=20):
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                raise AssertionError(f"graphkit serve did not stop within {timeout}s of {sig!r}")
+        self.stderr = self.proc.stderr.read()
+        return self.proc.returncode
+
+
+def browser_page(pw, webgl=False, viewport=(1400, 850)):
+    b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS + (WEBGL_ARGS if webgl else []))
+    ctx = b.new_context(viewport={"width": viewport[0], "height": viewport[1]})
+    return b, ctx
+
+
+def wait_for(fn, timeout=30.0, what="condition"):
+    end = time.time() + timeout
+    last = None
+    while time.time() < end:
+        last = fn()
+        if last:
+            return last
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what} (last: {last!r})")
+
+
+def run_status(page):
+    return page.eval_on_selector("#run-status", "e => [e.dataset.status, +e.dataset.gen]")
+
+
+def wait_run(page, status="ok", after_gen=0, timeout=60):
+    return wait_for(lambda: (lambda s: s[0] == status and s[1] > after_gen and s)(run_status(page)),
+                    timeout, f"run status {status}")
+
+
+def node_state(page, name):
+    return page.eval_on_selector(f'#dag g.node[data-node="{name}"]', "e => e.dataset.state")

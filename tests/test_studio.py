@@ -1,0 +1,410 @@
+"""The studio (`graphkit serve`) in a real headless Chromium against a real server process.
+
+Test graphs use the small image nodes of tests/support/studionodes.py; the paper graphs in
+graphs/ are opened (not run) to check that the page draws every one of them.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT, engine_env, graphkit
+from studio_support import Server, browser_page, need_browser, node_state, run_status, wait_for, wait_run
+
+pytestmark = pytest.mark.xdist_group("studio")
+
+GRAPH = """\
+# yaml-language-server: $schema=../graph.schema.json
+graphkit: 1
+name: studio_test
+params:
+  level: 0.25     # linear level of the flat image (a comment to keep)
+nodes:
+  flat:
+    type: Flat
+    params: {level: "${params.level}", size: 16}
+  gain:
+    type: Gain
+    inputs: {image: flat.image}
+    params: {stops: 0.0}   # exposure change
+  side:
+    type: Flat
+    params: {level: 0.5, size: 8}
+  save:
+    type: SaveImage
+    inputs: {image: gain.image}
+    params: {path: gain.exr}
+  save_side:
+    type: SaveImage
+    inputs: {image: side.image}
+    params: {path: side.exr}
+outputs: {gain: save.file, side: save_side.file}
+"""
+
+
+@pytest.fixture(scope="module")
+def pw():
+    need_browser()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        yield p
+
+
+@pytest.fixture
+def browser(pw):
+    b, ctx = browser_page(pw)
+    errors = []
+    ctx.on("weberror", lambda e: errors.append(str(e.error)))
+    yield ctx, errors
+    ctx.close()
+    b.close()
+
+
+@pytest.fixture
+def server(tmp_path):
+    made = []
+
+    def start(text=GRAPH, *extra, name="g.yaml", **kw):
+        p = tmp_path / name
+        p.write_text(text)
+        s = Server(p, tmp_path, *extra, **kw)
+        made.append(s)
+        return s, p
+
+    yield start
+    for s in made:
+        s.stop()
+
+
+def open_page(ctx, s):
+    page = ctx.new_page()
+    page.goto(s.url)
+    page.wait_for_selector("#dag g.node")
+    return page
+
+
+def manifest(s):
+    return json.loads((s.out / "manifest.json").read_text())
+
+
+def srgb8(x):
+    """8-bit sRGB of a linear value (IEC 61966-2-1 through colour-science: the outside reference)."""
+    import colour
+
+    return int(np.round(np.clip(colour.cctf_encoding(np.clip(x, 0, 1), function="sRGB"), 0, 1) * 255))
+
+
+def preview_pixel(page):
+    """The centre pixel of the preview as the browser decoded it (canvas read-back)."""
+    return page.evaluate("""() => { const i = document.getElementById('preview');
+        const c = document.createElement('canvas'); c.width = i.naturalWidth; c.height = i.naturalHeight;
+        const g = c.getContext('2d'); g.drawImage(i, 0, 0);
+        return Array.from(g.getImageData(c.width >> 1, c.height >> 1, 1, 1).data); }""")
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def test_page_loads_for_every_graph(pw, tmp_path):
+    """Each graph in graphs/ opens (without running): every node drawn, graph params as controls."""
+    import yaml
+
+    b, ctx = browser_page(pw)
+    try:
+        for g in sorted((ROOT / "graphs").glob("*.yaml")):
+            data = yaml.safe_load(g.read_text())
+            s = Server(g, tmp_path / g.stem, "--no-run", plugins="")
+            try:
+                errors = []
+                page = ctx.new_page()
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.goto(s.url)
+                page.wait_for_selector("#dag g.node")
+                drawn = page.eval_on_selector_all("#dag g.node", "es => es.map(e => e.dataset.node)")
+                assert sorted(drawn) == sorted(data["nodes"]), g.name
+                assert page.eval_on_selector("#errors", "e => e.hidden"), (g.name, page.inner_text("#errors"))
+                gp = page.eval_on_selector_all("#gp-controls .ctl", "es => es.map(e => e.dataset.param)")
+                assert gp == list(data.get("params") or {}), g.name
+                assert not errors, (g.name, errors)
+                page.close()
+            finally:
+                assert s.stop() == 0
+            assert not (s.cache / "keys").exists() or not any((s.cache / "keys").rglob("*.json")), \
+                f"{g.name}: --no-run ran something"
+    finally:
+        ctx.close()
+        b.close()
+
+
+def test_slider_changes_preview_and_only_downstream_reruns(browser, server):
+    ctx, errors = browser
+    s, _ = server()
+    page = open_page(ctx, s)
+    wait_run(page)
+    first = manifest(s)
+    assert all(not n["hit"] for n in first["nodes"].values())
+    page.click('#dag g.node[data-node="gain"]')
+    page.wait_for_selector('#node-panel .ctl[data-param="stops"] input[type=range]')
+    assert preview_pixel(page)[:3] == [srgb8(0.25)] * 3
+    gen = run_status(page)[1]
+    before = page.get_attribute("#preview", "data-digest")
+    page.fill('#node-panel .ctl[data-param="stops"] input[type=range]', "1")
+    wait_run(page, after_gen=gen)
+    wait_for(lambda: page.get_attribute("#preview", "data-digest") not in (before, None, ""), what="new preview")
+    assert preview_pixel(page)[:3] == [srgb8(0.5)] * 3  # 0.25 × 2¹
+    m = manifest(s)
+    reran = sorted(n for n, v in m["nodes"].items() if not v["hit"])
+    assert reran == ["gain", "save"], m["nodes"]
+    assert m["nodes"]["flat"]["hit"] and m["nodes"]["side"]["hit"]
+    from conftest import read_exr
+
+    assert np.allclose(read_exr(s.out / "gain.exr"), 0.5, atol=1e-3)  # the usual --out files
+    assert not errors
+
+
+def test_request_without_token_is_refused(server):
+    s, _ = server()
+    for path in ("/", "/api/state", "/static/app.js", "/api/preview?node=flat&port=image", "/api/manifest"):
+        for url in (s.base.rstrip("/") + path, s.base.rstrip("/") + path + ("&" if "?" in path else "?") + "token=wrong"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(url, timeout=10)
+            assert e.value.code == 403, url
+    for body in ({"changes": [{"node": "gain", "param": "stops", "value": 2}]}, {}):
+        req = urllib.request.Request(s.base + "api/params", data=json.dumps(body).encode(), method="POST")
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(req, timeout=10)
+        assert e.value.code == 403
+    from websockets.exceptions import WebSocketException
+    from websockets.sync.client import connect
+
+    def ws(url, **kw):
+        with connect(url, open_timeout=10, **kw) as c:
+            return c.recv(timeout=10)
+
+    ws_url = f"ws://127.0.0.1:{s.port}/ws"
+    with pytest.raises(WebSocketException):
+        ws(ws_url)
+    with pytest.raises(WebSocketException):
+        ws(ws_url + "?token=nope")
+    with pytest.raises(WebSocketException):  # the token, from another site
+        ws(ws_url + f"?token={s.token}", origin="http://evil.example")
+    assert json.loads(ws(ws_url + f"?token={s.token}"))["type"] == "state"
+    assert s.api("/api/state")["graph"]["name"] == "studio_test"
+    # nothing was changed by the refused requests
+    assert s.api("/api/state")["nodes"][1]["params"]["stops"] == 0.0
+
+
+def test_out_of_range_value_shows_the_schema_error(browser, server, tmp_path):
+    ctx, errors = browser
+    s, path = server()
+    page = open_page(ctx, s)
+    wait_run(page)
+    num = '#gp-controls .ctl[data-param="level"] input[type=number]'
+    page.fill(num, "3")
+    page.press(num, "Enter")
+    err = wait_for(lambda: page.inner_text('#gp-controls .ctl[data-param="level"] .err'), what="error text")
+    cli = graphkit("validate", path, "--set", "level=3", env=engine_env({"GRAPHKIT_PLUGINS": "studionodes"}))
+    assert cli.returncode == 2
+    assert err.strip() == cli.stderr.strip(), (err, cli.stderr)
+    assert "less than or equal to 1" in err and "Traceback" not in err
+    assert f"{path}:" in err  # file:line:col
+    # the bad value was not applied: the graph still runs with the old one
+    st = s.api("/api/state")
+    assert st["graph_params"]["level"] == 0.25 and st["graph"]["valid"]
+    assert not errors
+
+
+def test_invalid_graph_opens_with_its_errors_and_runs_nothing(browser, server):
+    ctx, errors = browser
+    bad = GRAPH.replace("type: Gain", "type: Gian").replace("{path: gain.exr}", "{path: gain.exr, bits: 7}")
+    s, path = server(bad)
+    page = open_page(ctx, s)
+    text = wait_for(lambda: page.inner_text("#errors") if not page.eval_on_selector("#errors", "e => e.hidden") else "",
+                    what="errors shown")
+    cli = graphkit("validate", path, env=engine_env({"GRAPHKIT_PLUGINS": "studionodes"}))
+    assert cli.returncode == 2
+    assert text.strip() == cli.stderr.strip()
+    assert f"{path}:11:11: error: node 'gain': unknown node type 'Gian'; did you mean 'Gain'?" in text
+    assert sorted(page.eval_on_selector_all("#dag g.node", "es => es.map(e => e.dataset.node)")) == \
+        ["flat", "gain", "save", "save_side", "side"]
+    assert run_status(page)[0] in ("idle", "invalid")
+    assert not any((s.cache / "keys").rglob("*.json")) if (s.cache / "keys").exists() else True
+    assert not s.out.exists()
+    assert not errors
+
+
+def test_failing_node_shows_its_message_and_the_rest_keeps_working(browser, server):
+    ctx, errors = browser
+    text = GRAPH.replace("outputs: {gain: save.file, side: save_side.file}", """\
+  boom:
+    type: Boom
+    inputs: {image: side.image}
+  after_boom:
+    type: Gain
+    inputs: {image: boom.image}
+outputs: {gain: save.file, side: save_side.file, boom: after_boom.image}
+""")
+    s, path = server(text)
+    page = open_page(ctx, s)
+    wait_run(page, "failed")
+    cli = graphkit("run", path, "--cache", s.cache, "--out", s.out / "cli",
+                   env=engine_env({"GRAPHKIT_PLUGINS": "studionodes"}))
+    assert cli.returncode == 1
+    assert node_state(page, "boom") == "failed"
+    assert node_state(page, "after_boom") == "blocked"
+    assert node_state(page, "gain") in ("done", "cached") and node_state(page, "save") in ("done", "cached")
+    page.click('#dag g.node[data-node="boom"]')
+    msg = page.inner_text("#node-msg")
+    assert msg.strip() and msg.strip() in cli.stderr, (msg, cli.stderr)
+    assert "boom went the node" in msg and "Traceback" not in msg
+    # the page keeps working: a change elsewhere runs
+    page.click('#dag g.node[data-node="gain"]')
+    gen = run_status(page)[1]
+    page.fill('#node-panel .ctl[data-param="stops"] input[type=range]', "2")
+    wait_run(page, "failed", after_gen=gen)
+    wait_for(lambda: node_state(page, "gain") == "done", what="gain re-ran")
+    assert s.api("/api/state")["run"]["computed"] == ["gain", "save"]
+    # a failed run writes no --out files (as the CLI)
+    assert not (s.out / "manifest.json").exists()
+    assert not errors
+
+
+def test_second_tab_sees_the_same_state(browser, server):
+    ctx, errors = browser
+    s, _ = server()
+    a = open_page(ctx, s)
+    wait_run(a)
+    b = ctx.new_page()
+    b.goto(s.base)  # the cookie set by the first tab carries the token
+    b.wait_for_selector("#dag g.node")
+    wait_run(b)
+    a.fill('#gp-controls .ctl[data-param="level"] input[type=range]', "0.75")
+    wait_for(lambda: b.input_value('#gp-controls .ctl[data-param="level"] input[type=number]') == "0.75",
+             what="the other tab's control")
+    wait_run(b, after_gen=1)
+    wait_for(lambda: a.get_attribute("#preview", "data-digest") == b.get_attribute("#preview", "data-digest")
+             and a.get_attribute("#preview", "data-digest"), what="the same preview")
+    assert preview_pixel(b)[:3] == [srgb8(0.75)] * 3
+    assert not errors
+
+
+def test_save_as_graph_keeps_comments(browser, server, tmp_path):
+    ctx, errors = browser
+    s, path = server()
+    page = open_page(ctx, s)
+    wait_run(page)
+    page.click('#dag g.node[data-node="gain"]')
+    page.fill('#node-panel .ctl[data-param="stops"] input[type=number]', "1.5")
+    page.press('#node-panel .ctl[data-param="stops"] input[type=number]', "Enter")
+    wait_for(lambda: s.api("/api/state")["graph"]["dirty"], what="edited")
+    page.once("dialog", lambda d: d.accept("saved.yaml"))
+    page.click("#save-btn")
+    saved = tmp_path / "saved.yaml"
+    wait_for(saved.exists, what="saved file")
+    text = saved.read_text()
+    assert "params: {stops: 1.5}   # exposure change" in text
+    assert "# linear level of the flat image (a comment to keep)" in text
+    assert text.replace("stops: 1.5", "stops: 0.0") == GRAPH
+    cli = graphkit("run", saved, "--cache", s.cache, "--out", tmp_path / "o2",
+                   env=engine_env({"GRAPHKIT_PLUGINS": "studionodes"}))
+    assert cli.returncode == 0, cli.stderr
+    assert "0 computed" in cli.stderr  # the studio's run already cached every node
+    assert not errors
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "close-page"])
+def test_interrupting_leaves_no_partial_cache_entry_or_output(browser, server, how):
+    ctx, errors = browser
+    text = GRAPH.replace("  save:\n    type: SaveImage\n    inputs: {image: gain.image}", """\
+  nap:
+    type: Nap
+    inputs: {image: gain.image}
+    params: {seconds: 2.0}
+  save:
+    type: SaveImage
+    inputs: {image: nap.image}""")
+    s, _ = server(text)
+    page = open_page(ctx, s)
+    wait_for(lambda: node_state(page, "nap") == "running", what="nap running")
+    if how == "close-page":
+        page.close()
+        wait_for(lambda: s.api("/api/state")["run"]["status"] == "ok", what="the run to finish")
+        assert json.loads((s.out / "manifest.json").read_text())["nodes"]["nap"]["hit"] is False
+    rc = s.stop(signal.SIGINT)
+    assert rc == 0, s.stderr
+    assert "Traceback" not in s.stderr
+    leftovers = [p for p in (s.cache / "tmp").rglob("*")] if (s.cache / "tmp").exists() else []
+    assert leftovers == []
+    if s.out.exists():
+        assert not [p for p in s.out.rglob("*") if p.name.endswith(".tmp")]
+    if how == "ctrl-c":
+        assert not (s.out / "manifest.json").exists()  # the run did not finish: nothing exported
+    # every record in the cache is whole and names objects that exist
+    r = graphkit("cache", "verify", "--cache", s.cache)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
+    """Python-level: two quick changes; the first run stops at its next progress report."""
+    import enginenodes  # noqa: F401
+    import studionodes
+
+    from graphkit.studio.core import Studio
+
+    engine_registry.add_provider("nodes", "tests", studionodes)
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH.replace("  save:\n    type: SaveImage\n    inputs: {image: gain.image}", """\
+  nap:
+    type: Nap
+    inputs: {image: gain.image}
+    params: {seconds: 1.0}
+  save:
+    type: SaveImage
+    inputs: {image: nap.image}"""))
+    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    try:
+        wait_for(lambda: st.nodes.get("nap", {}).get("state") == "running", what="nap running")
+        assert st.set_params([{"node": "nap", "param": "salt", "value": 1}])["ok"]
+        info = st.wait_idle(30)
+        assert info["status"] == "ok"
+        m = json.loads((tmp_path / "o" / "manifest.json").read_text())
+        rec = st.store.get_record(m["nodes"]["nap"]["key"])
+        assert rec["parts"]["params"]["salt"] == 1
+        # the stale run's nap (salt 0) never finished, so it was never cached
+        keys = [json.loads(f.read_text()) for f in (tmp_path / "c" / "keys").rglob("*.json")]
+        assert sorted(k["parts"]["params"].get("salt") for k in keys if k["node"] == "nap") == [1]
+    finally:
+        st.close()
+
+
+def test_live_view_hook_draws_frames_and_commits(browser, server):
+    """A node class names a LiveView (studio_view); its ES module's slider draws through
+    frame() over the websocket and, on release, commit() edits the graph and it re-runs."""
+    ctx, errors = browser
+    s, _ = server(GRAPH.replace("type: Gain", "type: ViewGain").replace("level: 0.25 ", "level: 0.125"))
+    page = open_page(ctx, s)
+    wait_run(page)
+    page.click('#dag g.node[data-node="gain"]')
+    sel = '#view-body input[type=range][data-key="stops"]'
+    page.wait_for_selector(sel)
+    page.wait_for_function("() => +document.querySelector('#view-body img.view-img').dataset.frames > 0")
+    gen = run_status(page)[1]
+    page.fill(sel, "2")  # input (frames) then change (commit)
+    wait_for(lambda: page.evaluate("""() => { const i = document.querySelector('#view-body img.view-img');
+        if (!i.complete || !i.naturalWidth) return null;
+        const c = document.createElement('canvas'); c.width = i.naturalWidth; c.height = i.naturalHeight;
+        const g = c.getContext('2d'); g.drawImage(i, 0, 0);
+        return g.getImageData(4, 4, 1, 1).data[0]; }""") == srgb8(0.5), what="the view's frame at 0.125 × 2²")
+    wait_run(page, after_gen=gen)
+    st = s.api("/api/state")
+    assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 2.0
+    assert st["run"]["computed"] == ["gain", "save"]
+    assert not errors
