@@ -125,7 +125,7 @@ def relight(runs, eps):
     s = run(LoadScene, {"path": "builtin:cornell2"})
     pr = run(ProjectTextures, {}, scene=s["scene"], camera=s["camera"], photo=s["photo"])
     sol = run(RadiositySolve, {"eps_bf": eps, "eps_bfv": eps / 10, "min_area": 1e-3, "max_level": 6},
-              scene=s["scene"], projection=pr)
+              scene=s["scene"], projection=pr)["solution"]
     ref = run(TextureRefine, {"max_level": 7, "min_area": 2.5e-4, "max_rounds": 3},
               scene=s["scene"], solution=sol, projection=pr)
     un = run(Unocclude, {}, solution=ref, projection=pr, photo=s["photo"])["unoccluded"]
