@@ -10,12 +10,23 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   and z perspective-correctly (perspective) or linearly (orthographic: w = 1), like the
   reference's barycentrics.  Triangles with a vertex at z ≤ 1e-6 are dropped, as the
   reference does (which refuses meshes crossing the camera plane anyway).
-* shading: ``shaders/glsl/render.frag`` — the Phong lobes of ``nodes/paris/phong.py``, point
-  lights (always 1/d², in world units), ambient, shadow maps rendered by GL in the *same* light frames,
-  resolution, bias and 3×3 PCF as ``nodes.common.raster.shadow_map``/``ShadowMap.visibility``,
-  and the projective detail texture with the reference's occlusion test and bilinear lookup.
-* ``shaders/glsl/composite.frag``: background, eye highlights (``Render._eyes``), exposure,
-  clamp.
+* the shaders are ``shaders/glsl/`` through ``graphkit.glsl`` (one source with the studio's
+  WebGL2 face view; ``#define``s specialise each program: light count, orthographic camera,
+  shadows, detail texture, eyes):
+  - ``depth.vert/frag``: shadow maps (all lights in one atlas, rendered in the *same* light
+    frames, resolution and bias as ``nodes.common.raster.shadow_map``), the texture camera's
+    occlusion map and the main camera's depth pre-pass;
+  - ``gbuffer.vert/frag``: per pixel of the nearest surface, world position, two-sided smooth
+    normal and the projective detail texture factor (the reference's occlusion test and
+    bilinear lookup);
+  - ``shade.frag`` (+ ``lights.glsl``): Phong lobes of ``nodes/paris/phong.py``, point lights
+    (always 1/d², in world units), ambient, shadow visibility (3×3 PCF as
+    ``ShadowMap.visibility``), background, eye highlights (``Render._eyes``), exposure, clamp.
+* GL objects persist between calls and nodes (``runtime.GLObjects``): buffers keyed by the
+  content of the vertices/faces, the detail texture by its pixels, render targets by size; the
+  shadow atlas and the g-buffer remember what they hold, so a call that changes only the
+  lights re-renders the shadow maps and the lighting pass, one that changes only the
+  material/exposure only the lighting pass.
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
@@ -76,6 +87,8 @@ class RenderGL(Backend):
         qc = camera.to_camera(V)
         job["main"] = _view_geometry(qc, F, camera_clip(camera), not camera.orthographic, near=True)
         job["vertices"] = np.hstack([qc, V, vn]).astype(np.float32)
+        job["vertices_key"] = digest(job["vertices"])
+        job["faces_key"] = digest(job["main"][1])
         job["cam_pos"] = camera.position
         job["cam_ortho"] = camera.orthographic
         job["cam_back"] = -camera.forward
@@ -95,13 +108,19 @@ class RenderGL(Backend):
             sms = []
             for i, light in enumerate(lights):
                 try:
-                    sms.append(_shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1]))
+                    sm = _shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1])
+                    sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
+                    sms.append(sm)
                 except ValueError as e:
                     sm_errors[i] = str(e)
                     sms.append(None)
             job["shadow"] = sms
+            job["shadow_key"] = digest(p.shadow_map_size, *[
+                None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
+            _check_atlas(len(sms), p.shadow_map_size)
         # projective detail texture (render.projective_texture)
         job["detail"] = None
+        det_key = None
         if detail is not None:
             px = np.asarray(detail.pixels, np.float32)
             if px.ndim == 2:
@@ -110,16 +129,23 @@ class RenderGL(Backend):
                 px = np.repeat(px, 3, axis=2)
             elif px.shape[2] == 2:
                 raise BadInput("detail", "a 2-channel detail texture cannot multiply RGB")
+            px = np.ascontiguousarray(px[..., :3])
             tc = texture_camera
             qt = tc.to_camera(V)
             scale = float(np.median(np.ptp(V, axis=0))) or 1.0
             proj = np.zeros((4, 4))
             proj[:3] = tc.world_pixel_matrix()
             proj[3] = tc.pose[2]  # camera z
-            job["detail"] = dict(
-                pixels=np.ascontiguousarray(px[..., :3]), cam=tc, tol=0.02 * scale, proj=proj,
-                geom=_view_geometry(qt, F, camera_clip(tc), not tc.orthographic, near=True),
-                q=qt.astype(np.float32))
+            geom = _view_geometry(qt, F, camera_clip(tc), not tc.orthographic, near=True)
+            q32 = qt.astype(np.float32)
+            q_key = (digest(q32), digest(geom[1]))
+            det = dict(pixels=px, cam=tc, tol=0.02 * scale, proj=proj, geom=geom, q=q32, q_key=q_key,
+                       pixels_key=digest(px), depth_key=digest(q_key, geom[0], tc.width, tc.height))
+            det_key = (det["pixels_key"], det["depth_key"], digest(proj, det["tol"]))
+            job["detail"] = det
+        job["gbuffer_key"] = digest(job["vertices_key"], job["faces_key"], job["main"][0],
+                                    np.asarray(job["cam_pos"]), np.asarray(job["cam_back"]),
+                                    bool(job["cam_ortho"]), det_key)
         # eye highlights (Render._eyes)
         eyes = None
         if p.eye_highlights != "off":
@@ -131,15 +157,16 @@ class RenderGL(Backend):
             job["fwd"] = camera.forward
 
         try:
-            img, aux, cov = runtime().call(_render, job)
+            img, zbuf, lit = runtime().call(_render_job, job)
         except Unavailable as e:
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
+        cov = lit[..., 2] > 0.5
+        masks = lit[..., 0][cov].astype(np.int64), lit[..., 1][cov].astype(np.int64)
 
         M = int(cov.sum())
         if M == 0:  # as the reference (nodes.paris.render.surface)
             raise BadInput("mesh", f"the mesh covers 0 pixels of the {W}×{H} camera image: it does "
                                    "not match the camera (wrong pose, units or image size?)")
-        masks = aux[..., 1][cov].astype(np.int64), aux[..., 2][cov].astype(np.int64)
         lit = np.bitwise_or.reduce(masks[0]) if len(masks[0]) else 0
         lit |= (np.bitwise_or.reduce(masks[1]) if len(masks[1]) else 0) << 24
         for i, light in enumerate(lights):
@@ -152,10 +179,23 @@ class RenderGL(Backend):
         if eyes is None and p.eye_highlights == "on":
             raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                    "is not a mediapipe face mesh; set the `eyes` param")
-        depth = np.where(cov, aux[..., 0], 0.0).astype(np.float32)
+        depth = np.where(cov, zbuf, 0.0).astype(np.float32)
         return {"image": Image(np.ascontiguousarray(img, np.float32)),
                 "depth": Image(depth),
                 "coverage": Mask(cov.astype(np.float32))}
+
+
+def _check_atlas(n: int, size: int):
+    """The shadow maps share one texture (shaders/glsl/shade.frag): refuse (the engine then
+    uses numpy unless the graph pins opengl) what exceeds the GL implementation's limit."""
+    from graphkit import BackendCannotRun
+
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    lim = runtime().max_texture_size
+    if max(cols, rows) * size > lim:
+        raise BackendCannotRun(f"{n} shadow maps of {size}² do not fit in one {lim}² texture "
+                               f"of {runtime().describe()}; lower shadow_map_size")
 
 
 def _probe() -> str | None:
@@ -273,179 +313,250 @@ def _write(prog, name, data: bytes):
         prog[name].write(data)
 
 
-def _set_lights(prog, lights):
-    n = len(lights)
-    kind = np.zeros(MAX_LIGHTS, np.int32)
-    arr = {k: np.zeros((MAX_LIGHTS, 3), np.float32) for k in ("dir", "pos", "rgb")}
+def _set_lights(prog, lights, n: int):
+    """The lights' uniform arrays (``n`` = the program's N_LIGHTS ≥ len(lights); unused
+    entries are black directional lights)."""
+    kind = np.zeros(n, np.int32)
+    arr = {k: np.zeros((n, 3), np.float32) for k in ("dir", "pos", "rgb")}
+    arr["dir"][:, 2] = 1.0
     for i, (k, d, pos, rgb) in enumerate(lights):
         kind[i] = k
         arr["dir"][i], arr["pos"][i], arr["rgb"][i] = d, pos, rgb
-    _set(prog, "n_lights", n)
     _write(prog, "light_kind", kind.tobytes())
     for k, a in arr.items():
         _write(prog, f"light_{k}", a.tobytes())
 
 
-def _depth_pass(rt, q32, clip, faces, W, H, clear):
-    """Render view-space z of the nearest surface into a W×H RGBA32F texture (r = z, g = 1)."""
+def digest(*parts) -> bytes:
+    """A content key for GL objects (arrays by dtype, shape and bytes; other parts by repr)."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    for x in parts:
+        if isinstance(x, np.ndarray):
+            h.update(f"{x.dtype.str}{x.shape}".encode())
+            h.update(np.ascontiguousarray(x).data)
+        else:
+            h.update(repr(x).encode())
+        h.update(b"|")
+    return h.digest()
+
+
+def _mesh_buffers(rt, vertices: np.ndarray, faces: np.ndarray, vkey: bytes, fkey: bytes):
+    """The vertex and index buffers of a mesh (kept between calls): dict(vbo, ibo, vaos)."""
+    def make():
+        return {"vbo": rt.ctx.buffer(np.ascontiguousarray(vertices, np.float32).tobytes()),
+                "ibo": rt.ctx.buffer(np.ascontiguousarray(faces, np.int32).tobytes()), "vaos": {}}
+
+    return rt.objects.get(("mesh", vkey, fkey), make, vertices.nbytes + faces.nbytes)
+
+
+def _vao(rt, bufs, prog, fmt: str, names: tuple):
+    vaos = bufs["vaos"]
+    key = (prog.glo, fmt)
+    vao = vaos.get(key)
+    if vao is None:
+        vao = vaos[key] = rt.ctx.vertex_array(prog, [(bufs["vbo"], fmt, *names)], bufs["ibo"],
+                                              index_element_size=4)
+    return vao
+
+
+def _target(rt, kind: str, W: int, H: int, colors: tuple, depth: bool = True):
+    """A render target kept between calls: dict(tex=[textures], fbo, zfbo (depth only), key =
+    what it holds now, None at first).  ``colors``: components (1–4) of each float32 target."""
     ctx, mgl = rt.ctx, rt.gl
+
+    def make():
+        texs = []
+        for c in colors:
+            t = ctx.texture((W, H), c, dtype="f4")
+            t.filter = (mgl.NEAREST, mgl.NEAREST)
+            texs.append(t)
+        out = {"tex": texs}
+        if depth:
+            out["rb"] = ctx.depth_renderbuffer((W, H))
+            out["zfbo"] = ctx.framebuffer(depth_attachment=out["rb"])
+        out["fbo"] = ctx.framebuffer(color_attachments=texs, depth_attachment=out.get("rb"))
+        out["key"] = None
+        return out
+
+    nbytes = W * H * (4 * sum(colors) + (4 if depth else 0))
+    return rt.objects.get(("target", kind, W, H, colors, depth), make, nbytes)
+
+
+def _depth_pass(rt, fbo, geom, viewport, key):
+    """View-space z of the nearest surface of ``geom`` = (q32, faces, clip) into ``fbo``'s
+    ``viewport`` (depth.frag: r = z, g = 1)."""
+    q32, faces, clip = geom
+    if not len(faces):
+        return
+    mgl = rt.gl
     prog = rt.program("depth.vert", "depth.frag")
-    tex = ctx.texture((W, H), 4, dtype="f4")
-    tex.filter = (mgl.NEAREST, mgl.NEAREST)
-    rb = ctx.depth_renderbuffer((W, H))
-    fbo = ctx.framebuffer(color_attachments=[tex], depth_attachment=rb)
-    fbo.use()
-    fbo.clear(clear, 0.0, 0.0, 0.0, depth=1.0)
-    objs = [rb, fbo]
+    bufs = _mesh_buffers(rt, q32, faces, key[0], key[1])
+    fbo.viewport = viewport
+    prog["proj"].write(_mat(clip))
+    _vao(rt, bufs, prog, "3f", ("q",)).render(mgl.TRIANGLES)
+
+
+def _shadow_atlas(rt, job):
+    """All lights' shadow maps in one R32F atlas (kept, and re-rendered only when a light or
+    the mesh changed): (texture, size, tiles (n × 2 texel offsets))."""
+    sms, size = job["shadow"], job["p"].shadow_map_size
+    n = len(sms)
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    tiles = np.array([[(i % cols) * size, (i // cols) * size] for i in range(n)], np.int32)
+    t = _target(rt, "shadow", cols * size, rows * size, (1,))
+    if t["key"] != job["shadow_key"]:
+        t["key"] = None
+        fbo = t["fbo"]
+        fbo.use()
+        fbo.viewport = (0, 0, cols * size, rows * size)
+        fbo.clear(SHADOW_EMPTY, 0.0, 0.0, 0.0, depth=1.0)
+        for i, sm in enumerate(sms):
+            if sm is not None:
+                _depth_pass(rt, fbo, (sm["q"], sm["faces"], sm["clip"]),
+                            (int(tiles[i, 0]), int(tiles[i, 1]), size, size), sm["key"])
+        fbo.viewport = (0, 0, cols * size, rows * size)
+        t["key"] = job["shadow_key"]
+    return t["tex"][0], size, tiles
+
+
+def _gbuffer(rt, job):
+    """The surface pass (gbuffer.frag) into a kept target; re-rendered only when the mesh,
+    camera or detail texture changed.  Returns the target."""
+    ctx, mgl = rt.ctx, rt.gl
+    W, H = job["W"], job["H"]
+    g = _target(rt, "gbuffer", W, H, (4, 4, 4))
+    if g["key"] == job["gbuffer_key"]:
+        return g
+    g["key"] = None
+    det = job["detail"]
+    defines = {"ORTHO": int(bool(job["cam_ortho"])), "DETAIL": int(det is not None)}
+    prog = rt.program("gbuffer.vert", "gbuffer.frag", defines)
+    if det is not None:
+        tc = det["cam"]
+        td = _target(rt, "texdepth", tc.width, tc.height, (4,))
+        if td["key"] != det["depth_key"]:
+            td["key"] = None
+            td["fbo"].use()
+            td["fbo"].viewport = (0, 0, tc.width, tc.height)
+            td["fbo"].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            clip, faces = det["geom"]
+            _depth_pass(rt, td["fbo"], (det["q"], faces, clip), (0, 0, tc.width, tc.height),
+                        det["q_key"])
+            td["key"] = det["depth_key"]
+        px = det["pixels"]
+
+        def upload():
+            t = ctx.texture((px.shape[1], px.shape[0]), 3, data=px.tobytes(), dtype="f4")
+            t.filter = (mgl.NEAREST, mgl.NEAREST)
+            return t
+
+        dtex = rt.objects.get(("detail", det["pixels_key"]), upload, px.nbytes)
+        dtex.use(location=0)
+        td["tex"][0].use(location=1)
+        _set(prog, "detail", 0)
+        _set(prog, "tex_depth", 1)
+        _write(prog, "tex_proj", _mat(det["proj"]))
+        _set(prog, "tex_size", (tc.width, tc.height))
+        _set(prog, "occl_tol", det["tol"])
+    _set(prog, "cam_pos", tuple(job["cam_pos"]))
+    _set(prog, "cam_back", tuple(job["cam_back"]))
+    clip, faces = job["main"]
+    prog["proj"].write(_mat(clip))
+    g["fbo"].use()
+    g["fbo"].viewport = (0, 0, W, H)
+    g["fbo"].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     if len(faces):
-        prog["proj"].write(_mat(clip))
-        vbo = ctx.buffer(np.ascontiguousarray(q32, np.float32).tobytes())
-        ibo = ctx.buffer(faces.tobytes())
-        vao = ctx.vertex_array(prog, [(vbo, "3f", "q")], ibo, index_element_size=4)
-        vao.render(mgl.TRIANGLES)
-        objs += [vao, vbo, ibo]
-    return tex, fbo, objs
+        bufs = _mesh_buffers(rt, job["vertices"], faces, job["vertices_key"], job["faces_key"])
+        # depth pre-pass (the same positions, `invariant gl_Position`), then the surface pass
+        # on the nearest fragment of each pixel only (no overdraw)
+        zprog = rt.program("depth.vert", "depth.frag")
+        zprog["proj"].write(_mat(clip))
+        g["zfbo"].use()
+        g["zfbo"].viewport = (0, 0, W, H)
+        _vao(rt, bufs, zprog, "3f 24x", ("q",)).render(mgl.TRIANGLES)
+        g["fbo"].use()
+        ctx.depth_func = "=="
+        _vao(rt, bufs, prog, "3f 3f 3f", ("q", "P", "N")).render(mgl.TRIANGLES)
+        ctx.depth_func = "<"
+    g["key"] = job["gbuffer_key"]
+    return g
+
+
+def _render_job(rt, job):
+    rt.objects.begin()
+    return _render(rt, job)
 
 
 def _render(rt, job):
+    """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
+    (image H×W×3, camera z H×W, lit masks and coverage H×W×3), float32."""
     ctx, mgl = rt.ctx, rt.gl
     W, H, p = job["W"], job["H"], job["p"]
-    trash = []
-    try:
-        ctx.enable(mgl.DEPTH_TEST)
-        ctx.disable(mgl.CULL_FACE | mgl.BLEND)
-        ctx.depth_func = "<"
-        lights = job["lights"]
-        nL = len(lights)
-        # shadow maps → one R32F texture array, layer i = light i
-        prog = rt.program("render.vert", "render.frag")
-        size = p.shadow_map_size
-        if job["shadow"] is not None:
-            maps = np.full((nL, size, size), SHADOW_EMPTY, np.float32)
-            to_light = np.tile(np.eye(4), (MAX_LIGHTS, 1, 1))
-            proj = np.zeros((MAX_LIGHTS, 4), np.float32)
-            bias = np.ones((MAX_LIGHTS, 2), np.float32)
-            for i, sm in enumerate(job["shadow"]):
-                if sm is None:
-                    continue
-                tex, fbo, objs = _depth_pass(rt, sm["q"], sm["clip"], sm["faces"], size, size, SHADOW_EMPTY)
-                maps[i] = np.frombuffer(fbo.read(components=1, dtype="f4"), np.float32).reshape(size, size)
-                trash += objs + [tex]
+    ctx.enable(mgl.DEPTH_TEST)
+    ctx.disable(mgl.CULL_FACE | mgl.BLEND)
+    ctx.depth_func = "<"
+    lights = job["lights"]
+    nL = max(len(lights), 1)
+    shadows = job["shadow"] is not None
+    eyes = job["eyes"]
+    if shadows:
+        atlas, size, tiles = _shadow_atlas(rt, job)
+    g = _gbuffer(rt, job)
+    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows),
+               "EYES": int(eyes is not None)}
+    prog = rt.program("screen.vert", "shade.frag", defines)
+    for i, t in enumerate(g["tex"]):
+        t.use(location=i)
+    _set(prog, "g_pos", 0)
+    _set(prog, "g_normal", 1)
+    _set(prog, "g_detail", 2)
+    if shadows:
+        atlas.use(location=3)
+        _set(prog, "shadow_maps", 3)
+        _set(prog, "sm_size", size)
+        to_light = np.tile(np.eye(4), (nL, 1, 1))
+        proj = np.zeros((nL, 4), np.float32)
+        bias = np.ones((nL, 2), np.float32)
+        for i, sm in enumerate(job["shadow"]):
+            if sm is not None:
                 to_light[i], proj[i], bias[i] = sm["to_light"], sm["proj"], sm["bias"]
-            sm_tex = ctx.texture_array((size, size, nL), 1, data=maps.tobytes(), dtype="f4")
-            sm_tex.filter = (mgl.NEAREST, mgl.NEAREST)
-            trash.append(sm_tex)
-            sm_tex.use(location=0)
-            _set(prog, "shadows", True)
-            _set(prog, "shadow_maps", 0)
-            _set(prog, "sm_size", size)
-            _write(prog, "sm_to_light", b"".join(_mat(m) for m in to_light))
-            _write(prog, "sm_proj", proj.tobytes())
-            _write(prog, "sm_bias", bias.tobytes())
-        else:
-            _set(prog, "shadows", False)
-            dummy = ctx.texture_array((1, 1, 1), 1, dtype="f4")
-            trash.append(dummy)
-            dummy.use(location=0)
-            _set(prog, "shadow_maps", 0)
-        # detail texture + texture-camera depth map
-        det = job["detail"]
-        if det is not None:
-            tc = det["cam"]
-            clip, faces = det["geom"]
-            tdepth, fbo, objs = _depth_pass(rt, det["q"], clip, faces, tc.width, tc.height, 0.0)
-            trash += objs + [tdepth]
-            dtex = ctx.texture((tc.width, tc.height), 3, data=det["pixels"].tobytes(), dtype="f4")
-            dtex.filter = (mgl.NEAREST, mgl.NEAREST)
-            trash.append(dtex)
-            dtex.use(location=1)
-            tdepth.use(location=2)
-            _set(prog, "has_detail", True)
-            _write(prog, "tex_proj", _mat(det["proj"]))
-            _set(prog, "tex_size", (tc.width, tc.height))
-            _set(prog, "occl_tol", det["tol"])
-        else:
-            _set(prog, "has_detail", False)
-            dummy = ctx.texture((1, 1), 4, dtype="f4")
-            trash.append(dummy)
-            dummy.use(location=1)
-            dummy.use(location=2)
-        _set(prog, "detail", 1)
-        _set(prog, "tex_depth", 2)
-        # main pass
-        kd, i_s, s, amb = job["material"]
-        _set(prog, "kd", tuple(kd))
-        _set(prog, "i_s", i_s)
-        _set(prog, "shininess", s)
-        _set(prog, "ambient", tuple(amb))
-        _set(prog, "cam_pos", tuple(job["cam_pos"]))
-        _set(prog, "cam_ortho", bool(job["cam_ortho"]))
-        _set(prog, "cam_back", tuple(job["cam_back"]))
-        _set_lights(prog, lights)
-        clip, faces = job["main"]
-        prog["proj"].write(_mat(clip))
-        color = ctx.texture((W, H), 4, dtype="f4")
-        aux = ctx.texture((W, H), 4, dtype="f4")
-        for t in (color, aux):
-            t.filter = (mgl.NEAREST, mgl.NEAREST)
-        rb = ctx.depth_renderbuffer((W, H))
-        fbo = ctx.framebuffer(color_attachments=[color, aux], depth_attachment=rb)
-        zfbo = ctx.framebuffer(depth_attachment=rb)
-        trash += [color, aux, rb, fbo, zfbo]
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        if len(faces):
-            vbo = ctx.buffer(job["vertices"].tobytes())
-            ibo = ctx.buffer(faces.tobytes())
-            # depth pre-pass (same vertex positions, `invariant gl_Position`), then shade only
-            # the nearest fragment of each pixel (no overdraw)
-            zprog = rt.program("depth.vert", "depth.frag")
-            zprog["proj"].write(_mat(clip))
-            zvao = ctx.vertex_array(zprog, [(vbo, "3f 24x", "q")], ibo, index_element_size=4)
-            trash += [zvao, vbo, ibo]
-            zfbo.use()
-            zvao.render(mgl.TRIANGLES)
-            fbo.use()
-            ctx.depth_func = "=="
-            vao = ctx.vertex_array(prog, [(vbo, "3f 3f 3f", "q", "P", "N")], ibo, index_element_size=4)
-            trash.append(vao)
-            vao.render(mgl.TRIANGLES)
-            ctx.depth_func = "<"
-        aux_px = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=1), np.float32).reshape(H, W, 4)
-        cov = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), np.float32).reshape(H, W, 4)[..., 3] > 0.5
-        # composite: background, eyes, exposure, clamp
-        comp = rt.program("screen.vert", "composite.frag")
-        out = ctx.texture((W, H), 4, dtype="f4")
-        ofbo = ctx.framebuffer(color_attachments=[out])
-        trash += [out, ofbo]
-        ofbo.use()
-        ctx.disable(mgl.DEPTH_TEST)
-        color.use(location=0)
-        aux.use(location=1)
-        _set(comp, "color", 0)
-        _set(comp, "aux", 1)
-        _set(comp, "background", tuple(float(b) for b in p.background))
-        _set(comp, "exposure", float(p.exposure))
-        _set(comp, "clamp01", bool(p.clamp))
-        eyes = job["eyes"]
-        _set(comp, "eyes", eyes is not None)
-        if eyes is not None:
-            centres, axes, R = eyes
-            _write(comp, "ray_org", _mat(job["ray_org"]))
-            _write(comp, "ray_dir", _mat(job["ray_dir"]))
-            _set(comp, "cam_pos", tuple(job["cam_pos"]))
-            _set(comp, "fwd", tuple(job["fwd"]))
-            _write(comp, "eye_c", np.asarray(centres, np.float32).tobytes())
-            _write(comp, "eye_axis", np.asarray(axes, np.float32).tobytes())
-            _set(comp, "eye_R", float(R))
-            _set(comp, "eye_s", float(p.eye_shininess))
-            _set(comp, "eye_ks", float(p.eye_specular))
-            _set_lights(comp, lights)
-        vao = ctx.vertex_array(comp, [])
-        trash.append(vao)
-        vao.render(mgl.TRIANGLES, vertices=3)
-        img = np.frombuffer(ofbo.read(components=3, dtype="f4"), np.float32).reshape(H, W, 3).copy()
-        return img, aux_px.copy(), cov
-    finally:
-        for o in reversed(trash):
-            o.release()
+        tl = np.zeros((nL, 2), np.int32)
+        tl[:len(tiles)] = tiles
+        _write(prog, "sm_tile", tl.tobytes())
+        _write(prog, "sm_to_light", b"".join(_mat(m) for m in to_light))
+        _write(prog, "sm_proj", proj.tobytes())
+        _write(prog, "sm_bias", bias.tobytes())
+    kd, i_s, s, amb = job["material"]
+    _set(prog, "kd", tuple(kd))
+    _set(prog, "i_s", i_s)
+    _set(prog, "shininess", s)
+    _set(prog, "ambient", tuple(amb))
+    _set(prog, "cam_pos", tuple(job["cam_pos"]))
+    _set(prog, "cam_back", tuple(job["cam_back"]))
+    _set(prog, "background", tuple(float(b) for b in p.background))
+    _set(prog, "exposure", float(p.exposure))
+    _set(prog, "clamp01", bool(p.clamp))
+    _set_lights(prog, lights, nL)
+    if eyes is not None:
+        centres, axes, R = eyes
+        _write(prog, "ray_org", _mat(job["ray_org"]))
+        _write(prog, "ray_dir", _mat(job["ray_dir"]))
+        _set(prog, "fwd", tuple(job["fwd"]))
+        _write(prog, "eye_c", np.asarray(centres, np.float32).tobytes())
+        _write(prog, "eye_axis", np.asarray(axes, np.float32).tobytes())
+        _set(prog, "eye_R", float(R))
+        _set(prog, "eye_s", float(p.eye_shininess))
+        _set(prog, "eye_ks", float(p.eye_specular))
+    out = _target(rt, "shade", W, H, (4, 4), depth=False)
+    out["fbo"].use()
+    out["fbo"].viewport = (0, 0, W, H)
+    ctx.disable(mgl.DEPTH_TEST)
+    vao = rt.objects.get(("screen", prog.glo), lambda: ctx.vertex_array(prog, []))
+    vao.render(mgl.TRIANGLES, vertices=3)
+    ctx.enable(mgl.DEPTH_TEST)
+    img = np.frombuffer(out["fbo"].read(components=4, dtype="f4", attachment=0), np.float32).reshape(H, W, 4)
+    lit = np.frombuffer(out["fbo"].read(components=3, dtype="f4", attachment=1), np.float32).reshape(H, W, 3)
+    return img[..., :3].copy(), img[..., 3].copy(), lit.copy()
