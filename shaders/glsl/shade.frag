@@ -19,8 +19,9 @@
 #ifndef EYES
 #define EYES 0
 #endif
-layout(location = 0) out vec4 o_image;    // rgb = image, a = camera z (0 where uncovered)
-layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here; b = covered
+layout(location = 0) out vec4 o_image;    // rgb = image
+layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here;
+                                          // b = camera z (> 0), 0 where uncovered
 
 uniform sampler2D g_pos;                  // gbuffer.frag's outputs
 uniform sampler2D g_normal;
@@ -152,6 +153,6 @@ void main() {
 #endif
     img *= exposure;
     if (clamp01) img = clamp(img, 0.0, 1.0);
-    o_image = vec4(img, cov ? gp.w : 0.0);
-    o_lit = vec4(mask0, mask1, cov ? 1.0 : 0.0, 0.0);
+    o_image = vec4(img, 1.0);
+    o_lit = vec4(mask0, mask1, cov ? gp.w : 0.0, 0.0);
 }

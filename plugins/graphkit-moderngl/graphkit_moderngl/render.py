@@ -157,10 +157,11 @@ class RenderGL(Backend):
             job["fwd"] = camera.forward
 
         try:
-            img, zbuf, lit = runtime().call(_render_job, job)
+            img, lit = runtime().call(_render_job, job)
         except Unavailable as e:
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
-        cov = lit[..., 2] > 0.5
+        zbuf = lit[..., 2]
+        cov = zbuf > 0.0
         masks = lit[..., 0][cov].astype(np.int64), lit[..., 1][cov].astype(np.int64)
 
         M = int(cov.sum())
@@ -180,7 +181,7 @@ class RenderGL(Backend):
             raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                    "is not a mediapipe face mesh; set the `eyes` param")
         depth = np.where(cov, zbuf, 0.0).astype(np.float32)
-        return {"image": Image(np.ascontiguousarray(img, np.float32)),
+        return {"image": Image(img),
                 "depth": Image(depth),
                 "coverage": Mask(cov.astype(np.float32))}
 
@@ -492,7 +493,7 @@ def _render_job(rt, job):
 
 def _render(rt, job):
     """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
-    (image H×W×3, camera z H×W, lit masks and coverage H×W×3), float32."""
+    (image H×W×3, (lit masks 0–23, 24–, camera z or 0 where uncovered) H×W×3), float32."""
     ctx, mgl = rt.ctx, rt.gl
     W, H, p = job["W"], job["H"], job["p"]
     ctx.enable(mgl.DEPTH_TEST)
@@ -557,6 +558,8 @@ def _render(rt, job):
     vao = rt.objects.get(("screen", prog.glo), lambda: ctx.vertex_array(prog, []))
     vao.render(mgl.TRIANGLES, vertices=3)
     ctx.enable(mgl.DEPTH_TEST)
-    img = np.frombuffer(out["fbo"].read(components=4, dtype="f4", attachment=0), np.float32).reshape(H, W, 4)
-    lit = np.frombuffer(out["fbo"].read(components=3, dtype="f4", attachment=1), np.float32).reshape(H, W, 3)
-    return img[..., :3].copy(), img[..., 3].copy(), lit.copy()
+    img = np.empty((H, W, 3), np.float32)
+    lit = np.empty((H, W, 3), np.float32)
+    out["fbo"].read_into(img, components=3, dtype="f4", attachment=0)
+    out["fbo"].read_into(lit, components=3, dtype="f4", attachment=1)
+    return img, lit
