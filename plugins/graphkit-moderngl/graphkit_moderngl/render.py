@@ -40,8 +40,8 @@ from graphkit import BadInput, Backend, Camera, Image, Light, Mask
 
 from .runtime import Unavailable, runtime
 
-MAX_LIGHTS = 32  # as in the shaders
-NEAR = 1e-6  # the reference rasteriser's near limit
+from nodes.paris.glscene import MAX_LIGHTS, atlas_grid, check_atlas_fits, digest  # noqa: F401
+
 SHADOW_EMPTY = 1e30  # shadow-map value where nothing is in the way
 
 
@@ -69,92 +69,13 @@ class RenderGL(Backend):
 
     def compute(self, mesh, camera: Camera, material, lights, detail: Image | None = None,
                 texture_camera: Camera | None = None, ambient: Light | None = None):
-        from nodes.paris.render import eye_spheres, prepare_render, vertex_normals
+        from nodes.paris.glscene import scene
 
         p = self.params
-        eye_mesh = mesh
-        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
-        if len(lights) > MAX_LIGHTS:
-            raise BadInput("lights", f"{len(lights)} lights: the opengl backend takes at most "
-                                     f"{MAX_LIGHTS} (the numpy backend any number)")
-        V = np.asarray(mesh.vertices, np.float64)
-        F = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
-        vn = vertex_normals(mesh)
         H, W = camera.height, camera.width
-
-        job = dict(W=W, H=H, p=p)
-        # camera pass
-        qc = camera.to_camera(V)
-        job["main"] = _view_geometry(qc, F, camera_clip(camera), not camera.orthographic, near=True)
-        job["vertices"] = np.hstack([qc, V, vn]).astype(np.float32)
-        job["vertices_key"] = digest(job["vertices"])
-        job["faces_key"] = digest(job["main"][1])
-        job["cam_pos"] = camera.position
-        job["cam_ortho"] = camera.orthographic
-        job["cam_back"] = -camera.forward
-        # lights
-        job["lights"] = [_light_uniforms(light) for light in lights]
-        kd = np.asarray(material.diffuse, np.float64)
-        amb = np.zeros(3)
-        for light in lights:
-            amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
-        if ambient is not None:
-            amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
-        job["material"] = (kd, float(material.specular), float(material.shininess), amb)
-        # shadow maps (same frames as nodes.common.raster.shadow_map)
-        sm_errors = [None] * len(lights)
-        job["shadow"] = None
-        if p.shadows:
-            sms = []
-            for i, light in enumerate(lights):
-                try:
-                    sm = _shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1])
-                    sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
-                    sms.append(sm)
-                except ValueError as e:
-                    sm_errors[i] = str(e)
-                    sms.append(None)
-            job["shadow"] = sms
-            job["shadow_key"] = digest(p.shadow_map_size, *[
-                None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
-            _check_atlas(len(sms), p.shadow_map_size)
-        # projective detail texture (render.projective_texture)
-        job["detail"] = None
-        det_key = None
-        if detail is not None:
-            px = np.asarray(detail.pixels, np.float32)
-            if px.ndim == 2:
-                px = px[..., None]
-            if px.shape[2] == 1:
-                px = np.repeat(px, 3, axis=2)
-            elif px.shape[2] == 2:
-                raise BadInput("detail", "a 2-channel detail texture cannot multiply RGB")
-            px = np.ascontiguousarray(px[..., :3])
-            tc = texture_camera
-            qt = tc.to_camera(V)
-            scale = float(np.median(np.ptp(V, axis=0))) or 1.0
-            proj = np.zeros((4, 4))
-            proj[:3] = tc.world_pixel_matrix()
-            proj[3] = tc.pose[2]  # camera z
-            geom = _view_geometry(qt, F, camera_clip(tc), not tc.orthographic, near=True)
-            q32 = qt.astype(np.float32)
-            q_key = (digest(q32), digest(geom[1]))
-            det = dict(pixels=px, cam=tc, tol=0.02 * scale, proj=proj, geom=geom, q=q32, q_key=q_key,
-                       pixels_key=digest(px), depth_key=digest(q_key, geom[0], tc.width, tc.height))
-            det_key = (det["pixels_key"], det["depth_key"], digest(proj, det["tol"]))
-            job["detail"] = det
-        job["gbuffer_key"] = digest(job["vertices_key"], job["faces_key"], job["main"][0],
-                                    np.asarray(job["cam_pos"]), np.asarray(job["cam_back"]),
-                                    bool(job["cam_ortho"]), det_key)
-        # eye highlights (Render._eyes)
-        eyes = None
-        if p.eye_highlights != "off":
-            eyes = eye_spheres(eye_mesh, p.eyes, p.cornea_radius_mm, p.mm_per_unit,
-                               p.eye_protrusion_mm, camera.position)
-        job["eyes"] = eyes
-        if eyes is not None:
-            job["ray_org"], job["ray_dir"] = camera.ray_matrices()
-            job["fwd"] = camera.forward
+        job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient)
+        if job["shadow"] is not None:
+            _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
         try:
             img, lit = runtime().call(_render_job, job)
@@ -191,12 +112,9 @@ def _check_atlas(n: int, size: int):
     uses numpy unless the graph pins opengl) what exceeds the GL implementation's limit."""
     from graphkit import BackendCannotRun
 
-    cols = int(np.ceil(np.sqrt(n)))
-    rows = int(np.ceil(n / cols))
-    lim = runtime().max_texture_size
-    if max(cols, rows) * size > lim:
-        raise BackendCannotRun(f"{n} shadow maps of {size}² do not fit in one {lim}² texture "
-                               f"of {runtime().describe()}; lower shadow_map_size")
+    why = check_atlas_fits(n, size, runtime().max_texture_size)
+    if why:
+        raise BackendCannotRun(f"{why} ({runtime().describe()})")
 
 
 def _probe() -> str | None:
@@ -207,91 +125,6 @@ def _probe() -> str | None:
     except Exception as e:  # noqa: BLE001 - a probe reports, it does not raise
         return f"{type(e).__name__}: {e}"
     return None
-
-
-# ----------------------------------------------------------------------------------------------
-# host-side set-up (float64)
-
-
-def clip_from_pixels(pix: np.ndarray, W: int, H: int) -> np.ndarray:
-    """4×4 clip matrix for view-space points from a 3×4 pixel matrix (u·w, v·w, w) = pix·(q, 1):
-    window coordinates are the pixel coordinates; clip w = w; the z row is filled in by
-    :func:`_view_geometry`."""
-    pix = np.asarray(pix, np.float64)
-    P = np.zeros((4, 4))
-    P[0] = 2 * pix[0] / W - pix[2]
-    P[1] = 2 * pix[1] / H - pix[2]
-    P[3] = pix[2]
-    return P
-
-
-def camera_clip(camera: Camera) -> np.ndarray:
-    """The clip matrix of a perspective or orthographic ``graphkit.Camera`` (camera frame in)."""
-    return clip_from_pixels(camera.pixel_matrix(), camera.width, camera.height)
-
-
-def pinhole_proj(fx, fy, cx, cy, W, H) -> np.ndarray:
-    """Clip matrix of a pinhole view (x = fx·X/Z + cx, y = fy·Y/Z + cy), e.g. a point light's
-    shadow-map frame."""
-    return clip_from_pixels(np.array([[fx, 0, cx, 0], [0, fy, cy, 0], [0, 0, 1.0, 0]]), W, H)
-
-
-def _set_depth_range(P: np.ndarray, z: np.ndarray, perspective: bool) -> np.ndarray:
-    P = P.copy()
-    if len(z) == 0:
-        z = np.array([1.0])
-    lo, hi = float(z.min()), float(z.max())
-    if perspective:
-        n, f = lo * 0.5, hi * 2.0 + 1e-9
-        P[2, 2], P[2, 3] = (f + n) / (f - n), -2 * f * n / (f - n)
-    else:
-        pad = 0.01 * (hi - lo) + 1e-6 * max(abs(lo), abs(hi), 1.0)
-        n, f = lo - pad, hi + pad
-        P[2, 2], P[2, 3] = 2 / (f - n), -(f + n) / (f - n)
-    return P
-
-
-def _view_geometry(q: np.ndarray, F: np.ndarray, P: np.ndarray, perspective: bool = True,
-                   near: bool | None = None):
-    """(clip matrix, faces kept) for view-space vertices ``q``: the reference rasteriser drops
-    triangles with a non-finite vertex or (camera views and perspective light views; ``near``
-    defaults to ``perspective``) a vertex at z ≤ 1e-6."""
-    fq = q[F]
-    ok = np.all(np.isfinite(fq), axis=(1, 2))
-    if perspective if near is None else near:
-        ok &= np.all(fq[..., 2] > NEAR, axis=1)
-    Fk = np.ascontiguousarray(F[ok], np.int32)
-    used = np.unique(Fk) if len(Fk) else np.zeros(0, np.int64)
-    return _set_depth_range(P, q[used, 2], perspective), Fk
-
-
-def _light_uniforms(light: Light):
-    rgb = np.asarray(light.color, np.float64) * light.intensity
-    d = np.asarray(light.direction, np.float64)
-    nd = np.linalg.norm(d)
-    d = d / nd if nd > 0 else d
-    return (0 if light.kind == "directional" else 1, d, np.asarray(light.position, np.float64), rgb)
-
-
-def _shadow_setup(V, F, light, size: int, margin: float = 0.02, up=None):
-    """The light frame of ``nodes.common.raster.shadow_map`` (one implementation:
-    ``shadow_frame``) and the clip matrix that rasterises it in GL: dict(to_light 4×4,
-    proj (sx, sy, ox, oy), bias (texel, dref), clip, faces, q)."""
-    from nodes.common.raster import shadow_frame
-
-    fr = shadow_frame(V, light, size, margin, up)
-    (sx, sy), (ox, oy) = fr.scale, fr.offset
-    if fr.perspective:
-        P = pinhole_proj(sx, sy, ox, oy, size, size)
-        clip, Fk = _view_geometry(fr.q, F, P)
-    else:
-        P = np.zeros((4, 4))
-        P[0, 0], P[0, 3] = 2 * sx / size, 2 * ox / size - 1
-        P[1, 1], P[1, 3] = 2 * sy / size, 2 * oy / size - 1
-        P[3, 3] = 1.0
-        clip, Fk = _view_geometry(fr.q, F, P, perspective=False)
-    return dict(to_light=fr.M, proj=(sx, sy, ox, oy), bias=(fr.texel, fr.ref_dist), clip=clip,
-                faces=Fk, q=fr.q.astype(np.float32))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -326,21 +159,6 @@ def _set_lights(prog, lights, n: int):
     _write(prog, "light_kind", kind.tobytes())
     for k, a in arr.items():
         _write(prog, f"light_{k}", a.tobytes())
-
-
-def digest(*parts) -> bytes:
-    """A content key for GL objects (arrays by dtype, shape and bytes; other parts by repr)."""
-    import hashlib
-
-    h = hashlib.blake2b(digest_size=16)
-    for x in parts:
-        if isinstance(x, np.ndarray):
-            h.update(f"{x.dtype.str}{x.shape}".encode())
-            h.update(np.ascontiguousarray(x).data)
-        else:
-            h.update(repr(x).encode())
-        h.update(b"|")
-    return h.digest()
 
 
 def _mesh_buffers(rt, vertices: np.ndarray, faces: np.ndarray, vkey: bytes, fkey: bytes):
@@ -404,8 +222,7 @@ def _shadow_atlas(rt, job):
     the mesh changed): (texture, size, tiles (n × 2 texel offsets))."""
     sms, size = job["shadow"], job["p"].shadow_map_size
     n = len(sms)
-    cols = int(np.ceil(np.sqrt(n)))
-    rows = int(np.ceil(n / cols))
+    cols, rows = atlas_grid(n)
     tiles = np.array([[(i % cols) * size, (i // cols) * size] for i in range(n)], np.int32)
     t = _target(rt, "shadow", cols * size, rows * size, (1,))
     if t["key"] != job["shadow_key"]:
