@@ -35,7 +35,7 @@ class CosmeticShade(Node):
     Units: thickness mm, mm_per_pixel mm, depth mm, S/K mm⁻¹, wavelengths nm.
     """
 
-    version = "3"
+    version = "4"  # 4: world-frame lights (turned into the camera frame), orthographic cameras
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
@@ -106,6 +106,8 @@ class CosmeticShade(Node):
         if light is not None and light.kind != "directional":
             raise BadInput("light", "CosmeticShade takes a directional light (no surface positions here)")
         lcol = None if light is None else np.asarray(light.color, np.float32) * np.float32(light.intensity)
+        if light is not None and camera is not None:
+            light = camera.light_to_camera(light)  # lights are world-frame; normals here are camera-frame
         ldir = None if light is None else np.asarray(light.direction, np.float64)
         if ldir is not None:
             ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
@@ -205,9 +207,12 @@ def _mesh_geometry(mesh, camera: Camera):
             n = -n
     h, w = cov.shape
     ys, xs = np.mgrid[0:h, 0:w] + 0.5
-    ray = np.stack([(xs - camera.cx) / camera.fx, (ys - camera.cy) / camera.fy, np.ones_like(xs)], -1)
-    view = -ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+    if camera.orthographic:  # every ray runs along the camera's +z
+        view = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (h, w, 3))
+    else:
+        ray = np.stack([(xs - camera.cx) / camera.fx, (ys - camera.cy) / camera.fy, np.ones_like(xs)], -1)
+        view = -ray / np.linalg.norm(ray, axis=-1, keepdims=True)
     far = float(r.depth[cov].max()) if cov.any() else 1.0
     depth = np.where(cov, r.depth, far)
-    mpp = depth / np.sqrt(camera.fx * camera.fy)
+    mpp = camera.units_per_pixel(depth)
     return n, depth, mpp, view, cov

@@ -26,11 +26,11 @@ class SkinShade(Node):
     ``roughness``, Schlick F₀ = ``f0``); image = albedo·diffuse + specular·light.
     Normals are camera-space unit vectors (OpenCV axes; default facing the camera), the viewer
     is along −z (orthographic view).  ``depth`` is in mm, ``mm_per_pixel`` the pixel footprint
-    on the skin in mm (with a ``camera`` and ``depth`` it is depth / fx per pixel instead).
+    on the skin in mm (with a ``camera`` and ``depth`` it is the camera's pixel footprint at that depth instead: depth/√(fx·fy), or 1/scale for an orthographic camera); a ``camera`` also turns the world-frame light into the camera frame of the maps.
     Maps are volume fractions (table 1 ranges).
     """
 
-    version = "2"
+    version = "3"  # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
     inputs = {"melanin": In(Image, "C_m map (volume fraction)"),
               "hemoglobin": In(Image, "C_hd map (volume fraction)"),
               "lut": In(Image, "SkinColorLUT table"),
@@ -38,7 +38,7 @@ class SkinShade(Node):
               "normals": In(Image, "camera-space unit normals (3 channels)", optional=True),
               "depth": In(Image, "camera depth in mm (1 channel)", optional=True),
               "mask": In(Mask, "skin: where light scatters", optional=True),
-              "camera": In(Camera, "pinhole camera: with depth, the pixel footprint is depth/fx mm", optional=True)}
+              "camera": In(Camera, "camera of the maps: with depth, the pixel footprint (mm); turns the world-frame light into its frame", optional=True)}
     outputs = {"image": Out(Image, "shaded skin, linear RGB"),
                "albedo": Out(Image, "LUT albedo"),
                "diffuse": Out(Image, "scattered diffuse irradiance (before the albedo)"),
@@ -95,8 +95,10 @@ class SkinShade(Node):
             z = depth.pixels[:, :, 0].astype(np.float64)
             if not np.all(z > 0):
                 raise BadInput("depth", "depth must be > 0 mm everywhere when a camera gives the pixel footprint")
-            mpp = z / camera.fx
+            mpp = camera.units_per_pixel(z)
 
+        if camera is not None:
+            light = camera.light_to_camera(light)  # lights are world-frame; the maps are camera-frame
         # directional light, orthographic viewer along −z: L and V are the same at every pixel
         ldir = np.asarray(light.direction, np.float64)
         ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
