@@ -59,7 +59,7 @@ def _source_copy(dest: Path) -> Path:
     return dest
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # built once even when xdist interleaves other modules
 def wheels(tmp_path_factory):
     out = tmp_path_factory.mktemp("wheels")
     src = _source_copy(tmp_path_factory.mktemp("src") / "relightkit")
@@ -71,7 +71,7 @@ def wheels(tmp_path_factory):
     return found
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # built once even when xdist interleaves other modules
 def venv(wheels, tmp_path_factory):
     home = tmp_path_factory.mktemp("venv")
     assert ROOT not in home.parents
