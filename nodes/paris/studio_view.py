@@ -93,6 +93,7 @@ class FaceView(LiveView):
              "cam_rotation": _mat(cam.rotation.T),  # row-major rotation (world → camera)
              "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
+             "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
              **self._light_part(job, p)}
         if det is not None:
             tc = det["cam"]
@@ -104,8 +105,7 @@ class FaceView(LiveView):
             d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
                          "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
                          "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
-        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None),
-                "EYES": int(eyes is not None)}
+        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0}
         gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None)}
         d["glsl"] = {
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
@@ -113,6 +113,10 @@ class FaceView(LiveView):
             "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
         }
+        if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
+            d["glsl"]["shade_eyes"] = [source("screen.vert", "es300", {**defs, "EYES": 1}),
+                                       source("shade.frag", "es300", {**defs, "EYES": 1})]
+            d["eye_box"] = [int(x) for x in job["eye_box"]]
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
                       "color": _vec(l0.color), "kind": l0.kind}
