@@ -47,8 +47,6 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     job["cam_pos"] = camera.position
     job["cam_ortho"] = camera.orthographic
     job["cam_back"] = -camera.forward
-    # lights
-    job["lights"] = [_light_uniforms(light) for light in lights]
     kd = np.asarray(material.diffuse, np.float64)
     amb = np.zeros(3)
     for light in lights:
@@ -57,21 +55,8 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
     job["material"] = (kd, float(material.specular), float(material.shininess), amb)
     # shadow maps (same frames as nodes.common.raster.shadow_map)
-    sm_errors = [None] * len(lights)
-    job["shadow"] = None
-    if p.shadows:
-        sms = []
-        for i, light in enumerate(lights):
-            try:
-                sm = _shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1])
-                sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
-                sms.append(sm)
-            except ValueError as e:
-                sm_errors[i] = str(e)
-                sms.append(None)
-        job["shadow"] = sms
-        job["shadow_key"] = digest(p.shadow_map_size, *[
-            None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
+    part, sm_errors = light_part(p, V, F, lights, camera.rotation[1])
+    job.update(part)
     # projective detail texture (render.projective_texture)
     job["detail"] = None
     det_key = None
@@ -120,6 +105,28 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         job["bbox"] = union_box(job["bbox"], job["eye_box"])
     job["bg_out"] = background_out(p)
     return job, lights, sm_errors, eyes
+
+
+def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]:
+    """(the light-dependent part of the job: ``lights`` uniforms, ``shadow`` frames or None and
+    ``shadow_key``; per-light shadow-map errors or None) for world-unit ``lights`` (scene()'s
+    second result) and the drawn mesh's vertices/faces; what a light drag recomputes."""
+    part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None}
+    sm_errors = [None] * len(lights)
+    if p.shadows:
+        sms = []
+        for i, light in enumerate(lights):
+            try:
+                sm = _shadow_setup(V, F, light, p.shadow_map_size, up=up)
+                sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
+                sms.append(sm)
+            except ValueError as e:
+                sm_errors[i] = str(e)
+                sms.append(None)
+        part["shadow"] = sms
+        part["shadow_key"] = digest(p.shadow_map_size, *[
+            None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
+    return part, sm_errors
 
 
 def screen_box(camera: Camera, q: np.ndarray) -> tuple[int, int, int, int]:

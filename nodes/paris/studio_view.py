@@ -39,8 +39,8 @@ class FaceView(LiveView):
     title = "face relighting (WebGL2, Paris §5)"
     js = "studio_view.js"
 
-    def _lights(self, values: dict):
-        lights = list(self.inputs()["lights"])
+    def _lights(self, values: dict, lights=None):
+        lights = list(self.inputs()["lights"] if lights is None else lights)
         if not lights:
             raise BadInput("lights", "no light to drag")
         l0 = lights[0]
@@ -122,6 +122,27 @@ class FaceView(LiveView):
                       "color": _vec(l0.color), "kind": l0.kind}
         return d
 
+    def _mesh_for_lights(self):
+        """(camera, drawn mesh, its vertices, faces), kept while the node's inputs are the same
+        values (their digests): a drag recomputes only the lights' uniforms and shadow frames."""
+        from .render import prepare_render
+
+        g = self.studio.graph
+        key = repr(g.nodes[self.node].map_inputs(
+            lambda src, sport: (self.studio.nodes.get(src) or {}).get("digests", {}).get(sport)))
+        if getattr(self, "_kept", None) is None or self._kept[0] != key:
+            v = self.inputs()
+            _, m = prepare_render(v["mesh"], v["camera"], v["lights"], v.get("detail"),
+                                  v.get("texture_camera"), self.params.fill_holes)
+            self._kept = (key, v["camera"], m, np.asarray(m.vertices, np.float64),
+                          np.asarray(m.faces, np.int64).reshape(-1, 3), v["lights"])
+        return self._kept[1:]
+
     def frame(self, values: dict):
-        job, _, _, _ = self._scene(values)
-        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(job, self.params)}
+        from .glscene import light_part
+        from .render import check_render_inputs, world_lights
+
+        camera, m, V, F, given = self._mesh_for_lights()
+        lights = world_lights(check_render_inputs(self._lights(values, given), None, None), camera, m)
+        part, _ = light_part(self.params, V, F, lights, camera.rotation[1])
+        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params)}
