@@ -26,6 +26,7 @@ The first run fills the cache with face_relight at 512² (FaceMesh, fit, …: ab
 from __future__ import annotations
 
 import argparse
+import base64
 import math
 import os
 import statistics
@@ -34,33 +35,23 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "support")]
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "support"), str(ROOT / "benchmarks")]
 
+import numpy as np  # noqa: E402
+from peers import phong_peer  # noqa: E402
 from studio_support import Server, browser_page, wait_for, wait_run  # noqa: E402
 
+# the peer's shaders: benchmarks/peers.py (the same text as the moderngl peers), camera frame
 PEER_HTML = """<!doctype html><html><body style="margin:0">
 <canvas id="c" width="512" height="512"></canvas>
 <script>
-// A bare one-light Phong WebGL2 viewer: one program, one vertex array, the default framebuffer.
-window.makePeer = function (W, H, vb64, fb64, clip, kd, ks, s, light, camPos) {
+// A bare one-light Phong WebGL2 viewer (shaders: benchmarks/peers.py): one program, one vertex
+// array (camera-frame positions and normals), the default framebuffer.
+window.makePeer = function (W, H, vb64, fb64, clip, kd, ks, s, light, vs, fs) {
   const dec = (b, T) => { const s = atob(b), u = new Uint8Array(s.length);
     for (let i = 0; i < s.length; i++) u[i] = s.charCodeAt(i); return new T(u.buffer); };
   const c = document.getElementById('c'); c.width = W; c.height = H;
   const gl = c.getContext('webgl2', {antialias: false, preserveDrawingBuffer: true});
-  const vs = `#version 300 es
-    uniform mat4 clip; in vec3 q; in vec3 P; in vec3 N; out vec3 p; out vec3 n;
-    void main() { p = P; n = N; gl_Position = clip * vec4(q, 1.0); }`;
-  const fs = `#version 300 es
-    precision highp float;
-    in vec3 p; in vec3 n; out vec4 o;
-    uniform vec3 L; uniform vec3 kd; uniform float ks; uniform float s; uniform vec3 cam;
-    void main() {
-      vec3 N = normalize(n), V = normalize(cam - p);
-      float d = max(dot(N, L), 0.0);
-      vec3 R = 2.0 * dot(N, L) * N - L;
-      float sp = d > 0.0 ? pow(max(dot(R, V), 0.0), s) : 0.0;
-      o = vec4(kd * d + ks * sp, 1.0);
-    }`;
   const prog = gl.createProgram();
   for (const [t, src] of [[gl.VERTEX_SHADER, vs], [gl.FRAGMENT_SHADER, fs]]) {
     const sh = gl.createShader(t); gl.shaderSource(sh, src); gl.compileShader(sh);
@@ -72,14 +63,14 @@ window.makePeer = function (W, H, vb64, fb64, clip, kd, ks, s, light, camPos) {
   const vao = gl.createVertexArray(); gl.bindVertexArray(vao);
   gl.bindBuffer(gl.ARRAY_BUFFER, gl.createBuffer());
   gl.bufferData(gl.ARRAY_BUFFER, dec(vb64, Float32Array), gl.STATIC_DRAW);
-  ['q', 'P', 'N'].forEach((a, i) => { const l = gl.getAttribLocation(prog, a); if (l < 0) return;
-    gl.enableVertexAttribArray(l); gl.vertexAttribPointer(l, 3, gl.FLOAT, false, 36, 12 * i); });
+  ['pos', 'nrm'].forEach((a, i) => { const l = gl.getAttribLocation(prog, a); if (l < 0) return;
+    gl.enableVertexAttribArray(l); gl.vertexAttribPointer(l, 3, gl.FLOAT, false, 24, 12 * i); });
   const faces = dec(fb64, Uint32Array);
   gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer());
   gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, faces, gl.STATIC_DRAW);
   const u = k => gl.getUniformLocation(prog, k);
-  gl.uniformMatrix4fv(u('clip'), false, clip);
-  gl.uniform3fv(u('kd'), kd); gl.uniform1f(u('ks'), ks); gl.uniform1f(u('s'), s); gl.uniform3fv(u('cam'), camPos);
+  gl.uniformMatrix4fv(u('P'), false, clip);
+  gl.uniform3fv(u('kd'), kd); gl.uniform1f(u('ks'), ks); gl.uniform1f(u('s'), s);
   gl.enable(gl.DEPTH_TEST); gl.viewport(0, 0, W, H);
   const px = new Uint8Array(4);
   let k = 0;
@@ -174,13 +165,18 @@ def main():
             page.wait_for_selector("#view-body canvas.face-gl", timeout=120_000)
             wait_for(lambda: page.evaluate(f"() => !!{FACE}"), 60, "the WebGL face view")
             d = s.api("/api/view/left60")["data"]
-            ntri = len(__import__("base64").b64decode(d["faces"]["b64"])) // 12
+            ntri = len(base64.b64decode(d["faces"]["b64"])) // 12
             peer = ctx.new_page()
             peer.set_content(PEER_HTML)
-            cam = d["cam_pos"]
-            l0 = d["light"]["direction"]
-            peer.evaluate("a => makePeer(...a)", [d["W"], d["H"], d["vertices"]["b64"], d["faces"]["b64"], d["clip"],
-                                                  d["kd"], d["i_s"], d["shininess"], l0, cam])
+            # the same vertices in the camera frame (positions as drawn, normals turned), light too
+            va = np.frombuffer(base64.b64decode(d["vertices"]["b64"]), np.float32).reshape(-1, 9)
+            R = np.asarray(d["cam_rotation"], np.float64).reshape(3, 3)  # row-major world → camera
+            vb = np.hstack([va[:, :3], va[:, 6:9] @ R.T.astype(np.float32)]).astype(np.float32)
+            lc = R @ np.asarray(d["light"]["direction"], np.float64)
+            vs, fs = phong_peer("es300")
+            peer.evaluate("a => makePeer(...a)", [d["W"], d["H"], base64.b64encode(vb.tobytes()).decode(),
+                                                  d["faces"]["b64"], d["clip"], d["kd"], d["i_s"], d["shininess"],
+                                                  list(lc / np.linalg.norm(lc)), vs, fs])
             peer.evaluate("() => peer.time(1)")
             cov = peer.evaluate("() => peer.read()")
             print(f"face view {d['W']}x{d['H']}, {ntri} triangles, shadows {'on' if d.get('shadow') else 'off'}"
