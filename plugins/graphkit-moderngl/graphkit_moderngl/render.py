@@ -27,6 +27,9 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   shadow atlas and the g-buffer remember what they hold, so a call that changes only the
   lights re-renders the shadow maps and the lighting pass, one that changes only the
   material/exposure only the lighting pass.
+* the lighting pass runs only over the mesh's screen box (``glscene.screen_box``) and, with
+  the eye highlights, over the eyes' box; only that box is read back, the rest of the image is
+  the background output (``glscene.background_out``).
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
