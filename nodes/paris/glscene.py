@@ -47,8 +47,6 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     job["cam_pos"] = camera.position
     job["cam_ortho"] = camera.orthographic
     job["cam_back"] = -camera.forward
-    # lights
-    job["lights"] = [_light_uniforms(light) for light in lights]
     kd = np.asarray(material.diffuse, np.float64)
     amb = np.zeros(3)
     for light in lights:
@@ -57,21 +55,8 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
     job["material"] = (kd, float(material.specular), float(material.shininess), amb)
     # shadow maps (same frames as nodes.common.raster.shadow_map)
-    sm_errors = [None] * len(lights)
-    job["shadow"] = None
-    if p.shadows:
-        sms = []
-        for i, light in enumerate(lights):
-            try:
-                sm = _shadow_setup(V, F, light, p.shadow_map_size, up=camera.rotation[1])
-                sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
-                sms.append(sm)
-            except ValueError as e:
-                sm_errors[i] = str(e)
-                sms.append(None)
-        job["shadow"] = sms
-        job["shadow_key"] = digest(p.shadow_map_size, *[
-            None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
+    part, sm_errors = light_part(p, V, F, lights, camera.rotation[1])
+    job.update(part)
     # projective detail texture (render.projective_texture)
     job["detail"] = None
     det_key = None
@@ -109,7 +94,85 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     if eyes is not None:
         job["ray_org"], job["ray_dir"] = camera.ray_matrices()
         job["fwd"] = camera.forward
+    # the lighting pass runs only where a surface or an eye can be (every other pixel is the
+    # background, glscene.background_out): the mesh's box without the eye highlights, then
+    # the eyes' box with them (a second program over that small box)
+    Fm = job["main"][1]
+    job["bbox"] = screen_box(camera, qc[np.unique(Fm)] if len(Fm) else qc[:0])
+    job["eye_box"] = None
+    if eyes is not None:
+        job["eye_box"] = screen_box(camera, camera.to_camera(_eye_cube_corners(eyes)))
+        job["bbox"] = union_box(job["bbox"], job["eye_box"])
+    job["bg_out"] = background_out(p)
     return job, lights, sm_errors, eyes
+
+
+def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]:
+    """(the light-dependent part of the job: ``lights`` uniforms, ``shadow`` frames or None and
+    ``shadow_key``; per-light shadow-map errors or None) for world-unit ``lights`` (scene()'s
+    second result) and the drawn mesh's vertices/faces; what a light drag recomputes."""
+    part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None}
+    sm_errors = [None] * len(lights)
+    if p.shadows:
+        sms = []
+        for i, light in enumerate(lights):
+            try:
+                sm = _shadow_setup(V, F, light, p.shadow_map_size, up=up)
+                sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
+                sms.append(sm)
+            except ValueError as e:
+                sm_errors[i] = str(e)
+                sms.append(None)
+        part["shadow"] = sms
+        part["shadow_key"] = digest(p.shadow_map_size, *[
+            None if sm is None else (sm["key"], digest(sm["clip"])) for sm in sms])
+    return part, sm_errors
+
+
+def screen_box(camera: Camera, q: np.ndarray) -> tuple[int, int, int, int]:
+    """(x, y, w, h): the pixels (GL window = pixel coordinates, row 0 first) that a surface
+    with camera-frame points ``q`` as its bounds can cover: their projected bounds, one pixel
+    of margin; the whole image where a bound cannot be trusted (a point behind the camera)."""
+    W, H = camera.width, camera.height
+    if len(q) == 0:
+        return 0, 0, 0, 0
+    if not camera.orthographic and not np.all(q[:, 2] > NEAR):
+        return 0, 0, W, H
+    h = np.hstack([q, np.ones((len(q), 1))]) @ camera.pixel_matrix().T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = h[:, :2] / h[:, 2:3]
+    if not np.all(np.isfinite(uv)):
+        return 0, 0, W, H
+    x0 = int(np.clip(np.floor(uv[:, 0].min()) - 1, 0, W))
+    x1 = int(np.clip(np.ceil(uv[:, 0].max()) + 1, 0, W))
+    y0 = int(np.clip(np.floor(uv[:, 1].min()) - 1, 0, H))
+    y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, H))
+    return x0, y0, max(x1 - x0, 0), max(y1 - y0, 0)
+
+
+def union_box(a, b):
+    """The smallest (x, y, w, h) holding boxes ``a`` and ``b`` (empty boxes ignored)."""
+    if not (a[2] and a[3]):
+        return tuple(b)
+    if not (b[2] and b[3]):
+        return tuple(a)
+    x0, y0 = min(a[0], b[0]), min(a[1], b[1])
+    return x0, y0, max(a[0] + a[2], b[0] + b[2]) - x0, max(a[1] + a[3], b[1] + b[3]) - y0
+
+
+def _eye_cube_corners(eyes) -> np.ndarray:
+    c, _, R = eyes
+    k = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    return (np.asarray(c, np.float64)[:, None] + R * k[None]).reshape(-1, 3)
+
+
+def background_out(p) -> tuple[float, float, float]:
+    """shade.frag's output where no surface and no eye is: background × exposure, clamped
+    (float32 maths, as the GPU does it)."""
+    bg = np.asarray(p.background, np.float32) * np.float32(p.exposure)
+    if p.clamp:
+        bg = np.clip(bg, np.float32(0), np.float32(1))
+    return tuple(float(x) for x in bg)
 
 
 

@@ -5,7 +5,8 @@
 // Passes as in plugins/graphkit-moderngl/graphkit_moderngl/render.py: shadow atlas, texture-
 // camera depth, surface (g-buffer, kept while only the light changes), lighting (shade.frag,
 // into an RGBA32F target), display (display.frag: × 2^exposure, sRGB, onto the canvas).
-// Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, time}.
+// Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, sync, time,
+// profile (median ms per pass), program (swap a program: shader experiments)}.
 
 function decode(a) {
   const bin = atob(a.b64);
@@ -165,11 +166,7 @@ export function createFaceRenderer(canvas, d) {
     gbufDone = true;
   }
 
-  function lighting() {
-    const s = P.shade;
-    gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
-    gl.viewport(0, 0, W, H);
-    gl.disable(gl.DEPTH_TEST);
+  function shadeUniforms(s) {
     gl.useProgram(s);
     for (let i = 0; i < 3; i++) { gl.activeTexture(gl.TEXTURE0 + i); gl.bindTexture(gl.TEXTURE_2D, gbuf.tex[i]); }
     gl.uniform1i(s.u('g_pos'), 0); gl.uniform1i(s.u('g_normal'), 1); gl.uniform1i(s.u('g_detail'), 2);
@@ -205,8 +202,26 @@ export function createFaceRenderer(canvas, d) {
       gl.uniform3fv(s.u('fwd'), e.fwd); gl.uniform3fv(s.u('eye_c'), e.c); gl.uniform3fv(s.u('eye_axis'), e.axis);
       gl.uniform1f(s.u('eye_R'), e.R); gl.uniform1f(s.u('eye_s'), e.s); gl.uniform1f(s.u('eye_ks'), e.ks);
     }
+  }
+
+  function lighting() {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
+    gl.viewport(0, 0, W, H);
+    gl.disable(gl.DEPTH_TEST);
+    // only the boxes where a surface or an eye can be are shaded (glscene.scene): the mesh's
+    // without the eye highlights, then the eyes' with them; the rest is the background as
+    // shade.frag would write it (glscene.background_out)
+    gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 1]);
+    gl.clearBufferfv(gl.COLOR, 1, [0, 0, 0, 0]);
+    gl.enable(gl.SCISSOR_TEST);
     gl.bindVertexArray(empty);
-    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    for (const [prog, box] of [[P.shade, d.bbox], [P.shade_eyes, d.eye_box]]) {
+      if (!prog || !box || !(box[2] > 0 && box[3] > 0)) continue;
+      shadeUniforms(prog);
+      gl.scissor(...box);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
+    gl.disable(gl.SCISSOR_TEST);
   }
 
   function display(exposure) {
@@ -234,6 +249,19 @@ export function createFaceRenderer(canvas, d) {
       const px = new Float32Array(W * H * 4);
       gl.readPixels(0, 0, W, H, gl.RGBA, gl.FLOAT, px);
       return px;
+    },
+    program(k, srcs) { P[k] = program(gl, srcs); },  // swap a program (shader experiments)
+    profile(n) {  // median ms of each pass over n frames, each pass synced (benchmarks)
+      const t = { shadow: [], lighting: [], display: [] };
+      const run = (k, f) => { const t0 = performance.now(); f(); this.sync(); t[k].push(performance.now() - t0); };
+      this.draw();
+      for (let i = 0; i < n; i++) {
+        if (scene.shadow) run('shadow', shadowAtlas);
+        run('lighting', lighting);
+        run('display', () => display(0));
+      }
+      const med = a => a.length ? a.sort((x, y) => x - y)[a.length >> 1] : 0;
+      return Object.fromEntries(Object.entries(t).map(([k, v]) => [k, med(v)]));
     },
     sync() { const p = new Uint8Array(4); gl.bindFramebuffer(gl.FRAMEBUFFER, null); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, p); return p; },
   };
@@ -322,6 +350,9 @@ export function mount(el, api) {
   canvas.gkFace = {
     async setLight(values) { Object.assign(light, values); drawBall(); await update(); return frames; },
     readImage() { return b64(r.readImage()); },
+    profile(n) { return r.profile(n); },
+    program(k, s) { r.program(k, s); },
+    sync() { return r.sync(); },  // a 1-pixel read-back of the canvas: waits for the frame
     time(n) {  // n lighting frames (light changed: shadow atlas + lighting + display), each synced with readPixels
       const ts = [];
       for (let i = 0; i < n; i++) {

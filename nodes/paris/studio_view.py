@@ -39,8 +39,8 @@ class FaceView(LiveView):
     title = "face relighting (WebGL2, Paris §5)"
     js = "studio_view.js"
 
-    def _lights(self, values: dict):
-        lights = list(self.inputs()["lights"])
+    def _lights(self, values: dict, lights=None):
+        lights = list(self.inputs()["lights"] if lights is None else lights)
         if not lights:
             raise BadInput("lights", "no light to drag")
         l0 = lights[0]
@@ -93,6 +93,7 @@ class FaceView(LiveView):
              "cam_rotation": _mat(cam.rotation.T),  # row-major rotation (world → camera)
              "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
+             "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
              **self._light_part(job, p)}
         if det is not None:
             tc = det["cam"]
@@ -104,8 +105,7 @@ class FaceView(LiveView):
             d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
                          "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
                          "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
-        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None),
-                "EYES": int(eyes is not None)}
+        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0}
         gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None)}
         d["glsl"] = {
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
@@ -113,11 +113,36 @@ class FaceView(LiveView):
             "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
         }
+        if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
+            d["glsl"]["shade_eyes"] = [source("screen.vert", "es300", {**defs, "EYES": 1}),
+                                       source("shade.frag", "es300", {**defs, "EYES": 1})]
+            d["eye_box"] = [int(x) for x in job["eye_box"]]
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
                       "color": _vec(l0.color), "kind": l0.kind}
         return d
 
+    def _mesh_for_lights(self):
+        """(camera, drawn mesh, its vertices, faces), kept while the node's inputs are the same
+        values (their digests): a drag recomputes only the lights' uniforms and shadow frames."""
+        from .render import prepare_render
+
+        g = self.studio.graph
+        key = repr(g.nodes[self.node].map_inputs(
+            lambda src, sport: (self.studio.nodes.get(src) or {}).get("digests", {}).get(sport)))
+        if getattr(self, "_kept", None) is None or self._kept[0] != key:
+            v = self.inputs()
+            _, m = prepare_render(v["mesh"], v["camera"], v["lights"], v.get("detail"),
+                                  v.get("texture_camera"), self.params.fill_holes)
+            self._kept = (key, v["camera"], m, np.asarray(m.vertices, np.float64),
+                          np.asarray(m.faces, np.int64).reshape(-1, 3), v["lights"])
+        return self._kept[1:]
+
     def frame(self, values: dict):
-        job, _, _, _ = self._scene(values)
-        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(job, self.params)}
+        from .glscene import light_part
+        from .render import check_render_inputs, world_lights
+
+        camera, m, V, F, given = self._mesh_for_lights()
+        lights = world_lights(check_render_inputs(self._lights(values, given), None, None), camera, m)
+        part, _ = light_part(self.params, V, F, lights, camera.rotation[1])
+        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params)}

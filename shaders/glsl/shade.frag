@@ -8,7 +8,9 @@
 // * then the eye highlights (Render._eyes: two specular cornea hemispheres hit by the pixel's
 //   ray, graphkit.Camera.ray_matrices, where they are not behind the eyelids), the exposure
 //   and the clamp to [0, 1] (§5: over-exposure, after the texture).
-// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES.
+// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES.  The drivers draw it scissored to the
+// pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
+// mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
 #ifndef ORTHO
 #define ORTHO 0
@@ -58,13 +60,14 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     int ix = int(clamp(floor(xy.x), -1.0, float(sm_size)));
     int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
     float acc = 0.0;
+    ivec2 tile = sm_tile[i];
     for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
-            int x = ix + dx, y = iy + dy;
-            float d = 3.0e38;
-            if (x >= 0 && y >= 0 && x < sm_size && y < sm_size)
-                d = texelFetch(shadow_maps, sm_tile[i] + ivec2(x, y), 0).r;
-            acc += (db <= d) ? 1.0 : 0.0;
+            // outside the map: lit (as the reference); clamped fetch + select, no branch
+            ivec2 at = ivec2(ix + dx, iy + dy);
+            ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1));
+            float d = texelFetch(shadow_maps, tile + c, 0).r;
+            acc += (at != c || db <= d) ? 1.0 : 0.0;
         }
     return acc / 9.0;
 }
@@ -139,9 +142,11 @@ void main() {
                 else mask1 += exp2(float(i - 24));
             }
 #if SHADOWS
-            float vis = visibility(i, P, n, l);
-            diff *= vis;
-            spec *= vis;
+            if (nl > 0.0) {                   // else diff = spec = 0: no shadow lookup
+                float vis = visibility(i, P, n, l);
+                diff *= vis;
+                spec *= vis;
+            }
 #endif
             col += kd * (L * diff) + i_s * L * spec;
         }

@@ -27,6 +27,9 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   shadow atlas and the g-buffer remember what they hold, so a call that changes only the
   lights re-renders the shadow maps and the lighting pass, one that changes only the
   material/exposure only the lighting pass.
+* the lighting pass runs only over the mesh's screen box (``glscene.screen_box``) and, with
+  the eye highlights, over the eyes' box; only that box is read back, the rest of the image is
+  the background output (``glscene.background_out``).
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
@@ -303,36 +306,14 @@ def _gbuffer(rt, job):
     return g
 
 
-def _render_job(rt, job):
-    rt.objects.begin()
-    return _render(rt, job)
-
-
-def _render(rt, job):
-    """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
-    (image H×W×3, (lit masks 0–23, 24–, camera z or 0 where uncovered) H×W×3), float32."""
-    ctx, mgl = rt.ctx, rt.gl
-    W, H, p = job["W"], job["H"], job["p"]
-    ctx.enable(mgl.DEPTH_TEST)
-    ctx.disable(mgl.CULL_FACE | mgl.BLEND)
-    ctx.depth_func = "<"
-    lights = job["lights"]
+def _shade_uniforms(prog, job, p, size: int, tiles):
+    """shade.frag's uniforms: g-buffer units 0–2, shadow atlas unit 3, lights, material, eyes."""
+    lights, eyes = job["lights"], job["eyes"]
     nL = max(len(lights), 1)
-    shadows = job["shadow"] is not None
-    eyes = job["eyes"]
-    if shadows:
-        atlas, size, tiles = _shadow_atlas(rt, job)
-    g = _gbuffer(rt, job)
-    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows),
-               "EYES": int(eyes is not None)}
-    prog = rt.program("screen.vert", "shade.frag", defines)
-    for i, t in enumerate(g["tex"]):
-        t.use(location=i)
     _set(prog, "g_pos", 0)
     _set(prog, "g_normal", 1)
     _set(prog, "g_detail", 2)
-    if shadows:
-        atlas.use(location=3)
+    if tiles is not None:
         _set(prog, "shadow_maps", 3)
         _set(prog, "sm_size", size)
         to_light = np.tile(np.eye(4), (nL, 1, 1))
@@ -368,15 +349,60 @@ def _render(rt, job):
         _set(prog, "eye_R", float(R))
         _set(prog, "eye_s", float(p.eye_shininess))
         _set(prog, "eye_ks", float(p.eye_specular))
+
+
+def _render_job(rt, job):
+    rt.objects.begin()
+    return _render(rt, job)
+
+
+def _render(rt, job):
+    """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
+    (image H×W×3, (lit masks 0–23, 24–, camera z or 0 where uncovered) H×W×3), float32."""
+    ctx, mgl = rt.ctx, rt.gl
+    W, H, p = job["W"], job["H"], job["p"]
+    ctx.enable(mgl.DEPTH_TEST)
+    ctx.disable(mgl.CULL_FACE | mgl.BLEND)
+    ctx.depth_func = "<"
+    lights = job["lights"]
+    nL = max(len(lights), 1)
+    shadows = job["shadow"] is not None
+    eyes = job["eyes"]
+    if shadows:
+        atlas, size, tiles = _shadow_atlas(rt, job)
+    g = _gbuffer(rt, job)
+    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0}
+    # the mesh's box without the eye highlights, then the eyes' box with them (glscene.scene)
+    passes = [(rt.program("screen.vert", "shade.frag", defines), job["bbox"])]
+    if eyes is not None:
+        passes.append((rt.program("screen.vert", "shade.frag", {**defines, "EYES": 1}), job["eye_box"]))
+    for i, t in enumerate(g["tex"]):
+        t.use(location=i)
+    if shadows:
+        atlas.use(location=3)
+    for prog, _ in passes:
+        _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
     out = _target(rt, "shade", W, H, (4, 4), depth=False)
     out["fbo"].use()
     out["fbo"].viewport = (0, 0, W, H)
     ctx.disable(mgl.DEPTH_TEST)
-    vao = rt.objects.get(("screen", prog.glo), lambda: ctx.vertex_array(prog, []))
-    vao.render(mgl.TRIANGLES, vertices=3)
-    ctx.enable(mgl.DEPTH_TEST)
+    # only the box where a surface or an eye can be (glscene.screen_box) is shaded and read
+    # back; every other pixel is the background (glscene.background_out), filled on the host
     img = np.empty((H, W, 3), np.float32)
-    lit = np.empty((H, W, 3), np.float32)
-    out["fbo"].read_into(img, components=3, dtype="f4", attachment=0)
-    out["fbo"].read_into(lit, components=3, dtype="f4", attachment=1)
+    img[...] = job["bg_out"]
+    lit = np.zeros((H, W, 3), np.float32)
+    for prog, (x, y, w, h) in passes:
+        if w and h:
+            ctx.scissor = (x, y, w, h)
+            vao = rt.objects.get(("screen", prog.glo), lambda: ctx.vertex_array(prog, []))
+            vao.render(mgl.TRIANGLES, vertices=3)
+    ctx.scissor = None
+    x, y, w, h = job["bbox"]
+    if w and h:
+        box = np.empty((h, w, 3), np.float32)
+        out["fbo"].read_into(box, viewport=(x, y, w, h), components=3, dtype="f4", attachment=0)
+        img[y:y + h, x:x + w] = box
+        out["fbo"].read_into(box, viewport=(x, y, w, h), components=3, dtype="f4", attachment=1)
+        lit[y:y + h, x:x + w] = box
+    ctx.enable(mgl.DEPTH_TEST)
     return img, lit
