@@ -75,7 +75,6 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
     from starlette.staticfiles import StaticFiles
     from starlette.websockets import WebSocket, WebSocketDisconnect
 
-    from .imaging import preview_png
     from .views import NotReady, view_for
 
     def err(status: int, message: str, **extra):
@@ -135,16 +134,8 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
         except ValueError:
             return err(400, "exposure and max must be numbers")
 
-        def make():
-            ptype, v = studio.value(node, port)
-            if v is None:
-                return None
-            if ptype.name not in ("Image", "Mask"):
-                return b""
-            return preview_png(ptype.name, v, exposure, max_side)
-
         try:
-            data = await run_in_threadpool(make)
+            data = await run_in_threadpool(studio.preview, node, port, exposure, max_side)
         except GraphkitError as e:
             return err(404, str(e))
         if data is None:

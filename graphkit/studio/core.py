@@ -14,6 +14,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from collections import OrderedDict
 from typing import Any, Callable
 
 from ..errors import GraphError, GraphkitError, UsageError
@@ -83,8 +84,11 @@ class _RunProgress(Progress):
         if o.name in self.outcomes:  # a later pass (after a failure elsewhere) found it cached
             return
         self.outcomes[o.name] = o
+        wanted = [] if o.hit else self.studio._encode_watched(o)
         self.studio._node_event(o.name, state="cached" if o.hit else "done", seconds=round(o.seconds, 4),
                                 message="", digests=o.outputs, backend=o.backend)
+        if wanted:
+            self.studio._await_served(wanted, self.gen)
 
     def report(self, node, fraction, message):
         self._check()
@@ -168,6 +172,12 @@ class Studio:
         self._listeners: list[Callable[[dict], None]] = []
         self._views: dict[str, Any] = {}
         self._schemas: dict[str, Any] = {}
+        # previews: PNGs by (digest, exposure, max side), the previews the page asked for
+        # lately ((node, port) → {(exposure, max side): time}), and the digests a run waits
+        # to see served before it goes on (Studio._preview_first)
+        self._png: "OrderedDict[tuple, bytes]" = OrderedDict()
+        self._watch: dict[tuple[str, str], dict[tuple[float, int], float]] = {}
+        self._served_digests: set[str] = set()
         self._load(self.doc)
         self._worker = threading.Thread(target=self._loop, name="graphkit-studio", daemon=True)
         self._worker.start()
@@ -210,8 +220,8 @@ class Studio:
         except GraphkitError as e:
             return None, [{"file": self.display_path, "line": 1, "col": 1, "message": str(e), "text": str(e)}]
 
-    def _load(self, doc: YamlDoc) -> None:
-        g, errors = self._try_load(doc)
+    def _load(self, doc: YamlDoc, loaded=None) -> None:
+        g, errors = loaded if loaded is not None else self._try_load(doc)
         with self._lock:
             self.doc, self.graph, self.errors = doc, g, errors
             names = list(g.nodes) if g else list(((doc.data() or {}).get("nodes") or {}))
@@ -241,7 +251,7 @@ class Studio:
             g, errors = self._try_load(doc)
             if errors and self.graph is not None:
                 return {"ok": False, "errors": errors}
-            self._load(doc)
+            self._load(doc, (g, errors))  # loaded once: the same text gives the same graph
         self._emit({"type": "state", "state": self.state()})
         if self.graph is not None and self.autorun:
             self.request_run()
@@ -422,20 +432,26 @@ class Studio:
         with self._lock:
             for d in [d for d in self.memo if d not in keep]:
                 self.memo.pop(d, None)
+            self._served_digests &= keep
 
     # -- values ---------------------------------------------------------------------------
     def value(self, node: str, port: str):
         """The current value of ``node.port`` (None when not computed yet)."""
+        ptype, v, _ = self._value(node, port)
+        return ptype, v
+
+    def _value(self, node: str, port: str):
+        """(port type, value, digest) of ``node.port`` now (Nones when not computed yet)."""
         with self._lock:
             g = self.graph
             d = (self.nodes.get(node) or {}).get("digests", {}).get(port)
         if g is None or d is None or node not in g.nodes or port not in g.nodes[node].cls.out_ports:
-            return None, None
+            return None, None, None
         ptype = g.nodes[node].cls.out_ports[port].type
         v = self.memo.get(d)
         if v is None:
             v = self.store.load_value(d, ptype)
-        return ptype, v
+        return ptype, v, d
 
     def input_values(self, node: str) -> dict | None:
         """The values of ``node``'s inputs (as its compute gets them), or None if not all known."""
@@ -453,6 +469,90 @@ class Studio:
 
         vals = gn.map_inputs(get)
         return None if missing else vals
+
+    # -- previews -------------------------------------------------------------------------
+    PNG_CACHE = 24  # previews kept (a few exposures / sizes of the outputs on show)
+    WATCH_S = 120.0  # a preview the page asked for within this many seconds is "on show"
+    HOLD_S = 0.25  # how long a run waits for a page to fetch a new preview on show
+
+    def preview(self, node: str, port: str, exposure: float = 0.0, max_side: int = 0) -> bytes | None:
+        """PNG of ``node.port`` for the page (None: no value yet; b"": not an image).
+
+        The request marks the preview as on show: when a later run computes that node anew,
+        the run encodes it at once (same exposure and size) and lets the page fetch it
+        before it goes on with the rest of the graph (``_await_served``)."""
+        from .imaging import preview_png
+
+        ptype, v, d = self._value(node, port)
+        if v is None:
+            return None
+        if ptype.name not in ("Image", "Mask"):
+            return b""
+        exposure, max_side = float(exposure), int(max_side)
+        with self._lock:
+            now = time.time()
+            seen = self._watch.setdefault((node, port), {})
+            for k in [k for k, t in seen.items() if now - t > self.WATCH_S]:
+                del seen[k]
+            seen[(exposure, max_side)] = now
+            data = self._png.get((d, exposure, max_side))
+        if data is None:
+            data = preview_png(ptype.name, v, exposure, max_side)
+            self._keep_png((d, exposure, max_side), data)
+        with self._lock:
+            self._served_digests.add(d)
+            self._wake.notify_all()
+        return data
+
+    def _keep_png(self, key, data: bytes) -> None:
+        with self._lock:
+            self._png[key] = data
+            self._png.move_to_end(key)
+            while len(self._png) > self.PNG_CACHE:
+                self._png.popitem(last=False)
+
+    def _encode_watched(self, o: NodeOutcome) -> list[str]:
+        """Encode the previews on show of node outcome ``o`` (computed anew); their digests."""
+        from .imaging import preview_png
+
+        g = self.graph
+        if g is None or o.name not in g.nodes:
+            return []
+        now = time.time()
+        with self._lock:
+            if not self._listeners:  # no page open
+                return []
+            todo = []
+            for (node, port), variants in self._watch.items():
+                d = o.outputs.get(port) if node == o.name else None
+                if not isinstance(d, str):
+                    continue
+                for (exposure, max_side), t in variants.items():
+                    if now - t < self.WATCH_S and (d, exposure, max_side) not in self._png:
+                        todo.append((port, d, exposure, max_side))
+        out = []
+        for port, d, exposure, max_side in todo:
+            ptype = g.nodes[o.name].cls.out_ports[port].type
+            v = self.memo.get(d)
+            if v is None or ptype.name not in ("Image", "Mask"):
+                continue
+            self._keep_png((d, exposure, max_side), preview_png(ptype.name, v, exposure, max_side))
+            out.append(d)
+        with self._lock:
+            self._served_digests.difference_update(out)
+        return out
+
+    def _await_served(self, digests: list[str], gen: int) -> None:
+        """Wait (at most HOLD_S) until a page has fetched the previews of ``digests``, so
+        the rest of the run (file writers, sheets, the --out export) does not compete with
+        sending them; a newer change or closing ends the wait."""
+        end = time.monotonic() + self.HOLD_S
+        with self._lock:
+            while not set(digests) <= self._served_digests and self.gen == gen and not self.closing:
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                self._wake.wait(left)
 
     # -- state ----------------------------------------------------------------------------
     def state(self) -> dict:
