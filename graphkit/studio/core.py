@@ -172,11 +172,11 @@ class Studio:
         self._listeners: list[Callable[[dict], None]] = []
         self._views: dict[str, Any] = {}
         self._schemas: dict[str, Any] = {}
-        # previews: PNGs by (digest, exposure, max side), the previews the page asked for
-        # lately ((node, port) → {(exposure, max side): time}), and the digests a run waits
+        # previews: PNGs by (digest, exposure, max side, PNG level), the previews the page asked
+        # for lately ((node, port) → {(exposure, max side, level): time}), and the digests a run waits
         # to see served before it goes on (Studio._preview_first)
         self._png: "OrderedDict[tuple, bytes]" = OrderedDict()
-        self._watch: dict[tuple[str, str], dict[tuple[float, int], float]] = {}
+        self._watch: dict[tuple[str, str], dict[tuple[float, int, int], float]] = {}
         self._served_digests: set[str] = set()
         self._load(self.doc)
         self._worker = threading.Thread(target=self._loop, name="graphkit-studio", daemon=True)
@@ -475,8 +475,10 @@ class Studio:
     WATCH_S = 120.0  # a preview the page asked for within this many seconds is "on show"
     HOLD_S = 0.25  # how long a run waits for a page to fetch a new preview on show
 
-    def preview(self, node: str, port: str, exposure: float = 0.0, max_side: int = 0) -> bytes | None:
-        """PNG of ``node.port`` for the page (None: no value yet; b"": not an image).
+    def preview(self, node: str, port: str, exposure: float = 0.0, max_side: int = 0,
+                level: int = 1) -> bytes | None:
+        """PNG of ``node.port`` for the page (None: no value yet; b"": not an image; ``level``:
+        imaging.png's, 0 for a page on the loopback).
 
         The request marks the preview as on show: when a later run computes that node anew,
         the run encodes it at once (same exposure and size) and lets the page fetch it
@@ -488,17 +490,17 @@ class Studio:
             return None
         if ptype.name not in ("Image", "Mask"):
             return b""
-        exposure, max_side = float(exposure), int(max_side)
+        var = (float(exposure), int(max_side), int(level))
         with self._lock:
             now = time.time()
             seen = self._watch.setdefault((node, port), {})
             for k in [k for k, t in seen.items() if now - t > self.WATCH_S]:
                 del seen[k]
-            seen[(exposure, max_side)] = now
-            data = self._png.get((d, exposure, max_side))
+            seen[var] = now
+            data = self._png.get((d, *var))
         if data is None:
-            data = preview_png(ptype.name, v, exposure, max_side)
-            self._keep_png((d, exposure, max_side), data)
+            data = preview_png(ptype.name, v, *var)
+            self._keep_png((d, *var), data)
         with self._lock:
             self._served_digests.add(d)
             self._wake.notify_all()
@@ -527,16 +529,16 @@ class Studio:
                 d = o.outputs.get(port) if node == o.name else None
                 if not isinstance(d, str):
                     continue
-                for (exposure, max_side), t in variants.items():
-                    if now - t < self.WATCH_S and (d, exposure, max_side) not in self._png:
-                        todo.append((port, d, exposure, max_side))
+                for var, t in variants.items():
+                    if now - t < self.WATCH_S and (d, *var) not in self._png:
+                        todo.append((port, d, var))
         out = []
-        for port, d, exposure, max_side in todo:
+        for port, d, var in todo:
             ptype = g.nodes[o.name].cls.out_ports[port].type
             v = self.memo.get(d)
             if v is None or ptype.name not in ("Image", "Mask"):
                 continue
-            self._keep_png((d, exposure, max_side), preview_png(ptype.name, v, exposure, max_side))
+            self._keep_png((d, *var), preview_png(ptype.name, v, *var))
             out.append(d)
         with self._lock:
             self._served_digests.difference_update(out)
