@@ -187,6 +187,13 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
         async def pump():
             while True:
                 ev = await q.get()
+                if ev.get("type") == "preview":  # a preview on show, computed anew: the PNG itself
+                    if (ev["level"] == 0) != local:
+                        continue  # encoded for the other kind of page
+                    head = json.dumps({k: v for k, v in ev.items() if k != "png"}).encode()
+                    await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["png"])
+                    studio.served(ev["digest"])
+                    continue
                 await websocket.send_text(json.dumps(ev, default=str))
 
         async def frame(msg):

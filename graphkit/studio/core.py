@@ -62,6 +62,7 @@ class _RunProgress(Progress):
 
     def __init__(self, studio: "Studio", gen: int):
         self.studio, self.gen = studio, gen
+        self.t0 = time.time()
         self.running_nodes: list[str] = []
         self.outcomes: dict[str, NodeOutcome] = {}
 
@@ -73,6 +74,8 @@ class _RunProgress(Progress):
 
     def running(self, node, node_type):
         self._check()
+        if time.time() - self.t0 > self.studio.STATE_DUE_S:
+            self.studio._send_due_state()
         self.running_nodes.append(node)
         if node in self.outcomes:  # done by an earlier pass of this run
             return
@@ -89,6 +92,7 @@ class _RunProgress(Progress):
                                 message="", digests=o.outputs, backend=o.backend)
         if wanted:
             self.studio._await_served(wanted, self.gen)
+            self.studio._send_due_state()
 
     def report(self, node, fraction, message):
         self._check()
@@ -178,6 +182,7 @@ class Studio:
         self._png: "OrderedDict[tuple, bytes]" = OrderedDict()
         self._watch: dict[tuple[str, str], dict[tuple[float, int, int], float]] = {}
         self._served_digests: set[str] = set()
+        self._state_due = False  # a param change whose state the pages have not had yet
         self._load(self.doc)
         self._worker = threading.Thread(target=self._loop, name="graphkit-studio", daemon=True)
         self._worker.start()
@@ -252,9 +257,12 @@ class Studio:
             if errors and self.graph is not None:
                 return {"ok": False, "errors": errors}
             self._load(doc, (g, errors))  # loaded once: the same text gives the same graph
-        self._emit({"type": "state", "state": self.state()})
-        if self.graph is not None and self.autorun:
-            self.request_run()
+            run = self.graph is not None and self.autorun
+            if run:  # the new state goes out from the run, once its first preview on show has
+                self._state_due = True  # (or STATE_DUE_S in), so the run starts at once
+                self.request_run()
+        if not run:
+            self._emit({"type": "state", "state": self.state()})
         return {"ok": not errors, "errors": errors}
 
     def set_autorun(self, on: bool) -> None:
@@ -333,7 +341,11 @@ class Studio:
                 self._wake.notify_all()
             self._emit({"type": "run", **info})
             if info.get("status") in ("ok", "failed"):
+                with self._lock:
+                    self._state_due = False
                 self._emit({"type": "state", "state": self.state()})
+            else:
+                self._send_due_state()
 
     @contextlib.contextmanager
     def write_guard(self):
@@ -481,8 +493,9 @@ class Studio:
         imaging.png's, 0 for a page on the loopback).
 
         The request marks the preview as on show: when a later run computes that node anew,
-        the run encodes it at once (same exposure and size) and lets the page fetch it
-        before it goes on with the rest of the graph (``_await_served``)."""
+        the run encodes it at once (same exposure, size and level), pushes it to the pages
+        (a ``preview`` event with the PNG bytes: no request round trip) and waits until it
+        has gone out before it goes on with the rest of the graph (``_await_served``)."""
         from .imaging import preview_png
 
         ptype, v, d = self._value(node, port)
@@ -538,11 +551,30 @@ class Studio:
             v = self.memo.get(d)
             if v is None or ptype.name not in ("Image", "Mask"):
                 continue
-            self._keep_png((d, *var), preview_png(ptype.name, v, *var))
-            out.append(d)
+            data = preview_png(ptype.name, v, *var)
+            self._keep_png((d, *var), data)
+            out.append((port, d, var, data))
         with self._lock:
-            self._served_digests.difference_update(out)
-        return out
+            self._served_digests.difference_update(d for _, d, _, _ in out)
+        for port, d, (exposure, max_side, level), data in out:  # pages on show take it from here
+            self._emit({"type": "preview", "node": o.name, "port": port, "digest": d, "exposure": exposure,
+                        "max": max_side, "level": level, "png": data})
+        return [d for _, d, _, _ in out]
+
+    STATE_DUE_S = 0.3  # a run sends the state of a param change after this at the latest
+
+    def _send_due_state(self) -> None:
+        with self._lock:
+            due, self._state_due = self._state_due, False
+        if due:
+            self._emit({"type": "state", "state": self.state()})
+
+    def served(self, digest: str) -> None:
+
+        """A page got the preview of ``digest`` (pushed over its websocket)."""
+        with self._lock:
+            self._served_digests.add(digest)
+            self._wake.notify_all()
 
     def _await_served(self, digests: list[str], gen: int) -> None:
         """Wait (at most HOLD_S) until a page has fetched the previews of ``digests``, so
