@@ -192,8 +192,7 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
                         continue  # encoded for the other kind of page
                     head = json.dumps({k: v for k, v in ev.items() if k != "png"}).encode()
                     await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["png"])
-                    studio.served(ev["digest"])
-                    continue
+                    continue  # the page answers "shown" (studio.served) once it shows it or passes
                 await websocket.send_text(json.dumps(ev, default=str))
 
         async def frame(msg):
@@ -243,6 +242,8 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
                     await frame(msg)
                 elif msg.get("type") == "commit":
                     await commit(msg)
+                elif msg.get("type") == "shown" and isinstance(msg.get("digest"), str):
+                    studio.served(msg["digest"])
         except (WebSocketDisconnect, RuntimeError):
             pass
         finally:

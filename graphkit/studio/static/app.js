@@ -205,20 +205,23 @@ function setPreview(p) {
 }
 
 // a preview on show that a run computed anew, pushed with its PNG before the node's event
+// (the run waits, a moment at most, for the page's "shown" before it goes on)
 function onPushedPreview(head, blob) {
+  const shown = () => studio.ws?.send(JSON.stringify({ type: 'shown', digest: head.digest }));
   const p = studio.preview, img = $('preview');
-  if (!p || p[0] !== head.node || p[1] !== head.port || head.max || +head.exposure !== +$('exposure').value) return;
   const n = nodeByName(head.node);
-  if (!n) return;
+  if (!n || !p || p[0] !== head.node || p[1] !== head.port || head.max || +head.exposure !== +$('exposure').value) return shown();
   n.digests = { ...(n.digests || {}), [head.port]: head.digest };
   const url = previewURL(head.node, head.port);
-  if (img.dataset.url === url) return;
+  if (img.dataset.url === url) return shown();
   img.dataset.url = url;
   const obj = URL.createObjectURL(blob);
   img.onload = () => {
     previewLoaded(p, head.digest);
     URL.revokeObjectURL(obj);
+    shown();
   };
+  img.onerror = shown;
   img.src = obj;
 }
 
@@ -241,6 +244,7 @@ function refreshPreview() {
   if (img.dataset.url === url) return;
   img.dataset.url = url;
   img.onload = () => previewLoaded(p, d);
+  img.onerror = null;
   img.src = url;
 }
 
