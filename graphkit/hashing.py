@@ -172,9 +172,14 @@ def array_digest(a: np.ndarray) -> str:
     return h.hexdigest()
 
 
+_META_JSON = json.JSONEncoder(sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
 def meta_bytes(meta: dict) -> bytes:
-    return json.dumps(meta, sort_keys=True, separators=(",", ":"), ensure_ascii=True,
-                      allow_nan=False).encode()
+    """Canonical JSON of a value's meta (sorted keys, ASCII, no NaN/Inf)."""
+    if type(meta) is dict and not meta:  # most arrays and images: no meta
+        return b"{}"
+    return _META_JSON.encode(meta).encode()
 
 
 def parts_digest(type_name: str, meta: dict, arrays: list[np.ndarray]) -> str:
