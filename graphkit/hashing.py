@@ -77,9 +77,7 @@ def _enc(v: Any, out: list[bytes]) -> None:
         _enc({k: getattr(v, k) for k in t.model_fields}, out)
     elif isinstance(v, enum.Enum):
         _enc(v.value, out)
-    elif isinstance(v, bool):
-        out.append(b"T" if v else b"F")
-    elif isinstance(v, int):
+    elif isinstance(v, int):  # int subclasses (bool cannot be subclassed: `t is bool` took it)
         out.append(b"i%d;" % v)
     elif isinstance(v, float):
         out.append(b"f" + float(v).hex().encode() + b";")
