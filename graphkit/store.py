@@ -224,11 +224,12 @@ _READ_ONLY_ERRNOS = (errno.EACCES, errno.EPERM, errno.EROFS)
 
 
 def _read_fd(fd: int, size: int) -> bytes:
-    """All of an open file whose size was ``size`` (a file that grew is read to its end)."""
+    """All of an open file that fstat said holds ``size`` bytes: one read when it does; read on
+    to the end when a read comes back short (Linux caps one read at 2 GiB) or the file grew."""
     data = os.read(fd, size + 1)
-    if len(data) <= size:  # a short read (rare): read to the end
+    if len(data) != size:
         chunks = [data]
-        while more := os.read(fd, max(size + 1 - len(data), 1 << 16)):
+        while more := os.read(fd, 1 << 24):
             chunks.append(more)
         data = b"".join(chunks)
     return data

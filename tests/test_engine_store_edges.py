@@ -626,9 +626,165 @@ def test_file_memo_keeps_good_entries_after_a_bad_one(tmp_path):
         h.file_digest(f, memo)
     data = json.loads(memo.read_text())
     first = sorted(data)[0]
-    data[first][2] = "0" * 16  # an edited entry, listed first
+    data[first] = [1, 2]  # an entry that does not even unpack, listed first
     memo.write_text(json.dumps(dict(sorted(data.items()))))
     h._memo.clear()
     h._load_memo(memo)
     assert first not in h._memo and len(h._memo) == 2
     h._memo.clear()
+
+
+# ---------------------------------------------------------------------------------------------
+# low-level reads, writes and locks (second mutation pass)
+
+
+def test_reads_go_on_after_a_short_read_or_growth(tmp_path, monkeypatch):
+    p = tmp_path / "f"
+    p.write_bytes(bytes(range(256)) * 4)
+    fd = os.open(p, os.O_RDONLY)
+    try:
+        assert st._read_fd(fd, 1024) == p.read_bytes()
+        os.lseek(fd, 0, 0)
+        assert st._read_fd(fd, 10) == p.read_bytes()  # grew since fstat: read to the end
+        real = os.read
+        monkeypatch.setattr(st.os, "read", lambda f, n: real(f, min(n, 100)))  # reads capped (> 2 GiB)
+        os.lseek(fd, 0, 0)
+        assert st._read_fd(fd, 1024) == p.read_bytes()
+    finally:
+        os.close(fd)
+
+
+def test_writes_go_on_after_a_short_write(store, monkeypatch):
+    real = os.write
+    monkeypatch.setattr(st.os, "write", lambda fd, b: real(fd, bytes(memoryview(b).cast("B")[:3])))
+    arr = np.arange(5.0)
+    store.fs.write_atomic("tmp/x", [b"abcdefg", memoryview(arr), b"", memoryview(b"hi")])
+    assert store.fs.read("tmp/x") == b"abcdefg" + arr.tobytes() + b"hi"
+
+
+def test_synced_single_writes_and_cleanup_after_a_failed_rename(store, tmp_path):
+    c = tmp_path / "c"
+    store.fs.write_atomic("runs/a.json", [b"{}"], sync=True)
+    assert (c / "runs" / "a.json").read_bytes() == b"{}"
+    (c / "runs" / "dir").mkdir()
+    (c / "runs" / "dir" / "x").write_text("x")
+    with pytest.raises(OSError):
+        store.fs.write_atomic("runs/dir", [b"1"])  # a folder in the way
+    assert list((c / "tmp").iterdir()) == []
+    store.fs.remove("runs/none")  # absent: no error
+    assert not store.fs.move_aside("runs/a.json", "runs/dir")  # a non-empty folder in the way
+    assert (c / "runs" / "a.json").exists()
+
+
+def test_listing_skips_files_that_vanish(store, tmp_path, monkeypatch):
+    import pathlib
+
+    c = tmp_path / "c"
+    for n in ("a", "b", "c"):
+        (c / "tmp" / n).write_bytes(b"x")
+    real = pathlib.Path.lstat
+
+    def flaky(self):
+        if self.name == sorted(os.listdir(c / "tmp"))[0]:
+            raise FileNotFoundError(self)
+        return real(self)
+    monkeypatch.setattr(pathlib.Path, "lstat", flaky)
+    assert len(list(store.fs.listdir("tmp"))) == 2
+
+
+def test_chmod_failures_are_ignored(tmp_path, monkeypatch):
+    root = tmp_path / "g"
+    root.mkdir()
+    os.chmod(root, 0o2775)
+    old = os.umask(0o077)
+    try:
+        s = Store(root).open()
+
+        def denied(*a):
+            raise PermissionError(errno.EPERM, "not the owner")
+        monkeypatch.setattr(st.os, "fchmod", denied)
+        monkeypatch.setattr(st.os, "chmod", denied)
+        assert s.fs._fix_file_mode and s.fs._fix_dir_mode
+        s.put_value(ARRAY, np.arange(3.0))
+        os.close(s.fs._open_lock(s.fs._s("other.lock")))
+    finally:
+        os.umask(old)
+
+
+def test_thread_lock_fd_is_closed_with_its_owner(tmp_path):
+    fd = os.open(tmp_path / "l", os.O_RDWR | os.O_CREAT)
+    holder = st._FD(fd)
+    del holder
+    with pytest.raises(OSError):
+        os.fstat(fd)
+
+
+def test_adjacent_key_bytes_do_not_share_a_lock(store, tmp_path):
+    base = int("123456789abcde", 16)
+    k1, k2 = f"{base:015x}" + "0" * 17, f"{base + 1:015x}" + "0" * 17
+    other = Store(tmp_path / "c").open()
+    got = []
+
+    def take(key):
+        with other.key_lock(key):
+            got.append(key)
+    with store.key_lock(k2):
+        with store.key_lock(k1):
+            pass  # releasing k1 must not release k2
+        t = threading.Thread(target=take, args=(k2,))
+        t.start()
+        time.sleep(0.3)
+        assert got == []
+        t1 = threading.Thread(target=take, args=(k1,))
+        t1.start()
+        t1.join(5)
+        assert got == [k1]  # k1's byte is free while k2 is held
+    t.join(5)
+    assert got == [k1, k2]
+
+
+def test_nested_cache_folders_are_created(tmp_path):
+    s = Store(tmp_path / "a" / "b" / "c").open()
+    assert (tmp_path / "a" / "b" / "c" / "objects").is_dir() and not s.read_only
+
+
+def test_touching_reads_return_the_record(store):
+    r = {"key": "ab" * 16, "outputs": {}}
+    store.put_record("ab" * 16, r)
+    assert store.get_record("ab" * 16, touch=True) == r
+
+
+def test_a_damage_notice_is_said_once_even_when_it_cannot_be_moved(store):
+    d = store.put_value(ARRAY, np.arange(5.0))
+    store.read_only = True
+    store.quarantine(store._orel(d), "cache object X is bad")
+    store.quarantine(store._orel(d), "cache object X is bad")
+    assert len(store.notes) == 1
+
+
+def test_gc_to_zero_with_an_untrustworthy_oldest_record(store, tmp_path):
+    c = tmp_path / "c"
+    d = store.put_value(ARRAY, np.arange(100.0))
+    rec(store, "a1" * 16, [d])
+    (c / "keys" / "b2").mkdir()
+    p = c / "keys" / "b2" / ("b2" * 16 + ".json")
+    p.write_bytes(b"junk")
+    age(p, 10_000)
+    info = store.gc(0)
+    assert (info["removed_records"], info["removed_objects"], info["bytes"]) == (2, 1, 0)
+
+
+def test_truncation_inside_a_later_array_is_named(tmp_path):
+    raw, digest, offsets = obj_bytes("Array", {}, [np.arange(8.0), np.arange(8.0)])
+    assert offsets == [0, 64]
+    with pytest.raises(CorruptObject) as e:
+        check_object(raw[:-16], digest)
+    assert e.value.why == "cannot be decoded (truncated object)"
+
+
+def test_fsspec_local_folders_are_made_for_writes_and_moves(tmp_path):
+    s = Store(f"file://{tmp_path}/fs").open()
+    s.fs.write_atomic("a/b/c/x", [b"12"])
+    assert (tmp_path / "fs" / "a" / "b" / "c" / "x").read_bytes() == b"12"
+    assert s.fs.move_aside("a/b/c/x", "q/r/s/y") and (tmp_path / "fs" / "q" / "r" / "s" / "y").read_bytes() == b"12"
+    assert list((tmp_path / "fs" / "tmp").iterdir()) == []
