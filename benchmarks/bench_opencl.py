@@ -111,9 +111,10 @@ def sss(runs):
 
 def relight(runs, eps):
     from graphkit import Context
-    from graphkit_opencl.relight import relight_fast as relight_cl
+    from graphkit_opencl.relight import modulate_pixels as relight_cl
+    from nodes.loscos.display import modulate_pixels
     from nodes.loscos.radiosity import RadiositySolve, TextureRefine
-    from nodes.loscos.relight import Unocclude, new_emittance, prepare, relight_fast
+    from nodes.loscos.relight import Unocclude, new_emittance, relight_plan
     from nodes.loscos.scene import LoadScene
     from nodes.loscos.textures import ProjectTextures
 
@@ -124,21 +125,21 @@ def relight(runs, eps):
     s = run(LoadScene, {"path": "builtin:cornell2"})
     pr = run(ProjectTextures, {}, scene=s["scene"], camera=s["camera"], photo=s["photo"])
     sol = run(RadiositySolve, {"eps_bf": eps, "eps_bfv": eps / 10, "min_area": 1e-3, "max_level": 6},
-              scene=s["scene"], projection=pr)
+              scene=s["scene"], projection=pr)["solution"]
     ref = run(TextureRefine, {"max_level": 7, "min_area": 2.5e-4, "max_rounds": 3},
               scene=s["scene"], solution=sol, projection=pr)
     un = run(Unocclude, {}, solution=ref, projection=pr, photo=s["photo"])["unoccluded"]
-    prep = prepare(ref, un, pr, s["photo"].pixels[:, :, :3])
+    px = relight_plan(ref, un, pr, s["photo"].pixels[:, :, :3])
     L = len(ref.leaves)
     print(f"  (Cornell preprocess {time.perf_counter() - t0:.0f} s: {L} leaves, {len(ref.lights)} lights, "
-          f"image {prep['photo'].shape[1]}×{prep['photo'].shape[0]}, {int(prep['mask'].sum())} drawn pixels)")
+          f"image {px.photo.shape[1]}×{px.photo.shape[0]}, {len(px.index)} drawn pixels)")
     rng = np.random.default_rng(0)
     es = [new_emittance(ref, dict(zip(ref.lights, rng.uniform(0, 2, len(ref.lights)))), {}) for _ in range(8)]
-    a, b = relight_fast(prep, es[0]), relight_cl(prep, es[0])
+    a, b = modulate_pixels(px, es[0]), relight_cl(px, es[0])
     print(f"  (max |numpy − opencl| {float(np.abs(a - b).max()):.2g})")
     k = iter(range(1 << 30))
     pe = peer()
-    t = timed({"numpy": lambda: relight_fast(prep, es[next(k) % 8]), "opencl": lambda: relight_cl(prep, es[next(k) % 8]),
+    t = timed({"numpy": lambda: modulate_pixels(px, es[next(k) % 8]), "opencl": lambda: relight_cl(px, es[next(k) % 8]),
                "peer": pe}, runs * 4)
     row(f"Relight modulation {L} leaves", t)
     return L

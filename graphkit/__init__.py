@@ -20,7 +20,8 @@ _LAZY = {
     "Field": "pydantic",
     "Run": ".api", "run_graph": ".api",
     "Backend": ".node", "Context": ".node", "In": ".node", "InputFile": ".node", "Node": ".node",
-    "Out": ".node",
+    "Out": ".node", "OutputPath": ".node",
+    "load": ".graphfile", "load_dict": ".graphfile", "status": ".dryrun",
     "Array": ".types", "Camera": ".types", "File": ".types", "Image": ".types", "Json": ".types",
     "Light": ".types", "Mask": ".types", "Mesh": ".types", "PortType": ".types", "Scalar": ".types",
     "Spectrum": ".types", "Vector": ".types",
@@ -28,10 +29,10 @@ _LAZY = {
 }
 
 __all__ = [
-    "Node", "Backend", "In", "Out", "InputFile", "Context", "Field",
+    "Node", "Backend", "In", "Out", "InputFile", "OutputPath", "Context", "Field",
     "Image", "Mask", "Mesh", "Camera", "Light", "Spectrum", "File", "Scalar", "Vector", "Array",
     "Json", "PortType", "BadInput", "BackendCannotRun", "GraphError", "GraphkitError", "NodeFailed", "run_graph", "Run",
-    "safe_relpath",
+    "safe_relpath", "load", "load_dict", "status",
 ]
 
 
@@ -53,7 +54,9 @@ if TYPE_CHECKING:  # for type checkers and editors: the same names, imported eag
     from pydantic import Field
 
     from .api import Run, run_graph
-    from .node import Backend, Context, In, InputFile, Node, Out
+    from .dryrun import status
+    from .graphfile import load, load_dict
+    from .node import Backend, Context, In, InputFile, Node, Out, OutputPath
     from .paths import safe_relpath
     from .types import (Array, Camera, File, Image, Json, Light, Mask, Mesh, PortType, Scalar,
                         Spectrum, Vector)

@@ -5,9 +5,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import UsageError
 from .executor import Progress, RunResult, check_output_plan, export_outputs, record_last_run, run_local
-from .graphfile import Graph, load_graph
+from .graphfile import Graph, load
 from .registry import Registry, default_registry
 from .runner import Session
 from .store import Store
@@ -37,20 +36,18 @@ class Run:
         return self.session.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type, (node, port))
 
 
-def run_graph(path: str | os.PathLike, *, cache: str | os.PathLike = ".graphkit-cache",
+def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLike = ".graphkit-cache",
               out: str | os.PathLike | None = None, overrides: dict | None = None,
               backends: list[str] | None = None, jobs: int = 1, outputs: list[str] | None = None,
               executor: str = "local", scheduler: str | None = None,
-              registry: Registry | None = None, progress: Progress | None = None) -> Run:
-    """Load, validate and run a graph file; write its outputs into ``out`` when given."""
+              registry: Registry | None = None, progress: Progress | None = None,
+              scheduler_timeout: float = 10.0) -> Run:
+    """Load, validate and run a graph (a file, a dict, or a loaded Graph); write its outputs into
+    ``out`` when given."""
     registry = registry or default_registry()
-    graph = load_graph(path, registry, overrides or {})
+    graph = load(path, registry, overrides or {})  # a graph file, a dict (load_dict) or a Graph
     if outputs:
-        unknown = [o for o in outputs if o not in graph.outputs]
-        if unknown:
-            raise UsageError(f"unknown output(s) {', '.join(unknown)}; the graph's outputs: "
-                             + ", ".join(graph.outputs))
-        graph.outputs = {k: v for k, v in graph.outputs.items() if k in outputs}
+        graph.select_outputs(outputs)  # an output name, or a swept output's group name
     if out is not None:
         check_output_plan(graph)
     store = Store(cache).open()
@@ -65,7 +62,7 @@ def run_graph(path: str | os.PathLike, *, cache: str | os.PathLike = ".graphkit-
             if executor == "dask":
                 from .dask_executor import run_dask
 
-                result = run_dask(session, targets, scheduler, jobs, progress)
+                result = run_dask(session, targets, scheduler, jobs, progress, timeout=scheduler_timeout)
             else:
                 result = run_local(session, targets, jobs, progress)
             ok = True

@@ -29,23 +29,69 @@ def _graph_args(p):
                    help="override a graph param (repeatable)")
 
 
+def _version() -> str:
+    import platform
+
+    from . import __version__
+
+    try:
+        from importlib.metadata import version
+
+        dist = f"relightkit {version('relightkit')}, "
+    except Exception:  # noqa: BLE001 - not installed as a distribution
+        dist = ""
+    return f"graphkit {__version__} ({dist}Python {platform.python_version()})"
+
+
+def _version_action(argparse):
+    class VersionAction(argparse.Action):
+        """--version, computed only when asked for (importing metadata costs start-up time)."""
+
+        def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+            super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+        def __call__(self, parser, namespace, values, option_string=None):
+            print(_version())
+            parser.exit()
+
+    return VersionAction
+
+
+def _backend_arg(p):
+    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+
+
 def build_parser():
     import argparse
 
     ap = argparse.ArgumentParser(prog="graphkit", description="Run typed node graphs with a content-hash cache.")
+    ap.add_argument("--version", action=_version_action(argparse), help="print the version and exit")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a graph")
     _graph_args(p)
     _cache_arg(p)
-    p.add_argument("--out", default="out", help="folder for the outputs and manifest.json (default: out)")
-    p.add_argument("--backend", default="", help="preferred backends, comma-separated (numpy is always last)")
+    p.add_argument("--out", default="out", help="folder for the outputs, manifest.json and report.html (default: out)")
+    _backend_arg(p)
     p.add_argument("--jobs", "-j", type=int, default=os.cpu_count() or 1, help="nodes run at once")
     p.add_argument("--executor", choices=("local", "dask"), default="local")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (default: a local cluster)")
+    p.add_argument("--scheduler", default=None,
+                   help="Dask scheduler address, e.g. tcp://host:8786 (default: a local cluster)")
+    p.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="SECONDS",
+                   help="give up (exit 2) when the Dask scheduler does not answer within this time (default 10)")
     p.add_argument("--output", action="append", default=[], metavar="NAME",
-                   help="only compute these outputs (repeatable)")
+                   help="only compute these outputs (repeatable; a swept output's name selects all its instances)")
+    p.add_argument("-n", "--dry-run", action="store_true",
+                   help="run nothing: print per node instance 'cached' or 'would run' and why")
     p.add_argument("-q", "--quiet", action="store_true", help="print only notices and errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="also list the nodes found in the cache")
+
+    p = sub.add_parser("status", help="per node instance: cached or would run, and why (runs nothing)")
+    _graph_args(p)
+    _cache_arg(p)
+    _backend_arg(p)
+    p.add_argument("--output", action="append", default=[], metavar="NAME", help="only these outputs (repeatable)")
+    p.add_argument("--json", action="store_true", help="print JSON (for tools)")
 
     p = sub.add_parser("validate", help="check a graph without running it")
     _graph_args(p)
@@ -53,6 +99,16 @@ def build_parser():
     p = sub.add_parser("show", help="print the graph as mermaid or DOT")
     _graph_args(p)
     p.add_argument("--format", choices=("mermaid", "dot"), default="mermaid")
+    p.add_argument("--status", action="store_true", help="colour nodes by what a run would do (cached / would run)")
+    p.add_argument("--instances", action="store_true", help="draw every instance of a swept node")
+    _cache_arg(p)
+    _backend_arg(p)
+
+    p = sub.add_parser("conform", help="check backends against the numpy reference on the nodes' examples")
+    p.add_argument("plugin", nargs="?", help="only the backends this plugin (distribution or GRAPHKIT_PLUGINS module) provides")
+    p.add_argument("--node", action="append", default=[], metavar="TYPE", help="only these node types (repeatable)")
+    p.add_argument("--allow-unavailable", action="store_true",
+                   help="exit 0 even when a backend cannot run here (it is still listed)")
 
     p = sub.add_parser("explain", help="say why a node would (not) re-run")
     _graph_args(p)
@@ -89,9 +145,25 @@ def build_parser():
     return ap
 
 
+_INTERRUPTED = []  # a SIGINT arrived (see _on_sigint)
+
+
+def _on_sigint(signum, frame):
+    """Python's own SIGINT behaviour (KeyboardInterrupt), remembered: a Ctrl-C that lands inside a
+    C extension's import (numpy's) comes back as an ImportError, and must still read as Ctrl-C."""
+    import _signal  # the C module: `signal` itself imports enum, too slow to do under a Ctrl-C
+
+    _INTERRUPTED.append(signum)
+    _signal.default_int_handler(signum, frame)
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     try:
+        import _signal
+
+        if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:
+            _signal.signal(_signal.SIGINT, _on_sigint)
         code = _main(argv)
         sys.stdout.flush()  # a reader that went away shows here, not at interpreter exit
         return code
@@ -119,6 +191,8 @@ def _main(argv) -> int:
         print("graphkit: input nested too deeply (over Python's recursion limit)", file=sys.stderr)
         return 2
     except ImportError as e:  # the environment lacks a package (e.g. s3fs for --cache s3://)
+        if _INTERRUPTED:  # numpy's import interrupted by Ctrl-C surfaces as an ImportError
+            raise KeyboardInterrupt from None
         print(f"graphkit: a required Python package is missing: {_import_message(e)}", file=sys.stderr)
         return 2
     except MemoryError:
@@ -187,11 +261,17 @@ def _dispatch(args) -> int:
         return cmd_run(args)
     if args.cmd == "validate":
         g = _load(args)
-        print(f"{args.graph}: ok ({len(g.nodes)} nodes, outputs: {', '.join(g.outputs)})")
+        grouped = {o for v in g.output_groups.values() for o in v}
+        outs = [f"{k} (×{len(v)})" for k, v in g.output_groups.items()] + [o for o in g.outputs if o not in grouped]
+        sweeps = "".join(f", sweep {n} ×{len(s)}" for n, s in g.sweeps.items())
+        print(f"{args.graph}: ok ({len(g.nodes)} nodes{sweeps}; outputs: {', '.join(outs)})")
         return 0
     if args.cmd == "show":
-        print(show(_load(args, check_backends=False), args.format))
-        return 0
+        return cmd_show(args)
+    if args.cmd == "status":
+        return cmd_status(args)
+    if args.cmd == "conform":
+        return cmd_conform(args)
     if args.cmd == "explain":
         from .explain import explain
 
@@ -229,6 +309,32 @@ def _store(location):
     return Store(location).open()
 
 
+def _backends(args) -> list[str]:
+    return [b.strip() for b in args.backend.split(",") if b.strip()]
+
+
+def _status_report(args):
+    from .graphfile import parse_set
+    from .dryrun import status
+
+    reg = _registry()
+    return status(args.graph, args.cache, registry=reg, backends=_backends(args),
+                  overrides=parse_set(args.set), outputs=getattr(args, "output", None) or None)
+
+
+def cmd_status(args) -> int:
+    import json
+
+    report = _status_report(args)
+    if getattr(args, "json", False):
+        print(json.dumps(report.to_json(), indent=1))
+        return 0
+    for line in report.lines():
+        print(line)
+    print(report.summary() + (" (dry run: nothing was run)" if args.cmd == "run" else ""))
+    return 0
+
+
 def cmd_run(args) -> int:
     from .api import run_graph
     from .graphfile import parse_set
@@ -236,16 +342,49 @@ def cmd_run(args) -> int:
 
     if args.jobs < 1:
         raise UsageError("--jobs must be at least 1")
-    progress = make_progress(args.quiet)
+    if args.dry_run:
+        return cmd_status(args)
+    progress = make_progress(args.quiet, args.verbose)
     reg = _registry()
     run = run_graph(args.graph, cache=args.cache, out=args.out, overrides=parse_set(args.set),
-                    backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                    backends=_backends(args),
                     jobs=args.jobs, outputs=args.output or None, executor=args.executor,
-                    scheduler=args.scheduler, registry=reg, progress=progress)
+                    scheduler=args.scheduler, registry=reg, progress=progress,
+                    scheduler_timeout=args.scheduler_timeout)
     if not args.quiet:
         print(f"{run.graph.name}: {len(run.computed)} computed, {len(run.cached)} cached, "
               f"{run.result.seconds:.2f}s; {len(run.files)} files in {args.out}/", file=sys.stderr)
     return 0
+
+
+def cmd_show(args) -> int:
+    from .show import draw
+
+    if args.status:
+        report = _status_report(args)
+        print(draw(report.graph, args.format, report, args.instances))
+    else:
+        print(draw(_load(args, check_backends=False), args.format, None, args.instances))
+    return 0
+
+
+def cmd_conform(args) -> int:
+    from .conformance import check_backends
+
+    reg = _registry()
+    findings = check_backends(reg, plugin=args.plugin, nodes=args.node or None)
+    bad = [f for f in findings if not f.ok and f.checked]
+    unchecked = [f for f in findings if not f.checked]
+    for f in findings:
+        state = "ok" if f.ok else ("FAIL" if f.checked else "skip")
+        case = f" example {f.case}" if f.case >= 0 else ""
+        print(f"{state:<4}  {f.node}/{f.backend}{case}" + ("" if f.ok else f": {f.message}"))
+    n_ok = sum(f.ok for f in findings)
+    print(f"{n_ok} ok, {len(bad)} failed, {len(unchecked)} not checked"
+          + (f" ({', '.join(sorted({f'{f.node}/{f.backend}' for f in unchecked}))})" if unchecked else ""))
+    if bad:
+        return 1
+    return 2 if unchecked and not args.allow_unavailable else 0
 
 
 def cmd_nodes(args) -> int:
@@ -270,8 +409,7 @@ def cmd_nodes(args) -> int:
             "doc": inspect.getdoc(cls) or "",
             "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "doc": p.doc} for p in cls.in_ports.values()},
             "outputs": {p.name: {"type": p.type.name, "doc": p.doc} for p in cls.out_ports.values()},
-            "params": {k: {"type": str(f.annotation).replace("typing.", ""), "default": repr(f.default), "doc": f.description or ""}
-                       for k, f in cls.Params.model_fields.items()},
+            "params": {k: _param_info(f) for k, f in cls.Params.model_fields.items()},
             "backends": reg.backend_names(n),
         })
     if args.json:
@@ -290,8 +428,49 @@ def cmd_nodes(args) -> int:
                 print(f"  {pn}: {p['type']}{opt}  {p['doc']}")
         print("params:")
         for pn, p in r["params"].items():
-            print(f"  {pn}: {p['type']} = {p['default']}  {p['doc']}")
+            default = "(required)" if p["required"] else f"= {json.dumps(p['default'], ensure_ascii=False)}"
+            print(f"  {pn}: {p['type']} {default}  {p['doc']}".rstrip())
     return 0
+
+
+def type_name(ann) -> str:
+    """A param annotation as a person writes it: float, list[str], 'auto' | 'srgb', float | None."""
+    import json
+    import types
+    import typing
+
+    origin, args = typing.get_origin(ann), typing.get_args(ann)
+    if origin is typing.Annotated:
+        return type_name(args[0])
+    if origin in (typing.Union, getattr(types, "UnionType", typing.Union)):
+        return " | ".join(type_name(a) for a in args)
+    if origin is typing.Literal:
+        return " | ".join(json.dumps(a) for a in args)
+    if origin is not None:
+        return f"{type_name(origin)}[{', '.join(type_name(a) for a in args)}]" if args else type_name(origin)
+    if ann is type(None):
+        return "None"
+    if isinstance(ann, type):
+        return ann.__name__
+    return str(ann).replace("typing.", "")
+
+
+def _param_info(f) -> dict:
+    from pydantic_core import PydanticUndefined, to_jsonable_python
+
+    from .node import _InputFileMarker, _OutputPathMarker
+
+    marks = {type(m) for m in f.metadata}
+    t = "InputFile" if _InputFileMarker in marks else "OutputPath" if _OutputPathMarker in marks else type_name(f.annotation)
+    info = {"type": t, "required": f.is_required(), "doc": f.description or ""}
+    if not f.is_required():
+        value = f.get_default(call_default_factory=True)
+        if value is not PydanticUndefined:
+            try:
+                info["default"] = to_jsonable_python(value)
+            except Exception:  # noqa: BLE001 - a default with no JSON form
+                info["default"] = repr(value)
+    return info
 
 
 def _parse_size(s: str) -> int:
@@ -341,22 +520,10 @@ def cmd_cache(args) -> int:
 
 
 def show(graph, fmt: str) -> str:
-    if fmt == "dot":
-        lines = [f'digraph "{graph.name}" {{', "  rankdir=LR;", "  node [shape=box];"]
-        for n, g in graph.nodes.items():
-            lines.append(f'  "{n}" [label="{n}\\n{g.type}"];')
-        for n, g in graph.nodes.items():
-            for port, src, sport in g.edges():
-                lines.append(f'  "{src}" -> "{n}" [label="{sport}→{port}"];')
-        lines.append("}")
-        return "\n".join(lines)
-    lines = ["flowchart LR"]
-    for n, g in graph.nodes.items():
-        lines.append(f'  {n}["{n}<br/><small>{g.type}</small>"]')
-    for n, g in graph.nodes.items():
-        for port, src, sport in g.edges():
-            lines.append(f"  {src} -->|{sport}→{port}| {n}")
-    return "\n".join(lines)
+    """The graph as mermaid or DOT (kept for callers of the old function; see graphkit.show)."""
+    from .show import draw
+
+    return draw(graph, fmt)
 
 
 if __name__ == "__main__":  # pragma: no cover

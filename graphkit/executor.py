@@ -31,6 +31,7 @@ import xxhash
 
 from .errors import GraphkitError, UsageError
 from .paths import safe_relpath  # noqa: F401 - the one output-name rule (also graphkit.executor.safe_relpath)
+from .report import REPORT_NAME, report_file
 from .runner import NodeOutcome, Session
 from .types import File
 
@@ -173,9 +174,9 @@ def check_output_names(names: list[str], out: Path | str = "--out") -> None:
         if name in seen:
             raise UsageError(f"two outputs would both be written to {Path(out) / name}")
         seen.add(name)
-        if name == MANIFEST:
-            raise UsageError(f"an output would be written to {Path(out) / MANIFEST}, where graphkit writes the "
-                             "run manifest: rename that output (or its file)")
+        if name in (MANIFEST, REPORT_NAME):
+            raise UsageError(f"an output would be written to {Path(out) / name}, where graphkit writes the "
+                             "run " + ("manifest" if name == MANIFEST else "report") + ": rename that output (or its file)")
         if name.split("/")[0].startswith(".graphkit-"):
             raise UsageError(f"refusing to write {name!r}: names starting with .graphkit- are graphkit's own")
     for name in names:
@@ -217,6 +218,7 @@ def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLi
         files.append(export_value(ptype, value, oname))
     check_output_names([n for n, _ in files], out)
     manifest = build_manifest(session, result, manifest_extra)
+    files.append(report_file(session, result, manifest))  # report.html, published with the manifest
     manifest["files"] = {n: {"bytes": len(d), "xxh3": xxhash.xxh3_128_hexdigest(d)} for n, d in files}
     try:
         publish(out, files, json.dumps(manifest, indent=1, sort_keys=True).encode())

@@ -8,38 +8,22 @@ from .store import Store
 from .errors import UsageError
 
 
-def _flat(d, prefix=""):
-    out = {}
-    if isinstance(d, dict):
-        for k, v in d.items():
-            out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
-    else:
-        out[prefix] = d
-    return out
-
-
 def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
-    from .graphfile import did_you_mean
     from .registry import default_registry
+    from .dryrun import CACHED, walk
+    from .suggest import did_you_mean
 
     if node not in graph.nodes:
+        inst = graph.instances(node)
+        if inst:
+            raise UsageError(f"'{node}' is swept ({len(inst)} instances): explain one of them, e.g. "
+                             f"'{inst[0]}'")
         raise UsageError(f"no node named '{node}' in {graph.path}{did_you_mean(node, graph.nodes)}")
     session = Session(graph, registry or default_registry(), store)
     last = store.last_run(graph_id(graph)) or {}
-    state: dict[str, dict] = {}  # name -> {"key", "cached", "outputs" | None, "parts"}
-    for n in graph.upstream([node]):
-        g = graph.nodes[n]
-        unknown = sorted(s for s in g.sources() if state[s]["outputs"] is None)
-        if not unknown:
-            ins = g.map_inputs(lambda src, sport: state[src]["outputs"][sport])
-        if unknown:
-            state[n] = {"key": None, "cached": False, "outputs": None, "parts": None, "waits": unknown}
-            continue
-        key, parts = session.key(g, ins)
-        rec = store.get_record(key)
-        state[n] = {"key": key, "cached": rec is not None,
-                    "outputs": {p: o["digest"] for p, o in rec["outputs"].items()} if rec else None,
-                    "parts": session.readable_parts(g, parts)}
+    state = {n: {"key": st.key, "cached": st.state == CACHED, "parts": st.parts,
+                 "waits": [r.message for r in st.reasons if r.part == "upstream"]}
+             for n, st in walk(session, graph.upstream([node])).items()}
 
     lines = []
     s = state[node]
@@ -56,8 +40,7 @@ def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
         lines.append("  its key is the same as at the last run.")
         return "\n".join(lines)
     if s["parts"] is None:
-        waits = ", ".join(s["waits"])
-        lines.append(f"  its inputs are not known yet: upstream {waits} would be computed first.")
+        lines.append(f"  its inputs are not known yet: {s['waits'][0]}.")
     else:
         lines.extend(_diff(s["parts"], prev["parts"], graph, node))
     # the upstream nodes whose own key parts changed (the root causes)
@@ -67,13 +50,15 @@ def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
             continue
         own = {k: v for k, v in cur["parts"].items() if k != "inputs"}
         own_prev = {k: v for k, v in p["parts"].items() if k != "inputs"}
-        if _flat(own) != _flat(own_prev):
+        if own != own_prev:
             lines.append(f"  upstream {n} ({graph.nodes[n].type}) changed:")
             lines.extend("  " + x for x in _diff(cur["parts"], p["parts"], graph, n, inputs=False))
     return "\n".join(lines)
 
 
 def _diff(cur: dict, prev: dict, graph: Graph, node: str, inputs: bool = True) -> list[str]:
+    from .dryrun import _flat
+
     a, b = _flat(cur), _flat(prev)
     out = []
     for k in sorted(set(a) | set(b)):

@@ -14,13 +14,16 @@
         backend: numpy                   # optional pin
     outputs: {blurred: blur.image}       # or a list of node.port
 
-Everything is checked before anything runs; each problem is reported as ``file:line:col``
-with the node and port, and a did-you-mean where one fits.  Only plain YAML data is accepted
-(no tags that build objects), so a graph file cannot run code.
+Sweeps (``sweeps:`` and a node's ``foreach:``) instantiate a node or a sub-graph over a list, a
+product of lists or a file glob; see :mod:`graphkit.sweeps`.
+
+Everything is checked before anything runs (:mod:`graphkit.validate`, one checker per concern);
+each problem is reported as ``file:line:col`` with the node and port, and a did-you-mean where
+one fits.  Only plain YAML data is accepted (no tags that build objects), so a graph file cannot
+run code.  :func:`load_dict` takes the same graph as a Python dict, through the same checks.
 """
 from __future__ import annotations
 
-import difflib
 import os
 import re
 from dataclasses import dataclass, field
@@ -28,22 +31,22 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
-from .errors import BadInput, Diagnostic, GraphError, GraphkitError, UsageError
+from .errors import Diagnostic, GraphError, UsageError
 from .hashing import key_digest
-from .node import Node, probe
-from .registry import NUMPY, Registry
+from .node import Node
+from .registry import Registry
+from .suggest import did_you_mean  # noqa: F401 - also imported from here by older callers
 
 FORMAT = 1
-TOP_KEYS = ("graphkit", "name", "description", "params", "nodes", "outputs")
-NODE_KEYS = ("type", "inputs", "params", "backend", "doc")
+TOP_KEYS = ("graphkit", "name", "description", "params", "sweeps", "nodes", "outputs")
+NODE_KEYS = ("type", "inputs", "params", "backend", "foreach", "doc")
 _PLAIN_TAGS = {
     "tag:yaml.org,2002:str", "tag:yaml.org,2002:int", "tag:yaml.org,2002:float",
     "tag:yaml.org,2002:bool", "tag:yaml.org,2002:null",
 }
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
-_REF_RE = re.compile(r"\$\{params\.([A-Za-z_][A-Za-z0-9_]*)\}")
 MAX_YAML_NODES = 200_000
 #: deepest nesting of YAML collections a graph file (or a --set value) may have.  libyaml's
 #: composer recurses in C (a file 30 000 levels deep overflows the C stack: a segfault) and the
@@ -125,6 +128,9 @@ class GNode:
     files: dict[str, str]  # InputFile param -> resolved path
     line: int = 0
     col: int = 0
+    base: str = ""  # the node's name in the graph file (an instance is named base[instance])
+    instance: str | None = None  # the instance name, for a node swept with foreach
+    sweep: str | None = None  # the sweep it is instantiated over
 
     def edges(self) -> list[tuple[str, str, str]]:
         """Every connection into this node as (port, source node, source port)."""
@@ -135,7 +141,13 @@ class GNode:
         return out
 
     def sources(self) -> set[str]:
-        return {src for _, src, _ in self.edges()}
+        out = set()
+        for ref in self.inputs.values():
+            if isinstance(ref, list):
+                out.update(src for src, _ in ref)
+            else:
+                out.add(ref[0])
+        return out
 
     def map_inputs(self, fn) -> dict:
         """{port: fn(src, sport)} (a list of those for variadic ports)."""
@@ -152,6 +164,31 @@ class Graph:
     nodes: dict[str, GNode]
     outputs: dict[str, tuple[str, str]]
     _recipes: dict[str, str] = field(default_factory=dict)
+    sweeps: dict = field(default_factory=dict)  # name -> graphkit.sweeps.Sweep
+    output_groups: dict[str, list[str]] = field(default_factory=dict)  # a swept output -> its outputs
+
+    def select_outputs(self, names) -> None:
+        """Keep only the outputs ``names`` (an output name, or the name of a swept output group)."""
+        keep: list[str] = []
+        unknown = []
+        for n in names:
+            if n in self.outputs:
+                keep.append(n)
+            elif n in self.output_groups:
+                keep.extend(self.output_groups[n])
+            else:
+                unknown.append(n)
+        if unknown:
+            shown = list(self.output_groups) + [o for o in self.outputs
+                                                if not any(o in g for g in self.output_groups.values())]
+            raise UsageError(f"unknown output(s) {', '.join(unknown)}{did_you_mean(unknown[0], shown)}; "
+                             "the graph's outputs: " + ", ".join(shown))
+        self.outputs = {k: v for k, v in self.outputs.items() if k in set(keep)}
+        self.output_groups = {k: [o for o in v if o in self.outputs] for k, v in self.output_groups.items()}
+
+    def instances(self, base: str) -> list[str]:
+        """The nodes written as ``base`` in the graph file (its instances, or itself)."""
+        return [n for n, g in self.nodes.items() if (g.base or n) == base]
 
     def upstream(self, names) -> list[str]:
         """The nodes ``names`` need, in a deterministic topological order."""
@@ -323,15 +360,6 @@ def parse_yaml(text: str, file: str) -> _Doc:
 # validation
 
 
-def did_you_mean(word: str, choices) -> str:
-    choices = list(choices)
-    low = {c.lower(): c for c in choices}
-    if word.lower() in low and low[word.lower()] != word:
-        return f"; did you mean '{low[word.lower()]}'?"
-    m = difflib.get_close_matches(word, choices, n=1, cutoff=0.6)
-    return f"; did you mean '{m[0]}'?" if m else ""
-
-
 def parse_set(items: list[str]) -> dict[str, Any]:
     """``["k=v", ...]`` from ``--set``; values are parsed as YAML scalars/flow values, read
     as in graph files (YAML 1.2 core schema: ``--set label=no`` is the string "no")."""
@@ -387,283 +415,94 @@ def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | No
     data = doc.data
     if not isinstance(data, dict):
         raise GraphError(Diagnostic(path, 1, 1, f"a graph file must be a mapping, got {_kind(data)}"))
+    from .validate import validate
+
     try:
-        return _validate(doc, data, path, registry, overrides or {}, check_backends)
+        return validate(doc, data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
+                        overrides or {}, check_backends)
     except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
         raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
+
+
+def load_dict(data: dict, registry: Registry, overrides: dict | None = None, *, base_dir: str | os.PathLike = ".",
+              source: str = "<dict>", check_backends: bool = True) -> Graph:
+    """Validate a graph given as a Python dict (the same structure as a graph file, as Mitsuba's
+    ``load_dict``) through the same checks as :func:`load_graph`.  Relative paths (input files,
+    globs) start at ``base_dir``; errors name the key path, e.g. ``<dict>: nodes.blur.params.sigma``."""
+    doc = _DictDoc(source)
+    data = doc.plain(data, ())
+    if doc.diags:
+        raise GraphError(doc.diags)
+    if not isinstance(data, dict):
+        raise GraphError(_PathDiagnostic(source, 0, 0, f"a graph must be a mapping, got {_kind(data)}", ""))
+    from .validate import validate
+
+    return validate(doc, data, source, os.path.abspath(base_dir), registry, overrides or {}, check_backends)
+
+
+def load(source, registry: Registry | None = None, overrides: dict | None = None, **kw) -> Graph:
+    """A graph from a graph file path or a dict (see :func:`load_graph`, :func:`load_dict`)."""
+    if registry is None:
+        from .registry import default_registry
+
+        registry = default_registry()
+    if isinstance(source, Graph):
+        return source
+    if isinstance(source, dict):
+        return load_dict(source, registry, overrides, **kw)
+    return load_graph(source, registry, overrides, **kw)
+
+
+class _PathDiagnostic(Diagnostic):
+    """A problem in a graph given as a dict: placed by its key path instead of line:col."""
+
+    def __init__(self, file, line, col, message, keypath):
+        super().__init__(file, line, col, message)
+        self.keypath = keypath
+
+    def __str__(self) -> str:
+        return f"{self.file}: {self.keypath or '(top)'}: error: {self.message}"
+
+    def __reduce__(self):
+        return (_PathDiagnostic, (self.file, self.line, self.col, self.message, self.keypath))
+
+
+class _DictDoc(_Doc):
+    """The :class:`_Doc` of a graph given as a dict: diagnostics name the key path."""
+
+    def at(self, path: tuple, message: str, key: bool = False) -> None:
+        self.diags.append(_PathDiagnostic(self.file, 0, 0, message, ".".join(str(p) for p in path)))
+
+    def where(self, path: tuple, key: bool = False) -> tuple[int, int]:
+        return 0, 0
+
+    def plain(self, v: Any, path: tuple) -> Any:
+        """``v`` as plain graph data (tuples become lists); anything else is reported."""
+        if isinstance(v, dict):
+            out = {}
+            for k, x in v.items():
+                if not isinstance(k, str):
+                    self.at(path, f"mapping keys must be strings, got {k!r}")
+                    continue
+                out[k] = self.plain(x, path + (k,))
+            return out
+        if isinstance(v, (list, tuple)):
+            return [self.plain(x, path + (i,)) for i, x in enumerate(v)]
+        if v is None or isinstance(v, (str, bool, int, float)):
+            return v
+        try:  # numpy scalars and the like
+            import numpy as np
+
+            if isinstance(v, np.generic):
+                return v.item()
+        except ImportError:  # pragma: no cover
+            pass
+        self.at(path, f"a graph holds plain data (str, number, bool, None, list, dict), got {type(v).__name__}")
+        return None
 
 
 def _kind(v) -> str:
     return {dict: "a mapping", list: "a list", str: "a string", type(None): "nothing"}.get(type(v), type(v).__name__)
 
 
-def _validate(doc: _Doc, data: dict, path: str, reg: Registry, overrides: dict,
-              check_backends: bool) -> Graph:
-    for k in data:
-        if k not in TOP_KEYS:
-            doc.at((k,), f"unknown top-level key '{k}'{did_you_mean(k, TOP_KEYS)}", key=True)
-    if "graphkit" not in data:
-        doc.at((), "missing 'graphkit: 1' (the graph file format version)")
-    elif data["graphkit"] != FORMAT:
-        doc.at(("graphkit",), f"unsupported graph format {data['graphkit']!r}; this graphkit reads format {FORMAT}")
-    name = data.get("name", Path(path).stem)
-    if not isinstance(name, str) or not _NAME_RE.match(name):
-        doc.at(("name",), f"'name' must be a word of letters, digits, '_' or '-', got {name!r}")
-        name = Path(path).stem
-
-    gparams = data.get("params") or {}
-    if not isinstance(gparams, dict):
-        doc.at(("params",), f"'params' must be a mapping of name: default value, got {_kind(gparams)}")
-        gparams = {}
-    for k in gparams:
-        if not _NAME_RE.match(k):
-            doc.at(("params", k), f"graph param name {k!r} must be letters, digits and '_'", key=True)
-    gparams = dict(gparams)
-    for k, v in overrides.items():
-        if k not in gparams:
-            raise UsageError(f"--set {k}: the graph has no param '{k}'{did_you_mean(k, gparams)}"
-                             + (f" (its params: {', '.join(gparams)})" if gparams else " (it has no params)"))
-        gparams[k] = v
-
-    nodes_raw = data.get("nodes")
-    if nodes_raw is None:
-        doc.at((), "missing 'nodes'")
-        nodes_raw = {}
-    elif not isinstance(nodes_raw, dict):
-        doc.at(("nodes",), f"'nodes' must be a mapping of node name: node, got {_kind(nodes_raw)}")
-        nodes_raw = {}
-
-    nodes: dict[str, GNode] = {}
-    pending_inputs: list[tuple[str, str, Any]] = []
-    base_dir = os.path.dirname(os.path.abspath(path))
-    for nname, spec in nodes_raw.items():
-        npath = ("nodes", nname)
-        if not _NAME_RE.match(nname):
-            doc.at(npath, f"node name {nname!r} must start with a letter or '_' and hold letters, digits, '_' or '-'", key=True)
-            continue
-        if not isinstance(spec, dict):
-            doc.at(npath, f"node '{nname}' must be a mapping with 'type', 'inputs', 'params', got {_kind(spec)}")
-            continue
-        for k in spec:
-            if k not in NODE_KEYS:
-                doc.at(npath + (k,), f"node '{nname}': unknown key '{k}'{did_you_mean(k, NODE_KEYS)}", key=True)
-        tname = spec.get("type")
-        if not isinstance(tname, str):
-            doc.at(npath + ("type",) if "type" in spec else npath, f"node '{nname}': missing or bad 'type'")
-            continue
-        if tname in reg.conflicts:
-            where = " and by ".join(e.where() for e in reg.conflicts[tname])
-            doc.at(npath + ("type",), f"node '{nname}': node type '{tname}' is provided twice: by {where}")
-            continue
-        if tname not in reg.nodes:
-            doc.at(npath + ("type",), f"node '{nname}': unknown node type '{tname}'{did_you_mean(tname, reg.nodes)}")
-            continue
-        try:
-            cls = reg.node_class(tname)
-        except GraphkitError as e:
-            doc.at(npath + ("type",), f"node '{nname}': {e}")
-            continue
-        params = _node_params(doc, npath, nname, cls, spec.get("params"), gparams)
-        files: dict[str, str] = {}
-        if params is not None:
-            for fp in cls.input_file_params():
-                value = getattr(params, fp)
-                if value in (None, ""):
-                    continue
-                try:
-                    resolved = cls.resolve_file(fp, value, base_dir)
-                except BadInput as e:
-                    doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': {e.message}")
-                    continue
-                if not os.path.isfile(resolved):
-                    doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': file not found: {resolved}")
-                    continue
-                files[fp] = resolved
-                try:
-                    named = cls.referenced_files(fp, resolved)
-                except BadInput as e:
-                    doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': {e.message}")
-                    continue
-                for label, p in named.items():
-                    if not os.path.isfile(p):
-                        doc.at(npath + ("params", fp), f"node '{nname}' ({tname}), param '{fp}': "
-                               f"{resolved} names {label} {p}, which is not found")
-                    else:
-                        files[f"{fp}:{label}"] = p
-        backend = spec.get("backend")
-        if backend is not None:
-            names = reg.backend_names(tname)
-            if not isinstance(backend, str) or backend not in names:
-                doc.at(npath + ("backend",), f"node '{nname}' ({tname}): unknown backend {backend!r}"
-                       f"{did_you_mean(str(backend), names)} (available: {', '.join(names)})")
-                backend = None
-            elif check_backends and backend != NUMPY:
-                try:
-                    why = probe(reg.backend_class(tname, backend))
-                except GraphkitError as e:
-                    why = str(e)
-                if why:
-                    doc.at(npath + ("backend",), f"node '{nname}' ({tname}): pinned backend '{backend}' is not available here: {why}")
-        ins = spec.get("inputs") or {}
-        if not isinstance(ins, dict):
-            doc.at(npath + ("inputs",), f"node '{nname}': 'inputs' must be a mapping of port: node.port")
-            ins = {}
-        for port in ins:
-            if port not in cls.in_ports:
-                doc.at(npath + ("inputs", port), f"node '{nname}' ({tname}) has no input port '{port}'"
-                       f"{did_you_mean(port, cls.in_ports)} (its inputs: {', '.join(cls.in_ports) or 'none'})", key=True)
-        for port, p in cls.in_ports.items():
-            if port not in ins and not p.optional:
-                doc.at(npath + ("inputs",) if "inputs" in spec else npath,
-                       f"node '{nname}' ({tname}): missing required input '{port}' ({p.type})")
-        gn = GNode(nname, tname, cls, params, {}, backend, files, *doc.where(npath, key=True))
-        nodes[nname] = gn
-        for port, ref in ins.items():
-            if port in cls.in_ports:
-                pending_inputs.append((nname, port, ref))
-
-    # connections, now that every node is known
-    for nname, port, ref in pending_inputs:
-        where = ("nodes", nname, "inputs", port)
-        pdecl = nodes[nname].cls.in_ports[port]
-        if pdecl.variadic:
-            refs = ref if isinstance(ref, list) else [ref]
-            wheres = [where + (i,) for i in range(len(refs))] if isinstance(ref, list) else [where]
-        elif isinstance(ref, list):
-            doc.at(where, f"node '{nname}', input '{port}' takes one connection, not a list")
-            continue
-        else:
-            refs, wheres = [ref], [where]
-        srcs = []
-        for r, w in zip(refs, wheres):
-            src = _parse_ref(doc, w, r, nodes, f"node '{nname}', input '{port}'")
-            if src is None:
-                continue
-            have = nodes[src[0]].cls.out_ports[src[1]].type
-            if not pdecl.type.accepts(have):
-                doc.at(w, f"node '{nname}', input '{port}' takes {pdecl.type} but {src[0]}.{src[1]} gives {have}")
-                continue
-            srcs.append(src)
-        if len(srcs) == len(refs):
-            nodes[nname].inputs[port] = srcs if pdecl.variadic else srcs[0]
-
-    outputs: dict[str, tuple[str, str]] = {}
-    outs_raw = data.get("outputs")
-    if isinstance(outs_raw, list):
-        for i, ref in enumerate(outs_raw):
-            src = _parse_ref(doc, ("outputs", i), ref, nodes, "output")
-            if src:
-                outputs[f"{src[0]}.{src[1]}"] = src
-    elif isinstance(outs_raw, dict):
-        for oname, ref in outs_raw.items():
-            if not _NAME_RE.match(str(oname)):
-                doc.at(("outputs", oname), f"output name {oname!r} must be letters, digits, '_' or '-'", key=True)
-                continue
-            src = _parse_ref(doc, ("outputs", oname), ref, nodes, f"output '{oname}'")
-            if src:
-                outputs[oname] = src
-    elif outs_raw is not None:
-        doc.at(("outputs",), f"'outputs' must be a list of node.port or a mapping name: node.port, got {_kind(outs_raw)}")
-
-    if not doc.diags:
-        _check_cycles(doc, nodes)
-    if doc.diags:
-        raise GraphError(doc.diags)
-    if not outputs:  # default: every output of every node nobody consumes
-        used = {n for g in nodes.values() for n in g.sources()}
-        for n, g in nodes.items():
-            if n not in used:
-                for p in g.cls.out_ports:
-                    outputs[f"{n}.{p}"] = (n, p)
-    return Graph(name, os.path.abspath(path), base_dir, gparams, nodes, outputs)
-
-
-def _parse_ref(doc, where, ref, nodes, what) -> tuple[str, str] | None:
-    if not isinstance(ref, str) or "." not in ref:
-        doc.at(where, f"{what}: expected 'node.port', got {ref!r}")
-        return None
-    src, _, sport = ref.rpartition(".")
-    if src not in nodes:
-        doc.at(where, f"{what}: no node named '{src}'{did_you_mean(src, nodes)}")
-        return None
-    outs = nodes[src].cls.out_ports
-    if sport not in outs:
-        doc.at(where, f"{what}: node '{src}' ({nodes[src].type}) has no output port '{sport}'"
-               f"{did_you_mean(sport, outs)} (its outputs: {', '.join(outs)})")
-        return None
-    return src, sport
-
-
-def _substitute(doc, path, v, gparams):
-    if isinstance(v, str):
-        m = _REF_RE.fullmatch(v.strip())
-        if m:
-            k = m.group(1)
-            if k not in gparams:
-                doc.at(path, f"unknown graph param '{k}'{did_you_mean(k, gparams)}")
-                return None
-            return gparams[k]
-
-        def rep(mm):
-            k = mm.group(1)
-            if k not in gparams:
-                doc.at(path, f"unknown graph param '{k}'{did_you_mean(k, gparams)}")
-                return mm.group(0)
-            return str(gparams[k])
-
-        return _REF_RE.sub(rep, v)
-    if isinstance(v, dict):
-        return {k: _substitute(doc, path + (k,), x, gparams) for k, x in v.items()}
-    if isinstance(v, list):
-        return [_substitute(doc, path + (i,), x, gparams) for i, x in enumerate(v)]
-    return v
-
-
-def _node_params(doc, npath, nname, cls, raw, gparams):
-    ppath = npath + ("params",)
-    if raw is None:
-        raw = {}
-    if not isinstance(raw, dict):
-        doc.at(ppath, f"node '{nname}': 'params' must be a mapping, got {_kind(raw)}")
-        return None
-    n_diags = len(doc.diags)
-    raw = _substitute(doc, ppath, raw, gparams)
-    if len(doc.diags) > n_diags:  # an unknown ${params.X}: already reported
-        return None
-    try:
-        return cls.Params.model_validate(raw)
-    except ValidationError as e:
-        fields = list(cls.Params.model_fields)
-        for err in e.errors():
-            loc = tuple(err["loc"])
-            field_name = str(loc[0]) if loc else ""
-            if err["type"] == "extra_forbidden":
-                doc.at(ppath + loc, f"node '{nname}' ({cls.type_name}): unknown param '{field_name}'"
-                       f"{did_you_mean(field_name, fields)} (its params: {', '.join(fields) or 'none'})", key=True)
-            elif err["type"] == "missing":
-                doc.at(ppath, f"node '{nname}' ({cls.type_name}): missing required param '{field_name}'")
-            else:
-                got = err.get("input")
-                got_s = f" (got {got!r})" if not isinstance(got, (dict, list)) else ""
-                doc.at(ppath + loc, f"node '{nname}' ({cls.type_name}), param '{'.'.join(map(str, loc))}': {err['msg']}{got_s}")
-        return None
-    except Exception as e:  # a validator that raised something unusual
-        doc.at(ppath, f"node '{nname}' ({cls.type_name}): bad params: {e}")
-        return None
-
-
-def _check_cycles(doc, nodes):
-    # graphlib (stdlib) rather than networkx: validation runs on every start, and importing
-    # networkx costs ~0.2 s of the 0.6 s budget for an all-cached re-run.
-    from graphlib import CycleError, TopologicalSorter
-
-    ts = TopologicalSorter({n: sorted(g.sources()) for n, g in nodes.items()})
-    try:
-        ts.prepare()
-    except CycleError as e:
-        cyc = list(e.args[1])  # [a, b, ..., a]: each depends on the next
-        names = list(reversed(cyc))
-        doc.at(("nodes", names[0]), "cycle: " + " → ".join(names), key=True)
-
-
-__all__ = ["Graph", "GNode", "load_graph", "parse_set"]
+__all__ = ["Graph", "GNode", "load_graph", "load_dict", "load", "parse_set"]

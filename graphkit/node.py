@@ -67,6 +67,15 @@ class _InputFileMarker:
 InputFile = Annotated[str, _InputFileMarker()]
 
 
+class _OutputPathMarker:
+    """Marks a ``str`` param as the name of the File a node writes into ``--out``."""
+
+
+#: a param naming the file a node's File output is written to (relative to ``--out``); the engine
+#: checks before anything runs that no two exported files share a name (e.g. sweep instances)
+OutputPath = Annotated[str, _OutputPathMarker()]
+
+
 @dataclass
 class Context:
     """What a running node may know about its run (all of it deterministic)."""
@@ -171,6 +180,12 @@ class Node(_Computable):
             if any(isinstance(m, _InputFileMarker) for m in f.metadata):
                 out.append(name)
         return out
+
+    @classmethod
+    def output_path_params(cls) -> list[str]:
+        """The params typed :data:`OutputPath` (names of the files this node writes)."""
+        return [name for name, f in cls.Params.model_fields.items()
+                if any(isinstance(m, _OutputPathMarker) for m in f.metadata)]
 
 
 class Backend(_Computable):

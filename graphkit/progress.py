@@ -1,4 +1,7 @@
-"""Progress display for `graphkit run`: a live rich table on a terminal, plain lines otherwise."""
+"""Progress display for `graphkit run`: a live rich table on a terminal, plain lines otherwise.
+
+By default only the nodes that compute are listed (a fully cached run prints nothing here, and
+the CLI's one summary line); ``verbose`` also lists the cache hits."""
 from __future__ import annotations
 
 import sys
@@ -12,9 +15,10 @@ from .runner import NodeOutcome
 class PlainProgress(Progress):
     """One line per finished node on stderr (CI logs, pipes)."""
 
-    def __init__(self, stream=None, quiet: bool = False):
+    def __init__(self, stream=None, quiet: bool = False, verbose: bool = False):
         self.stream = stream or sys.stderr
         self.quiet = quiet
+        self.verbose = verbose
         self._lock = threading.Lock()
         self.n = self.total = 0
 
@@ -27,7 +31,7 @@ class PlainProgress(Progress):
 
     def done(self, o: NodeOutcome):
         self.n += 1
-        if not self.quiet:
+        if not self.quiet and (self.verbose or not o.hit):
             state = "cached" if o.hit else "done"
             self._say(f"[{self.n:>{len(str(self.total))}}/{self.total}] {state:<6} {o.name} ({o.type}"
                       f"{'' if o.backend == 'numpy' else ', ' + o.backend}) {o.seconds:.2f}s")
@@ -43,19 +47,44 @@ class PlainProgress(Progress):
 class RichProgress(Progress):
     """A live table: each node cached / running / done with seconds."""
 
-    def __init__(self):
+    #: a node that is still running after this long is shown (cache hits take far less)
+    SHOW_AFTER_S = 0.15
+
+    def __init__(self, verbose: bool = False):
         from rich.console import Console
         from rich.live import Live
 
         self.console = Console(stderr=True)
+        self.verbose = verbose
         self.rows: dict[str, list] = {}
         self.total = 0
         self.max_rows = 24
         self._lock = threading.Lock()
-        self.live = Live(self._table(), console=self.console, refresh_per_second=8, transient=False)
+        self.live = Live(self, console=self.console, refresh_per_second=8, transient=False)
+
+    def __rich__(self):  # Live re-renders this on every refresh
+        with self._lock:
+            return self._table()
+
+    def _visible(self, now: float) -> list:
+        out = []
+        for name, row in self.rows.items():
+            state = row[1]
+            if state == "cached" and not self.verbose:
+                continue
+            if state == "running" and now - row[2] < self.SHOW_AFTER_S:
+                continue
+            out.append((name, row))
+        return out
 
     def _table(self):
         from rich.table import Table
+        from rich.text import Text
+
+        now = time.perf_counter()
+        rows = self._visible(now)
+        if not rows:
+            return Text("")
 
         t = Table(box=None, show_header=True, header_style="bold")
         t.add_column("node")
@@ -63,12 +92,10 @@ class RichProgress(Progress):
         t.add_column("state")
         t.add_column("s", justify="right")
         style = {"cached": "cyan", "running": "yellow", "done": "green"}
-        now = time.perf_counter()
-        rows = list(self.rows.items())
         if len(rows) > self.max_rows:  # big graphs: what runs now, the latest finished, a count
             running = [r for r in rows if r[1][1] == "running"]
             finished = [r for r in rows if r[1][1] != "running"]
-            counts = {st: sum(1 for r in finished if r[1][1] == st) for st in ("done", "cached")}
+            counts = {st: sum(1 for r in self.rows.values() if r[1] == st) for st in ("done", "cached")}
             t.caption = f"{counts['done']} done, {counts['cached']} cached, {len(running)} running of {self.total}"
             rows = finished[-(self.max_rows - min(len(running), self.max_rows // 2)):] + running[: self.max_rows // 2]
         for name, (typ, state, t0, secs, note) in rows:
@@ -78,34 +105,52 @@ class RichProgress(Progress):
 
     def start(self, total):
         self.total = total
-        self.live.start()
+        self._stop = threading.Event()
+        self._started = False
+        self._poller = threading.Thread(target=self._start_when_needed, daemon=True)
+        self._poller.start()
+
+    def _start_when_needed(self):
+        """Start the live table once it has a row to show (a fully cached run shows none)."""
+        while not self._stop.wait(0.05):
+            with self._lock:
+                if self._visible(time.perf_counter()):
+                    self.live.start()
+                    self._started = True
+                    return
 
     def running(self, node, node_type):
         with self._lock:
             self.rows[node] = [node_type, "running", time.perf_counter(), None, ""]
-            self.live.update(self._table())
 
     def done(self, o):
         with self._lock:
             self.rows[o.name] = [o.type, "cached" if o.hit else "done", 0, o.seconds,
                                  "" if o.backend == "numpy" else f"({o.backend})"]
-            self.live.update(self._table())
 
     def report(self, node, fraction, message):
         with self._lock:
             if node in self.rows:
                 self.rows[node][4] = f"{fraction:.0%} {message}"
-                self.live.update(self._table())
 
     def notice(self, message):
-        self.console.print(message)
+        self.console.print(message, markup=False, highlight=False)
 
     def finish(self, ok):
-        self.live.update(self._table())
-        self.live.stop()
+        stop = getattr(self, "_stop", None)
+        if stop is None:
+            return
+        stop.set()
+        self._poller.join()
+        if not self._started and self._visible(time.perf_counter() + self.SHOW_AFTER_S):
+            self.live.start()
+            self._started = True
+        if self._started:
+            self.live.refresh()
+            self.live.stop()
 
 
-def make_progress(quiet: bool = False) -> Progress:
+def make_progress(quiet: bool = False, verbose: bool = False) -> Progress:
     if not quiet and sys.stderr.isatty():
-        return RichProgress()
-    return PlainProgress(quiet=quiet)
+        return RichProgress(verbose)
+    return PlainProgress(quiet=quiet, verbose=verbose)

@@ -9,7 +9,9 @@ Groups:
   ``"NodeType/backend"`` to ``"module:Class"``.
 
 The environment variable ``GRAPHKIT_PLUGINS`` (comma-separated ``module`` or ``module:attr``)
-adds providers without installing them, which is handy while writing a plugin.
+adds providers without installing them, which is handy while writing a plugin.  A module that
+defines ``NODES`` and/or ``BACKENDS`` dicts (what its entry points would name) registers those,
+lazily; any other module registers the Node and Backend classes defined in it.
 """
 from __future__ import annotations
 
@@ -189,7 +191,18 @@ def discover() -> Registry:
             reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}' failed to import: {type(exc).__name__}: {exc}")
             continue
         provider = f"GRAPHKIT_PLUGINS:{spec}"
-        if isinstance(obj, dict):  # "NodeType/backend" keys are backends, plain names node types
+        if isinstance(obj, ModuleType) and (hasattr(obj, "NODES") or hasattr(obj, "BACKENDS")):
+            # the dicts an installed plugin's entry points name ({"Type": "module:Class"},
+            # {"Type/backend": "module:Class"}): imported lazily, as when installed
+            for group, attr in (("nodes", "NODES"), ("backends", "BACKENDS")):
+                table = getattr(obj, attr, None)
+                if table is None:
+                    continue
+                if not isinstance(table, dict):
+                    reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}'.{attr} must be a dict, got {type(table).__name__}")
+                    continue
+                reg.add_provider(group, provider, table)
+        elif isinstance(obj, dict):  # "NodeType/backend" keys are backends, plain names node types
             reg.add_provider("nodes", provider, {k: v for k, v in obj.items() if "/" not in k})
             reg.add_provider("backends", provider, {k: v for k, v in obj.items() if "/" in k})
         else:

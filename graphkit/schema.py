@@ -7,8 +7,11 @@ from __future__ import annotations
 
 from .registry import Registry
 
-REF = r"^[A-Za-z_][A-Za-z0-9_\-]*\.[A-Za-z_][A-Za-z0-9_]*$"
-PARAM_REF = r"\$\{params\.[A-Za-z_][A-Za-z0-9_]*\}"
+#: ``node.port``, ``node[*].port`` (every instance of a swept node) or ``node[INSTANCE].port``
+REF = r"^[A-Za-z_][A-Za-z0-9_\-]*(\[[^\]\s]+\])?\.[A-Za-z_][A-Za-z0-9_]*$"
+#: ``${params.NAME}``, ``${SWEEP.FIELD}`` or ``${SWEEP[*].FIELD}``
+PARAM_REF = r"\$\{[A-Za-z_][A-Za-z0-9_]*(\[\*\])?\.[A-Za-z_][A-Za-z0-9_]*\}"
+NAME = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
 
 
 _NESTED = ("items", "additionalProperties")
@@ -55,6 +58,8 @@ def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
         "properties": {
             "type": {"const": name},
             "doc": {"type": "string"},
+            "foreach": {"type": "string", "pattern": r"^[A-Za-z_][A-Za-z0-9_]*$",
+                        "description": "instantiate this node once per instance of this sweep"},
             "backend": {"enum": reg.backend_names(name)},
             "inputs": {
                 "type": "object",
@@ -68,6 +73,35 @@ def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:
         "additionalProperties": False,
     }
     return s, defs
+
+
+def sweeps_schema() -> dict:
+    """The ``sweeps:`` section (see graphkit.sweeps)."""
+    listish = {"anyOf": [{"type": "array", "minItems": 1}, {"type": "string", "pattern": PARAM_REF}]}
+    num = {"anyOf": [{"type": "number"}, {"type": "string", "pattern": PARAM_REF}]}
+    common = {"name": {"type": "string", "description": "instance-name template, e.g. \"az{value:03.0f}\""},
+              "doc": {"type": "string"}}
+    kinds = {
+        "values": {**listish, "description": "one instance per item (scalars or mappings of fields)"},
+        "matrix": {"anyOf": [{"type": "object", "minProperties": 1,
+                              "additionalProperties": {"type": "array", "minItems": 1}},
+                             {"type": "string", "pattern": PARAM_REF}],
+                   "description": "one instance per point of the product of the axes' lists"},
+        "range": {"type": "object", "additionalProperties": False, "required": ["stop"],
+                  "properties": {"start": num, "stop": num, "step": num},
+                  "description": "numbers from start (default 0) by step (default 1), stop excluded"},
+        "glob": {"type": "string", "minLength": 1,
+                 "description": "one instance per file matching this pattern, relative to the graph file"},
+    }
+    return {
+        "type": "object",
+        "description": "named sweeps; a node with `foreach: NAME` is instantiated once per instance",
+        "propertyNames": {"pattern": r"^[A-Za-z_][A-Za-z0-9_]*$", "not": {"const": "params"}},
+        "additionalProperties": {"oneOf": [
+            {"type": "object", "additionalProperties": False, "required": [k], "properties": {k: v, **common}}
+            for k, v in kinds.items()
+        ]},
+    }
 
 
 def graph_schema(reg: Registry) -> dict:
@@ -87,9 +121,10 @@ def graph_schema(reg: Registry) -> dict:
         "additionalProperties": False,
         "properties": {
             "graphkit": {"const": 1},
-            "name": {"type": "string", "pattern": r"^[A-Za-z_][A-Za-z0-9_\-]*$"},
+            "name": {"type": "string", "pattern": NAME},
             "description": {"type": "string"},
             "params": {"type": "object"},
+            "sweeps": sweeps_schema(),
             "outputs": {"oneOf": [
                 {"type": "array", "items": {"type": "string", "pattern": REF}},
                 {"type": "object", "additionalProperties": {"type": "string", "pattern": REF}},

@@ -586,13 +586,27 @@ class FsspecFS:
 
     @contextlib.contextmanager
     def lock(self, rel: str, shared: bool = False, on_wait=None):
+        """Exclusive locks hold across processes (see graphkit.leases): flock for file://, a lease
+        file on object stores, a thread lock for memory://.  Shared (run) locks are flocks on
+        file:// and no-ops elsewhere."""
+        from .leases import Lease, is_in_process, local_root
+
+        folder = local_root(self.fs, self.root)
+        if folder is not None:  # a folder on this machine: the same flocks as a plain folder
+            with LocalFS(folder).lock(rel, shared, on_wait):
+                yield
+            return
         if shared:
             yield
             return
         with self._locks_guard:
             lk = self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
-        with lk:
-            yield
+        with lk:  # threads of this process first, then other processes
+            if is_in_process(self.fs):
+                yield
+            else:
+                with Lease(self.fs, self._p(rel)):
+                    yield
 
 
 # ---------------------------------------------------------------------------------------------
@@ -633,6 +647,8 @@ class Store:
                     try:
                         self.fs.write_atomic(probe, [b"ok"])
                         self.fs.remove(probe)
+                    except FileNotFoundError:
+                        pass  # a concurrent `cache gc` removed the probe from tmp/: the folder is writable
                     except OSError as e:
                         if e.errno not in _READ_ONLY_ERRNOS:
                             raise

@@ -112,3 +112,12 @@ def test_output_path_cannot_escape(write, engine_registry):
                         "  s: {type: SaveImage, inputs: {image: ratio.ratio}, params: {path: ../../evil.png}}\noutputs: {r: s.file}")
     errs = errors(write, engine_registry, text)
     assert any("relative path inside the output folder" in m for _, _, m in errs), errs
+
+
+def test_two_outputs_writing_one_file_are_refused_before_running(write, engine_registry):
+    text = GOOD.replace("outputs: {r: ratio.ratio}",
+                        "  s1: {type: SaveImage, inputs: {image: ratio.ratio}, params: {path: x/r.exr}}\n"
+                        "  s2: {type: SaveImage, inputs: {image: photo.image}, params: {path: x//r.exr}}\n"
+                        "outputs: {a: s1.file, b: s2.file}")
+    errs = errors(write, engine_registry, text)
+    assert errs == [(11, 70, "nodes 's1' and 's2' both write 'x/r.exr' into --out")], errs

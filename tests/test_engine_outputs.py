@@ -83,7 +83,7 @@ def test_kill_9_during_export_keeps_out_consistent(tmp_path, write, engine_regis
     left = [str(p.relative_to(out)) for p in out.rglob("*")
             if p.name.startswith(".graphkit-") or p.name.endswith(".tmp")]
     assert left == []
-    assert sorted(p.name for p in out.iterdir()) == sorted([f"o{k}.npy" for k in range(K)] + ["manifest.json"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([f"o{k}.npy" for k in range(K)] + ["manifest.json", "report.html"])
 
 
 def test_next_run_removes_stale_temps_and_stages(tmp_path, write):
@@ -95,7 +95,7 @@ def test_next_run_removes_stale_temps_and_stages(tmp_path, write):
     (out / "mine.txt").write_text("a user's file")
     r = graphkit("run", g, "--cache", cache, "--out", out, env=ENV)
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["a.npy", "manifest.json", "mine.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["a.npy", "manifest.json", "mine.txt", "report.html"]
 
 
 def test_a_finished_stage_is_published_by_the_next_run(tmp_path, write):
@@ -120,7 +120,7 @@ def test_a_finished_stage_is_published_by_the_next_run(tmp_path, write):
     assert json.loads((out / "manifest.json").read_text()) == {"files": {"b.npy": {}}}
     r = graphkit("run", g, "--cache", cache, "--out", out, env=ENV)
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["a.npy", "manifest.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["a.npy", "manifest.json", "report.html"]
 
 
 def test_symlinked_folder_inside_out_is_refused(tmp_path, write):

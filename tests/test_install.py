@@ -24,7 +24,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = sorted(p.parent for p in (ROOT / "plugins").glob("*/pyproject.toml"))
 # graph stem -> outputs run by make test (whole graph under GRAPHKIT_WHEEL_FULL=1)
-CHEAP_OUTPUTS = {"room_relight": ["photo"]}  # radiosity: ~3 min cold on 2 busy cores
+CHEAP_OUTPUTS = {"room_relight": ["photo"],  # radiosity: ~3 min cold on 2 busy cores
+                 "face_ring": ["relit/ring00"], "makeup_batch": ["made_up/astronaut"]}  # one instance of each sweep
 
 pytestmark = pytest.mark.xdist_group("install")
 

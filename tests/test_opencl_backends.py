@@ -46,7 +46,8 @@ MUTANTS = [
     ("opencl/sss.cl", "q[j] *= e2[j];", "", "SkinShade"),
     ("opencl/sss.cl", "float out = (wsum[j] > 1e-12f * norm[j]) ? acc[j] / wsum[j] : self;",
      "float out = acc[j];", "CosmeticShade"),
-    ("opencl/relight.cl", "B += r[s] * e[s * 3 + c];", "B += r[s] * e[c];", "Relight"),
+    ("opencl/relight.cl", "ratio += R[qs] * e[s * 3 + c];", "ratio += R[qs] * e[c];", "Relight"),
+    ("opencl/relight.cl", "out[o + c] = base[q] * ratio + glow;", "out[o + c] = base[q] * ratio;", "Relight"),
 ]
 
 

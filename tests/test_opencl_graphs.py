@@ -29,6 +29,7 @@ REDUCE = {
     "room_relight": ({"radiosity": {"eps_bf": 1.0, "eps_bfv": 0.1, "min_area": 0.02, "max_level": 3},
                       "refined": {"max_rounds": 0}},
                      ["light_a_off", "light_b_double", "reprojected", "no_shadows"]),
+    "makeup_batch": ({}, ["made_up/astronaut"]),  # one instance of the batch: the others are the same nodes
 }
 
 

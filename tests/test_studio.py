@@ -117,6 +117,9 @@ def test_page_loads_for_every_graph(pw, tmp_path):
     """Each graph in graphs/ opens (without running): every node drawn, graph params as controls."""
     import yaml
 
+    from graphkit.graphfile import load_graph
+    from graphkit.registry import default_registry
+
     b, ctx = browser_page(pw)
     try:
         for g in sorted((ROOT / "graphs").glob("*.yaml")):
@@ -129,7 +132,8 @@ def test_page_loads_for_every_graph(pw, tmp_path):
                 page.goto(s.url)
                 page.wait_for_selector("#dag g.node")
                 drawn = page.eval_on_selector_all("#dag g.node", "es => es.map(e => e.dataset.node)")
-                assert sorted(drawn) == sorted(data["nodes"]), g.name
+                # every node, and every instance of a swept node (foreach: NODE[INSTANCE])
+                assert sorted(drawn) == sorted(load_graph(g, default_registry()).nodes), g.name
                 assert page.eval_on_selector("#errors", "e => e.hidden"), (g.name, page.inner_text("#errors"))
                 gp = page.eval_on_selector_all("#gp-controls .ctl", "es => es.map(e => e.dataset.param)")
                 assert gp == list(data.get("params") or {}), g.name

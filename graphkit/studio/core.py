@@ -162,7 +162,7 @@ class Studio:
         self.files: list[str] = []
         self.closing = False
         self._lock = threading.RLock()
-        self._write_lock = threading.Lock()
+        self._write_lock = threading.RLock()  # re-entrant: export_outputs writes report thumbnails through the guarded store
         self._wake = threading.Condition(self._lock)
         self._pending: int | None = None
         self._listeners: list[Callable[[dict], None]] = []
@@ -599,7 +599,7 @@ def _unwrap(s: dict, defs: dict) -> dict:
     """A param schema without the ``${params.X}`` alternative and with its $ref resolved."""
     if not isinstance(s, dict):
         return {}
-    if "anyOf" in s and len(s["anyOf"]) == 2 and s["anyOf"][1].get("pattern", "").startswith(r"\$\{params"):
+    if "anyOf" in s and len(s["anyOf"]) == 2 and s["anyOf"][1].get("pattern", "").startswith(r"\$\{"):
         s = {**s["anyOf"][0], "description": s.get("description", s["anyOf"][0].get("description", ""))}
     ref = s.get("$ref")
     if isinstance(ref, str) and ref.startswith("#/$defs/"):

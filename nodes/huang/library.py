@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from graphkit import BadInput
+from graphkit.suggest import closest
 
 
 class KMLayerSpec(BaseModel):
@@ -50,10 +51,8 @@ def get_cosmetic(name: str, port: str = "cosmetics") -> KMLayerSpec:
     lib = load_library()
     c = lib["cosmetics"].get(name)
     if c is None:
-        import difflib
-
-        close = difflib.get_close_matches(name, lib["cosmetics"], 1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        close = closest(name, lib["cosmetics"])
+        hint = f" (did you mean '{close}'?)" if close else ""
         raise BadInput(port, f"unknown cosmetic '{name}'{hint}; known: {', '.join(cosmetic_names())}")
     sp = c.get("specular", {})
     return KMLayerSpec(name=name, wavelengths=lib["wavelengths_nm"], S=c["S_per_mm"], K=c["K_per_mm"],

@@ -1,5 +1,6 @@
 """Image and mesh files: LoadImage / SaveImage (OpenImageIO), LoadMesh / SaveMesh (trimesh);
-ContactSheet lays images out for a person to look at."""
+ContactSheet lays images out for a person to look at, AnimatedPreview plays them (GIF); Blur
+smooths an image."""
 
 NODES = {
     "LoadImage": "nodes.io.images:LoadImage",
@@ -7,5 +8,7 @@ NODES = {
     "LoadMesh": "nodes.io.meshes:LoadMesh",
     "SaveMesh": "nodes.io.meshes:SaveMesh",
     "ContactSheet": "nodes.io.sheet:ContactSheet",
+    "AnimatedPreview": "nodes.io.animation:AnimatedPreview",
+    "Blur": "nodes.io.filters:Blur",
     "LoadCameraJson": "nodes.io.cameras:LoadCameraJson",
 }

@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 from pydantic import field_validator
 
-from graphkit import BadInput, Field, File, Image, In, InputFile, Mask, Node
+from graphkit import BadInput, Field, File, Image, In, InputFile, Mask, Node, OutputPath
 from graphkit.paths import input_file_problem, safe_relpath
 
 from .builtin import BuiltinFiles
@@ -174,7 +174,7 @@ class SaveImage(Node):
     outputs = {"file": File}
 
     class Params(Node.Params):
-        path: str = Field(description="file name inside --out, e.g. relit/front.exr; the extension picks the format")
+        path: OutputPath = Field(description="file name inside --out, e.g. relit/front.exr; the extension picks the format")
         bits: Literal[8, 16, 32] = Field(16, description="EXR: 16 (half) or 32 (float); PNG: 8 or 16")
         exposure: float = Field(0.0, description="stops added before encoding")
         overflow: Literal["refuse", "clamp", "float32"] = Field(

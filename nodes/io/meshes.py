@@ -5,7 +5,7 @@ from pathlib import PurePosixPath
 
 from pydantic import field_validator
 
-from graphkit import BadInput, Field, File, InputFile, Mesh, Node
+from graphkit import BadInput, Field, File, InputFile, Mesh, Node, OutputPath
 from graphkit.paths import safe_relpath
 
 from .builtin import BuiltinFiles
@@ -45,7 +45,7 @@ class SaveMesh(Node):
     outputs = {"file": File}
 
     class Params(Node.Params):
-        path: str = Field(description="file name inside --out, e.g. face.ply")
+        path: OutputPath = Field(description="file name inside --out, e.g. face.ply")
 
         @field_validator("path")
         @classmethod

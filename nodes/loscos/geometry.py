@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 
-EPS = 1e-9
-
 
 def frame(verts: np.ndarray):
     """(…,4,3) parallelogram vertices → origin, u, v, unit normal, area."""

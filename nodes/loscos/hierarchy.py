@@ -30,13 +30,7 @@ import numpy as np
 
 from . import geometry as G
 
-VISIBLE, PARTIAL, INVISIBLE = 2, 1, 0
 DEAD = -2  # parent id of elements removed by an undone subdivision
-
-
-def vis_type(V: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """VISIBLE / PARTIAL / INVISIBLE from attenuation factors (§2.3)."""
-    return np.where(V >= 1 - tol, VISIBLE, np.where(V <= tol, INVISIBLE, PARTIAL))
 
 
 @dataclass(eq=False)
@@ -140,14 +134,6 @@ class Hierarchy:
             m = par >= 0
             pos, cur = pos[m], par[m]
         return np.concatenate(rows), np.concatenate(cols)
-
-    def is_descendant_or_self(self, e: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """Elementwise: is e[k] inside a[k] (same polygon, deeper or equal, cell within)?"""
-        same = self.poly[e] == self.poly[a]
-        dl = self.level[e] - self.level[a]
-        ok = same & (dl >= 0)
-        sh = np.where(ok, dl, 0)
-        return ok & np.all((self.ij[e] >> sh[:, None]) == self.ij[a], axis=1)
 
     def leaf_grid(self, max_level: int | None = None):
         """Per polygon a (2^L × 2^L) array of leaf ids (L = deepest level) → (P, 2^L, 2^L)."""
@@ -261,13 +247,6 @@ def ff_spread(h: Hierarchy, r, s):
         F.append(np.where(np.einsum("nc,nc->n", x - so, sn) > 0, f, 0.0))
     F = np.stack(F, 1)
     return F.min(1), F[:, 0], F.max(1)
-
-
-def center_ff(h: Hierarchy, r, s):
-    """Cheap estimate of F_rs: point at r's centre to polygon s (exact contour integral)."""
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
-    return G.ff_point_polygon(ro + 0.5 * (ru + rv), rn, G.corners(so, su, sv))
 
 
 @dataclass

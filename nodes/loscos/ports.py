@@ -46,7 +46,9 @@ class RoomScene:
     verts (P,4,3) in metres, vertices counter-clockwise seen from the front side;
     reflectance (P,3) diffuse albedo (linear RGB, unitless); emittance (P,3) exitant
     radiosity of emitters in W/m² (= π × radiance); light (P,) name of the light a polygon
-    belongs to ("" if none); virtual (P,) bool — inserted, not in the photograph.
+    belongs to ("" if none); virtual (P,) bool — inserted, not in the photograph;
+    emit_given (P,) bool — False on the polygons of a light whose emittance the scene file
+    leaves to be estimated from the photograph (their emittance is then 0 here).
     """
 
     names: list
@@ -55,6 +57,7 @@ class RoomScene:
     emittance: np.ndarray
     light: list
     virtual: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    emit_given: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def __post_init__(self):
         self.verts = np.asarray(self.verts, np.float64).reshape(-1, 4, 3)
@@ -66,6 +69,9 @@ class RoomScene:
         if len(self.virtual) != P:
             self.virtual = np.zeros(P, bool)
         self.virtual = np.asarray(self.virtual, bool)
+        if len(self.emit_given) != P:
+            self.emit_given = np.ones(P, bool)
+        self.emit_given = np.asarray(self.emit_given, bool)
 
     @property
     def light_names(self) -> list[str]:
@@ -75,20 +81,40 @@ class RoomScene:
                 out.append(n)
         return out
 
+    def light_given(self) -> np.ndarray:
+        """(S,) bool per light (light_names order): the scene file gives its emittance."""
+        return np.array([bool(self.emit_given[self.light.index(s)]) for s in self.light_names],
+                        bool)
+
 
 @dataclass(eq=False)
 class Projection:
     """The photograph projected onto the polygons from the fixed viewpoint (§3, §4).
 
     textures (P,R,R,3): linear RGB radiance per texel (s, t) of each polygon; coverage (P,R,R)
-    1 where the texel is seen by the camera; pix_poly (H,W) polygon seen at each pixel (-1:
-    none); pix_st (H,W,2) its polygon coordinates.
+    1 where the texel is seen by the camera (and sampled from pixels that see only its
+    polygon); pix_poly (H,W) polygon seen at each pixel centre (-1: none); pix_st (H,W,2) its
+    polygon coordinates; sub_pix (n,) the flat indices of the pixels that see more than one
+    polygon, sub_poly (n,k²) and sub_st (n,k²,2) what their k×k subsamples see; em_pix,
+    em_poly, em_cover, em_st (m,): the exact share of pixel em_pix covered by emitter
+    polygon em_poly, and the (s, t) on it at the centroid of that share; em_radiance (P,3)
+    each emitter's radiance measured in the photograph from those pixels (NaN: unseen),
+    em_seen (P,) the area it covers, in pixels.
     """
 
     textures: np.ndarray
     coverage: np.ndarray
     pix_poly: np.ndarray
     pix_st: np.ndarray
+    sub_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    sub_poly: np.ndarray = field(default_factory=lambda: np.zeros((0, 1), np.int64))
+    sub_st: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 2)))
+    em_pix: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    em_poly: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    em_cover: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    em_st: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    em_radiance: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    em_seen: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(eq=False)
@@ -99,7 +125,8 @@ class RadiositySolution:
     T (L,3) mean texture radiance (NaN where unseen), resp (L,S,3) radiosity for unit
     emittance of each light S (linearity of radiosity in emittances), resp_H and resp_Hu
     (L,S,3) irradiance with and without occlusion for the same unit emittances;
-    emit (S,3) the emittance of each light in W/m²; lights: names.
+    emit (S,3) the emittance of each light in W/m²; lights: names; info: how it was made
+    (info["lights"]: per light its emittance, where it came from, the eq. 2 start).
     """
 
     P_o: np.ndarray

@@ -1,11 +1,12 @@
 """RadiositySolve and TextureRefine (Loscos 2000 §2.3–2.4, §4, §4.1)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from graphkit import BadInput, Field, Node
+from graphkit import BadInput, Field, Json, Node
 
 from . import hierarchy as HR
 from .ports import (PROJECTION, RADIOSITY, ROOM_SCENE, Projection, RadiositySolution,
@@ -54,8 +55,10 @@ def responses(h: HR.Hierarchy, ops: HR.Operators, Lm: np.ndarray, rho: np.ndarra
     return B.reshape(L, S, 3), H.reshape(L, S, 3), Hu.reshape(L, S, 3), it
 
 
-def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection) -> np.ndarray:
-    """Mean texture (linear radiance) over the covered texels of each leaf; NaN if unseen."""
+def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection, seen_area=False):
+    """Mean texture (linear radiance) over the covered texels of each leaf; NaN if unseen.
+
+    With ``seen_area``, also the area (m²) of each leaf that the camera sees."""
     P, R = proj.coverage.shape[:2]
     st = (np.arange(R) + 0.5) / R
     S, T = np.meshgrid(st, st, indexing="ij")
@@ -73,44 +76,59 @@ def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection) -> np.n
     for c in range(3):
         s = np.bincount(k[m], w[m] * tex[m, c], minlength=len(leaves))
         out[:, c] = np.where(cnt > 0, s / np.maximum(cnt, 1e-300), np.nan)
+    if seen_area:
+        return out, cnt * h.P_area[h.poly[leaves]] / (R * R)
     return out
+
+
+def fournier_reflectance(h, leaves, T, seen, rho_hat, rho_scene):
+    """Eq. (1): ρ_i = T_i / T_A · ρ̂ on the seen leaves (T_A the mean texture luminance,
+    area-weighted); the scene file's albedos elsewhere."""
+    a = h.area(leaves)
+    TA = np.sum(a[seen] * (T[seen] @ LUM)) / a[seen].sum()
+    rho = rho_scene.copy()
+    rho[seen] = np.clip(T[seen] / max(TA, 1e-12) * rho_hat, 0.0, 0.95)
+    return rho
+
+
+def fill_unseen(h, leaves, rho, seen, emitting):
+    """Leaves the camera does not see take their polygon's area-weighted average of the
+    computed reflectances (§4, "the average of the computed reflectances"); unseen polygons
+    and emitters keep the scene file's value (the approximate textures of §3)."""
+    a = h.area(leaves)
+    poly = h.poly[leaves]
+    for p in np.unique(poly[~seen]):
+        on = (poly == p) & seen
+        if on.any() and not emitting[poly == p].any():
+            rho[(poly == p) & ~seen] = (a[on, None] * rho[on]).sum(0) / a[on].sum()
+    return rho
+
+
+def implied_reflectance(rho, T, H, seen, h, leaves, emitting):
+    """§4 refinement step: ρ_i = π T_i / H_i, the reflectance the irradiance implies."""
+    rho = rho.copy()
+    rho[seen] = np.clip(np.pi * T[seen] / np.maximum(H[seen], 1e-12), 0.0, 0.95)
+    return fill_unseen(h, leaves, rho, seen, emitting)
 
 
 def estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, mode, rho_hat, n_iter, tol):
     """Leaf reflectances (L,3) — Fournier et al. eq. (1), refined (§4).
 
-    mode "scene": the scene file's albedos.  mode "photo": start from eq. (1)
-    ρ_i = T_i / T_A · ρ̂ (T_A the mean texture luminance), then ``n_iter`` times solve and set
-    ρ_i = π T_i / H_i, the reflectance the computed irradiance implies; leaves the camera does
-    not see take their polygon's area-weighted average of the computed reflectances (§4,
-    "the average of the computed reflectances"), or the scene file's value for unseen
-    polygons and for emitters (the approximate textures of §3).
+    mode "scene": the scene file's albedos.  mode "photo": start from eq. (1), then
+    ``n_iter`` times solve and set ρ_i = π T_i / H_i (:func:`implied_reflectance`).
     """
     rho_scene = scene_reflectance(scene, h, leaves)
     if mode == "scene":
         return rho_scene
-    seen = np.all(np.isfinite(T), 1) & ~(emit_leaf.max(1) > 0)
+    emitting = emit_leaf.max(1) > 0
+    seen = np.all(np.isfinite(T), 1) & ~emitting
     if not seen.any():
         return rho_scene
-    a = h.area(leaves)
-    TA = np.sum(a[seen] * (T[seen] @ LUM)) / a[seen].sum()
-    rho = rho_scene.copy()
-    rho[seen] = np.clip(T[seen] / max(TA, 1e-12) * rho_hat, 0.0, 0.95)
-
-    def fill(rho):
-        poly = h.poly[leaves]
-        for p in np.unique(poly[~seen]):
-            on = (poly == p) & seen
-            if on.any() and not (emit_leaf[poly == p].max() > 0):
-                rho[(poly == p) & ~seen] = (a[on, None] * rho[on]).sum(0) / a[on].sum()
-        return rho
-
-    rho = fill(rho)
+    rho = fill_unseen(h, leaves, fournier_reflectance(h, leaves, T, seen, rho_hat, rho_scene),
+                      seen, emitting)
     for _ in range(n_iter):
         B, _ = HR.solve(ops, emit_leaf, rho, tol=tol)
-        H = ops.gather(B)
-        rho[seen] = np.clip(np.pi * T[seen] / np.maximum(H[seen], 1e-12), 0.0, 0.95)
-        rho = fill(rho)
+        rho = implied_reflectance(rho, T, ops.gather(B), seen, h, leaves, emitting)
     return rho
 
 
@@ -119,16 +137,228 @@ def scene_reflectance(scene, h, leaves):
     return refl[h.poly[leaves]].astype(float)
 
 
-def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol, info):
+# ------------------------------------------------------------------------------------------
+# emittances from the photograph (§2.4 eq. 2 as the start; §4: "a system of equations could
+# be solved for non-homogeneous intensities")
+
+
+def fournier_emittance(scene: RoomScene, proj: Projection, lights, known, emit, rho_hat):
+    """Eq. (2) with equal unknown lights: Σ E_i A_i = (1 − ρ̂) B_A Σ A_i, B_A = π × the mean
+    texture radiance (per channel), less what the known lights emit.  (S,3) W/m²."""
+    from .geometry import frame
+
+    A = frame(scene.verts)[4]
+    cov = proj.coverage > 0
+    TA = proj.textures[cov].mean(0) if cov.any() else np.zeros(3)
+    area = np.array([A[[p for p, n in enumerate(scene.light) if n == s]].sum() for s in lights])
+    total = (1 - rho_hat) * np.pi * TA * A.sum()
+    rest = total - (area[known, None] * emit[known]).sum(0)
+    out = np.asarray(emit, float).copy()
+    if (~known).any():
+        unknown_area = max(area[~known].sum(), 1e-12)
+        out[~known] = np.maximum(rest, 0.05 * total) / unknown_area
+    return out
+
+
+@dataclass
+class EmittanceFit:
+    """Result of :func:`fit_emittance`."""
+
+    emit: np.ndarray  # (S,3) W/m²
+    rho_poly: np.ndarray  # (P,3) reflectance per polygon the fit used
+    seen: np.ndarray  # (S,) bool: the photograph shows the light itself
+    share: np.ndarray  # (S,) largest share of a seen leaf's irradiance from each light
+    residual: float  # weighted rms of the fit relative to the rms of πT
+
+
+def fit_emittance(RH, T, seen_area, leaf_poly, P, light_of, emit, known, rho_leaf,
+                  rho_fixed=None, rho_hat=0.5, light_obs=None, light_weight=None,
+                  max_iter=200, tol=1e-7) -> EmittanceFit:
+    """Emittances of the unknown lights from the photograph (radiosity is linear in them).
+
+    For each seen surface leaf l (weight: its seen area, m²) and channel:
+    π T_l = ρ_p Σ_s H_ls e_s, with H_ls the irradiance per unit emittance of light s (the
+    responses, interreflections included) and ρ_p one reflectance per polygon — a leaf's own
+    reflectance would explain any pixel.  For each light s the photograph shows (its
+    radiance ``light_obs`` (S,3), NaN if unseen; weight ``light_weight`` (S,) m²):
+    π L_s = e_s + ρ̄_s Σ_s' H̄_ss' e_s', H̄ and ρ̄ the mean over the light's own leaves.
+    Alternating least squares: ρ_p in closed form, then the unknown e by non-negative least
+    squares (scipy.optimize.nnls), from the given start, until e settles.  ``rho_fixed``
+    (P,3): known reflectances (no ρ step).  When no light is seen or known, the level and
+    colour of the lights are not in the photograph: they are set so that the mean seen
+    reflectance is ρ̂ per channel (Fournier's assumption).
+    """
+    from scipy.optimize import nnls
+
+    L, S, _ = RH.shape
+    em = light_of >= 0
+    surf = np.all(np.isfinite(T), 1) & (seen_area > 0) & ~em
+    rows = np.flatnonzero(surf)
+    w = np.sqrt(seen_area)
+    piT = np.pi * np.nan_to_num(T)
+    unknown = ~known
+    obs = np.full((S, 3), np.nan) if light_obs is None else np.asarray(light_obs, float)
+    lw2 = np.zeros(S) if light_weight is None else np.asarray(light_weight, float)
+    seen = np.all(np.isfinite(obs), 1) & (lw2 > 0)
+    lw = np.sqrt(np.where(seen, lw2, 0.0))
+    # mean irradiance response and reflectance over each light's own leaves
+    Hbar = np.zeros((S, S, 3))
+    rbar = np.zeros((S, 3))
+    for s in range(S):
+        m = light_of == s
+        if m.any():
+            Hbar[s] = RH[m].mean(0)
+            rbar[s] = rho_leaf[m].mean(0)
+    anchored = known.any() or seen[unknown].any() or rho_fixed is not None
+    out = np.asarray(emit, float).copy()
+    rho_poly = np.zeros((P, 3)) if rho_fixed is None else np.asarray(rho_fixed, float).copy()
+    num_res = den_res = 0.0
+    ls = np.flatnonzero(seen)
+    for c in range(3):
+        e = out[:, c].copy()
+        Hc = RH[:, :, c]
+        Al = rbar[ls, c][:, None] * Hbar[ls, :, c]
+        Al[np.arange(len(ls)), ls] += 1.0
+        bl = np.pi * np.nan_to_num(obs[ls, c])
+        for _ in range(max_iter if unknown.any() else 1):
+            if rho_fixed is None:
+                Htot = Hc @ e
+                num = np.bincount(leaf_poly[surf], seen_area[surf] * Htot[surf] * piT[surf, c],
+                                  minlength=P)
+                den = np.bincount(leaf_poly[surf], seen_area[surf] * Htot[surf] ** 2,
+                                  minlength=P)
+                rho_poly[:, c] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0)
+            if not unknown.any():
+                break
+            A = np.concatenate([(rho_poly[leaf_poly[rows], c][:, None] * Hc[rows])
+                                * w[rows, None], Al * lw[ls, None]])
+            b = np.concatenate([piT[rows, c] * w[rows], bl * lw[ls]])
+            x, _ = nnls(A[:, unknown], b - A[:, known] @ e[known], maxiter=50 * S)
+            new = e.copy()
+            new[unknown] = x
+            done = np.abs(new - e).max() <= tol * max(np.abs(new).max(), 1e-300)
+            e = new
+            if done:
+                break
+        if not anchored:
+            # the overall level per channel: mean seen reflectance ρ̂ (ρ × k, e / k)
+            sa = seen_area[surf]
+            mean_rho = (sa * rho_poly[leaf_poly[surf], c]).sum() / max(sa.sum(), 1e-300)
+            k = mean_rho / rho_hat if mean_rho > 0 else 1.0
+            e[unknown] *= k
+            rho_poly[:, c] /= k
+        out[:, c] = e
+        model = rho_poly[leaf_poly[rows], c] * (Hc[rows] @ e)
+        num_res += np.sum(((model - piT[rows, c]) * w[rows]) ** 2)
+        num_res += np.sum(((Al @ e - bl) * lw[ls]) ** 2)
+        den_res += np.sum((piT[rows, c] * w[rows]) ** 2) + np.sum((bl * lw[ls]) ** 2)
+    share = np.zeros(S)
+    if S and surf.any():
+        H = np.einsum("lsc,sc->ls", RH * LUM[None, None, :], out)
+        share = (H[surf] / np.maximum(H[surf].sum(1, keepdims=True), 1e-300)).max(0)
+    return EmittanceFit(out, rho_poly, seen, share,
+                        float(np.sqrt(num_res / max(den_res, 1e-300))))
+
+
+def light_observations(scene: RoomScene, proj: Projection, lights):
+    """(S,3) each light's radiance in the photograph (Projection.em_radiance, over its
+    polygons by covered pixels; NaN if unseen) and (S,) its polygons' area, m² (0: unseen)."""
+    from .geometry import frame
+
+    A = frame(scene.verts)[4]
+    obs = np.full((len(lights), 3), np.nan)
+    weight = np.zeros(len(lights))
+    rad = getattr(proj, "em_radiance", np.zeros((0, 3)))
+    if len(rad) != len(scene.verts):
+        return obs, weight
+    for k, s in enumerate(lights):
+        ps = [p for p, n in enumerate(scene.light) if n == s and np.all(np.isfinite(rad[p]))
+              and proj.em_seen[p] > 0]
+        if ps:
+            px = proj.em_seen[ps]
+            obs[k] = (px[:, None] * rad[ps]).sum(0) / px.sum()
+            weight[k] = A[[p for p, n in enumerate(scene.light) if n == s]].sum()
+    return obs, weight
+
+
+def estimate_emittance(scene, h, ops, leaves, Lm, T, seen_area, emit, known, rho_mode,
+                       rho_hat, n_iter, tol, lights, observed=(None, None), min_share=0.01):
+    """Reflectances and emittances refined together (§4 with per-light emittances).
+
+    Starting from eq. (1) reflectances and the given (or eq. 2) emittances, each pass solves
+    the unit responses for the current reflectances, fits the unknown emittances
+    (:func:`fit_emittance`; ``observed``: the lights' radiance in the photo and weights,
+    :func:`light_observations`) and, in photo mode, sets ρ_i = π T_i / H_i (§4); a last pass
+    solves the responses for the final reflectances and fits once more.  Refuses (BadInput)
+    a light that the camera does not see and that gives under ``min_share`` of the
+    irradiance of every seen surface leaf: nothing in the photograph says how bright it is.
+    Returns (emit, rho, responses, fit).
+    """
+    emitting = Lm.any(1) if len(lights) else np.zeros(len(leaves), bool)
+    light_of = np.where(emitting, Lm.argmax(1), -1) if len(lights) else \
+        np.full(len(leaves), -1)
+    rho_scene = scene_reflectance(scene, h, leaves)
+    seen = np.all(np.isfinite(T), 1) & ~emitting
+    rho = rho_scene
+    if rho_mode == "photo" and seen.any():
+        rho = fill_unseen(h, leaves, fournier_reflectance(h, leaves, T, seen, rho_hat,
+                                                          rho_scene), seen, emitting)
+    rho_fixed = scene.reflectance if rho_mode == "scene" else None
+    leaf_poly = h.poly[leaves]
+    P = len(scene.verts)
+    passes = max(n_iter, 1) if rho_mode == "photo" else 0
+    for k in range(passes + 1):
+        resp = responses(h, ops, Lm, rho, tol)
+        fit = fit_emittance(resp[1], T, seen_area, leaf_poly, P, light_of, emit, known, rho,
+                            rho_fixed, rho_hat, *observed)
+        if k == 0:
+            check_estimable(fit, known, lights, min_share)
+        emit = fit.emit
+        if k == passes:
+            break
+        H = np.einsum("lsc,sc->lc", resp[1], emit)
+        rho = implied_reflectance(rho, T, H, seen, h, leaves, emitting)
+    return emit, rho, resp, fit
+
+
+def check_estimable(fit: EmittanceFit, known, lights, min_share):
+    """BadInput naming the lights that neither the camera sees nor anything they light."""
+    bad = [s for s in range(len(lights)) if not known[s] and not fit.seen[s]
+           and fit.share[s] < min_share]
+    if bad:
+        names = ", ".join(f"'{lights[s]}'" for s in bad)
+        raise BadInput("scene", f"the emittance of light {names} cannot be estimated: the camera "
+                       f"does not see it and it gives under {min_share:.0%} of the light on "
+                       "every surface the camera sees; give its emittance in the scene file")
+
+
+def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol, info,
+                    emit=None, estimate=None):
+    """Reflectances, emittances and the per-light responses on the final mesh.
+
+    emit (S,3): the emittances to keep (default: the scene file's); estimate (S,) bool: the
+    lights whose emittance is fitted to the photograph (:func:`estimate_emittance`), with
+    ``emit`` as the start.
+    """
     lights = scene.light_names
     ops = HR.operators(h)
     leaves = ops.leaves
     Lm = light_matrix(scene, h, leaves, lights)
-    emit = light_emittance(scene, lights)
-    emit_leaf = Lm @ emit if len(lights) else np.zeros((len(leaves), 3))
-    T = leaf_textures(h, leaves, proj) if proj is not None else np.full((len(leaves), 3), np.nan)
-    rho = estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, rho_mode, rho_hat, n_iter, tol)
-    R, RH, RHu, it = responses(h, ops, Lm, rho, tol)
+    emit = light_emittance(scene, lights) if emit is None else np.asarray(emit, float)
+    if proj is not None:
+        T, seen_area = leaf_textures(h, leaves, proj, seen_area=True)
+    else:
+        T, seen_area = np.full((len(leaves), 3), np.nan), np.zeros(len(leaves))
+    if estimate is not None and np.any(estimate):
+        emit, rho, (R, RH, RHu, it), fit = estimate_emittance(
+            scene, h, ops, leaves, Lm, T, seen_area, emit, ~np.asarray(estimate), rho_mode,
+            rho_hat, n_iter, tol, lights, light_observations(scene, proj, lights))
+        info = dict(info, fit_residual=round(fit.residual, 5))
+    else:
+        emit_leaf = Lm @ emit if len(lights) else np.zeros((len(leaves), 3))
+        rho = estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, rho_mode, rho_hat,
+                                   n_iter, tol)
+        R, RH, RHu, it = responses(h, ops, Lm, rho, tol)
     info = dict(info, leaves=int(len(leaves)), links=int(len(h.recv)), elements=int(h.n_elems),
                 iterations=int(it))
     return RadiositySolution(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS}, rho=rho, T=T,
@@ -189,21 +419,29 @@ class RadiositySolve(Node):
     BF refinement with a BFV term for partial links, then gather + push-pull until the
     largest change is below ``tol`` (relative).  Reflectances come from the photograph:
     Fournier's eq. (1) with the average reflectance ``rho_hat``, refined from the computed
-    reflectances (§4); emittances from the scene file (W/m²) or estimated by eq. (2).
-    The solution keeps one response per light (radiosity is linear in the emittances).
+    reflectances (§4).  Emittances (W/m²): the scene file's, and for every light the file
+    leaves out (or all of them, ``emittance: estimate``) a per-light fit to the photograph —
+    radiosity is linear in the emittances, so the photo's seen texels against the unit
+    responses give a non-negative least-squares problem, solved together with the
+    reflectances (§4; §2.4's "system of equations … for non-homogeneous intensities"), from
+    Fournier's eq. (2) with equal lights as the start (``emittance: homogeneous`` stops there).
+    The solution keeps one response per light; output ``lights`` records each light's
+    emittance and where it came from (also in the solution's info).
     """
 
-    version = "2"
+    version = "3"
     inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
-    outputs = {"solution": RADIOSITY}
+    outputs = {"solution": RADIOSITY, "lights": Json}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
 
     class Params(RefineParamsMixin):
         rounds: int = Field(2, ge=1, le=5, description="refine/solve rounds (BF uses the last B)")
         reflectance: Literal["photo", "scene"] = Field(
             "photo", description="photo: Fournier eq. 1 + §4 refinement; scene: file albedos")
-        emittance: Literal["scene", "estimate"] = Field(
-            "scene", description="scene: the file's W/m²; estimate: Fournier eq. 2, equal lights")
+        emittance: Literal["scene", "estimate", "homogeneous"] = Field(
+            "scene", description="scene: the file's W/m², the lights it leaves out estimated; "
+            "estimate: every light estimated from the photo; homogeneous: Fournier eq. 2 alone "
+            "(all estimated lights equal)")
         rho_hat: float = Field(0.5, gt=0, lt=1, description="user average reflectance ρ̂ (eq. 1)")
         reflectance_iterations: int = Field(3, ge=0, le=20, description="§4 refinement passes")
 
@@ -213,31 +451,39 @@ class RadiositySolve(Node):
                                p.ff_points, p.seed, p.max_link_area)
 
     def compute(self, scene: RoomScene, projection: Projection):
+        p = self.params
         if projection.textures.shape[0] != len(scene.verts):
             raise BadInput("projection", f"projection has {projection.textures.shape[0]} "
                            f"polygons, the scene {len(scene.verts)}")
-        scene = self.apply_emittance_mode(scene, projection)
-        h = hierarchical_solve(scene, self.refine_params(), self.params.rounds, self.params.tol,
-                               self.ctx.progress)
-        return finish_solution(scene, h, projection, self.params.reflectance, self.params.rho_hat,
-                               self.params.reflectance_iterations, self.params.tol,
-                               {"step": "RadiositySolve"})
+        lights = scene.light_names
+        known = scene.light_given() if p.emittance == "scene" else np.zeros(len(lights), bool)
+        start = fournier_emittance(scene, projection, lights, known,
+                                   light_emittance(scene, lights), p.rho_hat)
+        scene = with_light_emittance(scene, lights, start)
+        h = hierarchical_solve(scene, self.refine_params(), p.rounds, p.tol, self.ctx.progress)
+        sol = finish_solution(scene, h, projection, p.reflectance, p.rho_hat,
+                              p.reflectance_iterations, p.tol, {"step": "RadiositySolve"},
+                              emit=start, estimate=None if p.emittance == "homogeneous"
+                              else ~known)
+        source = np.where(known, "scene", "homogeneous" if p.emittance == "homogeneous"
+                          else "estimated")
+        r6 = lambda v: [round(float(x), 6) for x in v]  # noqa: E731
+        sol.info["lights"] = {
+            s: {"emittance": r6(sol.emit[k]), "source": str(source[k]),
+                **({} if known[k] else {"fournier_eq2": r6(start[k])})}
+            for k, s in enumerate(lights)}
+        return {"solution": sol, "lights": {"unit": "W/m² (π × radiance)",
+                                            "lights": sol.info["lights"],
+                                            "fit_residual": sol.info.get("fit_residual")}}
 
-    def apply_emittance_mode(self, scene, proj):
-        if self.params.emittance == "scene":
-            return scene
-        from .geometry import frame
 
-        A = frame(scene.verts)[4]
-        cov = proj.coverage > 0
-        TA = proj.textures[cov].mean(0) if cov.any() else np.full(3, 0.0)
-        isl = np.array([bool(x) for x in scene.light])
-        # eq. (2): Σ E_i A_i = (1 − ρ̂) B_A Σ A_i, B_A = π × mean radiance; equal lights
-        e = (1 - self.params.rho_hat) * np.pi * TA * A.sum() / max(A[isl].sum(), 1e-12)
-        em = scene.emittance.copy()
-        em[isl] = e
-        return RoomScene(scene.names, scene.verts, scene.reflectance, em, scene.light,
-                         scene.virtual)
+def with_light_emittance(scene: RoomScene, lights, emit) -> RoomScene:
+    """The scene with each light's polygons emitting ``emit`` (S,3) W/m²."""
+    em = scene.emittance.copy()
+    for k, s in enumerate(lights):
+        em[[i for i, n in enumerate(scene.light) if n == s]] = emit[k]
+    return RoomScene(scene.names, scene.verts, scene.reflectance, em, scene.light,
+                     scene.virtual, scene.emit_given)
 
 
 # ------------------------------------------------------------------------------------------
@@ -390,9 +636,10 @@ class TextureRefine(Node):
     subdivide; PARTIAL → subdivide.  A subdivision whose children show no visibility change
     is undone.  Ends with a radiosity step on the new mesh and re-estimated reflectances.
     Colours are of the leaf's mean texture, normalised by the photo's 99th percentile.
+    The emittances are the solution's (the scene file's or those RadiositySolve estimated).
     """
 
-    version = "2"
+    version = "3"
     inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
@@ -416,6 +663,11 @@ class TextureRefine(Node):
         rng = np.random.default_rng(p.seed + 1)
         stats = texture_refine(scene, h, projection, prm, p.color_threshold,
                                p.visibility_threshold, p.max_rounds, rng, self.ctx.progress)
+        if list(solution.lights) != scene.light_names:
+            raise BadInput("solution", f"the solution's lights {solution.lights} are not the "
+                           f"scene's {scene.light_names}")
+        scene = with_light_emittance(scene, solution.lights, solution.emit)
         return finish_solution(scene, h, projection, p.reflectance, p.rho_hat,
                                p.reflectance_iterations, p.tol,
-                               dict(solution.info, step="TextureRefine", **stats))
+                               dict(solution.info, step="TextureRefine", **stats),
+                               emit=solution.emit)

@@ -2,14 +2,15 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
-
 from pydantic import BaseModel, ConfigDict
 
 from graphkit import BadInput, Camera, Field, Image, In, Node
 
 from . import hierarchy as HR
+from .display import modulate_pixels
 from .ports import (PROJECTION, RADIOSITY, UNOCCLUDED, Projection, RadiositySolution,
                     Unoccluded)
 from .radiosity import lab, leaf_neighbours, light_visibility
@@ -39,37 +40,40 @@ class VirtualBox(BaseModel):
     reflectance: tuple[float, float, float] = (0.8, 0.45, 0.1)
 
 
-def pixel_leaves(sol: RadiositySolution, proj: Projection):
-    """Position (into sol.leaves) of the leaf seen at each pixel (-1: none)."""
-    h = sol.hierarchy()
-    lv = sol.leaves
-    pos = np.full(h.n_elems, -1)
-    pos[lv] = np.arange(len(lv))
-    pp = proj.pix_poly
-    m = pp >= 0
-    out = np.full(pp.shape, -1)
-    out[m] = pos[h.locate(pp[m], proj.pix_st[m][:, 0], proj.pix_st[m][:, 1])]
+def emitter_leaves(sol: RadiositySolution) -> np.ndarray:
+    """(L,) bool: leaves whose unit response to some light holds the unit emission itself."""
+    return (unit_emission(sol) > 0.5).any(axis=(1, 2))
+
+
+def unit_emission(sol: RadiositySolution) -> np.ndarray:
+    """(L,S,3) emittance of each leaf per unit emittance of each light (1 on its polygons)."""
+    return sol.resp - sol.rho[:, None, :] * sol.resp_H
+
+
+def emitter_polygons(h: HR.Hierarchy, leaves: np.ndarray, emits: np.ndarray) -> np.ndarray:
+    """(P,) bool: polygons that carry an emitting leaf."""
+    out = np.zeros(len(h.P_o), bool)
+    out[np.unique(h.poly[leaves[emits]])] = True
     return out
 
 
-def _emit_mask(sol):
-    # a leaf emits when its unit response to some light contains the unit emission itself
-    return (sol.resp - sol.rho[:, None, :] * sol.resp_H > 0.5).any(axis=(1, 2)).astype(float)
-
-
-def render(photo: np.ndarray, pix_leaf: np.ndarray, modulation: np.ndarray, B: np.ndarray,
-           D: np.ndarray, emits: np.ndarray) -> np.ndarray:
-    """image = T_final × B / D per pixel (eq. 3 with §4.4's unoccluded texture), where
-    T_final = photo × modulation; emitter pixels show B / π (radiance)."""
-    out = photo.astype(np.float64).copy()
-    m = pix_leaf >= 0
-    k = pix_leaf[m]
-    ratio = np.where(D > 1e-12, B / np.maximum(D, 1e-12), 0.0)
-    val = out[m] * modulation[k] * ratio[k]
-    em = emits[k] > 0
-    val[em] = B[k][em] / np.pi
-    out[m] = val
-    return out.astype(np.float32)
+def photo_emitter_radiance(sol: RadiositySolution, proj: Projection, emit_poly: np.ndarray):
+    """(P,3) each emitter's radiance in the photograph (ProjectTextures measures it from the
+    pixels it covers); B/π of the solution where the photo does not show it."""
+    h = sol.hierarchy()
+    B = sol.B()
+    poly = h.poly[sol.leaves]
+    a = h.area(sol.leaves)
+    out = np.zeros((len(h.P_o), 3))
+    rad = proj.em_radiance if len(proj.em_radiance) == len(h.P_o) else \
+        np.full((len(h.P_o), 3), np.nan)
+    for p in np.flatnonzero(emit_poly):
+        if np.all(np.isfinite(rad[p])):
+            out[p] = rad[p]
+        else:
+            m = poly == p
+            out[p] = (a[m, None] * B[m]).sum(0) / a[m].sum() / np.pi
+    return out
 
 
 class Unocclude(Node):
@@ -85,10 +89,11 @@ class Unocclude(Node):
     irradiance from all primary and secondary sources; with no such leaf the polygon's
     default reference (its largest unoccluded visible leaf) is used.  Outputs the
     per-leaf modulation T_final/T_orig, D_final = ρ (E + Ē) responses, and the image of the
-    unoccluded textures from the camera (real shadows removed).
+    unoccluded textures from the camera (real shadows removed; the modulation interpolated
+    per vertex, emitters as photographed).
     """
 
-    version = "1"
+    version = "2"
     inputs = {"solution": RADIOSITY, "projection": PROJECTION, "photo": Image}
     outputs = {"unoccluded": UNOCCLUDED, "image": Image}
 
@@ -105,7 +110,7 @@ class Unocclude(Node):
         lv = sol.leaves
         H = sol.H()
         Hu = sol.H(unoccluded=True)
-        emits = _emit_mask(sol)
+        emits = emitter_leaves(sol).astype(float)
         # step 1, eq. (6)
         m1 = np.where(H > 1e-12, Hu / np.maximum(H, 1e-12), 1.0)
         m1[emits > 0] = 1.0
@@ -159,24 +164,27 @@ class Unocclude(Node):
         resp_D = rho_f[:, None, :] * sol.resp_Hu + (sol.resp - sol.rho[:, None, :] * sol.resp_H)
         un = Unoccluded(modulation=modulation, resp_D=resp_D, occluded=occl.astype(np.int64),
                         reference=ref)
-        pix = pixel_leaves(sol, projection)
-        img = render(photo.pixels[:, :, :3], pix, modulation, np.ones((len(lv), 3)),
-                     np.ones((len(lv), 3)), np.zeros(len(lv)))
-        return {"unoccluded": un, "image": Image(img)}
+        return {"unoccluded": un, "image": Image(unoccluded_image(sol, un, projection,
+                                                                 photo.pixels[:, :, :3]))}
 
 
 class Relight(Node):
     """Relight the real scene (Loscos 2000 §4.4, §5): image = T_final × B / D per pixel.
 
     ``light_scale`` multiplies the emittance of named real lights (0 switches a light off);
-    ``emittance`` sets a light's RGB emittance in W/m².  The refinement, form factors and
-    visibility are not redone (§5); going further than the paper, the solution holds one
-    radiosity response per light, so B for new emittances is a weighted sum of responses
-    (radiosity is linear in the emittances) — no gathering at all.  D stays the display
-    correction of the original lighting.  Values are linear radiance.
+    ``emittance`` sets a light's RGB emittance in W/m² (both start from the solution's
+    emittances: the scene file's, or those RadiositySolve estimated).  The refinement, form
+    factors and visibility are not redone (§5); going further than the paper, the solution
+    holds one radiosity response per light, so B for new emittances is a weighted sum of
+    responses (radiosity is linear in the emittances) — no gathering at all.  D stays the
+    display correction of the original lighting.  B/D (times the texture modulation) is
+    interpolated per vertex over each leaf (the paper's Gouraud display), pixels on the rim of
+    an emitter are drawn by coverage (display.py), and a light's fixture shows
+    (E + ρ_fixture·H)/π with ``fixture_reflectance`` — what a switched-off lamp looks like.
+    Values are linear radiance.
     """
 
-    version = "1"
+    version = "2"
     studio_view = "nodes.loscos.studio_view:RoomView"  # graphkit serve: light sliders on the fast path
     inputs = {"solution": RADIOSITY, "unoccluded": UNOCCLUDED, "projection": PROJECTION,
               "photo": Image,
@@ -184,16 +192,19 @@ class Relight(Node):
     outputs = {"image": Image}
 
     @staticmethod
-    def relight_fast(prep, e):
-        """The per-pixel modulation (module function :func:`relight_fast`), a hook a backend
-        replaces (plugins/graphkit-opencl)."""
-        return relight_fast(prep, e)
+    def modulate_pixels(px, e):
+        """The per-pixel maths (:func:`display.modulate_pixels`: per pixel base·Σ R·e + Σ G·e),
+        a hook a backend replaces (plugins/graphkit-opencl)."""
+        return modulate_pixels(px, e)
 
     class Params(Node.Params):
         light_scale: dict[str, float] = Field(default_factory=dict,
                                               description="light name → emittance factor")
         emittance: dict[str, list[float]] = Field(default_factory=dict,
                                                   description="light name → RGB W/m²")
+        fixture_reflectance: tuple[float, float, float] = Field(
+            (0.5, 0.5, 0.5), description="diffuse albedo (linear RGB, in [0, 1)) of the lights' "
+            "fixtures: a switched-off light shows ρ·H/π")
         virtual_lights: list[VirtualLight] = Field(default_factory=list,
                                                    description="area lights to insert (§4.5)")
         virtual_boxes: list[VirtualBox] = Field(default_factory=list,
@@ -214,18 +225,24 @@ class Relight(Node):
         if len(unoccluded.modulation) != len(sol.leaves):
             raise BadInput("unoccluded", "computed for another solution")
         p = self.params
+        rho_fix = np.asarray(p.fixture_reflectance, float)
+        if not np.all(np.isfinite(rho_fix)) or np.any(rho_fix < 0) or np.any(rho_fix >= 1):
+            raise BadInput("fixture_reflectance", "3 values in [0, 1) (diffuse albedo)")
         e = new_emittance(sol, p.light_scale, p.emittance)
+        px = photo.pixels[:, :, :3]
         if p.virtual_lights or p.virtual_boxes:
             if camera is None:
                 raise BadInput("camera", "inserting virtual lights or boxes needs the camera")
+            if camera.orthographic:
+                raise BadInput("camera", "inserting virtual lights or boxes needs the photograph's "
+                                         "perspective (pinhole) camera; this camera is orthographic")
             prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays, 3, p.seed)
-            img, _ = relight_virtual(sol, unoccluded, projection, photo.pixels[:, :, :3], camera,
-                                     e, [x.model_dump() for x in p.virtual_lights],
-                                     [x.model_dump() for x in p.virtual_boxes], prm,
-                                     p.force_level, 1e-6)
+            img, _ = relight_virtual(sol, unoccluded, projection, px, camera, e,
+                                     virtual_polygons(p.virtual_lights, p.virtual_boxes), prm,
+                                     p.force_level, 1e-6, rho_fix)
             return Image(img)
-        prep = prepare(sol, unoccluded, projection, photo.pixels[:, :, :3])
-        return Image(self.relight_fast(prep, e))
+        return Image(self.modulate_pixels(relight_plan(sol, unoccluded, projection, px, rho_fix),
+                                          e))
 
     @classmethod
     def examples(cls):
@@ -262,7 +279,7 @@ def _relight_examples():
 
     pr = run(ProjectTextures, {"resolution": 8}, scene=sc, camera=cam, photo=photo)
     sol = run(RadiositySolve, {"eps_bf": 0.5, "eps_bfv": 0.05, "min_area": 0.05, "max_level": 3},
-              scene=sc, projection=pr)
+              scene=sc, projection=pr)["solution"]
     un = run(Unocclude, {}, solution=sol, projection=pr, photo=photo)["unoccluded"]
     inputs = {"solution": sol, "unoccluded": un, "projection": pr, "photo": photo}
     return [({"light_scale": {"A": 0.0}}, inputs),
@@ -271,6 +288,7 @@ def _relight_examples():
 
 
 def new_emittance(sol, scale: dict, emit: dict) -> np.ndarray:
+    """(S,3) emittances in W/m²: the solution's, set by ``emit`` then scaled by ``scale``."""
     e = sol.emit.copy()
     for name in list(scale) + list(emit):
         if name not in sol.lights:
@@ -279,39 +297,59 @@ def new_emittance(sol, scale: dict, emit: dict) -> np.ndarray:
     for k, n in enumerate(sol.lights):
         if n in emit:
             v = np.asarray(emit[n], float)
-            if v.shape != (3,) or np.any(v < 0):
-                raise BadInput("emittance", f"light '{n}': 3 values ≥ 0 (W/m²)")
+            if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v < 0):
+                raise BadInput("emittance", f"light '{n}': 3 finite values ≥ 0 (W/m²), "
+                                            f"got {list(emit[n])}")
             e[k] = v
         if n in scale:
-            if scale[n] < 0:
-                raise BadInput("light_scale", f"light '{n}': factor must be ≥ 0")
+            if not np.isfinite(scale[n]) or scale[n] < 0:
+                raise BadInput("light_scale", f"light '{n}': factor must be finite and ≥ 0, "
+                                              f"got {scale[n]}")
             e[k] = e[k] * scale[n]
     return e
 
 
-def prepare(sol, un, proj, photo):
-    """Everything that does not depend on the emittances (done once per preprocess)."""
-    pix = pixel_leaves(sol, proj)
-    m = pix >= 0
-    k = pix[m]
+def leaf_multiplier(sol: RadiositySolution, un: Unoccluded) -> np.ndarray:
+    """(L,S,3) T_final/T × B/D per unit emittance of each light (§4.4): B from the responses,
+    D_final at the solution's emittances."""
     D = np.einsum("lsc,sc->lc", un.resp_D, sol.emit)
-    emits = _emit_mask(sol) > 0
-    # per seen pixel: base = photo × modulation / D (non-emitters), 1/π for emitters
-    base = np.where(emits[k][:, None], 1.0 / np.pi,
-                    photo[m] * un.modulation[k] / np.maximum(D[k], 1e-12)
-                    * (D[k] > 1e-12))
-    return {"shape": photo.shape, "photo": photo.astype(np.float32), "mask": m, "k": k,
-            "base": base.astype(np.float32),
-            "resp": np.ascontiguousarray(sol.resp.transpose(2, 0, 1)).astype(np.float32)}
+    inv = np.where(D > 1e-12, 1.0 / np.maximum(D, 1e-12), 0.0)
+    return un.modulation[:, None, :] * sol.resp * inv[:, None, :]
 
 
-def relight_fast(prep, e: np.ndarray) -> np.ndarray:
-    """B = Σ_s resp_s · e_s (per channel), image = base × B at the pixels' leaves."""
-    resp = prep["resp"]  # (3, L, S)
-    B = np.einsum("cls,sc->lc", resp, e.astype(np.float32))
-    out = prep["photo"].copy()
-    out[prep["mask"]] = prep["base"] * B[prep["k"]]
-    return out
+def fixture_glow(sol: RadiositySolution, rho_fix: np.ndarray) -> np.ndarray:
+    """(L,S,3) radiance of the emitters per unit emittance: (E + ρ_fixture·H)/π."""
+    return (unit_emission(sol) + rho_fix[None, None, :] * sol.resp_H) / np.pi
+
+
+def relight_plan(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo,
+                 rho_fix=(0.5, 0.5, 0.5)):
+    """Everything that does not depend on the emittances (once per preprocess): per drawn
+    pixel its modulation and emitted radiance per unit emittance (display.PixelResponses)."""
+    from .display import nearest_seen, pixel_plan, pixel_responses
+
+    h = sol.hierarchy()
+    emit_poly = emitter_polygons(h, sol.leaves, emitter_leaves(sol))
+    plan = pixel_plan(h, proj, photo, emit_poly, photo_emitter_radiance(sol, proj, emit_poly),
+                      leaf_radiance=sol.T @ LUM)
+    near = nearest_seen(h, np.all(np.isfinite(sol.T), 1))
+    return pixel_responses(plan, leaf_multiplier(sol, un)[near],
+                           fixture_glow(sol, np.asarray(rho_fix, float)))
+
+
+def unoccluded_image(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo):
+    """The photograph with the real shadows removed: photo × T_final/T per vertex, emitters
+    as photographed."""
+    from .display import nearest_seen, pixel_plan, pixel_responses
+
+    h = sol.hierarchy()
+    emit_poly = emitter_polygons(h, sol.leaves, emitter_leaves(sol))
+    L_em = photo_emitter_radiance(sol, proj, emit_poly)
+    plan = pixel_plan(h, proj, photo, emit_poly, L_em, leaf_radiance=sol.T @ LUM)
+    glow = L_em[h.poly[sol.leaves]][:, None, :]
+    near = nearest_seen(h, np.all(np.isfinite(sol.T), 1))
+    px = pixel_responses(plan, un.modulation[near][:, None, :], glow)
+    return modulate_pixels(px, np.ones((1, 3)))
 
 
 # ------------------------------------------------------------------------------------------
@@ -346,152 +384,226 @@ def box_quads(center, size, rotation_deg):
     return box_faces(M)
 
 
-def shaft_hits(h: HR.Hierarchy, r, s, lo, hi):
-    """Links whose bounding box (of both elements) overlaps the AABB [lo, hi]."""
-    o1, u1, v1, _, _ = h.geom(r)
-    o2, u2, v2, _, _ = h.geom(s)
-    pts = np.concatenate([G_corners(o1, u1, v1), G_corners(o2, u2, v2)], axis=1)
-    mn, mx = pts.min(1), pts.max(1)
-    return np.all((mn <= hi) & (mx >= lo), axis=1)
+@dataclass(eq=False)
+class VirtualPolygons:
+    """Polygons to insert: quads (K,4,3) metres, reflectance (K,3), emittance (K,3) W/m²,
+    light (K,) bool — a virtual light's face (black, emitting) or a box face."""
+
+    quads: np.ndarray
+    reflectance: np.ndarray
+    emittance: np.ndarray
+    light: np.ndarray
 
 
-def G_corners(o, u, v):
-    from .geometry import corners
-
-    return corners(o, u, v)
-
-
-def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo, camera,
-                    e_real, vlights, vboxes, prm: HR.RefineParams, force_level: int, tol):
-    """Insert virtual emitters / boxes into the preprocessed hierarchy and relight (§4.5)."""
-    from .geometry import frame
-    from .textures import pixel_map
-
-    h = sol.hierarchy().copy()
-    lv0 = sol.leaves
-    N0, P0 = h.n_elems, len(h.P_o)
-    quads, refl, emit, kind = [], [], [], []
+def virtual_polygons(vlights, vboxes) -> VirtualPolygons:
+    """VirtualLight / VirtualBox params → polygons; BadInput on bad values."""
+    quads, refl, emit, light = [], [], [], []
     for L in vlights:
-        q = quad_from(L["center"], L.get("size", [0.3, 0.3]), L.get("normal", [0, -1, 0]))
-        quads.append(q); refl.append(np.zeros(3)); emit.append(np.asarray(L["emittance"], float))
-        kind.append("light")
+        e = np.asarray(L.emittance, float)
+        if not np.all(np.isfinite(e)) or np.any(e < 0):
+            raise BadInput("virtual_lights", f"light '{L.name}': emittance must be 3 finite "
+                                             f"values ≥ 0 (W/m²), got {list(L.emittance)}")
+        quads.append(quad_from(L.center, L.size, L.normal))
+        refl.append(np.zeros(3)); emit.append(e); light.append(True)
     for bx in vboxes:
-        for q in box_quads(bx["center"], bx["size"], bx.get("rotation_deg", 0.0)):
-            quads.append(q); refl.append(np.asarray(bx.get("reflectance", [0.5] * 3), float))
-            emit.append(np.zeros(3)); kind.append("box")
+        r = np.asarray(bx.reflectance, float)
+        if not np.all(np.isfinite(r)) or np.any(r < 0) or np.any(r >= 1):
+            raise BadInput("virtual_boxes", f"box '{bx.name}': reflectance must be 3 values "
+                                            "in [0, 1)")
+        for q in box_quads(bx.center, bx.size, bx.rotation_deg):
+            quads.append(q); refl.append(r); emit.append(np.zeros(3)); light.append(False)
     Q = np.array(quads)
-    o, u, v, n, a = frame(Q)
-    if np.any(a <= 1e-10):
-        raise BadInput("virtual_lights", "a virtual light or box has zero area")
-    K = len(Q)
-    h.P_o = np.concatenate([h.P_o, o]); h.P_u = np.concatenate([h.P_u, u])
+    if not np.all(np.isfinite(Q)):
+        raise BadInput("virtual_lights" if vlights else "virtual_boxes",
+                       "a virtual light or box has non-finite coordinates")
+    from .geometry import frame
+
+    if np.any(frame(Q)[4] <= 1e-10):
+        raise BadInput("virtual_lights" if vlights else "virtual_boxes",
+                       "a virtual light or box has zero area")
+    return VirtualPolygons(Q, np.array(refl), np.array(emit), np.array(light))
+
+
+def add_roots(h: HR.Hierarchy, quads: np.ndarray) -> None:
+    """Append the quads to h as new polygons, each one root element (no links yet)."""
+    from .geometry import frame
+
+    o, u, v, _, _ = frame(quads)
+    K = len(quads)
+    P0 = len(h.P_o)
+    h.P_o = np.concatenate([h.P_o, o])
+    h.P_u = np.concatenate([h.P_u, u])
     h.P_v = np.concatenate([h.P_v, v])
     h.poly = np.concatenate([h.poly, P0 + np.arange(K)])
     h.level = np.concatenate([h.level, np.zeros(K, np.int64)])
     h.ij = np.concatenate([h.ij, np.zeros((K, 2), np.int64)])
     h.parent = np.concatenate([h.parent, np.full(K, -1)])
     h.child0 = np.concatenate([h.child0, np.full(K, -1)])
-    refl, emit = np.array(refl), np.array(emit)
-    # element radiosity estimate for the refinement oracle
-    B_old = sol.B(e_real)
-    ops0 = HR.operators(sol.hierarchy())
-    B_el = np.concatenate([(ops0.pull @ B_old) @ LUM, (emit + refl * np.median(B_old, 0)) @ LUM])
-    rng = np.random.default_rng(prm.seed + 7)
-    # 1. existing links whose shaft meets a virtual box are re-evaluated (and re-refined)
-    # (virtual lights occlude too: their back faces are black)
-    redo = np.zeros(len(h.recv), bool)
-    for q in Q:
-        redo |= shaft_hits(h, h.recv, h.send, q.min(0) - 1e-6, q.max(0) + 1e-6)
-    cand_r = [h.recv[redo]]
-    cand_s = [h.send[redo]]
-    keep = ~redo
-    kr, ks, kF, kV, kC = h.recv[keep], h.send[keep], h.F[keep], h.V[keep], h.C[keep]
-    # 2. new links between virtual polygons and every polygon
-    roots = np.flatnonzero(h.parent == -1)
-    new = N0 + np.arange(K)
-    R1, S1 = np.meshgrid(roots, new, indexing="ij")
-    cand_r += [R1.ravel(), S1.ravel()]
-    cand_s += [S1.ravel(), R1.ravel()]
-    r = np.concatenate(cand_r); s = np.concatenate(cand_s)
-    m = r != s
-    r, s = r[m], s[m]
-    seen_poly = np.zeros(len(h.P_o), bool)
-    seen_poly[np.unique(proj.pix_poly[proj.pix_poly >= 0])] = True
-    vl_polys = P0 + np.array([i for i, k in enumerate(kind) if k == "light"], dtype=int)
 
-    def force(rr, ss):  # §4.5: links from virtual lights go down to visible polygons
+
+def shaft_hits(h: HR.Hierarchy, r, s, lo, hi):
+    """Links whose bounding box (of both elements) overlaps the AABB [lo, hi]."""
+    from .geometry import corners
+
+    o1, u1, v1, _, _ = h.geom(r)
+    o2, u2, v2, _, _ = h.geom(s)
+    pts = np.concatenate([corners(o1, u1, v1), corners(o2, u2, v2)], axis=1)
+    mn, mx = pts.min(1), pts.max(1)
+    return np.all((mn <= hi) & (mx >= lo), axis=1)
+
+
+@dataclass(eq=False)
+class Links:
+    recv: np.ndarray
+    send: np.ndarray
+    F: np.ndarray
+    V: np.ndarray
+    C: np.ndarray
+
+    def __add__(self, o: "Links") -> "Links":
+        return Links(*(np.concatenate([a, b]) for a, b in zip(self.astuple(), o.astuple())))
+
+    def astuple(self):
+        return self.recv, self.send, self.F, self.V, self.C
+
+    def select(self, m) -> "Links":
+        return Links(*(x[m] for x in self.astuple()))
+
+
+def relink(h: HR.Hierarchy, vp: VirtualPolygons, B_elem: np.ndarray, seen_poly: np.ndarray,
+           prm: HR.RefineParams, force_level: int, rng) -> tuple[Links, Links]:
+    """§4.5 on a hierarchy whose last len(vp.quads) polygons are virtual (roots only).
+
+    Links whose bounding box meets a virtual polygon are refined again (the polygons may
+    block them; a virtual light's back is black), every root is linked both ways with every
+    virtual polygon, and links from virtual lights are forced down to ``force_level`` on
+    the polygons the camera sees.  Returns (kept links, new links); sets h's links.
+    """
+    P0 = len(h.P_o) - len(vp.quads)
+    N0 = h.n_elems - len(vp.quads)
+    old = Links(h.recv, h.send, h.F, h.V, h.C)
+    redo = np.zeros(len(h.recv), bool)
+    for q in vp.quads:
+        redo |= shaft_hits(h, h.recv, h.send, q.min(0) - 1e-6, q.max(0) + 1e-6)
+    roots = np.flatnonzero(h.parent == -1)
+    new = N0 + np.arange(len(vp.quads))
+    R1, S1 = np.meshgrid(roots, new, indexing="ij")
+    r = np.concatenate([h.recv[redo], R1.ravel(), S1.ravel()])
+    s = np.concatenate([h.send[redo], S1.ravel(), R1.ravel()])
+    m = r != s
+    vl_polys = P0 + np.flatnonzero(vp.light)
+
+    def force(rr, ss):
         return (np.isin(h.poly[ss], vl_polys) & seen_poly[h.poly[rr]]
                 & (h.level[rr] < force_level))
 
-    nr, ns, nF, nV, nC = HR.refine(h, r, s, B_el, prm, rng, force=force)
-    h.recv = np.concatenate([kr, nr]); h.send = np.concatenate([ks, ns])
-    h.F = np.concatenate([kF, nF]); h.V = np.concatenate([kV, nV])
-    h.C = np.concatenate([kC, nC])
-    # 3. solve on the new leaves; new leaves inherit ρ, T_final/T and D of their old leaf
-    ops = HR.operators(h)
-    lv = ops.leaves
+    kept = old.select(~redo)
+    added = Links(*HR.refine(h, r[m], s[m], B_elem, prm, rng, force=force))
+    h.recv, h.send, h.F, h.V, h.C = (kept + added).astuple()
+    return kept, added
+
+
+def old_leaf(h: HR.Hierarchy, N0: int, P0: int, old_leaves: np.ndarray) -> np.ndarray:
+    """For each leaf of h: its position among the preprocessed leaves (elements made after
+    the preprocess have ids ≥ N0: climb to the old leaf); -1 on virtual polygons."""
+    lv = h.leaves
     pos0 = np.full(N0, -1)
-    pos0[lv0] = np.arange(len(lv0))
+    pos0[old_leaves] = np.arange(len(old_leaves))
     virt = h.poly[lv] >= P0
     anc = lv.copy()
-    while True:  # elements made after the preprocess have ids ≥ N0: climb to the old leaf
+    while True:
         up = (anc >= N0) & ~virt
         if not up.any():
             break
         anc[up] = h.parent[anc[up]]
-    old = np.where(virt, -1, pos0[np.minimum(anc, N0 - 1)])
+    return np.where(virt, -1, pos0[np.minimum(anc, N0 - 1)])
+
+
+def real_reference(h: HR.Hierarchy, kept: Links, added: Links, P0: int, n_rays: int, seed: int):
+    """The same mesh and links without the virtual polygons (real–real links' visibility
+    recomputed without them): Loscos §2.4, only *changes* of B matter, so the real pixels
+    are scaled by B / B_ref computed on one mesh."""
+    rr = (h.poly[added.recv] < P0) & (h.poly[added.send] < P0)
+    occ = (h.P_o[:P0], h.P_u[:P0], h.P_v[:P0], h.P_n[:P0])
+    V, C = HR.link_visibility(h, added.recv[rr], added.send[rr], n_rays,
+                              np.random.default_rng(seed), occ=occ, centroid=True)
+    ref = h.copy()
+    a = added.select(rr)
+    ref.recv, ref.send, ref.F, ref.V, ref.C = (kept + Links(a.recv, a.send, a.F, V, C)).astuple()
+    return ref
+
+
+def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, photo, camera,
+                    e_real, vp: VirtualPolygons, prm: HR.RefineParams, force_level: int, tol,
+                    rho_fix=(0.5, 0.5, 0.5)):
+    """Insert virtual emitters / boxes into the preprocessed hierarchy and relight (§4.5).
+
+    1. the virtual polygons become new roots; 2. links are re-evaluated and added (relink);
+    3. B is solved on the new mesh with the new real emittances, and B_ref on the same mesh
+    without the virtual polygons at the original emittances; 4. each leaf's multiplier is
+    T_final/T × B₀/D₀ (its preprocessed leaf) × B/B_ref, drawn per vertex; pixels whose
+    centre sees a virtual polygon show its B/π, fixtures (E + ρ_fixture·H)/π.
+    """
+    from .display import nearest_seen, pixel_plan, pixel_responses
+    from .geometry import corners
+    from .textures import edge_subsamples, emitter_coverage, pixel_map
+
+    rho_fix = np.asarray(rho_fix, float)
+    lv0 = sol.leaves
+    h = sol.hierarchy().copy()
+    N0, P0 = h.n_elems, len(h.P_o)
+    add_roots(h, vp.quads)
+    # 1-2. links; the refinement oracle needs each element's radiosity (luminance)
+    B_old = sol.B(e_real)
+    pull0 = HR.operators(sol.hierarchy()).pull
+    B_elem = np.concatenate([(pull0 @ B_old) @ LUM,
+                             (vp.emittance + vp.reflectance * np.median(B_old, 0)) @ LUM])
+    seen_poly = np.zeros(len(h.P_o), bool)
+    seen_poly[np.unique(proj.pix_poly[proj.pix_poly >= 0])] = True
+    kept, added = relink(h, vp, B_elem, seen_poly, prm, force_level,
+                         np.random.default_rng(prm.seed + 7))
+    # 3. leaves inherit ρ, E, T_final/T and D of their preprocessed leaf
+    ops = HR.operators(h)
+    lv = ops.leaves
+    old = old_leaf(h, N0, P0, lv0)
+    virt = old < 0
+    vpoly = h.poly[lv][virt] - P0
+    unit = unit_emission(sol)
     rho = np.zeros((len(lv), 3))
     rho[~virt] = sol.rho[old[~virt]]
-    rho[virt] = refl[h.poly[lv][virt] - P0]
+    rho[virt] = vp.reflectance[vpoly]
     E = np.zeros((len(lv), 3))
-    emits0 = _emit_mask(sol) > 0
-    # real emitters: their emittance under the new setting
-    Ereal = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H, e_real)
-    E[~virt] = Ereal[old[~virt]]
-    E[virt] = emit[h.poly[lv][virt] - P0]
+    E[~virt] = np.einsum("lsc,sc->lc", unit, e_real)[old[~virt]]
+    E[virt] = vp.emittance[vpoly]
     B, _ = HR.solve(ops, E, rho, tol=tol)
-    # consistent reference (Loscos §2.4: only *changes* of B matter): the same new mesh and
-    # links, real-real visibility recomputed without the virtual polygons, no virtual
-    # polygons, original emittances.  Real pixels are then scaled by B / B_ref.
-    rr = (h.poly[nr] < P0) & (h.poly[ns] < P0)
-    occ = (h.P_o[:P0], h.P_u[:P0], h.P_v[:P0], h.P_n[:P0])
-    V_wo, C_wo = HR.link_visibility(h, nr[rr], ns[rr], prm.n_rays,
-                                    np.random.default_rng(prm.seed + 9), occ=occ, centroid=True)
-    h_ref = h.copy()
-    h_ref.recv = np.concatenate([kr, nr[rr]]); h_ref.send = np.concatenate([ks, ns[rr]])
-    h_ref.F = np.concatenate([kF, nF[rr]]); h_ref.V = np.concatenate([kV, V_wo])
-    h_ref.C = np.concatenate([kC, C_wo])
-    ops_ref = HR.operators(h_ref)
+    H = ops.gather(B)
+    ops_ref = HR.operators(real_reference(h, kept, added, P0, prm.n_rays, prm.seed + 9))
     E_ref = np.zeros((len(lv), 3))
-    E_ref[~virt] = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H,
-                             sol.emit)[old[~virt]]
-    rho_ref = np.where(virt[:, None], 0.0, rho)
-    B_ref, _ = HR.solve(ops_ref, E_ref, rho_ref, tol=tol)
+    E_ref[~virt] = np.einsum("lsc,sc->lc", unit, sol.emit)[old[~virt]]
+    B_ref, _ = HR.solve(ops_ref, E_ref, np.where(virt[:, None], 0.0, rho), tol=tol)
+    # 4. per-leaf multiplier of the photograph, and the radiance of emitters and virtual faces
     D0 = np.einsum("lsc,sc->lc", un.resp_D, sol.emit)
-    B0 = sol.B()
-    # 4. render: the camera sees either a virtual polygon or the real scene
-    allv = np.concatenate([np.stack([h.P_o[:P0], h.P_o[:P0] + h.P_u[:P0],
-                                     h.P_o[:P0] + h.P_u[:P0] + h.P_v[:P0],
-                                     h.P_o[:P0] + h.P_v[:P0]], 1), Q])
-    pp, pst = pixel_map(allv, camera)
-    grid = h.leaf_grid()
-    posn = np.full(h.n_elems, -1)
-    posn[lv] = np.arange(len(lv))
-    out = photo.astype(np.float64).copy()
-    pix_old = pixel_leaves(sol, proj)
-    msk = pp >= 0
-    kn = posn[h.locate(pp[msk], pst[msk][:, 0], pst[msk][:, 1], grid)]
-    ko = pix_old[msk]
-    val = out[msk]
-    isv = h.poly[lv][kn] >= P0
-    em = (E[kn].max(1) > 0) | isv | (ko < 0)
-    real = ~em & (ko >= 0)
-    ratio = (B[kn[real]] / np.maximum(B_ref[kn[real]], 1e-12)
-             * B0[ko[real]] / np.maximum(D0[ko[real]], 1e-12))
-    val[real] = val[real] * un.modulation[ko[real]] * ratio
-    val[em] = B[kn[em]] / np.pi
-    emitter_old = np.zeros(len(kn), bool)
-    emitter_old[ko >= 0] = emits0[ko[ko >= 0]]
-    val[emitter_old & ~isv] = B[kn[emitter_old & ~isv]] / np.pi
-    out[msk] = val
-    return out.astype(np.float32), {"leaves": int(len(lv)), "links": int(len(h.recv))}
+    f0 = un.modulation * sol.B() * np.where(D0 > 1e-12, 1.0 / np.maximum(D0, 1e-12), 0.0)
+    f = np.zeros((len(lv), 3))
+    f[~virt] = f0[old[~virt]] * B[~virt] / np.maximum(B_ref[~virt], 1e-12)
+    emits0 = emitter_leaves(sol)
+    real_emit = np.zeros(len(lv), bool)
+    real_emit[~virt] = emits0[old[~virt]]
+    glow = np.where(virt[:, None], B, 0.0) / np.pi
+    glow[real_emit] = (E[real_emit] + rho_fix * H[real_emit]) / np.pi
+    emit_poly = np.zeros(len(h.P_o), bool)
+    emit_poly[:P0] = emitter_polygons(sol.hierarchy(), lv0, emits0)
+    allv = np.concatenate([corners(h.P_o[:P0], h.P_u[:P0], h.P_v[:P0]), vp.quads])
+    pp, _ = pixel_map(allv, camera)
+    sub = edge_subsamples(allv, camera, pp)
+    inserted = emitter_coverage(allv, range(P0, len(allv)), camera, pp, *sub[:2])
+    L_em = np.zeros((len(h.P_o), 3))
+    L_em[:P0] = photo_emitter_radiance(sol, proj, emit_poly[:P0])
+    lum = np.full(len(lv), np.nan)
+    lum[~virt] = (sol.T @ LUM)[old[~virt]]
+    plan = pixel_plan(h, proj, photo, emit_poly, L_em, virtual=inserted, leaf_radiance=lum)
+    near = nearest_seen(h, virt | np.isfinite(lum))
+    px = pixel_responses(plan, f[near][:, None, :], glow[:, None, :])
+    return modulate_pixels(px, np.ones((1, 3))), {"leaves": int(len(lv)),
+                                                  "links": int(len(h.recv))}
+

@@ -12,10 +12,13 @@ Scene file (YAML, ``loscos_scene: 1``)::
       - {name: floor, material: white, vertices: [[...], [...], [...], [...]]}  # CCW from front
     lights:                                              # area emitters
       - {name: A, material: white, emittance: [57.8, 43.9, 21.2], vertices: [...]}  # W/m²
+      - {name: B, vertices: [...]}          # no emittance (or `emittance: estimate`): from the photo
     boxes:                                               # expanded to 5 or 6 parallelograms
       - {name: tall, material: white, to_world: [[4×4]], bottom: false}  # of the cube [-1,1]³
 
-Emittance is the emitted radiosity in W/m² (π × the radiance).
+Emittance is the emitted radiosity in W/m² (π × the radiance).  A light without one is
+estimated from the photograph by RadiositySolve.  ``mitsuba_scene.scene_file`` writes this
+format from a Mitsuba 3 scene dict.
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from graphkit import BadInput, Camera, Field, Image, InputFile, Node
 
 from .ports import ROOM_SCENE, RoomScene
 
-BUILTIN = {"cornell2": "cornell2.yaml"}
+BUILTIN = {"cornell2": "cornell2.yaml", "room": "room.yaml", "cornell3": "cornell3.yaml"}
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
 
@@ -92,6 +95,15 @@ def check_polygons(verts: np.ndarray, names, port: str, rel_tol: float = 1e-6):
 
 def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str | None]:
     """Scene YAML document → (RoomScene, Camera, photo file name or None)."""
+    try:
+        return _parse_scene(doc, port)
+    except KeyError as e:
+        raise BadInput(port, f"scene file: an entry lacks the key {e}") from None
+    except (TypeError, ValueError) as e:
+        raise BadInput(port, f"scene file: a value has the wrong shape or type ({e})") from None
+
+
+def _parse_scene(doc: dict, port: str):
     if not isinstance(doc, dict) or doc.get("loscos_scene") != 1:
         raise BadInput(port, "not a scene file (expected a mapping with 'loscos_scene: 1')")
     mats = doc.get("materials", {}) or {}
@@ -116,12 +128,12 @@ def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str |
         for k, f in enumerate(box_faces(item["to_world"], item.get("bottom", True))):
             names.append(f"{item['name']}.{k}"); verts.append(f)
             refl.append(albedo(item)); emit.append(np.zeros(3)); light.append("")
+    given = []
     for item in doc.get("lights", []) or []:
-        e = np.asarray(item["emittance"], float).reshape(-1)
-        if e.shape != (3,) or np.any(e < 0):
-            raise BadInput(port, f"light '{item['name']}': emittance must be 3 values ≥ 0 (W/m²)")
+        e, known = light_emittance_of(item, port)
         names.append(str(item["name"])); verts.append(np.asarray(item["vertices"], float))
         refl.append(albedo(item)); emit.append(e); light.append(str(item["name"]))
+        given.append(known)
     for n, v in zip(names, verts):
         if v.shape != (4, 3):
             raise BadInput(port, f"polygon '{n}' needs 4 vertices of 3 coordinates, got {v.shape}")
@@ -135,7 +147,29 @@ def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str |
         raise BadInput(port, "the scene has no camera")
     cam = camera_from_lookat(int(c["width"]), int(c["height"]), float(c["fov_deg"]),
                              c["position"], c["look_at"], c.get("up", [0, 1, 0]))
-    return RoomScene(names, verts, np.array(refl), np.array(emit), light), cam, doc.get("photo")
+    emit_given = np.ones(len(names), bool)
+    emit_given[len(names) - len(given):] = given
+    return (RoomScene(names, verts, np.array(refl), np.array(emit), light,
+                      emit_given=emit_given), cam, doc.get("photo"))
+
+
+def light_emittance_of(item: dict, port: str) -> tuple[np.ndarray, bool]:
+    """A light's emittance (W/m²) and whether the file gives it (no value / "estimate": no)."""
+    name = item.get("name")
+    if "name" not in item or "vertices" not in item:
+        raise BadInput(port, f"a light needs a name and 4 vertices (got keys {sorted(item)})")
+    v = item.get("emittance")
+    if v is None or (isinstance(v, str) and v == "estimate"):
+        return np.zeros(3), False
+    try:
+        e = np.asarray(v, float).reshape(-1)
+    except (TypeError, ValueError):
+        raise BadInput(port, f"light '{name}': emittance must be 3 numbers (W/m²) or "
+                             f"'estimate', got {v!r}") from None
+    if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
+        raise BadInput(port, f"light '{name}': emittance must be 3 finite values ≥ 0 (W/m²) or "
+                             f"'estimate', got {v!r}")
+    return e, True
 
 
 def check_emitters(verts, emit, names, port):
@@ -161,11 +195,14 @@ class LoadScene(Node):
 
     ``path`` is a scene YAML (format in the module docstring) or ``builtin:cornell2`` — a
     Cornell box with Mitsuba's ``cornell_box()`` geometry and colours plus a second area
-    light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py).
+    light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py) —,
+    ``builtin:room`` (a room with a table, a window-like light and a lamp) or
+    ``builtin:cornell3`` (two other lights), both from Mitsuba scene dicts (make_scenes.py).
+    A light may leave its emittance out (RadiositySolve estimates it from the photograph).
     Units: metres, W/m² (emittance = π × radiance), photograph in linear radiance.
     """
 
-    version = "1"
+    version = "2"
     outputs = {"scene": ROOM_SCENE, "camera": Camera, "photo": Image}
 
     class Params(Node.Params):
@@ -208,6 +245,11 @@ class LoadScene(Node):
                 raise BadInput("path", f"{path}: not valid YAML: {e}") from None
         scene, cam, photo = parse_scene(doc)
         if not photo:
+            unknown = [s for s, g in zip(scene.light_names, scene.light_given()) if not g]
+            if unknown:
+                raise BadInput("path", "light " + ", ".join(f"'{s}'" for s in unknown)
+                               + " gives no emittance and the scene file names no photo to "
+                                 "estimate it from")
             raise BadInput("path", "the scene file names no photo")
         photo_path = os.path.join(os.path.dirname(path), photo)
         if not os.path.exists(photo_path):

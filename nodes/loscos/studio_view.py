@@ -1,9 +1,9 @@
 """The studio's live view of Relight (Loscos 2000 §5: interactive changes of the real lights).
 
 One slider per real light scales its emittance; each move re-draws the image with Relight's
-own linear fast path (``relight.prepare`` once, then ``relight.relight_fast``: B is a
-weighted sum of the per-light radiosity responses, no gathering), so a slider costs an
-einsum and a gather.  Letting go writes ``light_scale`` into the graph (re-run through the
+own linear fast path (``relight.relight_plan`` once, then ``display.modulate_pixels``: per
+pixel a weighted sum of the per-light responses, no gathering), so a slider costs well
+under a millisecond of arithmetic.  Letting go writes ``light_scale`` into the graph (re-run through the
 cache).  A Relight that inserts virtual lights or boxes (§4.5) needs its full compute: there
 the sliders only edit the params, and the graph re-runs on release.
 """
@@ -21,12 +21,13 @@ class RoomView(LiveView):
 
     def _prep(self):
         if getattr(self, "_prepared", None) is None:
-            from .relight import prepare
+            from .relight import relight_plan
 
             v = self.inputs()
             self._sol = v["solution"]
-            self._prepared = prepare(v["solution"], v["unoccluded"], v["projection"],
-                                     v["photo"].pixels[:, :, :3])
+            self._prepared = relight_plan(v["solution"], v["unoccluded"], v["projection"],
+                                          v["photo"].pixels[:, :, :3],
+                                          self.params.fixture_reflectance)
         return self._sol, self._prepared
 
     def fast(self) -> bool:
@@ -45,14 +46,15 @@ class RoomView(LiveView):
                         "the sliders edit light_scale and the node re-runs on release"}
 
     def frame(self, values: dict):
-        from .relight import new_emittance, relight_fast
+        from .display import modulate_pixels
+        from .relight import new_emittance
 
         sol, prep = self._prep()
         if not self.fast():
             raise BadInput("light_scale", "no fast path with virtual lights or boxes")
         scale = {n: float(values.get(n, self.params.light_scale.get(n, 1.0))) for n in sol.lights}
         e = new_emittance(sol, scale, self.params.emittance)
-        return relight_fast(prep, e)
+        return modulate_pixels(prep, e)
 
     def commit(self, values: dict) -> list[dict]:
         sol, _ = self._prep()

@@ -9,7 +9,7 @@ const REF = /^\s*\$\{params\.([A-Za-z_][A-Za-z0-9_]*)\}\s*$/;
 export function unwrap(s, defs) {
   if (!s || typeof s !== 'object') return {};
   let desc = s.description;
-  if (Array.isArray(s.anyOf) && s.anyOf.length === 2 && (s.anyOf[1].pattern || '').startsWith('\\$\\{params')) {
+  if (Array.isArray(s.anyOf) && s.anyOf.length === 2 && (s.anyOf[1].pattern || '').startsWith('\\$\\{')) {
     s = s.anyOf[0];
   }
   if (s.$ref) {

@@ -39,6 +39,8 @@ import numpy as np
 
 from graphkit import Array, BadInput, Camera, Field, Image, In, Mask, Mesh, Node, Out
 
+from .quiet import mediapipe, native_logs_filtered
+
 N_LANDMARKS = 468
 #: triangles of the 3-clique set of FACEMESH_TESSELATION that are not faces of the mesh
 _NOT_FACES = {(49, 64, 129), (279, 294, 358)}
@@ -112,15 +114,15 @@ class FaceMesh(Node):
 
 def detect_landmarks(rgb_linear: np.ndarray, confidence: float) -> np.ndarray | None:
     """Linear RGB float image → mediapipe landmarks (468×3 normalised x, y, z) or None."""
-    import mediapipe as mp
+    mp = mediapipe()
 
     from nodes.common.color import linear_to_srgb
 
     srgb = np.clip(linear_to_srgb(np.clip(rgb_linear, 0, None)), 0, 1)
     u8 = np.ascontiguousarray(np.round(srgb * 255).astype(np.uint8))
-    with mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=1,
-                                         refine_landmarks=False,
-                                         min_detection_confidence=confidence) as fm:
+    with native_logs_filtered(), mp.solutions.face_mesh.FaceMesh(
+            static_image_mode=True, max_num_faces=1, refine_landmarks=False,
+            min_detection_confidence=confidence) as fm:
         res = fm.process(u8)
     if not res.multi_face_landmarks:
         return None
@@ -148,7 +150,7 @@ def back_project(uv, zpx, w, h, fov_deg, eye_mm, distance_mm=None):
 @functools.lru_cache(maxsize=1)
 def face_topology() -> np.ndarray:
     """The 852 triangles of mediapipe's tessellation, consistently wound (sorted, deterministic)."""
-    import mediapipe as mp
+    mp = mediapipe()
 
     edges = sorted(tuple(sorted(e)) for e in mp.solutions.face_mesh.FACEMESH_TESSELATION)
     adj: dict[int, set[int]] = {}
@@ -232,7 +234,7 @@ def _area(uv, loop):
 
 
 def region_masks(uv: np.ndarray, h: int, w: int, faces: np.ndarray) -> dict[str, Mask]:
-    import mediapipe as mp
+    mp = mediapipe()
 
     fm = mp.solutions.face_mesh
     oval = _loops(fm.FACEMESH_FACE_OVAL)

@@ -1,0 +1,227 @@
+"""The HTML run report (``report.html`` beside ``manifest.json``), like Nextflow's ``-with-report``.
+
+One self-contained page: the run's summary, one row per swept node (instances computed and
+cached, time), and one row per node instance with its time (and a bar to compare), cache hit,
+backend and a thumbnail of each image output.  :func:`report_file` gives the file's name and
+bytes for ``export_outputs`` to publish with the manifest.
+
+Thumbnails are small JPEGs (at most :data:`THUMB_PX` pixels on a side) of ``Image`` and
+``Mask`` outputs, shown in sRGB, and of exported PNG/JPEG/GIF/WebP files.  They are kept in the cache as ordinary entries keyed by the
+image's digest, so a re-run's report does not decode its images again.
+"""
+from __future__ import annotations
+
+import base64
+import contextlib
+import html
+import io
+import os
+import time
+from typing import Any
+
+import numpy as np
+
+from .hashing import key_digest
+
+REPORT_NAME = "report.html"
+THUMB_PX = 96
+THUMB_VERSION = 1
+#: a report of a very large sweep keeps its first this-many thumbnails
+MAX_THUMBS = 400
+_IMAGE_TYPES = ("Image", "Mask")
+_IMAGE_FILES = (".png", ".jpg", ".jpeg", ".gif", ".webp")
+
+
+def _is_image_output(session, ptype, digest: str) -> bool:
+    """Image and Mask values; File values already in memory (exported) that browsers can show."""
+    if ptype.name in _IMAGE_TYPES:
+        return True
+    if ptype.name != "File":
+        return False
+    with session._memo_lock:
+        v = session.memo.get(digest)
+    return v is not None and str(getattr(v, "name", "")).lower().endswith(_IMAGE_FILES)
+
+
+# ---------------------------------------------------------------------------------------------
+# thumbnails
+
+
+def _display_rgb(ptype_name: str, value: Any) -> np.ndarray:
+    """8-bit sRGB H×W×3 of an Image (linear unless tagged otherwise) or a Mask."""
+    if ptype_name == "Mask":
+        px = np.asarray(value.alpha, np.float32)[:, :, None]
+        linear = False
+    else:
+        px = np.asarray(value.pixels, np.float32)
+        linear = not str(getattr(value, "colorspace", "lin")).lower().startswith("srgb")
+    if px.shape[2] == 1:
+        px = np.repeat(px, 3, axis=2)
+    elif px.shape[2] == 2:
+        px = np.concatenate([px, np.zeros_like(px[:, :, :1])], axis=2)
+    px = px[:, :, :3]
+    h, w = px.shape[:2]
+    f = max(1, int(np.ceil(max(h, w) / THUMB_PX)))
+    hh, ww = max(1, h // f), max(1, w // f)
+    px = px[: hh * f, : ww * f].reshape(hh, f, ww, f, 3).mean(axis=(1, 3))  # box filter
+    px = np.nan_to_num(np.clip(px, 0.0, 1.0), nan=0.0)
+    if linear:  # the sRGB transfer function (IEC 61966-2-1), for display only
+        px = np.where(px <= 0.0031308, 12.92 * px, 1.055 * np.power(px, 1 / 2.4) - 0.055)
+    return np.round(px * 255).astype(np.uint8)
+
+
+def _file_rgb(value) -> np.ndarray:
+    """8-bit RGB of an encoded PNG/JPEG/GIF/WebP file (its first frame), at most THUMB_PX a side."""
+    from PIL import Image as PILImage
+
+    im = PILImage.open(io.BytesIO(value.data))
+    im.seek(0)
+    im = im.convert("RGB")
+    im.thumbnail((THUMB_PX, THUMB_PX), PILImage.Resampling.BOX)
+    return np.asarray(im)
+
+
+def _jpeg(rgb: np.ndarray) -> bytes:
+    from PIL import Image as PILImage
+
+    buf = io.BytesIO()
+    PILImage.fromarray(rgb, "RGB").save(buf, "JPEG", quality=85, optimize=True)
+    return buf.getvalue()
+
+
+def thumbnail(session, digest: str, ptype) -> bytes | None:
+    """JPEG bytes of a thumbnail of the image value ``digest``, from the cache when there."""
+    from .types import File, port_type
+
+    store = session.store
+    key = key_digest({"thumbnail": THUMB_VERSION, "px": THUMB_PX, "value": digest})
+    rec = store.get_record(key)
+    ftype = port_type(File)
+    if rec is not None:
+        try:
+            return store.load_value(rec["outputs"]["jpeg"]["digest"], ftype).data
+        except Exception:  # noqa: BLE001 - a damaged thumbnail entry: make it again
+            pass
+    value = session.value(digest, ptype)
+    jpeg = _jpeg(_file_rgb(value) if ptype.name == "File" else _display_rgb(ptype.name, value))
+    try:  # keep it for the next report; a read-only cache simply does not keep it
+        d = store.put_value(ftype, File("thumbnail.jpg", jpeg))
+        store.put_record(key, {"key": key, "node": "(report thumbnail)",
+                               "parts": {"node_type": "report-thumbnail", "value": digest, "px": THUMB_PX},
+                               "outputs": {"jpeg": {"digest": d, "type": "File"}}, "seconds": 0.0})
+    except Exception:  # noqa: BLE001
+        pass
+    return jpeg
+
+
+# ---------------------------------------------------------------------------------------------
+# the page
+
+_CSS = """
+body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222}
+h1{font-size:1.4em;margin:0 0 .2em} h2{font-size:1.1em;margin:1.4em 0 .4em}
+table{border-collapse:collapse} td,th{padding:3px 8px;border-bottom:1px solid #e4e4e4;text-align:left;vertical-align:middle}
+th{background:#f4f4f4;position:sticky;top:0} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
+.hit{color:#2e7d32}.miss{color:#e65100;font-weight:600} .key{font-family:monospace;color:#777}
+.bar{height:8px;background:#90caf9;display:inline-block;vertical-align:middle}
+.meta td{border:0;padding:1px 10px 1px 0} img{display:inline-block;margin:1px 4px 1px 0;border:1px solid #ddd;max-height:64px}
+input{margin:.3em 0 .6em;padding:3px 6px;width:18em}
+"""
+
+_JS = """
+document.getElementById('q').addEventListener('input',function(e){var q=e.target.value.toLowerCase();
+document.querySelectorAll('#nodes tbody tr').forEach(function(r){r.style.display=r.textContent.toLowerCase().indexOf(q)<0?'none':''})});
+"""
+
+
+def _e(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def report_html(session, result, manifest: dict) -> bytes:
+    """The report page for a finished run (``manifest`` is the run's manifest.json content)."""
+    graph = session.graph
+    outcomes = result.outcomes
+    n_hit = sum(o.hit for o in outcomes.values())
+    n_run = len(outcomes) - n_hit
+    compute_s = sum(o.seconds for o in outcomes.values() if not o.hit)
+    longest = max((o.seconds for o in outcomes.values()), default=0.0) or 1.0
+    out = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
+           f"<title>{_e(graph.name)}: graphkit run report</title><style>{_CSS}</style></head><body>",
+           f"<h1>{_e(graph.name)}</h1><table class='meta'>"]
+    shown_path = graph.path
+    with contextlib.suppress(ValueError):
+        rel = os.path.relpath(graph.path)
+        shown_path = graph.path if rel.startswith("..") else rel
+    meta = [("graph", shown_path), ("finished", manifest.get("finished", time.strftime("%Y-%m-%dT%H:%M:%S%z"))),
+            ("executor", result.executor), ("wall time", f"{result.seconds:.2f} s"),
+            ("nodes", f"{len(outcomes)}: {n_run} computed ({compute_s:.2f} s of node time), {n_hit} cached"),
+            ("host", manifest.get("host", "")), ("cache", manifest.get("cache", "")),
+            ("graph digest", manifest.get("graph_digest", ""))]
+    if graph.params:
+        meta.append(("params", ", ".join(f"{k}={v!r}" for k, v in graph.params.items())))
+    out += [f"<tr><td>{_e(k)}</td><td>{_e(v)}</td></tr>" for k, v in meta]
+    out.append("</table>")
+
+    bases: dict[str, list] = {}
+    for n in [n for n in graph.nodes if n in outcomes]:
+        g = graph.nodes[n]
+        if g.sweep:
+            bases.setdefault(g.base, []).append(outcomes[n])
+    if bases:
+        out.append("<h2>Sweeps</h2><table><thead><tr><th>node</th><th>type</th><th>sweep</th><th>instances</th>"
+                   "<th>computed</th><th>cached</th><th>node time</th></tr></thead><tbody>")
+        for base, os_ in bases.items():
+            g = graph.nodes[os_[0].name]
+            hits = sum(o.hit for o in os_)
+            secs = sum(o.seconds for o in os_ if not o.hit)
+            out.append(f"<tr><td>{_e(base)}</td><td>{_e(g.type)}</td><td>{_e(g.sweep)}</td>"
+                       f"<td class='num'>{len(os_)}</td><td class='num'>{len(os_) - hits}</td>"
+                       f"<td class='num'>{hits}</td><td class='num'>{secs:.2f} s</td></tr>")
+        out.append("</tbody></table>")
+
+    out.append("<h2>Node instances</h2><input id='q' placeholder='filter (node, type, backend…)'>"
+               "<table id='nodes'><thead><tr><th>node</th><th>instance</th><th>type</th><th>cache</th>"
+               "<th>time</th><th></th><th>backend</th><th>key</th><th>image outputs</th></tr></thead><tbody>")
+    thumbs = 0
+    skipped = 0
+    for n in [n for n in graph.nodes if n in outcomes]:  # graph-file order, instances in sweep order
+        o = outcomes[n]
+        g = graph.nodes[n]
+        imgs = []
+        for port, d in o.outputs.items():
+            p = g.cls.out_ports.get(port)
+            if p is None or not _is_image_output(session, p.type, d):
+                continue
+            if thumbs >= MAX_THUMBS:
+                skipped += 1
+                continue
+            try:
+                jpeg = thumbnail(session, d, p.type)
+            except Exception:  # noqa: BLE001 - a report never fails a run
+                jpeg = None
+            if jpeg:
+                thumbs += 1
+                imgs.append(f"<img alt='{_e(port)}' title='{_e(port)}' src='data:image/jpeg;base64,"
+                            f"{base64.b64encode(jpeg).decode()}'>")
+        bar = max(1, round(120 * o.seconds / longest))
+        backend = o.backend + (f" {o.backend_version}" if o.backend != "numpy" else "")
+        out.append(
+            f"<tr><td>{_e(g.base or n)}</td><td>{_e(g.instance or '')}</td><td>{_e(o.type)}</td>"
+            + (f"<td class='hit'>cached</td>" if o.hit else "<td class='miss'>computed</td>")
+            + f"<td class='num'>{o.seconds:.3f} s</td><td><span class='bar' style='width:{bar}px'></span></td>"
+            f"<td>{_e(backend)}</td><td class='key'>{_e(o.key[:12])}</td><td>{''.join(imgs)}</td></tr>")
+    out.append("</tbody></table>")
+    if skipped:
+        out.append(f"<p>{skipped} more image outputs have no thumbnail (at most {MAX_THUMBS} per report).</p>")
+    out.append(f"<p class='key'>written by graphkit; manifest.json beside this file holds the same run "
+               f"in full</p><script>{_JS}</script></body></html>\n")
+    return "".join(out).encode("utf-8")
+
+
+def report_file(session, result, manifest: dict) -> tuple[str, bytes]:
+    """(file name, bytes) of the report, for :func:`graphkit.executor.export_outputs`."""
+    return REPORT_NAME, report_html(session, result, manifest)
+
+
+__all__ = ["report_file", "report_html", "thumbnail", "REPORT_NAME"]
