@@ -72,22 +72,10 @@ def peer_moderngl(mesh, cam, runs):
     except Exception as e:  # noqa: BLE001
         return None, f"moderngl unavailable: {e}"
     W, H = cam.width, cam.height
-    prog = ctx.program(vertex_shader="""
-        #version 330
-        uniform mat4 P; in vec3 pos; in vec3 nrm; out vec3 n; out vec3 p;
-        void main() { p = pos; n = nrm; gl_Position = P * vec4(pos, 1.0); }""",
-        fragment_shader="""
-        #version 330
-        in vec3 n; in vec3 p; out vec4 c;
-        uniform vec3 L; uniform vec3 kd; uniform float ks; uniform float s;
-        void main() {
-            vec3 N = normalize(n); vec3 V = normalize(-p);
-            if (dot(N, V) < 0.0) N = -N;
-            float d = max(dot(N, L), 0.0);
-            vec3 R = 2.0 * dot(N, L) * N - L;
-            float sp = d > 0.0 ? pow(max(dot(R, V), 0.0), s) : 0.0;
-            c = vec4(kd * d + ks * sp, 1.0);
-        }""")
+    from peers import phong_peer
+
+    vs, fs = phong_peer("330")
+    prog = ctx.program(vertex_shader=vs, fragment_shader=fs)
     n, f = 0.1, 10000.0
     # OpenCV intrinsics → clip space (y down in the image)
     P = np.array([[2 * cam.fx / W, 0, 1 - 2 * cam.cx / W, 0],

@@ -59,7 +59,7 @@ def _source_copy(dest: Path) -> Path:
     return dest
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # built once even when xdist interleaves other modules
 def wheels(tmp_path_factory):
     out = tmp_path_factory.mktemp("wheels")
     src = _source_copy(tmp_path_factory.mktemp("src") / "relightkit")
@@ -71,7 +71,7 @@ def wheels(tmp_path_factory):
     return found
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # built once even when xdist interleaves other modules
 def venv(wheels, tmp_path_factory):
     home = tmp_path_factory.mktemp("venv")
     assert ROOT not in home.parents
@@ -153,7 +153,7 @@ def test_shaders_and_builtins_after_pip_install_target(wheels, tmp_path):
     # -S: no site-packages at all (no editable install of the checkout); only the target folder
     code = ("import sys; sys.path.insert(0, sys.argv[1]);"
             "from graphkit.resources import shader_path; from nodes.io.builtin import builtin_path;"
-            "print(shader_path('opencl/ratio.cl')); print(shader_path('glsl/render.frag'));"
+            "print(shader_path('opencl/ratio.cl')); print(shader_path('glsl/shade.frag'));"
             "print(builtin_path('builtin:sample_capture/photo.exr'))")
     r = _run([sys.executable, "-S", "-c", code, target], cwd=tmp_path)
     paths = r.stdout.split()

@@ -76,7 +76,7 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
     from starlette.websockets import WebSocket, WebSocketDisconnect
 
     from .imaging import preview_png
-    from .views import view_for
+    from .views import NotReady, view_for
 
     def err(status: int, message: str, **extra):
         return JSONResponse({"ok": False, "error": message, **extra}, status_code=status)
@@ -170,6 +170,8 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
             return err(404, f"node '{name}' has no live view")
         try:
             data = await run_in_threadpool(v.data)
+        except NotReady as e:  # not an error: the page mounts the view when the run is done
+            return JSONResponse({"ok": False, "pending": True, "error": str(e)})
         except GraphkitError as e:
             return err(409, str(e))
         return JSONResponse({"ok": True, "node": name, "data": data, **v.describe()})

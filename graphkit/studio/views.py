@@ -22,6 +22,10 @@ from typing import Any
 from ..errors import GraphkitError
 
 
+class NotReady(GraphkitError):
+    """The view's inputs are not computed yet: the page waits for the run and asks again."""
+
+
 class LiveView:
     """Base class of live views (see the module docstring)."""
 
@@ -46,7 +50,7 @@ class LiveView:
         """The node's input values from the current run (BadInput if not computed yet)."""
         vals = self.studio.input_values(self.node)
         if vals is None:
-            raise GraphkitError(f"node '{self.node}': its inputs are not computed yet (run the graph first)")
+            raise NotReady(f"node '{self.node}': its inputs are not computed yet (run the graph first)")
         return vals
 
     def data(self) -> dict:

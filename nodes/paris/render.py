@@ -437,6 +437,7 @@ class Render(Node):
     """
 
     version = "2"
+    studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)"),
               "camera": In(Camera, "the camera to render from"),
               "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),

@@ -1,5 +1,5 @@
 #version 330
-// View-space depth pass (shadow maps, texture-camera occlusion map) of the Render backend.
+// View-space depth pass of Render's GL pipeline (shadow maps, texture-camera occlusion map).
 // `q` is the vertex in the view's frame (computed in float64 on the host); `proj` maps it to
 // clip space so that window coordinates are the reference rasteriser's pixel coordinates.
 uniform mat4 proj;

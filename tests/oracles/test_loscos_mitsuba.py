@@ -28,7 +28,7 @@ def run(node_cls, params=None, **inputs):
     return n.compute(**inputs)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # kept while xdist interleaves other modules
 def pipe():
     s = run(LoadScene, {"path": "builtin:cornell2"})
     pr = run(ProjectTextures, {}, scene=s["scene"], camera=s["camera"], photo=s["photo"])

@@ -37,7 +37,7 @@ def psnr(a, b, mask=None):
     return 10 * np.log10(1.0 / np.mean(d if mask is None else d[mask]))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # kept while xdist interleaves other modules
 def c3():
     s = run(LoadScene, {"path": "builtin:cornell3"})
     pr = run(ProjectTextures, {}, scene=s["scene"], camera=s["camera"], photo=s["photo"])

@@ -84,7 +84,7 @@ def test_eq3_closed_form():
         assert shininess_from_angle(a_inf) == pytest.approx(s, rel=1e-3)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # kept while xdist interleaves other modules
 def renders(tmp_path_factory):
     _povray()
     tmp = tmp_path_factory.mktemp("povray")
@@ -161,7 +161,7 @@ sphere {{ <0,0,{PIPE_D}>, 1 texture {{ pigment {{ color rgb <{SKIN[0]},{SKIN[1]}
     return _run_povray(tmp_path / name, scene, PIPE_SIZE)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # kept while xdist interleaves other modules
 def scene():
     """The sphere as a mesh (icosphere, 20,480 triangles), its pinhole camera, a full skin mask."""
     import trimesh
@@ -175,7 +175,7 @@ def scene():
     return {"mesh": mesh, "camera": cam, "skin": Mask(np.ones((PIPE_SIZE, PIPE_SIZE), np.float32))}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # kept while xdist interleaves other modules
 def pinhole_renders(tmp_path_factory):
     _povray()
     tmp = tmp_path_factory.mktemp("povray_pinhole")

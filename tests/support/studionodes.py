@@ -106,3 +106,36 @@ def __getattr__(name):  # GAIN_VIEW is built on first use (graphkit.studio impor
     if name == "GAIN_VIEW":
         return _gain_view()
     raise AttributeError(name)
+
+
+class FaceScene(Node):
+    """A Render scene for the WebGL face view's tests: a sphere "head" (icosphere, 1.3k
+    triangles) in front of a wall, a perspective camera, a Phong material and a random detail
+    texture seen from the same camera."""
+
+    from graphkit import Camera as _C, Mesh as _M
+    from nodes.paris.models import PhongMaterial as _P
+
+    outputs = {"mesh": _M, "camera": _C, "material": _P, "detail": Image}
+    del _C, _M, _P
+
+    class Params(Node.Params):
+        size: int = Field(96, ge=16, le=1024, description="camera pixels per side")
+
+    def compute(self):
+        import trimesh
+
+        from graphkit import Camera
+        from nodes.paris.models import PhongMaterial
+
+        n = self.params.size
+        wall = trimesh.Trimesh([[-1.8, -1.8, 6], [1.8, -1.8, 6], [1.8, 1.8, 6], [-1.8, 1.8, 6], [0, 0, 6]],
+                               [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]], process=False)
+        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.8)
+        ball.apply_translation((0.0, 0.0, 4.5))
+        cam = Camera(width=n, height=n, fx=1.1 * n, fy=1.1 * n, cx=n / 2, cy=n / 2)
+        rng = np.random.default_rng(5)
+        detail = Image(rng.uniform(0.6, 1.4, (n, n, 3)).astype(np.float32))
+        return {"mesh": trimesh.util.concatenate([wall, ball]), "camera": cam,
+                "material": PhongMaterial(diffuse=(0.6, 0.45, 0.35), specular=0.35, shininess=20.0),
+                "detail": detail}

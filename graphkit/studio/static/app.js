@@ -269,6 +269,7 @@ async function mountView(n) {
   body.id = 'view-body';
   panel.append(h, body);
   const res = await api(`/api/view/${encodeURIComponent(n.name)}`);
+  studio.pendingView = res.pending ? n.name : null;  // mounted again when a run finishes
   if (!res.ok) { body.textContent = res.error; return; }
   try {
     const mod = await import(`/views/${encodeURIComponent(n.type)}.js`);
@@ -322,6 +323,9 @@ function connect() {
     } else if (m.type === 'run') {
       showRun(m);
       if (studio.state) studio.state.run = m;
+      if (m.status === 'ok' && studio.pendingView && studio.pendingView === studio.selected) {
+        mountView(nodeByName(studio.pendingView));
+      }
     } else if (m.type === 'frame') {
       const w = frameWaiters.get(m.id);
       frameWaiters.delete(m.id);

@@ -1,0 +1,368 @@
+// Studio live view of Render (Paris 2003 §5): the face relit in the browser with WebGL2.
+// The programs are shaders/glsl/ as graphkit.glsl preprocesses them for GLSL ES 3.00 (the
+// moderngl backend compiles the same files as GLSL 3.30); the scene (mesh, camera, detail
+// texture, material, light uniforms, shadow-map frames) comes from nodes/paris/glscene.py.
+// Passes as in plugins/graphkit-moderngl/graphkit_moderngl/render.py: shadow atlas, texture-
+// camera depth, surface (g-buffer, kept while only the light changes), lighting (shade.frag,
+// into an RGBA32F target), display (display.frag: × 2^exposure, sRGB, onto the canvas).
+// Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, sync, time,
+// profile (median ms per pass), program (swap a program: shader experiments)}.
+
+function decode(a) {
+  const bin = atob(a.b64);
+  const u8 = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) u8[i] = bin.charCodeAt(i);
+  return a.dtype === 'u4' ? new Uint32Array(u8.buffer) : new Float32Array(u8.buffer);
+}
+
+function program(gl, [vs, fs]) {
+  const p = gl.createProgram();
+  for (const [type, src] of [[gl.VERTEX_SHADER, vs], [gl.FRAGMENT_SHADER, fs]]) {
+    const s = gl.createShader(type);
+    gl.shaderSource(s, src);
+    gl.compileShader(s);
+    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+    gl.attachShader(p, s);
+  }
+  gl.linkProgram(p);
+  if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
+  const loc = {};
+  p.u = name => (name in loc ? loc[name] : (loc[name] = gl.getUniformLocation(p, name)));
+  return p;
+}
+
+function target(gl, W, H, formats, depth = true) {
+  const fbo = gl.createFramebuffer();
+  gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+  const tex = formats.map((f, i) => {
+    const t = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, t);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, f, W, H);
+    for (const k of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, k, gl.NEAREST);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0);
+    return t;
+  });
+  if (depth) {
+    const rb = gl.createRenderbuffer();
+    gl.bindRenderbuffer(gl.RENDERBUFFER, rb);
+    gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT24, W, H);
+    gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, rb);
+  }
+  gl.drawBuffers(formats.map((_, i) => gl.COLOR_ATTACHMENT0 + i));
+  const st = gl.checkFramebufferStatus(gl.FRAMEBUFFER);
+  if (st !== gl.FRAMEBUFFER_COMPLETE) throw new Error(`framebuffer incomplete (${st})`);
+  return { fbo, tex, W, H, n: formats.length };
+}
+
+function mesh(gl, prog, verts, faces, layout) {
+  const vao = gl.createVertexArray();
+  gl.bindVertexArray(vao);
+  const vb = gl.createBuffer();
+  gl.bindBuffer(gl.ARRAY_BUFFER, vb);
+  gl.bufferData(gl.ARRAY_BUFFER, verts, gl.STATIC_DRAW);
+  const stride = layout.length * 12;
+  layout.forEach((name, i) => {
+    const l = gl.getAttribLocation(prog, name);
+    if (l < 0) return;
+    gl.enableVertexAttribArray(l);
+    gl.vertexAttribPointer(l, 3, gl.FLOAT, false, stride, i * 12);
+  });
+  const ib = gl.createBuffer();
+  gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
+  gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, faces, gl.STATIC_DRAW);
+  gl.bindVertexArray(null);
+  return { vao, vb, ib, count: faces.length, release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); gl.deleteBuffer(ib); } };
+}
+
+export function createFaceRenderer(canvas, d) {
+  const gl = canvas.getContext('webgl2', { antialias: false, preserveDrawingBuffer: true });
+  if (!gl) throw new Error('WebGL2 is not available in this browser');
+  if (!gl.getExtension('EXT_color_buffer_float')) throw new Error('EXT_color_buffer_float is missing: no float render targets');
+  const W = d.W, H = d.H;
+  canvas.width = W; canvas.height = H;
+  const P = {};
+  for (const k of Object.keys(d.glsl)) P[k] = program(gl, d.glsl[k]);
+  const empty = gl.createVertexArray();
+  const verts = decode(d.vertices), faces = decode(d.faces);
+  const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
+  const mainG = mesh(gl, P.gbuffer, verts, faces, ['q', 'P', 'N']);
+  const gbuf = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F, gl.RGBA32F]);
+  const out = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F], false);
+  let scene = d, atlas = null, atlasTiles = null, shadowMeshes = [], gbufDone = false, detailTex = null, texDepth = null;
+  const nL = Math.max(d.lights.length, 1);
+
+  function depthPass(geom, viewport) {
+    gl.useProgram(P.depth);
+    gl.uniformMatrix4fv(P.depth.u('proj'), false, geom.clip);
+    gl.viewport(...viewport);
+    gl.bindVertexArray(geom.mesh.vao);
+    gl.drawElements(gl.TRIANGLES, geom.mesh.count, gl.UNSIGNED_INT, 0);
+  }
+
+  function shadowAtlas() {
+    const sms = scene.shadow, size = scene.shadow_map_size;
+    const n = sms.length, cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
+    if (!atlas || atlas.W !== cols * size || atlas.H !== rows * size) atlas = target(gl, cols * size, rows * size, [gl.R32F]);
+    atlasTiles = sms.map((_, i) => [(i % cols) * size, Math.floor(i / cols) * size]);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, atlas.fbo);
+    gl.viewport(0, 0, atlas.W, atlas.H);
+    gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true); gl.colorMask(true, true, true, true);
+    gl.clearBufferfv(gl.COLOR, 0, [1e30, 0, 0, 0]);
+    gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
+    shadowMeshes.forEach(m => m && m.release());
+    shadowMeshes = sms.map((sm, i) => {
+      if (!sm) return null;
+      const m = mesh(gl, P.depth, decode(sm.q), decode(sm.faces), ['q']);
+      depthPass({ clip: sm.clip, mesh: m }, [atlasTiles[i][0], atlasTiles[i][1], size, size]);
+      return m;
+    });
+  }
+
+  function surface() {
+    gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true);
+    const det = d.detail;
+    if (det) {
+      const [tw, th] = det.size;
+      texDepth = target(gl, tw, th, [gl.RGBA32F]);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, texDepth.fbo);
+      gl.viewport(0, 0, tw, th);
+      gl.clearBufferfv(gl.COLOR, 0, [0, 0, 0, 0]);
+      gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
+      const m = mesh(gl, P.depth, decode(det.q), decode(det.faces), ['q']);
+      depthPass({ clip: det.clip, mesh: m }, [0, 0, tw, th]);
+      m.release();
+      detailTex = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, detailTex);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGB32F, tw, th);
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, tw, th, gl.RGB, gl.FLOAT, decode(det.pixels));
+      for (const k of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, k, gl.NEAREST);
+    }
+    gl.bindFramebuffer(gl.FRAMEBUFFER, gbuf.fbo);
+    gl.viewport(0, 0, W, H);
+    for (let i = 0; i < 3; i++) gl.clearBufferfv(gl.COLOR, i, [0, 0, 0, 0]);
+    gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
+    // depth pre-pass, then the surface pass on the nearest fragment only (depth ==)
+    gl.colorMask(false, false, false, false);
+    depthPass({ clip: d.clip, mesh: mainZ }, [0, 0, W, H]);
+    gl.colorMask(true, true, true, true);
+    const g = P.gbuffer;
+    gl.useProgram(g);
+    gl.uniformMatrix4fv(g.u('proj'), false, d.clip);
+    gl.uniform3fv(g.u('cam_pos'), d.cam_pos);
+    gl.uniform3fv(g.u('cam_back'), d.cam_back);
+    if (det) {
+      gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, detailTex);
+      gl.activeTexture(gl.TEXTURE1); gl.bindTexture(gl.TEXTURE_2D, texDepth.tex[0]);
+      gl.uniform1i(g.u('detail'), 0);
+      gl.uniform1i(g.u('tex_depth'), 1);
+      gl.uniformMatrix4fv(g.u('tex_proj'), false, det.proj);
+      gl.uniform2iv(g.u('tex_size'), det.size);
+      gl.uniform1f(g.u('occl_tol'), det.tol);
+    }
+    gl.depthFunc(gl.EQUAL);
+    gl.bindVertexArray(mainG.vao);
+    gl.drawElements(gl.TRIANGLES, mainG.count, gl.UNSIGNED_INT, 0);
+    gl.depthFunc(gl.LESS);
+    gbufDone = true;
+  }
+
+  function shadeUniforms(s) {
+    gl.useProgram(s);
+    for (let i = 0; i < 3; i++) { gl.activeTexture(gl.TEXTURE0 + i); gl.bindTexture(gl.TEXTURE_2D, gbuf.tex[i]); }
+    gl.uniform1i(s.u('g_pos'), 0); gl.uniform1i(s.u('g_normal'), 1); gl.uniform1i(s.u('g_detail'), 2);
+    const L = scene.lights;
+    const kind = new Int32Array(nL), dir = new Float32Array(3 * nL), pos = new Float32Array(3 * nL), rgb = new Float32Array(3 * nL);
+    for (let i = 0; i < nL; i++) dir[3 * i + 2] = 1;
+    L.forEach((l, i) => { kind[i] = l.kind; dir.set(l.dir, 3 * i); pos.set(l.pos, 3 * i); rgb.set(l.rgb, 3 * i); });
+    gl.uniform1iv(s.u('light_kind'), kind);
+    gl.uniform3fv(s.u('light_dir'), dir); gl.uniform3fv(s.u('light_pos'), pos); gl.uniform3fv(s.u('light_rgb'), rgb);
+    if (scene.shadow) {
+      gl.activeTexture(gl.TEXTURE3); gl.bindTexture(gl.TEXTURE_2D, atlas.tex[0]);
+      gl.uniform1i(s.u('shadow_maps'), 3);
+      gl.uniform1i(s.u('sm_size'), scene.shadow_map_size);
+      const tl = new Int32Array(2 * nL), M = new Float32Array(16 * nL), pr = new Float32Array(4 * nL), b = new Float32Array(2 * nL).fill(1);
+      for (let i = 0; i < nL; i++) M.set([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1], 16 * i);
+      scene.shadow.forEach((sm, i) => {
+        tl.set(atlasTiles[i], 2 * i);
+        if (!sm) return;
+        M.set(sm.to_light, 16 * i); pr.set(sm.proj, 4 * i); b.set(sm.bias, 2 * i);
+      });
+      gl.uniform2iv(s.u('sm_tile'), tl);
+      gl.uniformMatrix4fv(s.u('sm_to_light'), false, M);
+      gl.uniform4fv(s.u('sm_proj'), pr);
+      gl.uniform2fv(s.u('sm_bias'), b);
+    }
+    gl.uniform3fv(s.u('cam_pos'), d.cam_pos); gl.uniform3fv(s.u('cam_back'), d.cam_back);
+    gl.uniform3fv(s.u('kd'), d.kd); gl.uniform1f(s.u('i_s'), d.i_s); gl.uniform1f(s.u('shininess'), d.shininess);
+    gl.uniform3fv(s.u('ambient'), d.ambient); gl.uniform3fv(s.u('background'), d.background);
+    gl.uniform1f(s.u('exposure'), d.exposure); gl.uniform1i(s.u('clamp01'), d.clamp ? 1 : 0);
+    const e = d.eyes;
+    if (e) {
+      gl.uniformMatrix3fv(s.u('ray_org'), false, e.ray_org); gl.uniformMatrix3fv(s.u('ray_dir'), false, e.ray_dir);
+      gl.uniform3fv(s.u('fwd'), e.fwd); gl.uniform3fv(s.u('eye_c'), e.c); gl.uniform3fv(s.u('eye_axis'), e.axis);
+      gl.uniform1f(s.u('eye_R'), e.R); gl.uniform1f(s.u('eye_s'), e.s); gl.uniform1f(s.u('eye_ks'), e.ks);
+    }
+  }
+
+  function lighting() {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
+    gl.viewport(0, 0, W, H);
+    gl.disable(gl.DEPTH_TEST);
+    // only the boxes where a surface or an eye can be are shaded (glscene.scene): the mesh's
+    // without the eye highlights, then the eyes' with them; the rest is the background as
+    // shade.frag would write it (glscene.background_out)
+    gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 1]);
+    gl.clearBufferfv(gl.COLOR, 1, [0, 0, 0, 0]);
+    gl.enable(gl.SCISSOR_TEST);
+    gl.bindVertexArray(empty);
+    for (const [prog, box] of [[P.shade, d.bbox], [P.shade_eyes, d.eye_box]]) {
+      if (!prog || !box || !(box[2] > 0 && box[3] > 0)) continue;
+      shadeUniforms(prog);
+      gl.scissor(...box);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
+    gl.disable(gl.SCISSOR_TEST);
+  }
+
+  function display(exposure) {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.viewport(0, 0, W, H);
+    gl.useProgram(P.display);
+    gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, out.tex[0]);
+    gl.uniform1i(P.display.u('image'), 0);
+    gl.uniform1f(P.display.u('scale'), Math.pow(2, exposure));
+    gl.bindVertexArray(empty);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+  }
+
+  return {
+    W, H, gl,
+    setLights(part) { scene = { ...scene, ...part }; if (scene.shadow) shadowAtlas(); },
+    draw(exposure = 0) {
+      if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
+      lighting();
+      display(exposure);
+    },
+    readImage() {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
+      gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
+      gl.readBuffer(gl.COLOR_ATTACHMENT0);
+      const px = new Float32Array(W * H * 4);
+      gl.readPixels(0, 0, W, H, gl.RGBA, gl.FLOAT, px);
+      return px;
+    },
+    program(k, srcs) { P[k] = program(gl, srcs); },  // swap a program (shader experiments)
+    profile(n) {  // median ms of each pass over n frames, each pass synced (benchmarks)
+      const t = { shadow: [], lighting: [], display: [] };
+      const run = (k, f) => { const t0 = performance.now(); f(); this.sync(); t[k].push(performance.now() - t0); };
+      this.draw();
+      for (let i = 0; i < n; i++) {
+        if (scene.shadow) run('shadow', shadowAtlas);
+        run('lighting', lighting);
+        run('display', () => display(0));
+      }
+      const med = a => a.length ? a.sort((x, y) => x - y)[a.length >> 1] : 0;
+      return Object.fromEntries(Object.entries(t).map(([k, v]) => [k, med(v)]));
+    },
+    sync() { const p = new Uint8Array(4); gl.bindFramebuffer(gl.FRAMEBUFFER, null); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, p); return p; },
+  };
+}
+
+function b64(f32) {
+  const u8 = new Uint8Array(f32.buffer);
+  let s = '';
+  for (let i = 0; i < u8.length; i += 0x8000) s += String.fromCharCode.apply(null, u8.subarray(i, i + 0x8000));
+  return btoa(s);
+}
+
+export function mount(el, api) {
+  const d = api.data;
+  const wrap = document.createElement('div');
+  const canvas = document.createElement('canvas');
+  canvas.className = 'view-img face-gl';
+  canvas.style.maxWidth = '100%';
+  const info = document.createElement('div');
+  info.className = 'dim view-info';
+  let r;
+  try { r = createFaceRenderer(canvas, d); } catch (e) { info.textContent = `WebGL2 face view unavailable: ${e.message}`; wrap.append(info); el.append(wrap); return; }
+  const light = { direction: d.light.direction, intensity: d.light.intensity, color: d.light.color };
+  // the sphere widget: a point on the visible hemisphere = the light direction (camera frame:
+  // x right, y down, towards the viewer = −z), turned into the world frame (Rᵀ c)
+  const R = d.cam_rotation;  // row-major world → camera
+  const toWorld = c => [0, 1, 2].map(j => R[j] * c[0] + R[3 + j] * c[1] + R[6 + j] * c[2]);
+  const toCam = w => [0, 1, 2].map(i => R[3 * i] * w[0] + R[3 * i + 1] * w[1] + R[3 * i + 2] * w[2]);
+  const ball = document.createElement('canvas');
+  ball.width = ball.height = 120;
+  ball.className = 'light-ball';
+  ball.title = 'drag: the direction of light 0 (towards the light)';
+  const g2 = ball.getContext('2d');
+  function drawBall() {
+    const c = toCam(light.direction);
+    g2.clearRect(0, 0, 120, 120);
+    g2.fillStyle = '#333'; g2.beginPath(); g2.arc(60, 60, 56, 0, 2 * Math.PI); g2.fill();
+    g2.fillStyle = c[2] <= 0 ? '#ffd' : '#777';
+    g2.beginPath(); g2.arc(60 + 56 * c[0], 60 + 56 * c[1], 6, 0, 2 * Math.PI); g2.fill();
+  }
+  let inflight = false, queued = false;
+  let frames = 0;
+  async function update() {
+    if (inflight) { queued = true; return; }
+    inflight = true;
+    try {
+      const res = await api.frame({ ...light });
+      if (res.info.error) { info.textContent = res.info.error; return; }
+      r.setLights(res.info.scene);
+      r.draw(api.exposure());
+      frames += 1;
+      canvas.dataset.frames = String(frames);
+      info.textContent = `${r.W}×${r.H} WebGL2 · host ${res.info.compute_ms} ms`;
+    } finally {
+      inflight = false;
+      if (queued) { queued = false; update(); }
+    }
+  }
+  function fromBall(ev) {
+    const b = ball.getBoundingClientRect();
+    let x = ((ev.clientX - b.left) / b.width * 120 - 60) / 56, y = ((ev.clientY - b.top) / b.height * 120 - 60) / 56;
+    const n = Math.hypot(x, y);
+    if (n > 0.999) { x /= n / 0.999; y /= n / 0.999; }
+    light.direction = toWorld([x, y, -Math.sqrt(Math.max(0, 1 - x * x - y * y))]);
+    drawBall();
+    update();
+  }
+  let dragging = false;
+  ball.addEventListener('pointerdown', e => { dragging = true; ball.setPointerCapture(e.pointerId); fromBall(e); });
+  ball.addEventListener('pointermove', e => { if (dragging) fromBall(e); });
+  ball.addEventListener('pointerup', () => { dragging = false; });
+  const row = document.createElement('div');
+  row.className = 'ctl';
+  const inten = Object.assign(document.createElement('input'), { type: 'range', min: 0, max: 4, step: 0.01, value: light.intensity, title: 'intensity of light 0' });
+  inten.dataset.key = 'intensity';
+  inten.addEventListener('input', () => { light.intensity = +inten.value; update(); });
+  const hex = c => '#' + c.map(v => Math.round(Math.min(1, Math.max(0, v)) * 255).toString(16).padStart(2, '0')).join('');
+  const col = Object.assign(document.createElement('input'), { type: 'color', value: hex(light.color), title: 'colour of light 0 (linear RGB)' });
+  col.addEventListener('input', () => { light.color = [1, 3, 5].map(i => parseInt(col.value.slice(i, i + 2), 16) / 255); update(); });
+  row.append(ball, inten, col);
+  wrap.append(canvas, row, info);
+  el.append(wrap);
+  drawBall();
+  r.draw(api.exposure());
+  canvas.dataset.frames = '1';
+  canvas.gkFace = {
+    async setLight(values) { Object.assign(light, values); drawBall(); await update(); return frames; },
+    readImage() { return b64(r.readImage()); },
+    profile(n) { return r.profile(n); },
+    program(k, s) { r.program(k, s); },
+    sync() { return r.sync(); },  // a 1-pixel read-back of the canvas: waits for the frame
+    time(n) {  // n lighting frames (light changed: shadow atlas + lighting + display), each synced with readPixels
+      const ts = [];
+      for (let i = 0; i < n; i++) {
+        const t = performance.now();
+        if (r && light) r.setLights({});
+        r.draw(api.exposure());
+        r.sync();
+        ts.push(performance.now() - t);
+      }
+      return ts;
+    },
+  };
+}

@@ -1,0 +1,148 @@
+"""The studio's live view of Render (Paris 2003 §5): the face relit in the browser with WebGL2.
+
+The page draws the §5 model (Phong × detail texture, shadow maps, eye highlights, exposure and
+the clamp) itself, with the programs of ``shaders/glsl/`` preprocessed for GLSL ES 3.00 by
+``graphkit.glsl`` (the same source the moderngl backend compiles as GLSL 3.30), from the scene
+``nodes.paris.glscene.scene`` prepares from the node's inputs as the current run computed them
+(the mesh, detail texture, material and camera) — the same arrays and uniforms the opengl
+backend uses.  The first light is dragged on a sphere widget (direction, intensity, colour):
+each change asks :meth:`FaceView.frame` for that light's uniforms and shadow-map frame (host
+float64 maths, one implementation), then the browser re-renders the shadow map and the lighting
+pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
+"""
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+
+from graphkit import BadInput, Light
+from graphkit.studio import LiveView
+
+
+def _arr(a, dtype="f4"):
+    a = np.ascontiguousarray(np.asarray(a, dtype=dtype))
+    return {"b64": base64.b64encode(a.astype("<" + dtype).tobytes()).decode(), "dtype": dtype,
+            "shape": list(a.shape)}
+
+
+def _mat(m):
+    """A matrix, column-major (as GLSL takes it)."""
+    return [float(x) for x in np.asarray(m, np.float64).T.ravel()]
+
+
+def _vec(v):
+    return [float(x) for x in np.asarray(v, np.float64).ravel()]
+
+
+class FaceView(LiveView):
+    title = "face relighting (WebGL2, Paris §5)"
+    js = "studio_view.js"
+
+    def _lights(self, values: dict, lights=None):
+        lights = list(self.inputs()["lights"] if lights is None else lights)
+        if not lights:
+            raise BadInput("lights", "no light to drag")
+        l0 = lights[0]
+        if values:
+            upd = {}
+            if "direction" in values:
+                d = np.asarray(values["direction"], np.float64)
+                if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+                    raise BadInput("direction", f"not a direction: {values['direction']!r}")
+                upd["direction"] = tuple(d / np.linalg.norm(d))
+                upd["kind"] = "directional"
+            if "intensity" in values:
+                upd["intensity"] = float(values["intensity"])
+            if "color" in values:
+                upd["color"] = tuple(float(c) for c in values["color"])
+            lights[0] = Light(**{**l0.model_dump(), **upd})
+        return lights
+
+    def _scene(self, values: dict):
+        from .glscene import scene
+
+        v = self.inputs()
+        return scene(self.params, v["mesh"], v["camera"], v["material"], self._lights(values),
+                     v.get("detail"), v.get("texture_camera"), v.get("ambient"))
+
+    def _light_part(self, job, p):
+        out = {"lights": [{"kind": int(k), "dir": _vec(d), "pos": _vec(pos), "rgb": _vec(rgb)}
+                          for k, d, pos, rgb in job["lights"]]}
+        if job["shadow"] is not None:
+            out["shadow"] = [None if sm is None else {
+                "to_light": _mat(sm["to_light"]), "proj": _vec(sm["proj"]), "bias": _vec(sm["bias"]),
+                "clip": _mat(sm["clip"]), "faces": _arr(sm["faces"], "u4"), "q": _arr(sm["q"])}
+                for sm in job["shadow"]]
+            out["shadow_map_size"] = int(p.shadow_map_size)
+        return out
+
+    def data(self) -> dict:
+        from graphkit.glsl import source
+
+        job, lights, _, eyes = self._scene({})
+        p = self.params
+        cam = self.inputs()["camera"]
+        kd, i_s, s, amb = job["material"]
+        nl = max(len(job["lights"]), 1)
+        ortho = int(bool(job["cam_ortho"]))
+        det = job["detail"]
+        d = {"W": job["W"], "H": job["H"], "vertices": _arr(job["vertices"]),
+             "faces": _arr(job["main"][1], "u4"), "clip": _mat(job["main"][0]),
+             "cam_pos": _vec(job["cam_pos"]), "cam_back": _vec(job["cam_back"]),
+             "cam_rotation": _mat(cam.rotation.T),  # row-major rotation (world → camera)
+             "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
+             "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
+             "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
+             **self._light_part(job, p)}
+        if det is not None:
+            tc = det["cam"]
+            d["detail"] = {"pixels": _arr(det["pixels"]), "size": [int(tc.width), int(tc.height)],
+                           "proj": _mat(det["proj"]), "tol": float(det["tol"]), "q": _arr(det["q"]),
+                           "faces": _arr(det["geom"][1], "u4"), "clip": _mat(det["geom"][0])}
+        if eyes is not None:
+            c, a, R = eyes
+            d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
+                         "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
+                         "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
+        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0}
+        gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None)}
+        d["glsl"] = {
+            "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
+            "gbuffer": [source("gbuffer.vert", "es300", gdefs), source("gbuffer.frag", "es300", gdefs)],
+            "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
+            "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
+        }
+        if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
+            d["glsl"]["shade_eyes"] = [source("screen.vert", "es300", {**defs, "EYES": 1}),
+                                       source("shade.frag", "es300", {**defs, "EYES": 1})]
+            d["eye_box"] = [int(x) for x in job["eye_box"]]
+        l0 = lights[0]
+        d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
+                      "color": _vec(l0.color), "kind": l0.kind}
+        return d
+
+    def _mesh_for_lights(self):
+        """(camera, drawn mesh, its vertices, faces), kept while the node's inputs are the same
+        values (their digests): a drag recomputes only the lights' uniforms and shadow frames."""
+        from .render import prepare_render
+
+        g = self.studio.graph
+        key = repr(g.nodes[self.node].map_inputs(
+            lambda src, sport: (self.studio.nodes.get(src) or {}).get("digests", {}).get(sport)))
+        if getattr(self, "_kept", None) is None or self._kept[0] != key:
+            v = self.inputs()
+            _, m = prepare_render(v["mesh"], v["camera"], v["lights"], v.get("detail"),
+                                  v.get("texture_camera"), self.params.fill_holes)
+            self._kept = (key, v["camera"], m, np.asarray(m.vertices, np.float64),
+                          np.asarray(m.faces, np.int64).reshape(-1, 3), v["lights"])
+        return self._kept[1:]
+
+    def frame(self, values: dict):
+        from .glscene import light_part
+        from .render import check_render_inputs, world_lights
+
+        camera, m, V, F, given = self._mesh_for_lights()
+        lights = world_lights(check_render_inputs(self._lights(values, given), None, None), camera, m)
+        part, _ = light_part(self.params, V, F, lights, camera.rotation[1])
+        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params)}

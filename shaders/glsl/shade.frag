@@ -1,0 +1,163 @@
+#version 330
+// Lighting pass of Render's GL pipeline (Paris 2003 §5; nodes/paris/render.py, Render.compute),
+// a full-screen pass over the surface pass's buffers (gbuffer.frag), per pixel:
+// * covered: Phong per light, kd·(L (n·l)) + i_s·L·(r·v)^s (phong.lobes/shade; point lights
+//   1/d²), times the shadow-map visibility (raster.ShadowMap.visibility: slope-scaled bias,
+//   3×3 PCF), plus kd × the ambient sum, all times the detail texture factor;
+// * else the background;
+// * then the eye highlights (Render._eyes: two specular cornea hemispheres hit by the pixel's
+//   ray, graphkit.Camera.ray_matrices, where they are not behind the eyelids), the exposure
+//   and the clamp to [0, 1] (§5: over-exposure, after the texture).
+// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES.  The drivers draw it scissored to the
+// pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
+// mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
+#include "lights.glsl"
+#ifndef ORTHO
+#define ORTHO 0
+#endif
+#ifndef SHADOWS
+#define SHADOWS 0
+#endif
+#ifndef EYES
+#define EYES 0
+#endif
+layout(location = 0) out vec4 o_image;    // rgb = image
+layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here;
+                                          // b = camera z (> 0), 0 where uncovered
+
+uniform sampler2D g_pos;                  // gbuffer.frag's outputs
+uniform sampler2D g_normal;
+uniform sampler2D g_detail;
+uniform vec3 cam_pos;                     // camera centre (world)
+uniform vec3 cam_back;                    // −(camera +z) in world
+uniform vec3 kd;
+uniform float i_s;
+uniform float shininess;
+uniform vec3 ambient;                     // Σ ambient terms × the material's ambient scale (host)
+uniform vec3 background;
+uniform float exposure;
+uniform bool clamp01;
+
+#if SHADOWS
+// All lights' shadow maps in one R32F atlas: light i's sm_size² map starts at texel sm_tile[i];
+// values are light-frame depths (1e30 where nothing is in the way).
+uniform sampler2D shadow_maps;
+uniform int sm_size;
+uniform ivec2 sm_tile[N_LIGHTS];
+uniform mat4 sm_to_light[N_LIGHTS];       // world → light frame
+uniform vec4 sm_proj[N_LIGHTS];           // (sx, sy, ox, oy)
+uniform vec2 sm_bias[N_LIGHTS];           // (texel, reference distance)
+
+float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
+    vec4 q = sm_to_light[i] * vec4(P, 1.0);
+    vec2 xy;
+    if (light_kind[i] == 0) xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
+    else xy = q.xy / q.z * sm_proj[i].xy + sm_proj[i].zw;
+    float cosv = clamp(abs(dot(n, ldir)), 0.05, 1.0);
+    float b = 1.5 * sm_bias[i].x * min(sqrt(1.0 - cosv * cosv) / cosv + 1.0, 10.0);
+    if (light_kind[i] == 1) b = b * max(q.z, 1e-9) / sm_bias[i].y;
+    float db = q.z - b;
+    int ix = int(clamp(floor(xy.x), -1.0, float(sm_size)));
+    int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
+    float acc = 0.0;
+    ivec2 tile = sm_tile[i];
+    for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+            // outside the map: lit (as the reference); clamped fetch + select, no branch
+            ivec2 at = ivec2(ix + dx, iy + dy);
+            ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1));
+            float d = texelFetch(shadow_maps, tile + c, 0).r;
+            acc += (at != c || db <= d) ? 1.0 : 0.0;
+        }
+    return acc / 9.0;
+}
+#endif
+
+#if EYES
+uniform mat3 ray_org;                     // pixel (x+.5, y+.5, 1) → world ray origin
+uniform mat3 ray_dir;                     // pixel (x+.5, y+.5, 1) → world ray direction
+uniform vec3 fwd;                         // camera +z in world
+uniform vec3 eye_c[2];                    // cornea sphere centres (world)
+uniform vec3 eye_axis[2];                 // their outward axes
+uniform float eye_R;
+uniform float eye_s;
+uniform float eye_ks;
+
+// Ray–sphere in a cancellation-free form (h = oc − (d·oc) d).
+vec3 eye_highlights(float depth) {
+    vec3 pix = vec3(gl_FragCoord.xy, 1.0);
+    vec3 ro = ray_org * pix;
+    vec3 d = normalize(ray_dir * pix);
+    vec3 acc = vec3(0.0);
+    for (int k = 0; k < 2; ++k) {
+        vec3 oc = ro - eye_c[k];
+        float bq = dot(d, oc);
+        vec3 h = oc - bq * d;
+        float disc = eye_R * eye_R - dot(h, h);
+        if (!(disc > 0.0)) continue;
+        float sq = sqrt(disc);
+        float t = -bq - sq;
+        vec3 XC = h - sq * d;                 // X − c
+        if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) continue;
+        float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
+        if (!(zc <= depth + eye_R * 0.35)) continue;
+        vec3 n = XC / eye_R;
+        vec3 X = eye_c[k] + XC;
+        for (int i = 0; i < N_LIGHTS; ++i) {
+            vec3 L;
+            vec3 l = towards_light(i, X, L);
+            acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
+        }
+    }
+    return acc;
+}
+#endif
+
+void main() {
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    vec4 gp = texelFetch(g_pos, px, 0);
+    vec4 gn = texelFetch(g_normal, px, 0);
+    bool cov = gn.w > 0.5;
+    vec3 img = background;
+    float mask0 = 0.0, mask1 = 0.0;
+    if (cov) {
+        vec3 P = gp.xyz;
+        vec3 n = gn.xyz;
+#if ORTHO
+        vec3 v = cam_back;
+#else
+        vec3 v = cam_pos - P;
+        float vl = length(v);
+        v = vl > 0.0 ? v / vl : vec3(0.0);
+#endif
+        vec3 col = vec3(0.0);
+        for (int i = 0; i < N_LIGHTS; ++i) {
+            vec3 L;
+            vec3 l = towards_light(i, P, L);
+            float nl = dot(n, l);
+            float diff = nl > 0.0 ? nl : 0.0;
+            float spec = phong_spec(n, l, v, shininess);
+            if (nl > 0.0) {
+                if (i < 24) mask0 += exp2(float(i));
+                else mask1 += exp2(float(i - 24));
+            }
+#if SHADOWS
+            if (nl > 0.0) {                   // else diff = spec = 0: no shadow lookup
+                float vis = visibility(i, P, n, l);
+                diff *= vis;
+                spec *= vis;
+            }
+#endif
+            col += kd * (L * diff) + i_s * L * spec;
+        }
+        col += kd * ambient;
+        img = col * texelFetch(g_detail, px, 0).rgb;
+    }
+#if EYES
+    img += eye_highlights(cov ? gp.w : 3.0e38);
+#endif
+    img *= exposure;
+    if (clamp01) img = clamp(img, 0.0, 1.0);
+    o_image = vec4(img, 1.0);
+    o_lit = vec4(mask0, mask1, cov ? gp.w : 0.0, 0.0);
+}
