@@ -77,9 +77,7 @@ def _enc(v: Any, out: list[bytes]) -> None:
         _enc({k: getattr(v, k) for k in t.model_fields}, out)
     elif isinstance(v, enum.Enum):
         _enc(v.value, out)
-    elif isinstance(v, bool):
-        out.append(b"T" if v else b"F")
-    elif isinstance(v, int):
+    elif isinstance(v, int):  # int subclasses (bool cannot be subclassed: `t is bool` took it)
         out.append(b"i%d;" % v)
     elif isinstance(v, float):
         out.append(b"f" + float(v).hex().encode() + b";")
@@ -172,9 +170,14 @@ def array_digest(a: np.ndarray) -> str:
     return h.hexdigest()
 
 
+_META_JSON = json.JSONEncoder(sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
 def meta_bytes(meta: dict) -> bytes:
-    return json.dumps(meta, sort_keys=True, separators=(",", ":"), ensure_ascii=True,
-                      allow_nan=False).encode()
+    """Canonical JSON of a value's meta (sorted keys, ASCII, no NaN/Inf)."""
+    if type(meta) is dict and not meta:  # most arrays and images: no meta
+        return b"{}"
+    return _META_JSON.encode(meta).encode()
 
 
 def parts_digest(type_name: str, meta: dict, arrays: list[np.ndarray]) -> str:

@@ -333,8 +333,10 @@ class Session:
                 raise NodeFailed(g.name, g.type, TypeError(f"output '{port}': {problem}"))
             vp = value_parts(p.type, v)
             for a in vp[1]:  # consumers share the value: make accidental in-place edits fail
-                with contextlib.suppress(ValueError):
+                try:
                     a.flags.writeable = False
+                except ValueError:  # a view of a buffer it does not own
+                    pass
             staged.append((port, p, v, vp))
         for port, p, v, vp in staged:
             d = self.store.put_value(p.type, v, vp)

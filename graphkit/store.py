@@ -68,9 +68,13 @@ from .types import BUILTIN_PORT_TYPES, PortType
 MAGIC = b"GKOBJ1\n\0"
 RECORD_MAGIC = b"GKREC1 "
 _counter = itertools.count()
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 _TOKEN = uuid.uuid4().hex[:12]  # with the pid, thread and counter: unique temp names on a shared folder
 ALIGN = 64
 MiB = 1 << 20
+#: the one JSON form of record bodies and object headers (a prebuilt encoder: json.dumps with
+#: these arguments builds a new JSONEncoder on every call)
+_JSON = json.JSONEncoder(sort_keys=True, separators=(",", ":"))
 
 
 def fmt_size(n: int) -> str:
@@ -95,8 +99,7 @@ def encode_header(ptype_name: str, meta: dict, arrays: list[np.ndarray], digest:
         descs.append({"dtype": a.dtype.str, "shape": list(a.shape), "offset": off, "nbytes": a.nbytes})
         offsets.append(off)
         off += a.nbytes
-    header = json.dumps({"type": ptype_name, "meta": meta, "arrays": descs, "digest": digest},
-                        sort_keys=True, separators=(",", ":")).encode()
+    header = _JSON.encode({"type": ptype_name, "meta": meta, "arrays": descs, "digest": digest}).encode()
     head = MAGIC + struct.pack("<Q", len(header)) + header
     pad = (-len(head)) % ALIGN
     return head + b"\0" * pad, offsets
@@ -165,7 +168,7 @@ class CorruptObject(DamagedEntry):
 
 
 def encode_record(record: dict) -> bytes:
-    body = json.dumps(record, sort_keys=True, separators=(",", ":")).encode()
+    body = _JSON.encode(record).encode()
     return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body
 
 
@@ -218,6 +221,30 @@ def _umask() -> int:
 
 
 _READ_ONLY_ERRNOS = (errno.EACCES, errno.EPERM, errno.EROFS)
+
+
+def _read_fd(fd: int, size: int) -> bytes:
+    """All of an open file that fstat said holds ``size`` bytes: one read when it does; read on
+    to the end when a read comes back short (Linux caps one read at 2 GiB) or the file grew."""
+    data = os.read(fd, size + 1)
+    if len(data) != size:
+        chunks = [data]
+        while more := os.read(fd, 1 << 24):
+            chunks.append(more)
+        data = b"".join(chunks)
+    return data
+
+
+def _write_all(fd: int, chunks) -> None:
+    """Write every chunk (bytes or buffers) to ``fd`` with os.write (no Python file object)."""
+    for c in chunks:
+        if type(c) is not bytes:
+            c = memoryview(c).cast("B")
+        while len(c):
+            n = os.write(fd, c)
+            if n == len(c):
+                break
+            c = memoryview(c)[n:]
 
 
 class LocalFS:
@@ -277,16 +304,19 @@ class LocalFS:
     # -- reads and writes -----------------------------------------------------------------
     def read(self, rel: str) -> bytes | None:
         try:
-            with open(self._s(rel), "rb") as f:
-                return f.read()
+            fd = os.open(self._s(rel), os.O_RDONLY | _CLOEXEC)
         except (FileNotFoundError, NotADirectoryError):
             return None
+        try:
+            return _read_fd(fd, os.fstat(fd).st_size)
+        finally:
+            os.close(fd)
 
     def exists(self, rel: str) -> bool:
         return os.path.exists(self._s(rel))
 
     def _create(self, path: str) -> int:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), self.file_mode)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _CLOEXEC, self.file_mode)
         if self._fix_file_mode:
             with contextlib.suppress(OSError):
                 os.fchmod(fd, self.file_mode)
@@ -299,12 +329,12 @@ class LocalFS:
         tmp = self._s(f"tmp/{_TOKEN}-{os.getpid()}-{threading.get_ident()}-{next(_counter)}")
         try:
             fd = self._create(tmp)
-            with open(fd, "wb", closefd=True) as f:
-                for c in chunks:
-                    f.write(c)
+            try:
+                _write_all(fd, chunks)
                 if sync:
-                    f.flush()
-                    os.fsync(f.fileno())
+                    os.fsync(fd)
+            finally:
+                os.close(fd)
             try:
                 os.replace(tmp, dest)
             except FileNotFoundError:  # first write into this shard folder
@@ -338,17 +368,12 @@ class LocalFS:
         """Read a small file and mark it used (mtime = now) unless it was marked in the last
         ``fresh_s`` seconds: one open, fstat, read and close, and no utime on a warm re-run."""
         try:
-            fd = os.open(self._s(rel), os.O_RDONLY)
-        except FileNotFoundError:
+            fd = os.open(self._s(rel), os.O_RDONLY | _CLOEXEC)
+        except (FileNotFoundError, NotADirectoryError):
             return None
         try:
             st = os.fstat(fd)
-            data = os.read(fd, st.st_size + 1)
-            while len(data) <= st.st_size:  # a short read (rare): read to the end
-                more = os.read(fd, 1 << 16)
-                if not more:
-                    break
-                data += more
+            data = _read_fd(fd, st.st_size)
             if time.time() - st.st_mtime > fresh_s:
                 with contextlib.suppress(OSError):  # read-only caches stay readable
                     os.utime(fd)
@@ -423,25 +448,36 @@ class LocalFS:
             return self.lock(f"locks/{key[:2]}/{key}.lock")
         return self._ofd_lock(int(key[:15], 16))
 
-    @contextlib.contextmanager
-    def _ofd_lock(self, byte: int):
+    def _ofd_lock(self, byte: int) -> "_OFDLock | contextlib.nullcontext":
         """An exclusive lock on one byte of keys.lock, owned by this thread's open file
         description (so threads of one process exclude each other, as processes do)."""
-        import fcntl
-
         held = getattr(self._local, "fd", None)
         if held is None:
             fd = self._open_lock(self._s("keys.lock"))
             if fd is None:  # read-only cache: nothing is written, nothing to single-flight
-                yield
-                return
+                return contextlib.nullcontext()
             held = self._local.fd = _FD(fd)
-        fd = held.fd
-        fcntl.fcntl(fd, fcntl.F_OFD_SETLKW, struct.pack("hhqqi4x", fcntl.F_WRLCK, 0, byte, 1, 0))
-        try:
-            yield
-        finally:
-            fcntl.fcntl(fd, fcntl.F_OFD_SETLK, struct.pack("hhqqi4x", fcntl.F_UNLCK, 0, byte, 1, 0))
+        return _OFDLock(held.fd, byte)
+
+
+class _OFDLock:
+    """Context manager: F_OFD_SETLKW on one byte on enter, F_UNLCK on exit (a class, not a
+    generator: it is taken once per computed node)."""
+
+    __slots__ = ("fd", "byte")
+
+    def __init__(self, fd: int, byte: int):
+        self.fd, self.byte = fd, byte
+
+    def __enter__(self) -> None:
+        import fcntl
+
+        fcntl.fcntl(self.fd, fcntl.F_OFD_SETLKW, struct.pack("hhqqi4x", fcntl.F_WRLCK, 0, self.byte, 1, 0))
+
+    def __exit__(self, *exc) -> None:
+        import fcntl
+
+        fcntl.fcntl(self.fd, fcntl.F_OFD_SETLK, struct.pack("hhqqi4x", fcntl.F_UNLCK, 0, self.byte, 1, 0))
 
 
 class _FD:
