@@ -86,6 +86,10 @@ class Context:
     graph_name: str = ""
     recipe_digest: str = ""  # digest of the part of the graph this node's result depends on
     base_dir: str = "."  # folder of the graph file (relative input paths start here)
+    # the cache digests of this computation's inputs (port → digest, a list for a variadic
+    # port; empty outside the engine): content keys a node may use to keep expensive set-up
+    # between calls (its output must not depend on whether it did)
+    inputs: dict = field(default_factory=dict)
     report: Callable[[float, str], None] = field(default=lambda frac, msg: None)
 
     def progress(self, fraction: float, message: str = "") -> None:

@@ -304,6 +304,7 @@ class Session:
         pin_blas_threads()
         ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
                       recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
+                      inputs=dict(input_digests),
                       report=lambda frac, msg: self.report(g.name, frac, msg))
         t0 = time.perf_counter()
         try:

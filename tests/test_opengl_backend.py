@@ -185,6 +185,36 @@ def test_cases_exercise_what_they_claim():
         **{k: v for k, v in c["detail_texture_other_camera"][1].items() if k not in ("detail", "texture_camera")})["image"].pixels).max() > 0.1
 
 
+def test_setup_kept_between_calls_changes_nothing():
+    """With the engine's input digests (Context.inputs) Render/opengl keeps its light-independent
+    set-up (glscene.scene ``key``) between calls: a call that changes only the lights, the
+    material or the ambient must give exactly what a call without that memory gives, and other
+    digests (another texture camera) another set-up."""
+    from graphkit import Context
+
+    node, gl = _classes()
+    c = cases()
+    for name in ("detail_texture_other_camera", "orthographic_rotated_mm_point_light_eyes"):
+        params, inputs = c[name]
+        p = node.Params.model_validate(params)
+        dig = {k: f"{name}:{k}" for k in inputs if k not in ("lights", "material", "ambient")}
+        dig.update(lights=["l1"], material="m1")
+        ctx = Context(inputs=dig)
+        first = arrays(gl(p, ctx).compute(**inputs))
+        moved = {**inputs, "lights": [Light(direction=(-0.3, -0.4, -0.85), intensity=0.9)] + inputs["lights"][1:]}
+        kept, fresh = arrays(gl(p, ctx).compute(**moved)), arrays(gl(p).compute(**moved))
+        assert np.abs(kept["image"] - first["image"]).max() > 0.01, "the moved light must change the image"
+        for port in fresh:
+            assert np.array_equal(kept[port], fresh[port]), (name, port)
+    params, inputs = c["detail_texture_other_camera"]
+    p = node.Params.model_validate(params)
+    other = {**inputs, "texture_camera": c["orthographic_texture_camera"][1]["texture_camera"]}
+    dig = {k: f"tex:{k}" for k in ("mesh", "camera", "detail", "texture_camera")}
+    gl(p, Context(inputs=dig)).compute(**inputs)
+    got = arrays(gl(p, Context(inputs={**dig, "texture_camera": "tex:other"})).compute(**other))
+    assert np.array_equal(got["image"], arrays(gl(p).compute(**other))["image"])
+
+
 def test_bad_inputs_match_reference():
     from graphkit import BadInput
 

@@ -412,3 +412,55 @@ def test_live_view_hook_draws_frames_and_commits(browser, server):
     assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 2.0
     assert st["run"]["computed"] == ["gain", "save"]
     assert not errors
+
+
+def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_registry):
+    """Python-level: once a page has asked for gain's preview, a change that re-runs gain
+    pushes the new PNG (the new digest, the new pixels) before gain's node event, and the run
+    goes on to the file writer only after the page said "shown" (Studio.served)."""
+    import io
+    import threading
+    import time
+
+    from PIL import Image as PILImage
+
+    import enginenodes  # noqa: F401
+    import studionodes
+
+    from graphkit.studio.core import Studio
+
+    engine_registry.add_provider("nodes", "tests", studionodes)
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH)
+    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    events, shown_at = [], []
+
+    def page(ev):
+        events.append((time.monotonic(), ev))
+        if ev.get("type") == "preview":  # the page shows it a moment later
+            def shown():
+                time.sleep(0.1)
+                shown_at.append(time.monotonic())
+                st.served(ev["digest"])
+            threading.Thread(target=shown).start()
+
+    try:
+        st.wait_idle(30)
+        st.subscribe(page)
+        assert st.preview("gain", "image", 0.0, 0, 0)  # the page shows gain.image
+        assert st.set_params([{"node": "gain", "param": "stops", "value": 1.0}])["ok"]
+        info = st.wait_idle(30)
+        assert info["status"] == "ok" and info["computed"] == ["gain", "save"], info
+        kinds = [(ev["type"], ev.get("name") or ev.get("node"), ev.get("state")) for _, ev in events]
+        i_push = kinds.index(("preview", "gain", None))
+        i_done = kinds.index(("node", "gain", "done"))
+        i_save = kinds.index(("node", "save", "running"))
+        assert i_push < i_done < i_save, kinds
+        push, done = events[i_push][1], events[i_done][1]
+        assert push["digest"] == done["digests"]["image"] and push["level"] == 0
+        px = np.asarray(PILImage.open(io.BytesIO(push["png"])).convert("RGB"))
+        assert (px == srgb8(0.5)).all()  # 0.25 × 2¹
+        assert shown_at and events[i_save][0] >= shown_at[0], "the writer ran before the page showed the preview"
+        assert st.preview("gain", "image", 0.0, 0, 0) == push["png"]  # the page's request: the same bytes
+    finally:
+        st.close()

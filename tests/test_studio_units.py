@@ -1,6 +1,8 @@
 """Studio pieces without a browser: graph text edits, preview tone mapping, schema controls."""
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 import yaml
@@ -54,6 +56,23 @@ def test_preview_is_srgb_of_the_exposed_linear_value(exposure):
                                                 function="sRGB"), 0, 1) * 255).astype(int)
     assert np.abs(got - ref).max() <= 1
     assert (got == ref).mean() > 0.97
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_preview_png_decodes_to_the_display_pixels(level):
+    """Both PNG settings (0: uncompressed, for the loopback; 1: compressed) decode (Pillow)
+    to the same 8-bit sRGB pixels; NaN and -inf show black, +inf white."""
+    from PIL import Image as PILImage
+
+    from graphkit import Image
+    from graphkit.studio.imaging import display_rgb, preview_png
+
+    px = np.random.default_rng(3).uniform(-0.1, 1.3, (37, 53, 3)).astype(np.float32)
+    px[0, 0], px[0, 1] = [np.nan, -np.inf, np.inf], [0.0, 1.0, 0.5]
+    data = preview_png("Image", Image(px), 0.0, 0, level)
+    got = np.asarray(PILImage.open(io.BytesIO(data)).convert("RGB"))
+    assert np.array_equal(got, display_rgb(px))
+    assert got[0, 0].tolist() == [0, 0, 255] and got[0, 1].tolist() == [0, 255, 188]
 
 
 def test_graph_param_takes_the_schema_of_the_node_param_it_feeds():

@@ -14,6 +14,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from collections import OrderedDict
 from typing import Any, Callable
 
 from ..errors import GraphError, GraphkitError, UsageError
@@ -61,6 +62,7 @@ class _RunProgress(Progress):
 
     def __init__(self, studio: "Studio", gen: int):
         self.studio, self.gen = studio, gen
+        self.t0 = time.time()
         self.running_nodes: list[str] = []
         self.outcomes: dict[str, NodeOutcome] = {}
 
@@ -72,6 +74,8 @@ class _RunProgress(Progress):
 
     def running(self, node, node_type):
         self._check()
+        if time.time() - self.t0 > self.studio.STATE_DUE_S:
+            self.studio._send_due_state()
         self.running_nodes.append(node)
         if node in self.outcomes:  # done by an earlier pass of this run
             return
@@ -83,8 +87,12 @@ class _RunProgress(Progress):
         if o.name in self.outcomes:  # a later pass (after a failure elsewhere) found it cached
             return
         self.outcomes[o.name] = o
+        wanted = [] if o.hit else self.studio._encode_watched(o)
         self.studio._node_event(o.name, state="cached" if o.hit else "done", seconds=round(o.seconds, 4),
                                 message="", digests=o.outputs, backend=o.backend)
+        if wanted:
+            self.studio._await_served(wanted, self.gen)
+            self.studio._send_due_state()
 
     def report(self, node, fraction, message):
         self._check()
@@ -168,6 +176,13 @@ class Studio:
         self._listeners: list[Callable[[dict], None]] = []
         self._views: dict[str, Any] = {}
         self._schemas: dict[str, Any] = {}
+        # previews: PNGs by (digest, exposure, max side, PNG level), the previews the page asked
+        # for lately ((node, port) → {(exposure, max side, level): time}), and the digests a run waits
+        # to see served before it goes on (Studio._preview_first)
+        self._png: "OrderedDict[tuple, bytes]" = OrderedDict()
+        self._watch: dict[tuple[str, str], dict[tuple[float, int, int], float]] = {}
+        self._served_digests: set[str] = set()
+        self._state_due = False  # a param change whose state the pages have not had yet
         self._load(self.doc)
         self._worker = threading.Thread(target=self._loop, name="graphkit-studio", daemon=True)
         self._worker.start()
@@ -210,8 +225,8 @@ class Studio:
         except GraphkitError as e:
             return None, [{"file": self.display_path, "line": 1, "col": 1, "message": str(e), "text": str(e)}]
 
-    def _load(self, doc: YamlDoc) -> None:
-        g, errors = self._try_load(doc)
+    def _load(self, doc: YamlDoc, loaded=None) -> None:
+        g, errors = loaded if loaded is not None else self._try_load(doc)
         with self._lock:
             self.doc, self.graph, self.errors = doc, g, errors
             names = list(g.nodes) if g else list(((doc.data() or {}).get("nodes") or {}))
@@ -241,10 +256,13 @@ class Studio:
             g, errors = self._try_load(doc)
             if errors and self.graph is not None:
                 return {"ok": False, "errors": errors}
-            self._load(doc)
-        self._emit({"type": "state", "state": self.state()})
-        if self.graph is not None and self.autorun:
-            self.request_run()
+            self._load(doc, (g, errors))  # loaded once: the same text gives the same graph
+            run = self.graph is not None and self.autorun
+            if run:  # the new state goes out from the run, once its first preview on show has
+                self._state_due = True  # (or STATE_DUE_S in), so the run starts at once
+                self.request_run()
+        if not run:
+            self._emit({"type": "state", "state": self.state()})
         return {"ok": not errors, "errors": errors}
 
     def set_autorun(self, on: bool) -> None:
@@ -323,7 +341,11 @@ class Studio:
                 self._wake.notify_all()
             self._emit({"type": "run", **info})
             if info.get("status") in ("ok", "failed"):
+                with self._lock:
+                    self._state_due = False
                 self._emit({"type": "state", "state": self.state()})
+            else:
+                self._send_due_state()
 
     @contextlib.contextmanager
     def write_guard(self):
@@ -422,20 +444,26 @@ class Studio:
         with self._lock:
             for d in [d for d in self.memo if d not in keep]:
                 self.memo.pop(d, None)
+            self._served_digests &= keep
 
     # -- values ---------------------------------------------------------------------------
     def value(self, node: str, port: str):
         """The current value of ``node.port`` (None when not computed yet)."""
+        ptype, v, _ = self._value(node, port)
+        return ptype, v
+
+    def _value(self, node: str, port: str):
+        """(port type, value, digest) of ``node.port`` now (Nones when not computed yet)."""
         with self._lock:
             g = self.graph
             d = (self.nodes.get(node) or {}).get("digests", {}).get(port)
         if g is None or d is None or node not in g.nodes or port not in g.nodes[node].cls.out_ports:
-            return None, None
+            return None, None, None
         ptype = g.nodes[node].cls.out_ports[port].type
         v = self.memo.get(d)
         if v is None:
             v = self.store.load_value(d, ptype)
-        return ptype, v
+        return ptype, v, d
 
     def input_values(self, node: str) -> dict | None:
         """The values of ``node``'s inputs (as its compute gets them), or None if not all known."""
@@ -453,6 +481,112 @@ class Studio:
 
         vals = gn.map_inputs(get)
         return None if missing else vals
+
+    # -- previews -------------------------------------------------------------------------
+    PNG_CACHE = 24  # previews kept (a few exposures / sizes of the outputs on show)
+    WATCH_S = 120.0  # a preview the page asked for within this many seconds is "on show"
+    HOLD_S = 0.25  # how long a run waits for a page to fetch a new preview on show
+
+    def preview(self, node: str, port: str, exposure: float = 0.0, max_side: int = 0,
+                level: int = 1) -> bytes | None:
+        """PNG of ``node.port`` for the page (None: no value yet; b"": not an image; ``level``:
+        imaging.png's, 0 for a page on the loopback).
+
+        The request marks the preview as on show: when a later run computes that node anew,
+        the run encodes it at once (same exposure, size and level), pushes it to the pages
+        (a ``preview`` event with the PNG bytes: no request round trip) and waits until it
+        has gone out before it goes on with the rest of the graph (``_await_served``)."""
+        from .imaging import preview_png
+
+        ptype, v, d = self._value(node, port)
+        if v is None:
+            return None
+        if ptype.name not in ("Image", "Mask"):
+            return b""
+        var = (float(exposure), int(max_side), int(level))
+        with self._lock:
+            now = time.time()
+            seen = self._watch.setdefault((node, port), {})
+            for k in [k for k, t in seen.items() if now - t > self.WATCH_S]:
+                del seen[k]
+            seen[var] = now
+            data = self._png.get((d, *var))
+        if data is None:
+            data = preview_png(ptype.name, v, *var)
+            self._keep_png((d, *var), data)
+        with self._lock:
+            self._served_digests.add(d)
+            self._wake.notify_all()
+        return data
+
+    def _keep_png(self, key, data: bytes) -> None:
+        with self._lock:
+            self._png[key] = data
+            self._png.move_to_end(key)
+            while len(self._png) > self.PNG_CACHE:
+                self._png.popitem(last=False)
+
+    def _encode_watched(self, o: NodeOutcome) -> list[str]:
+        """Encode the previews on show of node outcome ``o`` (computed anew); their digests."""
+        from .imaging import preview_png
+
+        g = self.graph
+        if g is None or o.name not in g.nodes:
+            return []
+        now = time.time()
+        with self._lock:
+            if not self._listeners:  # no page open
+                return []
+            todo = []
+            for (node, port), variants in self._watch.items():
+                d = o.outputs.get(port) if node == o.name else None
+                if not isinstance(d, str):
+                    continue
+                for var, t in variants.items():
+                    if now - t < self.WATCH_S and (d, *var) not in self._png:
+                        todo.append((port, d, var))
+        out = []
+        for port, d, var in todo:
+            ptype = g.nodes[o.name].cls.out_ports[port].type
+            v = self.memo.get(d)
+            if v is None or ptype.name not in ("Image", "Mask"):
+                continue
+            data = preview_png(ptype.name, v, *var)
+            self._keep_png((d, *var), data)
+            out.append((port, d, var, data))
+        with self._lock:
+            self._served_digests.difference_update(d for _, d, _, _ in out)
+        for port, d, (exposure, max_side, level), data in out:  # pages on show take it from here
+            self._emit({"type": "preview", "node": o.name, "port": port, "digest": d, "exposure": exposure,
+                        "max": max_side, "level": level, "png": data})
+        return [d for _, d, _, _ in out]
+
+    STATE_DUE_S = 0.3  # a run sends the state of a param change after this at the latest
+
+    def _send_due_state(self) -> None:
+        with self._lock:
+            due, self._state_due = self._state_due, False
+        if due:
+            self._emit({"type": "state", "state": self.state()})
+
+    def served(self, digest: str) -> None:
+
+        """A page got the preview of ``digest`` (pushed over its websocket)."""
+        with self._lock:
+            self._served_digests.add(digest)
+            self._wake.notify_all()
+
+    def _await_served(self, digests: list[str], gen: int) -> None:
+        """Wait (at most HOLD_S) until a page has fetched the previews of ``digests``, so
+        the rest of the run (file writers, sheets, the --out export) does not compete with
+        sending them; a newer change or closing ends the wait."""
+        end = time.monotonic() + self.HOLD_S
+        with self._lock:
+            while not set(digests) <= self._served_digests and self.gen == gen and not self.closing:
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                self._wake.wait(left)
 
     # -- state ----------------------------------------------------------------------------
     def state(self) -> dict:

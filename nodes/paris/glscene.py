@@ -14,6 +14,8 @@ the ``opengl`` backend (plugins/graphkit-moderngl) and the studio's WebGL2 face 
 """
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Light
@@ -22,16 +24,67 @@ MAX_LIGHTS = 32  # as the GL drivers take them
 NEAR = 1e-6  # the reference rasteriser's near limit
 
 
-def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None):
-    """(job, lights in world units, per-light shadow-map errors or None, eyes) for Render's
-    params ``p`` and inputs: the job is a dict of arrays and uniforms (see the GL drivers)."""
-    from nodes.paris.render import eye_spheres, prepare_render, vertex_normals
+_STATIC: "OrderedDict[bytes, tuple]" = OrderedDict()  # scene()'s light-independent set-ups
+_STATIC_KEEP = 4
 
-    eye_mesh = mesh
-    lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
+
+def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,
+          key: bytes | None = None):
+    """(job, lights in world units, per-light shadow-map errors or None, eyes) for Render's
+    params ``p`` and inputs: the job is a dict of arrays and uniforms (see the GL drivers).
+
+    ``key``: a content key of the inputs the set-up depends on besides the lights, material
+    and ambient (``p``, ``mesh``, ``camera``, ``detail``, ``texture_camera``; e.g. from their
+    cache digests, ``static_key``).  With one, that set-up (holes closed, normals, camera and
+    texture geometry, content keys of the GL objects, eyes, screen boxes) is kept between
+    calls, so a call that changes only the lights redoes only their part."""
+    from nodes.paris.render import check_render_inputs, world_lights
+
+    hit = _STATIC.get(key) if key is not None else None
+    if hit is None:
+        static, m, V, F, up = _static_part(p, mesh, camera, lights, detail, texture_camera)
+        lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
+        if key is not None:
+            _STATIC[key] = (static, m, V, F, up)
+            while len(_STATIC) > _STATIC_KEEP:
+                _STATIC.popitem(last=False)
+    else:
+        _STATIC.move_to_end(key)
+        static, m, V, F, up = hit
+        lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
     if len(lights) > MAX_LIGHTS:
         raise BadInput("lights", f"{len(lights)} lights: the opengl backend takes at most "
                                  f"{MAX_LIGHTS} (the numpy backend any number)")
+    job = dict(static)
+    kd = np.asarray(material.diffuse, np.float64)
+    amb = np.zeros(3)
+    for light in lights:
+        amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
+    if ambient is not None:
+        amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
+    job["material"] = (kd, float(material.specular), float(material.shininess), amb)
+    # shadow maps (same frames as nodes.common.raster.shadow_map)
+    part, sm_errors = light_part(p, V, F, lights, up)
+    job.update(part)
+    return job, lights, sm_errors, job["eyes"]
+
+
+def static_key(p, digests: dict) -> bytes | None:
+    """scene()'s ``key`` from Render's params and the cache digests of its inputs
+    (``graphkit.Context.inputs``); None when the engine did not give them."""
+    names = ("mesh", "camera", "detail", "texture_camera")
+    if not digests or not all(isinstance(digests.get(n), str) for n in names[:2]):
+        return None
+    return digest("Render.scene", p.model_dump_json(), *[digests.get(n) for n in names])
+
+
+def _static_part(p, mesh, camera, lights, detail, texture_camera):
+    """(the light-independent part of the job, the drawn mesh, its float64 vertices and
+    faces, the camera's up vector) for scene()."""
+    from nodes.paris.render import eye_spheres, prepare_render, vertex_normals
+
+    eye_mesh = mesh
+    _, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
     vn = vertex_normals(mesh)
@@ -47,16 +100,6 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     job["cam_pos"] = camera.position
     job["cam_ortho"] = camera.orthographic
     job["cam_back"] = -camera.forward
-    kd = np.asarray(material.diffuse, np.float64)
-    amb = np.zeros(3)
-    for light in lights:
-        amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
-    if ambient is not None:
-        amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
-    job["material"] = (kd, float(material.specular), float(material.shininess), amb)
-    # shadow maps (same frames as nodes.common.raster.shadow_map)
-    part, sm_errors = light_part(p, V, F, lights, camera.rotation[1])
-    job.update(part)
     # projective detail texture (render.projective_texture)
     job["detail"] = None
     det_key = None
@@ -104,7 +147,7 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         job["eye_box"] = screen_box(camera, camera.to_camera(_eye_cube_corners(eyes)))
         job["bbox"] = union_box(job["bbox"], job["eye_box"])
     job["bg_out"] = background_out(p)
-    return job, lights, sm_errors, eyes
+    return job, mesh, V, F, camera.rotation[1]
 
 
 def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]:

@@ -204,6 +204,36 @@ function setPreview(p) {
   refreshPreview();
 }
 
+// a preview on show that a run computed anew, pushed with its PNG before the node's event
+// (the run waits, a moment at most, for the page's "shown" before it goes on)
+function onPushedPreview(head, blob) {
+  const shown = () => studio.ws?.send(JSON.stringify({ type: 'shown', digest: head.digest }));
+  const p = studio.preview, img = $('preview');
+  const n = nodeByName(head.node);
+  if (!n || !p || p[0] !== head.node || p[1] !== head.port || head.max || +head.exposure !== +$('exposure').value) return shown();
+  n.digests = { ...(n.digests || {}), [head.port]: head.digest };
+  const url = previewURL(head.node, head.port);
+  if (img.dataset.url === url) return shown();
+  img.dataset.url = url;
+  const obj = URL.createObjectURL(blob);
+  img.onload = () => {
+    previewLoaded(p, head.digest);
+    URL.revokeObjectURL(obj);
+    shown();
+  };
+  img.onerror = shown;
+  img.src = obj;
+}
+
+function previewLoaded(p, d) {
+  const img = $('preview');
+  img.dataset.digest = d;
+  studio.previewLoads += 1;
+  studio.previewDigest = d;
+  studio.previewLoadedAt = performance.now();
+  $('preview-info').textContent = `${p.join('.')} · ${img.naturalWidth}×${img.naturalHeight} · ${d.slice(0, 12)}`;
+}
+
 function refreshPreview() {
   const p = studio.preview;
   const img = $('preview');
@@ -213,13 +243,8 @@ function refreshPreview() {
   if (!d) { img.removeAttribute('src'); img.dataset.digest = ''; $('preview-info').textContent = `${p.join('.')}: not computed yet`; return; }
   if (img.dataset.url === url) return;
   img.dataset.url = url;
-  img.onload = () => {
-    img.dataset.digest = d;
-    studio.previewLoads += 1;
-    studio.previewDigest = d;
-    studio.previewLoadedAt = performance.now();
-    $('preview-info').textContent = `${p.join('.')} · ${img.naturalWidth}×${img.naturalHeight} · ${d.slice(0, 12)}`;
-  };
+  img.onload = () => previewLoaded(p, d);
+  img.onerror = null;
   img.src = url;
 }
 
@@ -295,6 +320,7 @@ async function onBinary(buf) {
   const n = dv.getUint32(0, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
   const blob = new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/png' });
+  if (head.type === 'preview') return onPushedPreview(head, blob);
   const w = frameWaiters.get(head.id);
   frameWaiters.delete(head.id);
   if (w) w({ url: URL.createObjectURL(blob), info: head });

@@ -72,11 +72,12 @@ class RenderGL(Backend):
 
     def compute(self, mesh, camera: Camera, material, lights, detail: Image | None = None,
                 texture_camera: Camera | None = None, ambient: Light | None = None):
-        from nodes.paris.glscene import scene
+        from nodes.paris.glscene import scene, static_key
 
         p = self.params
         H, W = camera.height, camera.width
-        job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient)
+        job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient,
+                                             key=static_key(p, self.ctx.inputs))
         if job["shadow"] is not None:
             _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
