@@ -14,6 +14,7 @@ the ``opengl`` backend (plugins/graphkit-moderngl) and the studio's WebGL2 face 
 """
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -26,6 +27,7 @@ NEAR = 1e-6  # the reference rasteriser's near limit
 
 _STATIC: "OrderedDict[bytes, tuple]" = OrderedDict()  # scene()'s light-independent set-ups
 _STATIC_KEEP = 4
+_STATIC_LOCK = threading.Lock()  # node threads and the studio's view threads share it
 
 
 def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,
@@ -40,16 +42,19 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     calls, so a call that changes only the lights redoes only their part."""
     from nodes.paris.render import check_render_inputs, world_lights
 
-    hit = _STATIC.get(key) if key is not None else None
+    with _STATIC_LOCK:
+        hit = _STATIC.get(key) if key is not None else None
+        if hit is not None:
+            _STATIC.move_to_end(key)
     if hit is None:
         static, m, V, F, up = _static_part(p, mesh, camera, lights, detail, texture_camera)
         lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
         if key is not None:
-            _STATIC[key] = (static, m, V, F, up)
-            while len(_STATIC) > _STATIC_KEEP:
-                _STATIC.popitem(last=False)
+            with _STATIC_LOCK:
+                _STATIC[key] = (static, m, V, F, up)
+                while len(_STATIC) > _STATIC_KEEP:
+                    _STATIC.popitem(last=False)
     else:
-        _STATIC.move_to_end(key)
         static, m, V, F, up = hit
         lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
     if len(lights) > MAX_LIGHTS:
