@@ -227,9 +227,11 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
             views.pop(name, None)
             await websocket.send_text(json.dumps({"type": "commit", "node": name, **res}))
 
-        sender = asyncio.create_task(pump())
+        sender = None
         try:
+            # the snapshot first; events queued meanwhile follow it (they are newer than it)
             await websocket.send_text(json.dumps({"type": "state", "state": await run_in_threadpool(studio.state)}))
+            sender = asyncio.create_task(pump())
             while True:
                 msg = await websocket.receive_text()
                 try:
@@ -248,7 +250,8 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
             pass
         finally:
             unsubscribe()
-            sender.cancel()
+            if sender is not None:
+                sender.cancel()
 
     @contextlib.asynccontextmanager
     async def lifespan(app):
