@@ -70,21 +70,15 @@ class FitSkinPhong(Node):
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
-        from .render import check_camera_matches, light_vectors, surface, world_lights
+        from .render import light_vectors, skin_pixels, surface, world_lights
         from . import phong
 
         p = self.params
         if shininess is None:
             shininess = p.shininess
-        check_camera_matches(camera, image)
-        if skin.alpha.shape != image.pixels.shape[:2]:
-            raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
-                                   f"{image.width}×{image.height}")
+        sk = skin_pixels(camera, image, skin, p.skin_threshold)
         if not (np.isfinite(shininess) and shininess > 0):
             raise BadInput("shininess", f"the Phong exponent must be > 0, got {shininess}")
-        sk = skin.alpha >= p.skin_threshold
-        if not sk.any():
-            raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
         s = surface(mesh, camera, min_pixels=1)
         use = sk[s.coverage]
         if use.sum() < 20:

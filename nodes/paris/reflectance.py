@@ -84,16 +84,10 @@ class ReflectanceMap(Node):
         seed: int = Field(0, description="seed of the block → fold assignment")
 
     def compute(self, image: Image, mesh, camera: Camera, skin: Mask, light: Light | None = None):
-        from .render import check_camera_matches, irradiance, surface, world_lights
+        from .render import irradiance, skin_pixels, surface, world_lights
 
         p = self.params
-        check_camera_matches(camera, image)
-        if skin.alpha.shape != image.pixels.shape[:2]:
-            raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
-                                   f"{image.width}×{image.height}")
-        sk = skin.alpha >= p.skin_threshold
-        if not sk.any():
-            raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+        sk = skin_pixels(camera, image, skin, p.skin_threshold)
         s = surface(mesh, camera, min_pixels=1)
         use = sk[s.coverage]
         if use.sum() < 10 * p.min_samples:

@@ -60,6 +60,20 @@ def check_camera_matches(camera: Camera, image: Image | Mask, port: str = "camer
                              f"{w}×{h}: the camera must be the one that took the photo")
 
 
+def skin_pixels(camera: Camera, image: Image, skin: Mask, threshold: float) -> np.ndarray:
+    """The photo's skin pixels (alpha ≥ ``threshold``, H×W bool), after the checks every node
+    fitting to a photo makes: the camera took the photo, the mask is the photo's size and not
+    empty (BadInput at the camera / skin port otherwise)."""
+    check_camera_matches(camera, image)
+    if skin.alpha.shape != image.pixels.shape[:2]:
+        raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
+                               f"{image.width}×{image.height}")
+    sk = skin.alpha >= threshold
+    if not sk.any():
+        raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+    return sk
+
+
 def _in_front_and_frame(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, bool]:
     """(vertices in front of the camera, does their projection overlap the image?)"""
     from nodes.common.raster import NEAR

@@ -172,16 +172,10 @@ class ShininessFromSaturation(Node):
 
     # -- the photo's own pixels ---------------------------------------------------------------
     def _from_photo(self, image, mesh, camera, skin, ldir, white):
-        from .render import check_camera_matches, surface
+        from .render import skin_pixels, surface
 
         p = self.params
-        check_camera_matches(camera, image)
-        if skin.alpha.shape != image.pixels.shape[:2]:
-            raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
-                                   f"{image.width}×{image.height}")
-        sk = skin.alpha >= p.skin_threshold
-        if not sk.any():
-            raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+        sk = skin_pixels(camera, image, skin, p.skin_threshold)
         px = np.asarray(image.pixels, np.float64)
         if px.ndim != 3 or px.shape[2] < 3:
             raise BadInput("image", f"needs an RGB photo, got {image.channels} channel(s)")
