@@ -74,13 +74,22 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
     return job, lights, sm_errors, job["eyes"]
 
 
-def static_key(p, digests: dict) -> bytes | None:
+def static_key(p, digests: dict, mesh=None, camera=None, detail=None, texture_camera=None) -> bytes | None:
     """scene()'s ``key`` from Render's params and the cache digests of its inputs
-    (``graphkit.Context.inputs``); None when the engine did not give them."""
+    (``graphkit.Context.inputs``); where the engine did not give them (a direct call of the
+    backend), from the content of the inputs given here (None if ``mesh`` is not given)."""
     names = ("mesh", "camera", "detail", "texture_camera")
-    if not digests or not all(isinstance(digests.get(n), str) for n in names[:2]):
+    if digests and all(isinstance(digests.get(n), str) for n in names[:2]):
+        return digest("Render.scene", p.model_dump_json(), *[digests.get(n) for n in names])
+    if mesh is None or camera is None:
         return None
-    return digest("Render.scene", p.model_dump_json(), *[digests.get(n) for n in names])
+    src = getattr(mesh, "vertex_attributes", {}).get("source_vertex")
+    parts = [np.asarray(mesh.vertices), np.asarray(mesh.faces), np.asarray(mesh.vertex_normals),
+             None if src is None else np.asarray(src)]
+    for c in (camera, texture_camera):
+        parts.append(None if c is None else c.model_dump_json())
+    parts.append(None if detail is None else np.asarray(detail.pixels))
+    return digest("Render.scene/content", p.model_dump_json(), *parts)
 
 
 def _static_part(p, mesh, camera, lights, detail, texture_camera):

@@ -8,7 +8,10 @@
 // * then the eye highlights (Render._eyes: two specular cornea hemispheres hit by the pixel's
 //   ray, graphkit.Camera.ray_matrices, where they are not behind the eyelids), the exposure
 //   and the clamp to [0, 1] (§5: over-exposure, after the texture).
-// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES.  The drivers draw it scissored to the
+// Outputs: o_image.rgb = the image; o_image.a = the camera z where a surface is (0 elsewhere),
+// negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
+// one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
+// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -21,9 +24,13 @@
 #ifndef EYES
 #define EYES 0
 #endif
-layout(location = 0) out vec4 o_image;    // rgb = image
-layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here;
-                                          // b = camera z (> 0), 0 where uncovered
+#ifndef LIT_MASKS
+#define LIT_MASKS 0
+#endif
+layout(location = 0) out vec4 o_image;    // rgb = image, a = ±camera z (covered), 0 (uncovered)
+#if LIT_MASKS
+layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here
+#endif
 
 uniform sampler2D g_pos;                  // gbuffer.frag's outputs
 uniform sampler2D g_normal;
@@ -119,7 +126,8 @@ void main() {
     vec4 gn = texelFetch(g_normal, px, 0);
     bool cov = gn.w > 0.5;
     vec3 img = background;
-    float mask0 = 0.0, mask1 = 0.0;
+    float mask0 = 0.0, mask1 = 0.0;           // LIT_MASKS
+    bool any_lit = false;
     if (cov) {
         vec3 P = gp.xyz;
         vec3 n = gn.xyz;
@@ -137,10 +145,13 @@ void main() {
             float nl = dot(n, l);
             float diff = nl > 0.0 ? nl : 0.0;
             float spec = phong_spec(n, l, v, shininess);
+            any_lit = any_lit || nl > 0.0;
+#if LIT_MASKS
             if (nl > 0.0) {
                 if (i < 24) mask0 += exp2(float(i));
                 else mask1 += exp2(float(i - 24));
             }
+#endif
 #if SHADOWS
             if (nl > 0.0) {                   // else diff = spec = 0: no shadow lookup
                 float vis = visibility(i, P, n, l);
@@ -158,6 +169,8 @@ void main() {
 #endif
     img *= exposure;
     if (clamp01) img = clamp(img, 0.0, 1.0);
-    o_image = vec4(img, 1.0);
-    o_lit = vec4(mask0, mask1, cov ? gp.w : 0.0, 0.0);
+    o_image = vec4(img, cov ? (any_lit ? gp.w : -gp.w) : 0.0);
+#if LIT_MASKS
+    o_lit = vec4(mask0, mask1, 0.0, 0.0);
+#endif
 }

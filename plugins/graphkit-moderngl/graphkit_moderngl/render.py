@@ -77,24 +77,31 @@ class RenderGL(Backend):
         p = self.params
         H, W = camera.height, camera.width
         job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient,
-                                             key=static_key(p, self.ctx.inputs))
+                                             key=static_key(p, self.ctx.inputs, mesh, camera, detail, texture_camera))
         if job["shadow"] is not None:
             _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
         try:
-            img, lit = runtime().call(_render_job, job)
+            img, zs, masks = runtime().call(_render_job, job)
         except Unavailable as e:
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
-        zbuf = lit[..., 2]
-        cov = zbuf > 0.0
-        masks = lit[..., 0][cov].astype(np.int64), lit[..., 1][cov].astype(np.int64)
-
-        M = int(cov.sum())
+        # zs: shade.frag's alpha over the shaded box: ± camera z where covered, 0 elsewhere
+        x, y, w, h = job["bbox"]
+        box = np.s_[y:y + h, x:x + w]
+        depth = np.zeros((H, W), np.float32)
+        cov = np.zeros((H, W), bool)
+        cb = zs != 0.0
+        cov[box] = cb
+        np.abs(zs, out=depth[box])
+        M = int(np.count_nonzero(cb))
         if M == 0:  # as the reference (nodes.paris.render.surface)
             raise BadInput("mesh", f"the mesh covers 0 pixels of the {W}×{H} camera image: it does "
                                    "not match the camera (wrong pose, units or image size?)")
-        lit = np.bitwise_or.reduce(masks[0]) if len(masks[0]) else 0
-        lit |= (np.bitwise_or.reduce(masks[1]) if len(masks[1]) else 0) << 24
+        if masks is None:  # one light: lit somewhere iff some covered pixel has z > 0
+            lit = int(bool((zs > 0.0).any()))
+        else:
+            m0, m1 = masks[..., 0][cb].astype(np.int64), masks[..., 1][cb].astype(np.int64)
+            lit = np.bitwise_or.reduce(m0) | (np.bitwise_or.reduce(m1) << 24)
         for i, light in enumerate(lights):
             if not (lit >> i) & 1:
                 raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
@@ -105,7 +112,6 @@ class RenderGL(Backend):
         if eyes is None and p.eye_highlights == "on":
             raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                    "is not a mediapipe face mesh; set the `eyes` param")
-        depth = np.where(cov, zbuf, 0.0).astype(np.float32)
         return {"image": Image(img),
                 "depth": Image(depth),
                 "coverage": Mask(cov.astype(np.float32))}
@@ -359,7 +365,8 @@ def _render_job(rt, job):
 
 def _render(rt, job):
     """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
-    (image H×W×3, (lit masks 0–23, 24–, camera z or 0 where uncovered) H×W×3), float32."""
+    (image H×W×3, shade.frag's alpha over the box job["bbox"] (± camera z, 0 where
+    uncovered), the lit masks over that box (h×w×4) or None with one light), float32."""
     ctx, mgl = rt.ctx, rt.gl
     W, H, p = job["W"], job["H"], job["p"]
     ctx.enable(mgl.DEPTH_TEST)
@@ -372,7 +379,9 @@ def _render(rt, job):
     if shadows:
         atlas, size, tiles = _shadow_atlas(rt, job)
     g = _gbuffer(rt, job)
-    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0}
+    masks = nL > 1  # one light: its "lit somewhere" check is the sign of the image's alpha
+    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0,
+               "LIT_MASKS": int(masks)}
     # the mesh's box without the eye highlights, then the eyes' box with them (glscene.scene)
     passes = [(rt.program("screen.vert", "shade.frag", defines), job["bbox"])]
     if eyes is not None:
@@ -383,27 +392,28 @@ def _render(rt, job):
         atlas.use(location=3)
     for prog, _ in passes:
         _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
-    out = _target(rt, "shade", W, H, (4, 4), depth=False)
+    out = _target(rt, "shade", W, H, (4, 4) if masks else (4,), depth=False)
     out["fbo"].use()
     out["fbo"].viewport = (0, 0, W, H)
     ctx.disable(mgl.DEPTH_TEST)
     # only the box where a surface or an eye can be (glscene.screen_box) is shaded and read
     # back; every other pixel is the background (glscene.background_out), filled on the host
-    img = np.empty((H, W, 3), np.float32)
-    img[...] = job["bg_out"]
-    lit = np.zeros((H, W, 3), np.float32)
     for prog, (x, y, w, h) in passes:
         if w and h:
             ctx.scissor = (x, y, w, h)
             vao = rt.objects.get(("screen", prog.glo), lambda: ctx.vertex_array(prog, []))
             vao.render(mgl.TRIANGLES, vertices=3)
     ctx.scissor = None
+    img = np.empty((H, W, 3), np.float32)
+    img[...] = job["bg_out"]
     x, y, w, h = job["bbox"]
+    rgba = np.empty((h, w, 4), np.float32)
+    lit = None
     if w and h:
-        box = np.empty((h, w, 3), np.float32)
-        out["fbo"].read_into(box, viewport=(x, y, w, h), components=3, dtype="f4", attachment=0)
-        img[y:y + h, x:x + w] = box
-        out["fbo"].read_into(box, viewport=(x, y, w, h), components=3, dtype="f4", attachment=1)
-        lit[y:y + h, x:x + w] = box
+        out["fbo"].read_into(rgba, viewport=(x, y, w, h), components=4, dtype="f4", attachment=0)
+        img[y:y + h, x:x + w] = rgba[..., :3]
+        if masks:
+            lit = np.empty((h, w, 4), np.float32)
+            out["fbo"].read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
     ctx.enable(mgl.DEPTH_TEST)
-    return img, lit
+    return img, rgba[..., 3], lit
