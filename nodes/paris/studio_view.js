@@ -87,7 +87,7 @@ export function createFaceRenderer(canvas, d) {
   const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
   const mainG = mesh(gl, P.gbuffer, verts, faces, ['q', 'P', 'N']);
   const gbuf = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F, gl.RGBA32F]);
-  const out = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F], false);
+  const out = target(gl, W, H, [gl.RGBA32F], false);  // shade.frag's o_image (no LIT_MASKS here)
   let scene = d, atlas = null, atlasTiles = null, shadowMeshes = [], gbufDone = false, detailTex = null, texDepth = null;
   const nL = Math.max(d.lights.length, 1);
 
@@ -211,8 +211,7 @@ export function createFaceRenderer(canvas, d) {
     // only the boxes where a surface or an eye can be are shaded (glscene.scene): the mesh's
     // without the eye highlights, then the eyes' with them; the rest is the background as
     // shade.frag would write it (glscene.background_out)
-    gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 1]);
-    gl.clearBufferfv(gl.COLOR, 1, [0, 0, 0, 0]);
+    gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
     gl.enable(gl.SCISSOR_TEST);
     gl.bindVertexArray(empty);
     for (const [prog, box] of [[P.shade, d.bbox], [P.shade_eyes, d.eye_box]]) {

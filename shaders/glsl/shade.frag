@@ -110,7 +110,12 @@ vec3 eye_highlights(float depth) {
         if (!(zc <= depth + eye_R * 0.35)) continue;
         vec3 n = XC / eye_R;
         vec3 X = eye_c[k] + XC;
+#if N_LIGHTS == 1
+        {
+            const int i = 0;
+#else
         for (int i = 0; i < N_LIGHTS; ++i) {
+#endif
             vec3 L;
             vec3 l = towards_light(i, X, L);
             acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
@@ -139,7 +144,12 @@ void main() {
         v = vl > 0.0 ? v / vl : vec3(0.0);
 #endif
         vec3 col = vec3(0.0);
+#if N_LIGHTS == 1
+        {                                     // no loop: a constant index into the light
+            const int i = 0;                  // arrays (SwiftShader runs loops lane-masked)
+#else
         for (int i = 0; i < N_LIGHTS; ++i) {
+#endif
             vec3 L;
             vec3 l = towards_light(i, P, L);
             float nl = dot(n, l);
