@@ -111,6 +111,7 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera):
     job["vertices"] = np.hstack([qc, V, vn]).astype(np.float32)
     job["vertices_key"] = digest(job["vertices"])
     job["faces_key"] = digest(job["main"][1])
+    job["mesh_faces"] = np.ascontiguousarray(F, np.int32)  # all faces (the studio's shadow maps)
     job["cam_pos"] = camera.position
     job["cam_ortho"] = camera.orthographic
     job["cam_back"] = -camera.forward

@@ -2,7 +2,8 @@
 // The programs are shaders/glsl/ as graphkit.glsl preprocesses them for GLSL ES 3.00 (the
 // moderngl backend compiles the same files as GLSL 3.30); the scene (mesh, camera, detail
 // texture, material, light uniforms, shadow-map frames) comes from nodes/paris/glscene.py.
-// Passes as in plugins/graphkit-moderngl/graphkit_moderngl/render.py: shadow atlas, texture-
+// Passes as in plugins/graphkit-moderngl/graphkit_moderngl/render.py: shadow atlas (here depth-
+// only, from the world positions: depth.vert WORLD, shade.frag SM_WINDOW), texture-
 // camera depth, surface (g-buffer, kept while only the light changes), lighting (shade.frag,
 // into an RGBA32F target), display (display.frag: × 2^exposure, sRGB, onto the canvas).
 // Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, sync, time,
@@ -89,6 +90,8 @@ export function createFaceRenderer(canvas, d) {
   const gbuf = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F, gl.RGBA32F]);
   const out = target(gl, W, H, [gl.RGBA32F], false);  // shade.frag's o_image (no LIT_MASKS here)
   let scene = d, atlas = null, atlasTiles = null, shadowMeshes = [], gbufDone = false, detailTex = null, texDepth = null;
+  // the shadow maps: the drawn mesh (all its faces) from its world positions (depth.vert WORLD)
+  const allFaces = d.shadow ? mesh(gl, P.shadow, verts, decode(d.mesh_faces), ['q', 'P', 'N']) : null;
   const nL = Math.max(d.lights.length, 1);
 
   function depthPass(geom, viewport) {
@@ -99,22 +102,43 @@ export function createFaceRenderer(canvas, d) {
     gl.drawElements(gl.TRIANGLES, geom.mesh.count, gl.UNSIGNED_INT, 0);
   }
 
+  function depthTarget(W, H) {  // a depth texture only (shadow maps: window depths)
+    const fbo = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+    const t = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, t);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.DEPTH_COMPONENT32F, W, H);
+    for (const k of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, k, gl.NEAREST);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.TEXTURE_2D, t, 0);
+    gl.drawBuffers([gl.NONE]);
+    gl.readBuffer(gl.NONE);
+    const st = gl.checkFramebufferStatus(gl.FRAMEBUFFER);
+    if (st !== gl.FRAMEBUFFER_COMPLETE) throw new Error(`framebuffer incomplete (${st})`);
+    return { fbo, tex: [t], W, H, n: 0 };
+  }
+
   function shadowAtlas() {
+    // depth-only (depth.frag DEPTH_ONLY) into a depth texture, from the world positions: a
+    // light change uploads its matrix (and faces only where its frame drops some)
     const sms = scene.shadow, size = scene.shadow_map_size;
     const n = sms.length, cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
-    if (!atlas || atlas.W !== cols * size || atlas.H !== rows * size) atlas = target(gl, cols * size, rows * size, [gl.R32F]);
+    if (!atlas || atlas.W !== cols * size || atlas.H !== rows * size) atlas = depthTarget(cols * size, rows * size);
     atlasTiles = sms.map((_, i) => [(i % cols) * size, Math.floor(i / cols) * size]);
     gl.bindFramebuffer(gl.FRAMEBUFFER, atlas.fbo);
     gl.viewport(0, 0, atlas.W, atlas.H);
-    gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true); gl.colorMask(true, true, true, true);
-    gl.clearBufferfv(gl.COLOR, 0, [1e30, 0, 0, 0]);
+    gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true);
     gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
     shadowMeshes.forEach(m => m && m.release());
-    shadowMeshes = sms.map((sm, i) => {
-      if (!sm) return null;
-      const m = mesh(gl, P.depth, decode(sm.q), decode(sm.faces), ['q']);
-      depthPass({ clip: sm.clip, mesh: m }, [atlasTiles[i][0], atlasTiles[i][1], size, size]);
-      return m;
+    shadowMeshes = [];
+    gl.useProgram(P.shadow);
+    sms.forEach((sm, i) => {
+      if (!sm) return;
+      let m = allFaces;
+      if (sm.faces) shadowMeshes.push(m = mesh(gl, P.shadow, verts, decode(sm.faces), ['q', 'P', 'N']));
+      gl.uniformMatrix4fv(P.shadow.u('proj'), false, sm.world_clip);
+      gl.viewport(atlasTiles[i][0], atlasTiles[i][1], size, size);
+      gl.bindVertexArray(m.vao);
+      gl.drawElements(gl.TRIANGLES, m.count, gl.UNSIGNED_INT, 0);
     });
   }
 
@@ -181,16 +205,18 @@ export function createFaceRenderer(canvas, d) {
       gl.uniform1i(s.u('shadow_maps'), 3);
       gl.uniform1i(s.u('sm_size'), scene.shadow_map_size);
       const tl = new Int32Array(2 * nL), M = new Float32Array(16 * nL), pr = new Float32Array(4 * nL), b = new Float32Array(2 * nL).fill(1);
+      const zm = new Float32Array(3 * nL);
       for (let i = 0; i < nL; i++) M.set([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1], 16 * i);
       scene.shadow.forEach((sm, i) => {
         tl.set(atlasTiles[i], 2 * i);
         if (!sm) return;
-        M.set(sm.to_light, 16 * i); pr.set(sm.proj, 4 * i); b.set(sm.bias, 2 * i);
+        M.set(sm.to_light, 16 * i); pr.set(sm.proj, 4 * i); b.set(sm.bias, 2 * i); zm.set(sm.zmap, 3 * i);
       });
       gl.uniform2iv(s.u('sm_tile'), tl);
       gl.uniformMatrix4fv(s.u('sm_to_light'), false, M);
       gl.uniform4fv(s.u('sm_proj'), pr);
       gl.uniform2fv(s.u('sm_bias'), b);
+      gl.uniform3fv(s.u('sm_zmap'), zm);
     }
     gl.uniform3fv(s.u('cam_pos'), d.cam_pos); gl.uniform3fv(s.u('cam_back'), d.cam_back);
     gl.uniform3fv(s.u('kd'), d.kd); gl.uniform1f(s.u('i_s'), d.i_s); gl.uniform1f(s.u('shininess'), d.shininess);

@@ -35,6 +35,16 @@ def _vec(v):
     return [float(x) for x in np.asarray(v, np.float64).ravel()]
 
 
+def _window_depth_map(clip) -> list:
+    """(a, b, c) with window depth = a + b·z + c/z for light-frame depth z under the clip matrix
+    ``clip`` (its z row (0, 0, P22, P23); w = 1 (orthographic) or z (perspective)) and GL's
+    default depth range: shade.frag's SM_WINDOW."""
+    P = np.asarray(clip, np.float64)
+    if P[3, 2] == 0.0:  # orthographic: z_ndc = P22 z + P23
+        return [0.5 + 0.5 * P[2, 3], 0.5 * P[2, 2], 0.0]
+    return [0.5 + 0.5 * P[2, 2], 0.0, 0.5 * P[2, 3]]  # perspective: z_ndc = P22 + P23 / z
+
+
 class FaceView(LiveView):
     title = "face relighting (WebGL2, Paris §5)"
     js = "studio_view.js"
@@ -66,13 +76,20 @@ class FaceView(LiveView):
         return scene(self.params, v["mesh"], v["camera"], v["material"], self._lights(values),
                      v.get("detail"), v.get("texture_camera"), v.get("ambient"))
 
-    def _light_part(self, job, p):
+    def _light_part(self, job, p, n_faces: int):
+        """The lights' uniforms and shadow-map frames for the page.  A shadow map is drawn
+        from the drawn mesh's world positions (depth.vert WORLD: ``world_clip`` = the light's
+        clip matrix × its frame, float64 on the host) into a depth texture (shade.frag
+        SM_WINDOW: ``zmap``); its faces are sent only where the light's frame drops some of
+        the mesh's ``n_faces`` faces (a point light with vertices behind it)."""
         out = {"lights": [{"kind": int(k), "dir": _vec(d), "pos": _vec(pos), "rgb": _vec(rgb)}
                           for k, d, pos, rgb in job["lights"]]}
         if job["shadow"] is not None:
             out["shadow"] = [None if sm is None else {
                 "to_light": _mat(sm["to_light"]), "proj": _vec(sm["proj"]), "bias": _vec(sm["bias"]),
-                "clip": _mat(sm["clip"]), "faces": _arr(sm["faces"], "u4"), "q": _arr(sm["q"])}
+                "world_clip": _mat(np.asarray(sm["clip"]) @ np.asarray(sm["to_light"])),
+                "zmap": _window_depth_map(sm["clip"]),
+                "faces": None if len(sm["faces"]) == n_faces else _arr(sm["faces"], "u4")}
                 for sm in job["shadow"]]
             out["shadow_map_size"] = int(p.shadow_map_size)
         return out
@@ -94,7 +111,8 @@ class FaceView(LiveView):
              "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
              "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
-             **self._light_part(job, p)}
+             "mesh_faces": _arr(job["mesh_faces"], "u4"),
+             **self._light_part(job, p, len(job["mesh_faces"]))}
         if det is not None:
             tc = det["cam"]
             d["detail"] = {"pixels": _arr(det["pixels"]), "size": [int(tc.width), int(tc.height)],
@@ -105,10 +123,12 @@ class FaceView(LiveView):
             d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
                          "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
                          "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
-        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0}
+        defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0,
+                "SM_WINDOW": 1}
         gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None)}
         d["glsl"] = {
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
+            "shadow": [source("depth.vert", "es300", {"WORLD": 1}), source("depth.frag", "es300", {"DEPTH_ONLY": 1})],
             "gbuffer": [source("gbuffer.vert", "es300", gdefs), source("gbuffer.frag", "es300", gdefs)],
             "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
@@ -145,4 +165,4 @@ class FaceView(LiveView):
         camera, m, V, F, given = self._mesh_for_lights()
         lights = world_lights(check_render_inputs(self._lights(values, given), None, None), camera, m)
         part, _ = light_part(self.params, V, F, lights, camera.rotation[1])
-        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params)}
+        return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params, len(F))}

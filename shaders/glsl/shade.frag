@@ -45,10 +45,20 @@ uniform vec3 background;
 uniform float exposure;
 uniform bool clamp01;
 
+#ifndef SM_WINDOW
+#define SM_WINDOW 0
+#endif
 #if SHADOWS
 // All lights' shadow maps in one R32F atlas: light i's sm_size² map starts at texel sm_tile[i];
-// values are light-frame depths (1e30 where nothing is in the way).
+// values are light-frame depths (1e30 where nothing is in the way).  SM_WINDOW (the studio's
+// depth-only shadow pass, depth.vert WORLD): a depth texture of window depths in [0, 1] (1
+// where nothing is in the way), compared with the biased light-frame depth db mapped the same
+// way, zw = a + b·db + c/db (sm_zmap[i] = (a, b, c), from the light's clip matrix: b = 0 for
+// a point light, c = 0 for a directional one) — an increasing map, so the test is the same.
 uniform sampler2D shadow_maps;
+#if SM_WINDOW
+uniform vec3 sm_zmap[N_LIGHTS];
+#endif
 uniform int sm_size;
 uniform ivec2 sm_tile[N_LIGHTS];
 uniform mat4 sm_to_light[N_LIGHTS];       // world → light frame
@@ -64,6 +74,11 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     float b = 1.5 * sm_bias[i].x * min(sqrt(1.0 - cosv * cosv) / cosv + 1.0, 10.0);
     if (light_kind[i] == 1) b = b * max(q.z, 1e-9) / sm_bias[i].y;
     float db = q.z - b;
+#if SM_WINDOW
+    vec3 zm = sm_zmap[i];
+    // a point light's db ≤ 0 is nearer than any surface: lit (as the light-frame test)
+    db = (zm.z != 0.0 && db <= 0.0) ? -1.0 : zm.x + zm.y * db + (zm.z != 0.0 ? zm.z / db : 0.0);
+#endif
     int ix = int(clamp(floor(xy.x), -1.0, float(sm_size)));
     int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
     float acc = 0.0;
