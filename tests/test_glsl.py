@@ -20,11 +20,14 @@ from graphkit.glsl import GlslError, files, source
 
 PROGRAMS = [
     ("depth.vert", "depth.frag", {}),
+    ("depth.vert", "depth.frag", {"WORLD": 1, "DEPTH_ONLY": 1}),
     ("gbuffer.vert", "gbuffer.frag", {"DETAIL": 1, "ORTHO": 0}),
     ("gbuffer.vert", "gbuffer.frag", {"DETAIL": 0, "ORTHO": 1}),
-    ("screen.vert", "shade.frag", {"N_LIGHTS": 3, "SHADOWS": 1, "EYES": 1, "ORTHO": 0}),
+    ("screen.vert", "shade.frag", {"N_LIGHTS": 3, "SHADOWS": 1, "EYES": 1, "ORTHO": 0, "LIT_MASKS": 1}),
+    ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 1, "ORTHO": 0, "SM_WINDOW": 1}),
     ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 0, "EYES": 0, "ORTHO": 1}),
     ("screen.vert", "display.frag", {}),
+    ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 1, "SM_WINDOW": 1, "DISPLAY": 1}),
 ]
 
 
@@ -57,7 +60,7 @@ def test_includes_and_defines():
     assert "#define N_LIGHTS 4" in lines and "#define SHADOWS 1" in lines
     assert lines.index("#define N_LIGHTS 4") < next(i for i, l in enumerate(lines) if "light_kind" in l)
     assert not any(l.strip().startswith("#include") for l in lines)
-    assert files("shade.frag") == ["shade.frag", "lights.glsl"]
+    assert files("shade.frag") == ["shade.frag", "lights.glsl", "srgb.glsl"]
     assert "precision" not in source("shade.frag", "330")
 
 

@@ -83,6 +83,13 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path):
             assert bad <= tol["bad_fraction"], (d, bad)
             imgs.append(got)
         assert np.abs(imgs[0] - imgs[1]).max() > 0.2  # the light moved the shading
+        # a frame draws the lighting pass straight onto the canvas (shade.frag DISPLAY): the
+        # same pixels as the float image through display.frag (sRGB, flipped), to 1/255
+        one, two = (np.frombuffer(base64.b64decode(page.evaluate(
+            f"() => document.querySelector('#view-body canvas.face-gl').gkFace.readCanvas({t})")),
+            np.uint8).reshape(96, 96, 4).astype(int) for t in ("false", "true"))
+        assert np.abs(one - two).max() <= 1 and np.abs(two[..., :3] - two[0, 0, :3]).max() > 50, \
+            np.abs(one - two).max()
         assert not errors, errors
     finally:
         ctx.close()

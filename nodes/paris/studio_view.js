@@ -4,9 +4,11 @@
 // texture, material, light uniforms, shadow-map frames) comes from nodes/paris/glscene.py.
 // Passes as in plugins/graphkit-moderngl/graphkit_moderngl/render.py: shadow atlas (here depth-
 // only, from the world positions: depth.vert WORLD, shade.frag SM_WINDOW), texture-
-// camera depth, surface (g-buffer, kept while only the light changes), lighting (shade.frag,
-// into an RGBA32F target), display (display.frag: × 2^exposure, sRGB, onto the canvas).
-// Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, sync, time,
+// camera depth, surface (g-buffer, kept while only the light changes), then a frame's one pass:
+// lighting straight onto the canvas (shade.frag DISPLAY: × 2^exposure, sRGB as display.frag).
+// readImage() runs the lighting pass into an RGBA32F target instead (the float image the tests
+// compare with the numpy Render); drawFloat() shows that target through display.frag.
+// Test/benchmark hooks on the canvas: canvas.gkFace = {setLight, readImage, readCanvas, sync, time,
 // profile (median ms per pass), program (swap a program: shader experiments)}.
 
 function decode(a) {
@@ -249,7 +251,7 @@ export function createFaceRenderer(canvas, d) {
     gl.disable(gl.SCISSOR_TEST);
   }
 
-  function display(exposure) {
+  function display(exposure) {  // the float target onto the canvas (display.frag)
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.useProgram(P.display);
@@ -260,15 +262,47 @@ export function createFaceRenderer(canvas, d) {
     gl.drawArrays(gl.TRIANGLES, 0, 3);
   }
 
+  // sRGB of one linear value (display.frag / srgb.glsl), for the canvas's background clear
+  const srgb = v => { const x = Math.min(1, Math.max(0, v)); return x <= 0.0031308 ? 12.92 * x : 1.055 * Math.pow(x, 1 / 2.4) - 0.055; };
+
+  function lightingDisplay(exposure) {
+    // a frame: the lighting pass straight onto the canvas (shade.frag DISPLAY: the same maths,
+    // then display.frag's encoding), over the same boxes flipped to canvas rows; elsewhere the
+    // background output as the display pass would show it
+    const scale = Math.pow(2, exposure);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.viewport(0, 0, W, H);
+    gl.disable(gl.DEPTH_TEST);
+    gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    gl.enable(gl.SCISSOR_TEST);
+    gl.bindVertexArray(empty);
+    for (const [prog, box] of [[P.shade_display, d.bbox], [P.shade_eyes_display, d.eye_box]]) {
+      if (!prog || !box || !(box[2] > 0 && box[3] > 0)) continue;
+      shadeUniforms(prog);
+      gl.uniform1f(prog.u('display_scale'), scale);
+      gl.uniform1i(prog.u('view_h'), H);
+      gl.scissor(box[0], H - box[1] - box[3], box[2], box[3]);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
+    gl.disable(gl.SCISSOR_TEST);
+  }
+
   return {
     W, H, gl,
     setLights(part) { scene = { ...scene, ...part }; if (scene.shadow) shadowAtlas(); },
     draw(exposure = 0) {
       if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
+      lightingDisplay(exposure);
+    },
+    drawFloat(exposure = 0) {  // the two-pass path: lighting into the float target, then display
+      if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
       lighting();
       display(exposure);
     },
     readImage() {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
+      if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
+      lighting();
       gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
       gl.readBuffer(gl.COLOR_ATTACHMENT0);
       const px = new Float32Array(W * H * 4);
@@ -277,13 +311,15 @@ export function createFaceRenderer(canvas, d) {
     },
     program(k, srcs) { P[k] = program(gl, srcs); },  // swap a program (shader experiments)
     profile(n) {  // median ms of each pass over n frames, each pass synced (benchmarks)
-      const t = { shadow: [], lighting: [], display: [] };
+      // shadow, then the frame's one lighting + display pass; the two-pass float path apart
+      const t = { shadow: [], lighting_display: [], float_lighting: [], float_display: [] };
       const run = (k, f) => { const t0 = performance.now(); f(); this.sync(); t[k].push(performance.now() - t0); };
       this.draw();
       for (let i = 0; i < n; i++) {
         if (scene.shadow) run('shadow', shadowAtlas);
-        run('lighting', lighting);
-        run('display', () => display(0));
+        run('lighting_display', () => lightingDisplay(0));
+        run('float_lighting', lighting);
+        run('float_display', () => display(0));
       }
       const med = a => a.length ? a.sort((x, y) => x - y)[a.length >> 1] : 0;
       return Object.fromEntries(Object.entries(t).map(([k, v]) => [k, med(v)]));
@@ -378,6 +414,14 @@ export function mount(el, api) {
     profile(n) { return r.profile(n); },
     program(k, s) { r.program(k, s); },
     sync() { return r.sync(); },  // a 1-pixel read-back of the canvas: waits for the frame
+    readCanvas(twoPass = false) {  // the canvas (RGBA8, GL rows) after a frame, or after the two-pass float path
+      if (twoPass) r.drawFloat(api.exposure()); else r.draw(api.exposure());
+      const gl = r.gl, px = new Uint8Array(r.W * r.H * 4);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.readPixels(0, 0, r.W, r.H, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      r.draw(api.exposure());
+      return btoa(Array.from({ length: Math.ceil(px.length / 0x8000) }, (_, i) => String.fromCharCode.apply(null, px.subarray(i * 0x8000, (i + 1) * 0x8000))).join(''));
+    },
     time(n) {  // n lighting frames (light changed: shadow atlas + lighting + display), each synced with readPixels
       const ts = [];
       for (let i = 0; i < n; i++) {

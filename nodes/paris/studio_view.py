@@ -133,9 +133,14 @@ class FaceView(LiveView):
             "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
         }
+        # the view's frames: the same lighting pass straight onto the canvas (DISPLAY); the
+        # float programs above are what readImage() reads back
+        d["glsl"]["shade_display"] = [source("screen.vert", "es300", {**defs, "DISPLAY": 1}),
+                                      source("shade.frag", "es300", {**defs, "DISPLAY": 1})]
         if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
-            d["glsl"]["shade_eyes"] = [source("screen.vert", "es300", {**defs, "EYES": 1}),
-                                       source("shade.frag", "es300", {**defs, "EYES": 1})]
+            for k, extra in (("shade_eyes", {}), ("shade_eyes_display", {"DISPLAY": 1})):
+                d["glsl"][k] = [source("screen.vert", "es300", {**defs, "EYES": 1, **extra}),
+                                source("shade.frag", "es300", {**defs, "EYES": 1, **extra})]
             d["eye_box"] = [int(x) for x in job["eye_box"]]
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),

@@ -11,7 +11,7 @@
 // Outputs: o_image.rgb = the image; o_image.a = the camera z where a surface is (0 elsewhere),
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
-// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS.  The drivers draw it scissored to the
+// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -26,6 +26,17 @@
 #endif
 #ifndef LIT_MASKS
 #define LIT_MASKS 0
+#endif
+#ifndef DISPLAY
+#define DISPLAY 0
+#endif
+#if DISPLAY
+// The studio's frames: the image straight onto the canvas as display.frag would show it
+// (× 2^exposure, clip, sRGB; image row 0 at the top: canvas row y is image row view_h − 1 − y),
+// in the same pass (no float target written and read again).
+#include "srgb.glsl"
+uniform float display_scale;              // 2^exposure of the view
+uniform int view_h;                       // H
 #endif
 layout(location = 0) out vec4 o_image;    // rgb = image, a = ±camera z (covered), 0 (uncovered)
 #if LIT_MASKS
@@ -106,8 +117,8 @@ uniform float eye_s;
 uniform float eye_ks;
 
 // Ray–sphere in a cancellation-free form (h = oc − (d·oc) d).
-vec3 eye_highlights(float depth) {
-    vec3 pix = vec3(gl_FragCoord.xy, 1.0);
+vec3 eye_highlights(ivec2 px, float depth) {
+    vec3 pix = vec3(vec2(px) + 0.5, 1.0);     // the pixel centre
     vec3 ro = ray_org * pix;
     vec3 d = normalize(ray_dir * pix);
     vec3 acc = vec3(0.0);
@@ -141,7 +152,11 @@ vec3 eye_highlights(float depth) {
 #endif
 
 void main() {
+#if DISPLAY
+    ivec2 px = ivec2(int(gl_FragCoord.x), view_h - 1 - int(gl_FragCoord.y));
+#else
     ivec2 px = ivec2(gl_FragCoord.xy);
+#endif
     vec4 gp = texelFetch(g_pos, px, 0);
     vec4 gn = texelFetch(g_normal, px, 0);
     bool cov = gn.w > 0.5;
@@ -190,11 +205,15 @@ void main() {
         img = col * texelFetch(g_detail, px, 0).rgb;
     }
 #if EYES
-    img += eye_highlights(cov ? gp.w : 3.0e38);
+    img += eye_highlights(px, cov ? gp.w : 3.0e38);
 #endif
     img *= exposure;
     if (clamp01) img = clamp(img, 0.0, 1.0);
+#if DISPLAY
+    o_image = vec4(srgb_encode(img * display_scale), 1.0);
+#else
     o_image = vec4(img, cov ? (any_lit ? gp.w : -gp.w) : 0.0);
+#endif
 #if LIT_MASKS
     o_lit = vec4(mask0, mask1, 0.0, 0.0);
 #endif
