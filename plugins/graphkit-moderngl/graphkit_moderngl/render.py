@@ -393,11 +393,16 @@ def _render(rt, job):
     for prog, _ in passes:
         _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
     out = _target(rt, "shade", W, H, (4, 4) if masks else (4,), depth=False)
-    out["fbo"].use()
-    out["fbo"].viewport = (0, 0, W, H)
+    fbo = out["fbo"]
+    fbo.use()
+    fbo.viewport = (0, 0, W, H)
     ctx.disable(mgl.DEPTH_TEST)
-    # only the box where a surface or an eye can be (glscene.screen_box) is shaded and read
-    # back; every other pixel is the background (glscene.background_out), filled on the host
+    # only the box where a surface or an eye can be (glscene.screen_box) is shaded; every
+    # other pixel is the background output (glscene.background_out, alpha 0: uncovered), as
+    # the target is cleared to it; the image is read back whole as RGB straight into the
+    # output array (no host-side fill and copy), the alpha (± camera z) over the box only
+    ctx.scissor = None
+    fbo.clear(*job["bg_out"], 0.0)
     for prog, (x, y, w, h) in passes:
         if w and h:
             ctx.scissor = (x, y, w, h)
@@ -405,15 +410,14 @@ def _render(rt, job):
             vao.render(mgl.TRIANGLES, vertices=3)
     ctx.scissor = None
     img = np.empty((H, W, 3), np.float32)
-    img[...] = job["bg_out"]
+    fbo.read_into(img, components=3, dtype="f4", attachment=0)
     x, y, w, h = job["bbox"]
     rgba = np.empty((h, w, 4), np.float32)
     lit = None
     if w and h:
-        out["fbo"].read_into(rgba, viewport=(x, y, w, h), components=4, dtype="f4", attachment=0)
-        img[y:y + h, x:x + w] = rgba[..., :3]
+        fbo.read_into(rgba, viewport=(x, y, w, h), components=4, dtype="f4", attachment=0)
         if masks:
             lit = np.empty((h, w, 4), np.float32)
-            out["fbo"].read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
+            fbo.read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
     ctx.enable(mgl.DEPTH_TEST)
     return img, rgba[..., 3], lit
