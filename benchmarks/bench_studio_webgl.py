@@ -10,8 +10,8 @@ depth test, onto a 512² canvas: its buffers made once, as any hand-written view
 
 Rows (median and best of ``--rounds`` rounds of ``--n`` frames; the two pages alternate):
 
-* frame time: ``canvas.gkFace.time(n)``: n frames with the light changed (shadow atlas, lighting
-  and display passes; the g-buffer is kept), each synced with a 1-pixel gl.readPixels, not
+* frame time: ``canvas.gkFace.time(n)``: n frames with the light changed (the shadow atlas, then
+  the lighting pass straight onto the canvas; the g-buffer is kept), each synced with a 1-pixel gl.readPixels, not
   requestAnimationFrame (capped at the display rate); the peer the same with its one pass.
   Ratio = face view / peer (goal of issue 14: ≤ 2×).
 * drag: ``canvas.gkFace.setLight({direction})`` n times along an arc, each waiting for the new

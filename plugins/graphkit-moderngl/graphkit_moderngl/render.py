@@ -28,8 +28,13 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   lights re-renders the shadow maps and the lighting pass, one that changes only the
   material/exposure only the lighting pass.
 * the lighting pass runs only over the mesh's screen box (``glscene.screen_box``) and, with
-  the eye highlights, over the eyes' box; only that box is read back, the rest of the image is
-  the background output (``glscene.background_out``).
+  the eye highlights, over the eyes' box, on a target cleared to the background output
+  (``glscene.background_out``); its alpha is the camera z where a surface is (0 elsewhere),
+  negated where no light has n·l > 0 (one light; 2+ lights: per-light masks in a second
+  target, ``LIT_MASKS``), so the read-back is the image, whole, as RGB straight into the
+  output array, and the alpha over the box only (depth, coverage, the "lights nothing" check).
+* a direct call without the engine's input digests keys the kept set-up by the content of
+  the inputs (``glscene.static_key``).
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
