@@ -94,14 +94,17 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
     float acc = 0.0;
     ivec2 tile = sm_tile[i];
-    for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-            // outside the map: lit (as the reference); clamped fetch + select, no branch
-            ivec2 at = ivec2(ix + dx, iy + dy);
-            ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1));
-            float d = texelFetch(shadow_maps, tile + c, 0).r;
-            acc += (at != c || db <= d) ? 1.0 : 0.0;
-        }
+    // the 3×3 taps written out (no loop: SwiftShader runs loops lane-masked), rows dy = −1, 0,
+    // 1, each dx = −1, 0, 1 (the reference's order); outside the map: lit (as the reference);
+    // clamped fetch + select, no branch
+#define SM_TAP(DX, DY) { \
+        ivec2 at = ivec2(ix + DX, iy + DY); \
+        ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1)); \
+        acc += (at != c || db <= texelFetch(shadow_maps, tile + c, 0).r) ? 1.0 : 0.0; }
+    SM_TAP(-1, -1) SM_TAP(0, -1) SM_TAP(1, -1)
+    SM_TAP(-1, 0)  SM_TAP(0, 0)  SM_TAP(1, 0)
+    SM_TAP(-1, 1)  SM_TAP(0, 1)  SM_TAP(1, 1)
+#undef SM_TAP
     return acc / 9.0;
 }
 #endif
