@@ -158,8 +158,11 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera):
     Fm = job["main"][1]
     job["bbox"] = screen_box(camera, qc[np.unique(Fm)] if len(Fm) else qc[:0])
     job["eye_box"] = None
+    job["boxes"] = [job["bbox"]]  # the boxes of the pass without the eye highlights
     if eyes is not None:
         job["eye_box"] = screen_box(camera, camera.to_camera(_eye_cube_corners(eyes)))
+        # the eyes' program shades every pixel of its box: the other one skips that box
+        job["boxes"] = box_minus(job["bbox"], job["eye_box"])
         job["bbox"] = union_box(job["bbox"], job["eye_box"])
     job["bg_out"] = background_out(p)
     return job, mesh, V, F, camera.rotation[1]
@@ -206,6 +209,19 @@ def screen_box(camera: Camera, q: np.ndarray) -> tuple[int, int, int, int]:
     y0 = int(np.clip(np.floor(uv[:, 1].min()) - 1, 0, H))
     y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, H))
     return x0, y0, max(x1 - x0, 0), max(y1 - y0, 0)
+
+
+def box_minus(a, b) -> list:
+    """Up to four (x, y, w, h) boxes that cover box ``a`` without box ``b``: below, above, left
+    and right of ``b`` (empty ones left out)."""
+    ax0, ay0, ax1, ay1 = a[0], a[1], a[0] + a[2], a[1] + a[3]
+    if not (b[2] and b[3]) or not (a[2] and a[3]):
+        return [tuple(a)] if a[2] and a[3] else []
+    bx0, by0 = min(max(b[0], ax0), ax1), min(max(b[1], ay0), ay1)
+    bx1, by1 = min(max(b[0] + b[2], ax0), ax1), min(max(b[1] + b[3], ay0), ay1)
+    out = [(ax0, ay0, ax1 - ax0, by0 - ay0), (ax0, by1, ax1 - ax0, ay1 - by1),
+           (ax0, by0, bx0 - ax0, by1 - by0), (bx1, by0, ax1 - bx1, by1 - by0)]
+    return [tuple(int(v) for v in r) for r in out if r[2] > 0 and r[3] > 0]
 
 
 def union_box(a, b):

@@ -278,11 +278,15 @@ export function createFaceRenderer(canvas, d) {
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
     gl.enable(gl.SCISSOR_TEST);
     gl.bindVertexArray(empty);
-    for (const [prog, box] of [[P.shade, d.bbox], [P.shade_eyes, d.eye_box]]) {
-      if (!prog || !box || !(box[2] > 0 && box[3] > 0)) continue;
+    // (the eyes' program shades every pixel of its box: the other one skips it, d.boxes)
+    for (const [prog, boxes] of [[P.shade, d.boxes], [P.shade_eyes, [d.eye_box]]]) {
+      if (!prog) continue;
       shadeUniforms(prog);
-      gl.scissor(...box);
-      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      for (const box of boxes) {
+        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
+        gl.scissor(...box);
+        gl.drawArrays(gl.TRIANGLES, 0, 3);
+      }
     }
     gl.disable(gl.SCISSOR_TEST);
   }
@@ -313,13 +317,16 @@ export function createFaceRenderer(canvas, d) {
     gl.clear(gl.COLOR_BUFFER_BIT);
     gl.enable(gl.SCISSOR_TEST);
     gl.bindVertexArray(empty);
-    for (const [prog, box] of [[P.shade_display, d.bbox], [P.shade_eyes_display, d.eye_box]]) {
-      if (!prog || !box || !(box[2] > 0 && box[3] > 0)) continue;
+    for (const [prog, boxes] of [[P.shade_display, d.boxes], [P.shade_eyes_display, [d.eye_box]]]) {
+      if (!prog) continue;
       shadeUniforms(prog);
       gl.uniform1f(prog.u('display_scale'), scale);
       gl.uniform1i(prog.u('view_h'), H);
-      gl.scissor(box[0], H - box[1] - box[3], box[2], box[3]);
-      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      for (const box of boxes) {
+        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
+        gl.scissor(box[0], H - box[1] - box[3], box[2], box[3]);
+        gl.drawArrays(gl.TRIANGLES, 0, 3);
+      }
     }
     gl.disable(gl.SCISSOR_TEST);
   }

@@ -111,6 +111,7 @@ class FaceView(LiveView):
              "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
              "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
+             "boxes": [[int(x) for x in b] for b in job["boxes"]],
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
              **self._light_part(job, p, len(job["mesh_faces"]))}
         if det is not None:

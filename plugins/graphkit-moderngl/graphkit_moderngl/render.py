@@ -388,14 +388,16 @@ def _render(rt, job):
     defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0,
                "LIT_MASKS": int(masks)}
     # the mesh's box without the eye highlights, then the eyes' box with them (glscene.scene)
-    passes = [(rt.program("screen.vert", "shade.frag", defines), job["bbox"])]
+    # (the eyes' program shades every pixel of its box: the other one skips it, job["boxes"])
+    prog = rt.program("screen.vert", "shade.frag", defines)
+    passes = [(prog, box) for box in job["boxes"]]
     if eyes is not None:
         passes.append((rt.program("screen.vert", "shade.frag", {**defines, "EYES": 1}), job["eye_box"]))
     for i, t in enumerate(g["tex"]):
         t.use(location=i)
     if shadows:
         atlas.use(location=3)
-    for prog, _ in passes:
+    for prog in {id(pr): pr for pr, _ in passes}.values():
         _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
     out = _target(rt, "shade", W, H, (4, 4) if masks else (4,), depth=False)
     fbo = out["fbo"]
