@@ -407,9 +407,15 @@ def _render(rt, job):
     # only the box where a surface or an eye can be (glscene.screen_box) is shaded; every
     # other pixel is the background output (glscene.background_out, alpha 0: uncovered), as
     # the target is cleared to it; the image is read back whole as RGB straight into the
-    # output array (no host-side fill and copy), the alpha (± camera z) over the box only
+    # output array (no host-side fill and copy), the alpha (± camera z) over the box only.
+    # The clear is skipped when the kept target's last frame had the same background and
+    # boxes (a light drag): the passes rewrite every pixel they wrote then, and no other
+    # pixel has been written since its clear
     ctx.scissor = None
-    fbo.clear(*job["bg_out"], 0.0)
+    layout = (tuple(job["bg_out"]), tuple(tuple(b) for _, b in passes))
+    if out["key"] != layout:
+        fbo.clear(*job["bg_out"], 0.0)
+        out["key"] = layout
     for prog, (x, y, w, h) in passes:
         if w and h:
             ctx.scissor = (x, y, w, h)
