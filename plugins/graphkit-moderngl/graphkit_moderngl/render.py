@@ -94,7 +94,7 @@ class RenderGL(Backend):
         x, y, w, h = job["bbox"]
         box = np.s_[y:y + h, x:x + w]
         depth = np.zeros((H, W), np.float32)
-        cov = np.zeros((H, W), bool)
+        cov = np.zeros((H, W), np.float32)  # the coverage mask's values (1 / 0) straight away
         cb = zs != 0.0
         cov[box] = cb
         np.abs(zs, out=depth[box])
@@ -119,7 +119,7 @@ class RenderGL(Backend):
                                    "is not a mediapipe face mesh; set the `eyes` param")
         return {"image": Image(img),
                 "depth": Image(depth),
-                "coverage": Mask(cov.astype(np.float32))}
+                "coverage": Mask(cov)}
 
 
 def _check_atlas(n: int, size: int):
