@@ -332,7 +332,7 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
         sock.close()
         raise UsageError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
     studio = Studio(graph, cache=cache, out=out, registry=registry, backends=backends, jobs=jobs,
-                    autorun=autorun)
+                    autorun=autorun, freeze_gc=True)
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{bound}/?token={token}"

@@ -65,6 +65,16 @@ class _RunProgress(Progress):
         self.t0 = time.time()
         self.running_nodes: list[str] = []
         self.outcomes: dict[str, NodeOutcome] = {}
+        self.pushed: dict[str, list[str]] = {}  # node -> digests of previews pushed before its store writes
+
+    def outputs(self, node, digests, values):
+        """Session.on_outputs: a node computed anew, its outputs hashed, not stored yet.  The
+        previews on show of it are encoded and pushed now, from the values in memory, so the
+        page decodes them while the store writes run (done() then waits for "shown")."""
+        try:
+            self.pushed[node] = self.studio._encode_watched(node, digests, values)
+        except Exception:  # noqa: BLE001 - a preview must not fail the node; done() retries
+            self.pushed.pop(node, None)
 
     def _check(self):
         if self.studio.closing:
@@ -87,7 +97,9 @@ class _RunProgress(Progress):
         if o.name in self.outcomes:  # a later pass (after a failure elsewhere) found it cached
             return
         self.outcomes[o.name] = o
-        wanted = [] if o.hit else self.studio._encode_watched(o)
+        wanted = self.pushed.pop(o.name, None)  # pushed before the store writes (outputs())
+        if wanted is None:
+            wanted = [] if o.hit else self.studio._encode_watched(o.name, o.outputs)
         self.studio._node_event(o.name, state="cached" if o.hit else "done", seconds=round(o.seconds, 4),
                                 message="", digests=o.outputs, backend=o.backend)
         if wanted:
@@ -140,7 +152,7 @@ class Studio:
 
     def __init__(self, graph_path: str | os.PathLike, cache: str, out: str | None = None,
                  registry=None, backends: list[str] | None = None, jobs: int = 1,
-                 autorun: bool = True):
+                 autorun: bool = True, freeze_gc: bool = False):
         from ..registry import default_registry
 
         self.path = os.path.abspath(str(graph_path))
@@ -157,6 +169,12 @@ class Studio:
         self.backends = backends
         self.jobs = max(1, int(jobs))
         self.autorun = autorun
+        # the server process (graphkit serve) moves what its runs imported (modules, the node
+        # libraries' state) out of the garbage collector's sight after a run that imported
+        # something: a full collection over them took 70-110 ms every few slider moves, on the
+        # preview's path.  Only after imports (len(sys.modules) grew), so what a later run
+        # leaves behind (old graphs, …) is still collected, not kept for good.
+        self._gc_modules = 0 if freeze_gc else None
         self.doc = YamlDoc(text)
         self.saved_text = text
         self.graph = None
@@ -346,6 +364,21 @@ class Studio:
                 self._emit({"type": "state", "state": self.state()})
             else:
                 self._send_due_state()
+            self._freeze_imports()
+
+    def _freeze_imports(self) -> None:
+        import sys
+
+        if self._gc_modules is None or len(sys.modules) == self._gc_modules:
+            return
+        with self._lock:
+            if self._pending is not None:  # a newer change waits: freeze after it
+                return
+        import gc
+
+        gc.collect()  # garbage goes first; what lives now (mostly imports) is kept out of later scans
+        gc.freeze()
+        self._gc_modules = len(sys.modules)
 
     @contextlib.contextmanager
     def write_guard(self):
@@ -359,7 +392,7 @@ class Studio:
         progress = _RunProgress(self, gen)
         store = GuardedStore(self.store, self)
         session = Session(graph, self.registry, store, self.backends,
-                          notice=progress.notice, report=progress.report)
+                          notice=progress.notice, report=progress.report, on_outputs=progress.outputs)
         session.memo = self.memo  # values stay in memory between runs of the studio
         targets = sorted({n for n, _ in graph.outputs.values()})
         needed = graph.upstream(targets)
@@ -376,7 +409,7 @@ class Studio:
             if not todo:
                 break
             try:
-                run_local(session, todo, self.jobs, progress)
+                run_local(session, todo, self.jobs, progress, first=self._watched_nodes(graph))
                 break
             except (Superseded, Closing):
                 raise
@@ -422,6 +455,16 @@ class Studio:
             info["files"] = len(files)
         info["status"] = "ok"
         return info
+
+    def _watched_nodes(self, graph) -> list[str]:
+        """The nodes whose previews a page has on show: a run computes them (and what they
+        need) first, so a slider's preview does not wait for the rest of the graph."""
+        now = time.time()
+        with self._lock:
+            if not self._listeners:
+                return []
+            return sorted({n for (n, _), seen in self._watch.items()
+                           if n in graph.nodes and any(now - t < self.WATCH_S for t in seen.values())})
 
     def _check_gen(self, gen):
         if self.closing:
@@ -526,12 +569,13 @@ class Studio:
             while len(self._png) > self.PNG_CACHE:
                 self._png.popitem(last=False)
 
-    def _encode_watched(self, o: NodeOutcome) -> list[str]:
-        """Encode the previews on show of node outcome ``o`` (computed anew); their digests."""
+    def _encode_watched(self, name: str, outputs: dict, values: dict | None = None) -> list[str]:
+        """Encode and push the previews on show of node ``name``, computed anew with
+        ``outputs`` (port → digest; ``values``: port → value, else from memory); their digests."""
         from .imaging import preview_png
 
         g = self.graph
-        if g is None or o.name not in g.nodes:
+        if g is None or name not in g.nodes:
             return []
         now = time.time()
         with self._lock:
@@ -539,7 +583,7 @@ class Studio:
                 return []
             todo = []
             for (node, port), variants in self._watch.items():
-                d = o.outputs.get(port) if node == o.name else None
+                d = outputs.get(port) if node == name else None
                 if not isinstance(d, str):
                     continue
                 for var, t in variants.items():
@@ -547,8 +591,8 @@ class Studio:
                         todo.append((port, d, var))
         out = []
         for port, d, var in todo:
-            ptype = g.nodes[o.name].cls.out_ports[port].type
-            v = self.memo.get(d)
+            ptype = g.nodes[name].cls.out_ports[port].type
+            v = values.get(port) if values else self.memo.get(d)
             if v is None or ptype.name not in ("Image", "Mask"):
                 continue
             data = preview_png(ptype.name, v, *var)
@@ -557,7 +601,7 @@ class Studio:
         with self._lock:
             self._served_digests.difference_update(d for _, d, _, _ in out)
         for port, d, (exposure, max_side, level), data in out:  # pages on show take it from here
-            self._emit({"type": "preview", "node": o.name, "port": port, "digest": d, "exposure": exposure,
+            self._emit({"type": "preview", "node": name, "port": port, "digest": d, "exposure": exposure,
                         "max": max_side, "level": level, "png": data})
         return [d for _, d, _, _ in out]
 
