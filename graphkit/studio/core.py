@@ -457,14 +457,17 @@ class Studio:
         return info
 
     def _watched_nodes(self, graph) -> list[str]:
-        """The nodes whose previews a page has on show: a run computes them (and what they
-        need) first, so a slider's preview does not wait for the rest of the graph."""
-        now = time.time()
+        """The node(s) of the preview a page asked for last (and of those asked for with it,
+        within 50 ms: its panel's thumbnails): a run computes them, and what they need,
+        first, so a slider's preview does not wait for the rest of the graph."""
         with self._lock:
             if not self._listeners:
                 return []
-            return sorted({n for (n, _), seen in self._watch.items()
-                           if n in graph.nodes and any(now - t < self.WATCH_S for t in seen.values())})
+            last = {n: max(seen.values()) for (n, _), seen in self._watch.items() if seen and n in graph.nodes}
+        if not last:
+            return []
+        newest = max(last.values())
+        return sorted(n for n, t in last.items() if t >= newest - 0.05 and time.time() - t < self.WATCH_S)
 
     def _check_gen(self, gen):
         if self.closing:

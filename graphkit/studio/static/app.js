@@ -264,7 +264,9 @@ async function pump() {
   const batch = [...pending.values()];
   pending.clear();
   try {
-    const res = await api('/api/params', { changes: batch.map(({ node, param, value }) => ({ node, param, value })) });
+    const changes = batch.map(({ node, param, value }) => ({ node, param, value }));
+    // over the websocket when it is open (no HTTP request per slider move), else POST
+    const res = studio.ws?.readyState === WebSocket.OPEN ? await wsParams(changes) : await api('/api/params', { changes });
     for (const b of batch) b.ctl?.error('');
     if (!res.ok) {
       const text = (res.errors || []).map(e => e.text).join('\n') || res.error;
@@ -276,6 +278,17 @@ async function pump() {
     sending = false;
     if (pending.size) pump();
   }
+}
+
+let paramsId = 0;
+const paramsWaiters = new Map();
+
+function wsParams(changes) {
+  const id = ++paramsId;
+  return new Promise(resolve => {
+    paramsWaiters.set(id, resolve);
+    studio.ws.send(JSON.stringify({ type: 'params', id, changes }));
+  });
 }
 
 // ---- live views ---------------------------------------------------------------------
@@ -332,9 +345,20 @@ function connect() {
   ws.binaryType = 'arraybuffer';
   studio.ws = ws;
   ws.onmessage = ev => {
-    studio.events += 1;
-    if (typeof ev.data !== 'string') return onBinary(ev.data);
+    if (typeof ev.data !== 'string') { studio.events += 1; return onBinary(ev.data); }
     const m = JSON.parse(ev.data);
+    if (m.type === 'batch') m.events.forEach(onEvent); else onEvent(m);
+  };
+  ws.onclose = () => {
+    $('run-status').textContent = 'disconnected';
+    for (const w of paramsWaiters.values()) w({ ok: false, error: 'disconnected' });
+    paramsWaiters.clear();
+    setTimeout(connect, 1000);
+  };
+}
+
+function onEvent(m) {
+    studio.events += 1;
     if (m.type === 'state') {
       render(m.state);
     } else if (m.type === 'node') {
@@ -358,9 +382,11 @@ function connect() {
       if (w) w({ url: '', info: m });
     } else if (m.type === 'commit') {
       if (!m.ok) log((m.errors || []).map(e => e.text).join('\n'));
+    } else if (m.type === 'params') {
+      const w = paramsWaiters.get(m.id);
+      paramsWaiters.delete(m.id);
+      if (w) w(m);
     } else if (m.type === 'notice') log(m.message);
-  };
-  ws.onclose = () => { $('run-status').textContent = 'disconnected'; setTimeout(connect, 1000); };
 }
 
 $('run-btn').addEventListener('click', async () => {
