@@ -103,11 +103,9 @@ def srgb8(x):
 
 
 def preview_pixel(page):
-    """The centre pixel of the preview as the browser decoded it (canvas read-back)."""
-    return page.evaluate("""() => { const i = document.getElementById('preview');
-        const c = document.createElement('canvas'); c.width = i.naturalWidth; c.height = i.naturalHeight;
-        const g = c.getContext('2d'); g.drawImage(i, 0, 0);
-        return Array.from(g.getImageData(c.width >> 1, c.height >> 1, 1, 1).data); }""")
+    """The centre pixel of the preview as the browser shows it (the preview canvas read back)."""
+    return page.evaluate("""() => { const c = document.getElementById('preview');
+        return Array.from(c.getContext('2d').getImageData(c.width >> 1, c.height >> 1, 1, 1).data); }""")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -458,9 +456,13 @@ def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_re
         assert i_push < i_done < i_save, kinds
         push, done = events[i_push][1], events[i_done][1]
         assert push["digest"] == done["digests"]["image"] and push["level"] == 0
-        px = np.asarray(PILImage.open(io.BytesIO(push["png"])).convert("RGB"))
-        assert (px == srgb8(0.5)).all()  # 0.25 × 2¹
+        # the loopback page's push: raw RGBA for its canvas
+        assert push["format"] == "rgba" and len(push["data"]) == push["width"] * push["height"] * 4
+        px = np.frombuffer(push["data"], np.uint8).reshape(push["height"], push["width"], 4)
+        assert (px[..., :3] == srgb8(0.5)).all() and (px[..., 3] == 255).all()  # 0.25 × 2¹
         assert shown_at and events[i_save][0] >= shown_at[0], "the writer ran before the page showed the preview"
-        assert st.preview("gain", "image", 0.0, 0, 0) == push["png"]  # the page's request: the same bytes
+        # the page's request for the same preview: a PNG of the same pixels
+        got = np.asarray(PILImage.open(io.BytesIO(st.preview("gain", "image", 0.0, 0, 0))).convert("RGB"))
+        assert (got == px[..., :3]).all()
     finally:
         st.close()

@@ -218,8 +218,8 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
                         batch = []
                     # a preview on show, computed anew: the PNG itself; the page answers
                     # "shown" (studio.served) once it shows it or passes
-                    head = json.dumps({k: v for k, v in ev.items() if k != "png"}).encode()
-                    await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["png"])
+                    head = json.dumps({k: v for k, v in ev.items() if k != "data"}).encode()
+                    await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["data"])
                 if batch:
                     await _send_events(batch)
 

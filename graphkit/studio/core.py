@@ -539,9 +539,11 @@ class Studio:
         imaging.png's, 0 for a page on the loopback).
 
         The request marks the preview as on show: when a later run computes that node anew,
-        the run encodes it at once (same exposure, size and level), pushes it to the pages
-        (a ``preview`` event with the PNG bytes: no request round trip) and waits until it
-        has gone out before it goes on with the rest of the graph (``_await_served``)."""
+        the run encodes it at once (same exposure and size), pushes it to the pages (a
+        ``preview`` event with the image: no request round trip) and waits until it has gone
+        out before it goes on with the rest of the graph (``_await_served``).  The push to a
+        page on the loopback (``level`` 0) is raw RGBA (``format: rgba``, width × height × 4
+        bytes) that its canvas takes without decoding; elsewhere the PNG (``format: png``)."""
         from .imaging import preview_png
 
         ptype, v, d = self._value(node, port)
@@ -575,7 +577,7 @@ class Studio:
     def _encode_watched(self, name: str, outputs: dict, values: dict | None = None) -> list[str]:
         """Encode and push the previews on show of node ``name``, computed anew with
         ``outputs`` (port → digest; ``values``: port → value, else from memory); their digests."""
-        from .imaging import preview_png
+        from .imaging import png, preview_rgb, rgba
 
         g = self.graph
         if g is None or name not in g.nodes:
@@ -590,22 +592,27 @@ class Studio:
                 if not isinstance(d, str):
                     continue
                 for var, t in variants.items():
-                    if now - t < self.WATCH_S and (d, *var) not in self._png:
-                        todo.append((port, d, var))
+                    key = (d, var[0], var[1], "rgba" if var[2] == 0 else var[2])
+                    if now - t < self.WATCH_S and key not in self._png:
+                        todo.append((port, d, var, key))
         out = []
-        for port, d, var in todo:
+        for port, d, (exposure, max_side, level), key in todo:
             ptype = g.nodes[name].cls.out_ports[port].type
             v = values.get(port) if values else self.memo.get(d)
             if v is None or ptype.name not in ("Image", "Mask"):
                 continue
-            data = preview_png(ptype.name, v, *var)
-            self._keep_png((d, *var), data)
-            out.append((port, d, var, data))
+            rgb8 = preview_rgb(ptype.name, v, exposure, max_side)
+            # a page on the loopback takes raw pixels (no PNG to encode here, none to decode
+            # there); elsewhere the PNG (a twentieth of the bytes)
+            data = rgba(rgb8) if level == 0 else png(rgb8, level)
+            self._keep_png(key, data)
+            out.append((port, d, {"exposure": exposure, "max": max_side, "level": level,
+                                  "format": "rgba" if level == 0 else "png",
+                                  "width": int(rgb8.shape[1]), "height": int(rgb8.shape[0])}, data))
         with self._lock:
             self._served_digests.difference_update(d for _, d, _, _ in out)
-        for port, d, (exposure, max_side, level), data in out:  # pages on show take it from here
-            self._emit({"type": "preview", "node": name, "port": port, "digest": d, "exposure": exposure,
-                        "max": max_side, "level": level, "png": data})
+        for port, d, head, data in out:  # pages on show take it from here
+            self._emit({"type": "preview", "node": name, "port": port, "digest": d, **head, "data": data})
         return [d for _, d, _, _ in out]
 
     STATE_DUE_S = 0.3  # a run sends the state of a param change after this at the latest

@@ -204,48 +204,78 @@ function setPreview(p) {
   refreshPreview();
 }
 
-// a preview on show that a run computed anew, pushed with its PNG before the node's event
-// (the run waits, a moment at most, for the page's "shown" before it goes on)
-function onPushedPreview(head, blob) {
+// The preview is a canvas.  A preview on show that a run computed anew comes pushed over
+// the websocket before the node's event: raw RGBA from a server on the loopback (put on the
+// canvas as it is: nothing to decode), a PNG otherwise; the run waits, a moment at most, for
+// the page's "shown" before it goes on.  Other previews are fetched (PNG) and decoded with
+// createImageBitmap.  Only the newest request is drawn (a late fetch never hides a newer push).
+let previewSeq = 0;
+
+function drawPreview(p, d, draw) {
+  const cv = $('preview');
+  previewSeq += 1;
+  const seq = previewSeq;
+  return { seq, put: (w, h, fill) => {
+    if (seq !== previewSeq) return false;
+    if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
+    fill(cv.getContext('2d', { willReadFrequently: true }));
+    previewLoaded(p, d);
+    return true;
+  } };
+}
+
+function onPushedPreview(head, bytes) {
   const shown = () => studio.ws?.send(JSON.stringify({ type: 'shown', digest: head.digest }));
-  const p = studio.preview, img = $('preview');
+  const p = studio.preview, cv = $('preview');
   const n = nodeByName(head.node);
   if (!n || !p || p[0] !== head.node || p[1] !== head.port || head.max || +head.exposure !== +$('exposure').value) return shown();
   n.digests = { ...(n.digests || {}), [head.port]: head.digest };
   const url = previewURL(head.node, head.port);
-  if (img.dataset.url === url) return shown();
-  img.dataset.url = url;
-  const obj = URL.createObjectURL(blob);
-  img.onload = () => {
-    previewLoaded(p, head.digest);
-    URL.revokeObjectURL(obj);
-    shown();
-  };
-  img.onerror = shown;
-  img.src = obj;
+  if (cv.dataset.url === url) return shown();
+  cv.dataset.url = url;
+  const job = drawPreview(p, head.digest);
+  if (head.format === 'rgba') {
+    job.put(head.width, head.height, ctx => ctx.putImageData(
+      new ImageData(new Uint8ClampedArray(bytes.buffer, bytes.byteOffset, head.width * head.height * 4), head.width, head.height), 0, 0));
+    return shown();
+  }
+  createImageBitmap(new Blob([bytes], { type: 'image/png' })).then(bm => {
+    job.put(bm.width, bm.height, ctx => ctx.drawImage(bm, 0, 0));
+    bm.close();
+  }).catch(() => {}).finally(shown);
 }
 
 function previewLoaded(p, d) {
-  const img = $('preview');
-  img.dataset.digest = d;
+  const cv = $('preview');
+  cv.dataset.digest = d;
   studio.previewLoads += 1;
   studio.previewDigest = d;
   studio.previewLoadedAt = performance.now();
-  $('preview-info').textContent = `${p.join('.')} · ${img.naturalWidth}×${img.naturalHeight} · ${d.slice(0, 12)}`;
+  $('preview-info').textContent = `${p.join('.')} · ${cv.width}×${cv.height} · ${d.slice(0, 12)}`;
 }
 
-function refreshPreview() {
+async function refreshPreview() {
   const p = studio.preview;
-  const img = $('preview');
+  const cv = $('preview');
   if (!p) return;
   const d = digestOf(p[0], p[1]);
   const url = previewURL(p[0], p[1]);
-  if (!d) { img.removeAttribute('src'); img.dataset.digest = ''; $('preview-info').textContent = `${p.join('.')}: not computed yet`; return; }
-  if (img.dataset.url === url) return;
-  img.dataset.url = url;
-  img.onload = () => previewLoaded(p, d);
-  img.onerror = null;
-  img.src = url;
+  if (!d) {
+    previewSeq += 1;
+    cv.width = cv.height = 0; cv.dataset.digest = ''; cv.dataset.url = '';
+    $('preview-info').textContent = `${p.join('.')}: not computed yet`;
+    return;
+  }
+  if (cv.dataset.url === url) return;
+  cv.dataset.url = url;
+  const job = drawPreview(p, d);
+  try {
+    const r = await fetch(url, { headers: { 'x-graphkit-token': token } });
+    if (!r.ok) return;
+    const bm = await createImageBitmap(await r.blob());
+    job.put(bm.width, bm.height, ctx => ctx.drawImage(bm, 0, 0));
+    bm.close();
+  } catch { /* a preview that cannot be shown leaves the last one */ }
 }
 
 // ---- edits ----------------------------------------------------------------------------
@@ -332,8 +362,8 @@ async function onBinary(buf) {
   const dv = new DataView(buf);
   const n = dv.getUint32(0, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  if (head.type === 'preview') return onPushedPreview(head, new Uint8Array(buf, 4 + n));
   const blob = new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/png' });
-  if (head.type === 'preview') return onPushedPreview(head, blob);
   const w = frameWaiters.get(head.id);
   frameWaiters.delete(head.id);
   if (w) w({ url: URL.createObjectURL(blob), info: head });
