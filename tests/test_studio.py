@@ -414,8 +414,9 @@ def test_live_view_hook_draws_frames_and_commits(browser, server):
 
 def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_registry):
     """Python-level: once a page has asked for gain's preview, a change that re-runs gain
-    pushes the new PNG (the new digest, the new pixels) before gain's node event, and the run
-    goes on to the file writer only after the page said "shown" (Studio.served)."""
+    computes gain first, pushes the new pixels (the new digest; raw RGBA for a loopback page)
+    before gain's node event, and the run goes on to the file writer only after the page
+    said "shown" (Studio.served)."""
     import io
     import threading
     import time
@@ -454,6 +455,9 @@ def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_re
         i_done = kinds.index(("node", "gain", "done"))
         i_save = kinds.index(("node", "save", "running"))
         assert i_push < i_done < i_save, kinds
+        # the preview on show is computed first: side (before gain in the graph's usual
+        # order) is looked up only after gain's push
+        assert i_push < kinds.index(("node", "side", "running")), kinds
         push, done = events[i_push][1], events[i_done][1]
         assert push["digest"] == done["digests"]["image"] and push["level"] == 0
         # the loopback page's push: raw RGBA for its canvas
