@@ -237,7 +237,10 @@ function onPushedPreview(head, bytes) {
   if (head.format === 'rgba') {
     job.put(head.width, head.height, ctx => ctx.putImageData(
       new ImageData(new Uint8ClampedArray(bytes.buffer, bytes.byteOffset, head.width * head.height * 4), head.width, head.height), 0, 0));
-    return shown();
+    // "shown" once the frame with it has been painted: the rest of the run (file writers,
+    // sheet) then does not compete with that paint for the CPU
+    // (a hidden tab paints no frames: it answers at once)
+    return document.hidden ? shown() : requestAnimationFrame(() => setTimeout(shown, 0));
   }
   createImageBitmap(new Blob([bytes], { type: 'image/png' })).then(bm => {
     job.put(bm.width, bm.height, ctx => ctx.drawImage(bm, 0, 0));
