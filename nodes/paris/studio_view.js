@@ -74,6 +74,41 @@ function mesh(gl, prog, verts, faces, layout) {
   return { vao, vb, ib, count: faces.length, release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); gl.deleteBuffer(ib); } };
 }
 
+// The surface pass's mesh for gbuffer.frag's EXACT mode: triangles drawn un-indexed, each
+// corner with its own q, P, N and its triangle's three world vertices (A0–A2) and normals
+// (B0–B2), which the shaders pass on flat.
+function exactMesh(gl, prog, verts, faces) {
+  const n = faces.length, out = new Float32Array(n * 27);
+  for (let t = 0; t < n; t += 3) {
+    const c = [faces[t] * 9, faces[t + 1] * 9, faces[t + 2] * 9];
+    for (let k = 0; k < 3; k++) {
+      const o = (t + k) * 27;
+      out.set(verts.subarray(c[k], c[k] + 9), o);
+      for (let j = 0; j < 3; j++) {
+        out.set(verts.subarray(c[j] + 3, c[j] + 6), o + 9 + 3 * j);   // A_j = P of corner j
+        out.set(verts.subarray(c[j] + 6, c[j] + 9), o + 18 + 3 * j);  // B_j = N of corner j
+      }
+    }
+  }
+  const vao = gl.createVertexArray();
+  gl.bindVertexArray(vao);
+  const vb = gl.createBuffer();
+  gl.bindBuffer(gl.ARRAY_BUFFER, vb);
+  gl.bufferData(gl.ARRAY_BUFFER, out, gl.STATIC_DRAW);
+  ['q', 'P', 'N', 'A0', 'A1', 'A2', 'B0', 'B1', 'B2'].forEach((name, i) => {
+    const l = gl.getAttribLocation(prog, name);
+    if (l < 0) return;
+    gl.enableVertexAttribArray(l);
+    gl.vertexAttribPointer(l, 3, gl.FLOAT, false, 27 * 4, i * 12);
+  });
+  gl.bindVertexArray(null);
+  return {
+    vao, count: n,
+    draw() { gl.bindVertexArray(vao); gl.drawArrays(gl.TRIANGLES, 0, n); },
+    release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); },
+  };
+}
+
 export function createFaceRenderer(canvas, d) {
   const gl = canvas.getContext('webgl2', { antialias: false, preserveDrawingBuffer: true });
   if (!gl) throw new Error('WebGL2 is not available in this browser');
@@ -85,7 +120,7 @@ export function createFaceRenderer(canvas, d) {
   const empty = gl.createVertexArray();
   const verts = decode(d.vertices), faces = decode(d.faces);
   const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
-  const mainG = mesh(gl, P.gbuffer, verts, faces, ['q', 'P', 'N']);
+  const mainG = exactMesh(gl, P.gbuffer, verts, faces);
   const gbuf = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F, gl.RGBA32F]);
   const out = target(gl, W, H, [gl.RGBA32F, gl.RGBA32F], false);
   let scene = d, atlas = null, atlasTiles = null, shadowMeshes = [], gbufDone = false, detailTex = null, texDepth = null;
@@ -150,6 +185,8 @@ export function createFaceRenderer(canvas, d) {
     gl.uniformMatrix4fv(g.u('proj'), false, d.clip);
     gl.uniform3fv(g.u('cam_pos'), d.cam_pos);
     gl.uniform3fv(g.u('cam_back'), d.cam_back);
+    gl.uniformMatrix3fv(g.u('ray_org'), false, d.ray_org);
+    gl.uniformMatrix3fv(g.u('ray_dir'), false, d.ray_dir);
     if (det) {
       gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, detailTex);
       gl.activeTexture(gl.TEXTURE1); gl.bindTexture(gl.TEXTURE_2D, texDepth.tex[0]);
@@ -160,8 +197,7 @@ export function createFaceRenderer(canvas, d) {
       gl.uniform1f(g.u('occl_tol'), det.tol);
     }
     gl.depthFunc(gl.EQUAL);
-    gl.bindVertexArray(mainG.vao);
-    gl.drawElements(gl.TRIANGLES, mainG.count, gl.UNSIGNED_INT, 0);
+    mainG.draw();
     gl.depthFunc(gl.LESS);
     gbufDone = true;
   }

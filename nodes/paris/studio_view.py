@@ -106,7 +106,11 @@ class FaceView(LiveView):
                          "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
                          "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
         defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0}
-        gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None)}
+        # EXACT: the surface pass intersects each pixel's ray with the exact triangle (SwiftShader
+        # snaps vertices to 1/16 px; see gbuffer.frag), from these rays
+        gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None), "EXACT": 1}
+        ro, rd = cam.ray_matrices()
+        d["ray_org"], d["ray_dir"] = _mat(ro), _mat(rd)
         d["glsl"] = {
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
             "gbuffer": [source("gbuffer.vert", "es300", gdefs), source("gbuffer.frag", "es300", gdefs)],

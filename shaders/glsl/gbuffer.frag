@@ -6,12 +6,20 @@
 // (render.projective_texture: points outside the photo or hidden from its camera get 1;
 // bilinear lookup, edge-clamped).  shade.frag lights it.
 // Defines: ORTHO (the camera is orthographic: the view vector is cam_back everywhere),
-// DETAIL (a detail texture is bound).
+// DETAIL (a detail texture is bound), EXACT (the surface point is the pixel ray's hit on the
+// exact triangle, not GL's interpolation: GL rasterisers snap vertices to a sub-pixel grid —
+// SwiftShader, WebGL's CPU renderer, to 1/16 px, which moves interpolated world positions by
+// ~3e-4 of the face's size here and the projective detail lookup by up to 0.03 texel, ~6 % of
+// the values outside the opengl tolerance; the reference rasteriser's barycentrics are exact.
+// llvmpipe snaps to 1/256 px and needs no EXACT.)
 #ifndef ORTHO
 #define ORTHO 0
 #endif
 #ifndef DETAIL
 #define DETAIL 0
+#endif
+#ifndef EXACT
+#define EXACT 0
 #endif
 in vec3 vP;
 in vec3 vN;
@@ -22,6 +30,34 @@ layout(location = 2) out vec4 o_detail;   // rgb = detail texture factor
 
 uniform vec3 cam_pos;                     // camera centre (world)
 uniform vec3 cam_back;                    // −(camera +z) in world (ORTHO)
+#if EXACT
+flat in vec3 tA0;                         // gbuffer.vert: the triangle's world vertices
+flat in vec3 tA1;
+flat in vec3 tA2;
+flat in vec3 tB0;                         // and normals
+flat in vec3 tB1;
+flat in vec3 tB2;
+uniform mat3 ray_org;                     // pixel (x+.5, y+.5, 1) → world ray origin
+uniform mat3 ray_dir;                     // pixel (x+.5, y+.5, 1) → world ray direction
+
+// Barycentrics of the pixel centre's ray on the triangle (Möller–Trumbore); false where the
+// ray grazes the triangle or the centre lies well outside it (then GL's interpolation is used).
+bool exact_bary(out vec3 b) {
+    vec3 pix = vec3(gl_FragCoord.xy, 1.0);
+    vec3 ro = ray_org * pix;
+    vec3 rd = ray_dir * pix;
+    vec3 e1 = tA1 - tA0;
+    vec3 e2 = tA2 - tA0;
+    vec3 pv = cross(rd, e2);
+    float det = dot(e1, pv);
+    if (!(abs(det) > 1e-6 * length(e1) * length(e2) * length(rd))) return false;
+    vec3 tv = ro - tA0;
+    float u = dot(tv, pv) / det;
+    float v = dot(rd, cross(tv, e1)) / det;
+    b = vec3(1.0 - u - v, u, v);
+    return all(greaterThan(b, vec3(-0.25)));
+}
+#endif
 #if DETAIL
 uniform sampler2D detail;                 // RGB32F, texel (x, y) = detail.pixels[y, x]
 uniform sampler2D tex_depth;              // texture camera: r = depth, g = 1 where covered
@@ -53,20 +89,31 @@ vec3 detail_factor(vec3 P) {
 #endif
 
 void main() {
-    float nn = length(vN);
-    vec3 n = nn > 0.0 ? vN / nn : vec3(0.0);
+    vec3 Pw = vP;
+    vec3 Nw = vN;
+    float zc = vz;
+#if EXACT
+    vec3 b;
+    if (exact_bary(b)) {
+        Pw = b.x * tA0 + b.y * tA1 + b.z * tA2;
+        Nw = b.x * tB0 + b.y * tB1 + b.z * tB2;
+        zc = dot(cam_pos - Pw, cam_back);     // camera z: (P − C)·forward
+    }
+#endif
+    float nn = length(Nw);
+    vec3 n = nn > 0.0 ? Nw / nn : vec3(0.0);
 #if ORTHO
     vec3 v = cam_back;
 #else
-    vec3 v = cam_pos - vP;
+    vec3 v = cam_pos - Pw;
     float vl = length(v);
     v = vl > 0.0 ? v / vl : vec3(0.0);
 #endif
     if (dot(n, v) < 0.0) n = -n;
-    o_pos = vec4(vP, vz);
+    o_pos = vec4(Pw, zc);
     o_normal = vec4(n, 1.0);
 #if DETAIL
-    o_detail = vec4(detail_factor(vP), 1.0);
+    o_detail = vec4(detail_factor(Pw), 1.0);
 #else
     o_detail = vec4(1.0);
 #endif
