@@ -204,6 +204,37 @@ def test_request_without_token_is_refused(server):
     assert s.api("/api/state")["nodes"][1]["params"]["stops"] == 0.0
 
 
+def test_param_change_over_the_websocket(server):
+    """The page's sliders send {type: params} over the socket: the same set_params as POST
+    /api/params (the loader's message for a bad value, nothing applied), answered by id."""
+    from websockets.sync.client import connect
+
+    s, path = server()
+
+    def answer(c, want_id):
+        while True:
+            m = json.loads(c.recv(timeout=20))
+            if m.get("type") == "params" and m.get("id") == want_id:
+                return m
+
+    with connect(f"ws://127.0.0.1:{s.port}/ws?token={s.token}", open_timeout=10) as c:
+        assert json.loads(c.recv(timeout=10))["type"] == "state"
+        wait_for(lambda: s.api("/api/state")["run"]["status"] == "ok", 60, "the first run")
+        c.send(json.dumps({"type": "params", "id": 1, "changes": [{"node": "gain", "param": "stops", "value": 9}]}))
+        bad = answer(c, 1)
+        assert bad["ok"] is False and "less than or equal to 4" in bad["errors"][0]["text"], bad
+        assert f"{path}:" in bad["errors"][0]["text"] and "Traceback" not in bad["errors"][0]["text"]
+        c.send(json.dumps({"type": "params", "id": 2, "changes": "nope"}))
+        assert answer(c, 2)["ok"] is False
+        gen = s.api("/api/state")["run"]["gen"]
+        c.send(json.dumps({"type": "params", "id": 3, "changes": [{"node": "gain", "param": "stops", "value": 1}]}))
+        assert answer(c, 3) == {"type": "params", "id": 3, "ok": True, "errors": []}
+        st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen and x["run"]["status"] == "ok" else None)(
+            s.api("/api/state")), 60, "the run of the change")
+        assert st["run"]["computed"] == ["gain", "save"]
+        assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 1.0
+
+
 def test_out_of_range_value_shows_the_schema_error(browser, server, tmp_path):
     ctx, errors = browser
     s, path = server()

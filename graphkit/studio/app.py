@@ -384,8 +384,10 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{bound}/?token={token}"
     app = build_app(studio, token, cookie=f"graphkit_token_{bound}")
+    # no permessage-deflate: zlib over each pushed preview (1 MB of RGBA, or a PNG that is
+    # compressed already) cost ~40-60 ms of the server's CPU per slider move on these cores
     config = uvicorn.Config(app, log_level="warning", ws="websockets-sansio", lifespan="on",
-                            timeout_graceful_shutdown=2, access_log=False)
+                            timeout_graceful_shutdown=2, access_log=False, ws_per_message_deflate=False)
     server = uvicorn.Server(config)
     if studio.errors:
         for e in studio.errors:
