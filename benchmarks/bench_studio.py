@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import random
 import statistics
 import sys
 import tempfile
@@ -87,11 +88,13 @@ def bench_a(pw, tmp, n, backend, cache):
         sel = '#node-panel .ctl[data-param="azimuth_deg"] input[type=number]'
         page.wait_for_selector(sel)
         times, peer = [], []
-        base = -60.0 + (time.time() % 1000) / 1000  # values not in the cache yet
+        # values not in the cache yet: a random base per run, 6 decimals (a clock-based base
+        # with 4 decimals repeated an earlier run's values when runs were ~13 s apart)
+        base = -60.0 + random.SystemRandom().random()
         for i in range(n + 2):
             az = base + ((-1) ** i) * (1 + i * 0.013)
             gen0 = s.api("/api/state")["run"]["gen"]
-            ms = page.evaluate(SLIDE, [sel, f"{az:.4f}"])
+            ms = page.evaluate(SLIDE, [sel, f"{az:.6f}"])
             st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen0 and x["run"]["status"] in ("ok", "failed")
                                    else None)(s.api("/api/state")), 120, "the run to finish")
             assert "left60" in st["run"].get("computed", []), st["run"]

@@ -69,11 +69,18 @@ def input_digests(session: Session, name: str, outcomes: dict[str, NodeOutcome])
 
 
 def run_local(session: Session, targets: list[str], jobs: int = 1,
-              progress: Progress | None = None) -> RunResult:
-    """Run the nodes ``targets`` need, ``jobs`` at a time, in threads of this process."""
+              progress: Progress | None = None, first: list[str] | None = None) -> RunResult:
+    """Run the nodes ``targets`` need, ``jobs`` at a time, in threads of this process.
+
+    ``first``: nodes (of those needed) to run as early as the graph allows, with what they
+    need before them (the studio's previews on show); the rest follows in the usual order."""
     progress = progress or Progress()
     graph = session.graph
     order = graph.upstream(targets)
+    if first:
+        early = graph.upstream([n for n in first if n in set(order)])
+        seen = set(early)
+        order = early + [n for n in order if n not in seen]  # still topological: early is closed upstream
     result = RunResult(graph.name)
     t0 = time.perf_counter()
     progress.start(len(order))

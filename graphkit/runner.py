@@ -83,13 +83,18 @@ class Session:
     def __init__(self, graph: Graph, registry: Registry, store: Store,
                  backend_order: list[str] | None = None,
                  notice: Callable[[str], None] = lambda msg: None,
-                 report: Callable[[str, float, str], None] = lambda node, frac, msg: None):
+                 report: Callable[[str, float, str], None] = lambda node, frac, msg: None,
+                 on_outputs: Callable[[str, dict[str, Any], dict[str, Any]], None] | None = None):
         self.graph, self.registry, self.store = graph, registry, store
         self.backend_order = list(backend_order or [NUMPY])
         if NUMPY not in self.backend_order:
             self.backend_order.append(NUMPY)
         self.notice = notice
         self.report = report
+        #: called as on_outputs(node, {port: digest}, {port: value}) once a computed node's
+        #: outputs are checked and hashed, before they are stored (the studio pushes a preview
+        #: from the in-memory value while the store writes run); an error in it fails the node
+        self.on_outputs = on_outputs
         if store.on_notice is None:
             store.on_notice = notice
         self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
@@ -338,6 +343,9 @@ class Session:
                 except ValueError:  # a view of a buffer it does not own
                     pass
             staged.append((port, p, v, vp))
+        if self.on_outputs is not None:
+            self.on_outputs(g.name, {port: vp[2] for port, _, _, vp in staged},
+                            {port: v for port, _, v, _ in staged})
         for port, p, v, vp in staged:
             d = self.store.put_value(p.type, v, vp)
             digests[port] = d

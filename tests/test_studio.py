@@ -103,11 +103,9 @@ def srgb8(x):
 
 
 def preview_pixel(page):
-    """The centre pixel of the preview as the browser decoded it (canvas read-back)."""
-    return page.evaluate("""() => { const i = document.getElementById('preview');
-        const c = document.createElement('canvas'); c.width = i.naturalWidth; c.height = i.naturalHeight;
-        const g = c.getContext('2d'); g.drawImage(i, 0, 0);
-        return Array.from(g.getImageData(c.width >> 1, c.height >> 1, 1, 1).data); }""")
+    """The centre pixel of the preview as the browser shows it (the preview canvas read back)."""
+    return page.evaluate("""() => { const c = document.getElementById('preview');
+        return Array.from(c.getContext('2d').getImageData(c.width >> 1, c.height >> 1, 1, 1).data); }""")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -204,6 +202,37 @@ def test_request_without_token_is_refused(server):
     assert s.api("/api/state")["graph"]["name"] == "studio_test"
     # nothing was changed by the refused requests
     assert s.api("/api/state")["nodes"][1]["params"]["stops"] == 0.0
+
+
+def test_param_change_over_the_websocket(server):
+    """The page's sliders send {type: params} over the socket: the same set_params as POST
+    /api/params (the loader's message for a bad value, nothing applied), answered by id."""
+    from websockets.sync.client import connect
+
+    s, path = server()
+
+    def answer(c, want_id):
+        while True:
+            m = json.loads(c.recv(timeout=20))
+            if m.get("type") == "params" and m.get("id") == want_id:
+                return m
+
+    with connect(f"ws://127.0.0.1:{s.port}/ws?token={s.token}", open_timeout=10) as c:
+        assert json.loads(c.recv(timeout=10))["type"] == "state"
+        wait_for(lambda: s.api("/api/state")["run"]["status"] == "ok", 60, "the first run")
+        c.send(json.dumps({"type": "params", "id": 1, "changes": [{"node": "gain", "param": "stops", "value": 9}]}))
+        bad = answer(c, 1)
+        assert bad["ok"] is False and "less than or equal to 4" in bad["errors"][0]["text"], bad
+        assert f"{path}:" in bad["errors"][0]["text"] and "Traceback" not in bad["errors"][0]["text"]
+        c.send(json.dumps({"type": "params", "id": 2, "changes": "nope"}))
+        assert answer(c, 2)["ok"] is False
+        gen = s.api("/api/state")["run"]["gen"]
+        c.send(json.dumps({"type": "params", "id": 3, "changes": [{"node": "gain", "param": "stops", "value": 1}]}))
+        assert answer(c, 3) == {"type": "params", "id": 3, "ok": True, "errors": []}
+        st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen and x["run"]["status"] == "ok" else None)(
+            s.api("/api/state")), 60, "the run of the change")
+        assert st["run"]["computed"] == ["gain", "save"]
+        assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 1.0
 
 
 def test_out_of_range_value_shows_the_schema_error(browser, server, tmp_path):
@@ -416,8 +445,9 @@ def test_live_view_hook_draws_frames_and_commits(browser, server):
 
 def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_registry):
     """Python-level: once a page has asked for gain's preview, a change that re-runs gain
-    pushes the new PNG (the new digest, the new pixels) before gain's node event, and the run
-    goes on to the file writer only after the page said "shown" (Studio.served)."""
+    computes gain first, pushes the new pixels (the new digest; raw RGBA for a loopback page)
+    before gain's node event, and the run goes on to the file writer only after the page
+    said "shown" (Studio.served)."""
     import io
     import threading
     import time
@@ -456,11 +486,18 @@ def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_re
         i_done = kinds.index(("node", "gain", "done"))
         i_save = kinds.index(("node", "save", "running"))
         assert i_push < i_done < i_save, kinds
+        # the preview on show is computed first: side (before gain in the graph's usual
+        # order) is looked up only after gain's push
+        assert i_push < kinds.index(("node", "side", "running")), kinds
         push, done = events[i_push][1], events[i_done][1]
         assert push["digest"] == done["digests"]["image"] and push["level"] == 0
-        px = np.asarray(PILImage.open(io.BytesIO(push["png"])).convert("RGB"))
-        assert (px == srgb8(0.5)).all()  # 0.25 × 2¹
+        # the loopback page's push: raw RGBA for its canvas
+        assert push["format"] == "rgba" and len(push["data"]) == push["width"] * push["height"] * 4
+        px = np.frombuffer(push["data"], np.uint8).reshape(push["height"], push["width"], 4)
+        assert (px[..., :3] == srgb8(0.5)).all() and (px[..., 3] == 255).all()  # 0.25 × 2¹
         assert shown_at and events[i_save][0] >= shown_at[0], "the writer ran before the page showed the preview"
-        assert st.preview("gain", "image", 0.0, 0, 0) == push["png"]  # the page's request: the same bytes
+        # the page's request for the same preview: a PNG of the same pixels
+        got = np.asarray(PILImage.open(io.BytesIO(st.preview("gain", "image", 0.0, 0, 0))).convert("RGB"))
+        assert (got == px[..., :3]).all()
     finally:
         st.close()

@@ -8,6 +8,7 @@ SameSite=Strict, so another web page cannot send it); anything else gets 403.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import hmac
 import json
@@ -180,20 +181,64 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
         await websocket.accept()
         local = _loopback(websocket)
         loop = asyncio.get_running_loop()
-        q: asyncio.Queue = asyncio.Queue()
-        unsubscribe = studio.subscribe(lambda ev: loop.call_soon_threadsafe(q.put_nowait, ev))
+        # the run's events, in order; the loop is woken once per burst (not once per event)
+        # and sends the events queued meanwhile as one message, so a run's stream of node
+        # events competes less with the run and the page for the CPU
+        pending: collections.deque = collections.deque()
+        ready = asyncio.Event()
+        woken = [False]
+
+        def wake():
+            woken[0] = False
+            ready.set()
+
+        def on_event(ev):
+            pending.append(ev)
+            if not woken[0]:
+                woken[0] = True
+                loop.call_soon_threadsafe(wake)
+
+        unsubscribe = studio.subscribe(on_event)
         views: dict[str, object] = {}
 
         async def pump():
             while True:
-                ev = await q.get()
-                if ev.get("type") == "preview":  # a preview on show, computed anew: the PNG itself
+                await ready.wait()
+                ready.clear()
+                batch = []
+                while pending:
+                    ev = pending.popleft()
+                    if ev.get("type") != "preview":
+                        batch.append(ev)
+                        continue
                     if (ev["level"] == 0) != local:
                         continue  # encoded for the other kind of page
-                    head = json.dumps({k: v for k, v in ev.items() if k != "png"}).encode()
-                    await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["png"])
-                    continue  # the page answers "shown" (studio.served) once it shows it or passes
-                await websocket.send_text(json.dumps(ev, default=str))
+                    if batch:  # what came before it goes first
+                        await _send_events(batch)
+                        batch = []
+                    # a preview on show, computed anew: the PNG itself; the page answers
+                    # "shown" (studio.served) once it shows it or passes
+                    head = json.dumps({k: v for k, v in ev.items() if k != "data"}).encode()
+                    await websocket.send_bytes(struct.pack("<I", len(head)) + head + ev["data"])
+                if batch:
+                    await _send_events(batch)
+
+        async def _send_events(batch):
+            if len(batch) == 1:
+                await websocket.send_text(json.dumps(batch[0], default=str))
+            else:
+                await websocket.send_text(json.dumps({"type": "batch", "events": batch}, default=str))
+
+        async def params_msg(msg):
+            """A param change over the socket (the page's sliders): as POST /api/params,
+            without an HTTP request per move; the answer carries the message's id."""
+            changes = msg.get("changes")
+            if not isinstance(changes, list) or not all(isinstance(c, dict) and isinstance(c.get("param"), str)
+                                                       for c in changes):
+                res = {"ok": False, "errors": [{"text": "expected changes: [{node, param, value}]"}]}
+            else:
+                res = await run_in_threadpool(studio.set_params, changes)
+            await websocket.send_text(json.dumps({"type": "params", "id": msg.get("id"), **res}, default=str))
 
         async def frame(msg):
             name = msg.get("node", "")
@@ -240,7 +285,9 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
                     continue
                 if not isinstance(msg, dict):
                     continue
-                if msg.get("type") == "frame":
+                if msg.get("type") == "params":
+                    await params_msg(msg)
+                elif msg.get("type") == "frame":
                     await frame(msg)
                 elif msg.get("type") == "commit":
                     await commit(msg)
@@ -332,13 +379,15 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
         sock.close()
         raise UsageError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
     studio = Studio(graph, cache=cache, out=out, registry=registry, backends=backends, jobs=jobs,
-                    autorun=autorun)
+                    autorun=autorun, freeze_gc=True)
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{bound}/?token={token}"
     app = build_app(studio, token, cookie=f"graphkit_token_{bound}")
+    # no permessage-deflate: zlib over each pushed preview (1 MB of RGBA, or a PNG that is
+    # compressed already) cost ~40-60 ms of the server's CPU per slider move on these cores
     config = uvicorn.Config(app, log_level="warning", ws="websockets-sansio", lifespan="on",
-                            timeout_graceful_shutdown=2, access_log=False)
+                            timeout_graceful_shutdown=2, access_log=False, ws_per_message_deflate=False)
     server = uvicorn.Server(config)
     if studio.errors:
         for e in studio.errors:

@@ -65,6 +65,16 @@ class _RunProgress(Progress):
         self.t0 = time.time()
         self.running_nodes: list[str] = []
         self.outcomes: dict[str, NodeOutcome] = {}
+        self.pushed: dict[str, list[str]] = {}  # node -> digests of previews pushed before its store writes
+
+    def outputs(self, node, digests, values):
+        """Session.on_outputs: a node computed anew, its outputs hashed, not stored yet.  The
+        previews on show of it are encoded and pushed now, from the values in memory, so the
+        page decodes them while the store writes run (done() then waits for "shown")."""
+        try:
+            self.pushed[node] = self.studio._encode_watched(node, digests, values)
+        except Exception:  # noqa: BLE001 - a preview must not fail the node; done() retries
+            self.pushed.pop(node, None)
 
     def _check(self):
         if self.studio.closing:
@@ -87,7 +97,9 @@ class _RunProgress(Progress):
         if o.name in self.outcomes:  # a later pass (after a failure elsewhere) found it cached
             return
         self.outcomes[o.name] = o
-        wanted = [] if o.hit else self.studio._encode_watched(o)
+        wanted = self.pushed.pop(o.name, None)  # pushed before the store writes (outputs())
+        if wanted is None:
+            wanted = [] if o.hit else self.studio._encode_watched(o.name, o.outputs)
         self.studio._node_event(o.name, state="cached" if o.hit else "done", seconds=round(o.seconds, 4),
                                 message="", digests=o.outputs, backend=o.backend)
         if wanted:
@@ -140,7 +152,7 @@ class Studio:
 
     def __init__(self, graph_path: str | os.PathLike, cache: str, out: str | None = None,
                  registry=None, backends: list[str] | None = None, jobs: int = 1,
-                 autorun: bool = True):
+                 autorun: bool = True, freeze_gc: bool = False):
         from ..registry import default_registry
 
         self.path = os.path.abspath(str(graph_path))
@@ -157,6 +169,12 @@ class Studio:
         self.backends = backends
         self.jobs = max(1, int(jobs))
         self.autorun = autorun
+        # the server process (graphkit serve) moves what its runs imported (modules, the node
+        # libraries' state) out of the garbage collector's sight after a run that imported
+        # something: a full collection over them took 70-110 ms every few slider moves, on the
+        # preview's path.  Only after imports (len(sys.modules) grew), so what a later run
+        # leaves behind (old graphs, …) is still collected, not kept for good.
+        self._gc_modules = 0 if freeze_gc else None
         self.doc = YamlDoc(text)
         self.saved_text = text
         self.graph = None
@@ -346,6 +364,21 @@ class Studio:
                 self._emit({"type": "state", "state": self.state()})
             else:
                 self._send_due_state()
+            self._freeze_imports()
+
+    def _freeze_imports(self) -> None:
+        import sys
+
+        if self._gc_modules is None or len(sys.modules) == self._gc_modules:
+            return
+        with self._lock:
+            if self._pending is not None:  # a newer change waits: freeze after it
+                return
+        import gc
+
+        gc.collect()  # garbage goes first; what lives now (mostly imports) is kept out of later scans
+        gc.freeze()
+        self._gc_modules = len(sys.modules)
 
     @contextlib.contextmanager
     def write_guard(self):
@@ -359,7 +392,7 @@ class Studio:
         progress = _RunProgress(self, gen)
         store = GuardedStore(self.store, self)
         session = Session(graph, self.registry, store, self.backends,
-                          notice=progress.notice, report=progress.report)
+                          notice=progress.notice, report=progress.report, on_outputs=progress.outputs)
         session.memo = self.memo  # values stay in memory between runs of the studio
         targets = sorted({n for n, _ in graph.outputs.values()})
         needed = graph.upstream(targets)
@@ -376,7 +409,7 @@ class Studio:
             if not todo:
                 break
             try:
-                run_local(session, todo, self.jobs, progress)
+                run_local(session, todo, self.jobs, progress, first=self._watched_nodes(graph))
                 break
             except (Superseded, Closing):
                 raise
@@ -422,6 +455,19 @@ class Studio:
             info["files"] = len(files)
         info["status"] = "ok"
         return info
+
+    def _watched_nodes(self, graph) -> list[str]:
+        """The node(s) of the preview a page asked for last (and of those asked for with it,
+        within 50 ms: its panel's thumbnails): a run computes them, and what they need,
+        first, so a slider's preview does not wait for the rest of the graph."""
+        with self._lock:
+            if not self._listeners:
+                return []
+            last = {n: max(seen.values()) for (n, _), seen in self._watch.items() if seen and n in graph.nodes}
+        if not last:
+            return []
+        newest = max(last.values())
+        return sorted(n for n, t in last.items() if t >= newest - 0.05 and time.time() - t < self.WATCH_S)
 
     def _check_gen(self, gen):
         if self.closing:
@@ -493,9 +539,11 @@ class Studio:
         imaging.png's, 0 for a page on the loopback).
 
         The request marks the preview as on show: when a later run computes that node anew,
-        the run encodes it at once (same exposure, size and level), pushes it to the pages
-        (a ``preview`` event with the PNG bytes: no request round trip) and waits until it
-        has gone out before it goes on with the rest of the graph (``_await_served``)."""
+        the run encodes it at once (same exposure and size), pushes it to the pages (a
+        ``preview`` event with the image: no request round trip) and waits until it has gone
+        out before it goes on with the rest of the graph (``_await_served``).  The push to a
+        page on the loopback (``level`` 0) is raw RGBA (``format: rgba``, width × height × 4
+        bytes) that its canvas takes without decoding; elsewhere the PNG (``format: png``)."""
         from .imaging import preview_png
 
         ptype, v, d = self._value(node, port)
@@ -526,12 +574,13 @@ class Studio:
             while len(self._png) > self.PNG_CACHE:
                 self._png.popitem(last=False)
 
-    def _encode_watched(self, o: NodeOutcome) -> list[str]:
-        """Encode the previews on show of node outcome ``o`` (computed anew); their digests."""
-        from .imaging import preview_png
+    def _encode_watched(self, name: str, outputs: dict, values: dict | None = None) -> list[str]:
+        """Encode and push the previews on show of node ``name``, computed anew with
+        ``outputs`` (port → digest; ``values``: port → value, else from memory); their digests."""
+        from .imaging import png, preview_rgb, rgba
 
         g = self.graph
-        if g is None or o.name not in g.nodes:
+        if g is None or name not in g.nodes:
             return []
         now = time.time()
         with self._lock:
@@ -539,26 +588,31 @@ class Studio:
                 return []
             todo = []
             for (node, port), variants in self._watch.items():
-                d = o.outputs.get(port) if node == o.name else None
+                d = outputs.get(port) if node == name else None
                 if not isinstance(d, str):
                     continue
                 for var, t in variants.items():
-                    if now - t < self.WATCH_S and (d, *var) not in self._png:
-                        todo.append((port, d, var))
+                    key = (d, var[0], var[1], "rgba" if var[2] == 0 else var[2])
+                    if now - t < self.WATCH_S and key not in self._png:
+                        todo.append((port, d, var, key))
         out = []
-        for port, d, var in todo:
-            ptype = g.nodes[o.name].cls.out_ports[port].type
-            v = self.memo.get(d)
+        for port, d, (exposure, max_side, level), key in todo:
+            ptype = g.nodes[name].cls.out_ports[port].type
+            v = values.get(port) if values else self.memo.get(d)
             if v is None or ptype.name not in ("Image", "Mask"):
                 continue
-            data = preview_png(ptype.name, v, *var)
-            self._keep_png((d, *var), data)
-            out.append((port, d, var, data))
+            rgb8 = preview_rgb(ptype.name, v, exposure, max_side)
+            # a page on the loopback takes raw pixels (no PNG to encode here, none to decode
+            # there); elsewhere the PNG (a twentieth of the bytes)
+            data = rgba(rgb8) if level == 0 else png(rgb8, level)
+            self._keep_png(key, data)
+            out.append((port, d, {"exposure": exposure, "max": max_side, "level": level,
+                                  "format": "rgba" if level == 0 else "png",
+                                  "width": int(rgb8.shape[1]), "height": int(rgb8.shape[0])}, data))
         with self._lock:
             self._served_digests.difference_update(d for _, d, _, _ in out)
-        for port, d, (exposure, max_side, level), data in out:  # pages on show take it from here
-            self._emit({"type": "preview", "node": o.name, "port": port, "digest": d, "exposure": exposure,
-                        "max": max_side, "level": level, "png": data})
+        for port, d, head, data in out:  # pages on show take it from here
+            self._emit({"type": "preview", "node": name, "port": port, "digest": d, **head, "data": data})
         return [d for _, d, _, _ in out]
 
     STATE_DUE_S = 0.3  # a run sends the state of a param change after this at the latest

@@ -58,8 +58,24 @@ def png(rgb8: np.ndarray, level: int = 1) -> bytes:
     return buf.tobytes()
 
 
+def rgba(rgb8: np.ndarray) -> bytes:
+    """The H×W×4 RGBA bytes (alpha 255) of an H×W×3 uint8 image: what a page's canvas takes
+    as it is (ImageData), with no decoding at all."""
+    h, w = rgb8.shape[:2]
+    out = np.empty((h, w, 4), np.uint8)
+    out[:, :, :3] = rgb8
+    out[:, :, 3] = 255
+    return out.tobytes()
+
+
 def preview_png(ptype_name: str, value, exposure: float = 0.0, max_side: int = 0, level: int = 1) -> bytes:
     """PNG of an Image or Mask value for the page (``level``: see :func:`png`)."""
+    return png(preview_rgb(ptype_name, value, exposure, max_side), level)
+
+
+def preview_rgb(ptype_name: str, value, exposure: float = 0.0, max_side: int = 0) -> np.ndarray:
+    """H×W×3 uint8 sRGB of an Image or Mask value as the page shows it (``max_side``: the
+    longer side at most, 0 for the value's own size)."""
     if ptype_name == "Mask":
         px, enc = value.alpha, True  # weights in [0, 1]: shown as they are
     else:
@@ -71,4 +87,4 @@ def preview_png(ptype_name: str, value, exposure: float = 0.0, max_side: int = 0
         k = max_side / max(px.shape[:2])
         size = (max(1, round(px.shape[1] * k)), max(1, round(px.shape[0] * k)))
         px = cv2.resize(np.ascontiguousarray(px, np.float32), size, interpolation=cv2.INTER_AREA)
-    return png(display_rgb(px, exposure, srgb_encoded=enc), level)
+    return display_rgb(px, exposure, srgb_encoded=enc)

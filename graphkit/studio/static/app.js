@@ -204,48 +204,81 @@ function setPreview(p) {
   refreshPreview();
 }
 
-// a preview on show that a run computed anew, pushed with its PNG before the node's event
-// (the run waits, a moment at most, for the page's "shown" before it goes on)
-function onPushedPreview(head, blob) {
+// The preview is a canvas.  A preview on show that a run computed anew comes pushed over
+// the websocket before the node's event: raw RGBA from a server on the loopback (put on the
+// canvas as it is: nothing to decode), a PNG otherwise; the run waits, a moment at most, for
+// the page's "shown" before it goes on.  Other previews are fetched (PNG) and decoded with
+// createImageBitmap.  Only the newest request is drawn (a late fetch never hides a newer push).
+let previewSeq = 0;
+
+function drawPreview(p, d, draw) {
+  const cv = $('preview');
+  previewSeq += 1;
+  const seq = previewSeq;
+  return { seq, put: (w, h, fill) => {
+    if (seq !== previewSeq) return false;
+    if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
+    fill(cv.getContext('2d', { willReadFrequently: true }));
+    previewLoaded(p, d);
+    return true;
+  } };
+}
+
+function onPushedPreview(head, bytes) {
   const shown = () => studio.ws?.send(JSON.stringify({ type: 'shown', digest: head.digest }));
-  const p = studio.preview, img = $('preview');
+  const p = studio.preview, cv = $('preview');
   const n = nodeByName(head.node);
   if (!n || !p || p[0] !== head.node || p[1] !== head.port || head.max || +head.exposure !== +$('exposure').value) return shown();
   n.digests = { ...(n.digests || {}), [head.port]: head.digest };
   const url = previewURL(head.node, head.port);
-  if (img.dataset.url === url) return shown();
-  img.dataset.url = url;
-  const obj = URL.createObjectURL(blob);
-  img.onload = () => {
-    previewLoaded(p, head.digest);
-    URL.revokeObjectURL(obj);
-    shown();
-  };
-  img.onerror = shown;
-  img.src = obj;
+  if (cv.dataset.url === url) return shown();
+  cv.dataset.url = url;
+  const job = drawPreview(p, head.digest);
+  if (head.format === 'rgba') {
+    job.put(head.width, head.height, ctx => ctx.putImageData(
+      new ImageData(new Uint8ClampedArray(bytes.buffer, bytes.byteOffset, head.width * head.height * 4), head.width, head.height), 0, 0));
+    // "shown" once the frame with it has been painted: the rest of the run (file writers,
+    // sheet) then does not compete with that paint for the CPU
+    // (a hidden tab paints no frames: it answers at once)
+    return document.hidden ? shown() : requestAnimationFrame(() => setTimeout(shown, 0));
+  }
+  createImageBitmap(new Blob([bytes], { type: 'image/png' })).then(bm => {
+    job.put(bm.width, bm.height, ctx => ctx.drawImage(bm, 0, 0));
+    bm.close();
+  }).catch(() => {}).finally(shown);
 }
 
 function previewLoaded(p, d) {
-  const img = $('preview');
-  img.dataset.digest = d;
+  const cv = $('preview');
+  cv.dataset.digest = d;
   studio.previewLoads += 1;
   studio.previewDigest = d;
   studio.previewLoadedAt = performance.now();
-  $('preview-info').textContent = `${p.join('.')} · ${img.naturalWidth}×${img.naturalHeight} · ${d.slice(0, 12)}`;
+  $('preview-info').textContent = `${p.join('.')} · ${cv.width}×${cv.height} · ${d.slice(0, 12)}`;
 }
 
-function refreshPreview() {
+async function refreshPreview() {
   const p = studio.preview;
-  const img = $('preview');
+  const cv = $('preview');
   if (!p) return;
   const d = digestOf(p[0], p[1]);
   const url = previewURL(p[0], p[1]);
-  if (!d) { img.removeAttribute('src'); img.dataset.digest = ''; $('preview-info').textContent = `${p.join('.')}: not computed yet`; return; }
-  if (img.dataset.url === url) return;
-  img.dataset.url = url;
-  img.onload = () => previewLoaded(p, d);
-  img.onerror = null;
-  img.src = url;
+  if (!d) {
+    previewSeq += 1;
+    cv.width = cv.height = 0; cv.dataset.digest = ''; cv.dataset.url = '';
+    $('preview-info').textContent = `${p.join('.')}: not computed yet`;
+    return;
+  }
+  if (cv.dataset.url === url) return;
+  cv.dataset.url = url;
+  const job = drawPreview(p, d);
+  try {
+    const r = await fetch(url, { headers: { 'x-graphkit-token': token } });
+    if (!r.ok) return;
+    const bm = await createImageBitmap(await r.blob());
+    job.put(bm.width, bm.height, ctx => ctx.drawImage(bm, 0, 0));
+    bm.close();
+  } catch { /* a preview that cannot be shown leaves the last one */ }
 }
 
 // ---- edits ----------------------------------------------------------------------------
@@ -264,7 +297,9 @@ async function pump() {
   const batch = [...pending.values()];
   pending.clear();
   try {
-    const res = await api('/api/params', { changes: batch.map(({ node, param, value }) => ({ node, param, value })) });
+    const changes = batch.map(({ node, param, value }) => ({ node, param, value }));
+    // over the websocket when it is open (no HTTP request per slider move), else POST
+    const res = studio.ws?.readyState === WebSocket.OPEN ? await wsParams(changes) : await api('/api/params', { changes });
     for (const b of batch) b.ctl?.error('');
     if (!res.ok) {
       const text = (res.errors || []).map(e => e.text).join('\n') || res.error;
@@ -276,6 +311,17 @@ async function pump() {
     sending = false;
     if (pending.size) pump();
   }
+}
+
+let paramsId = 0;
+const paramsWaiters = new Map();
+
+function wsParams(changes) {
+  const id = ++paramsId;
+  return new Promise(resolve => {
+    paramsWaiters.set(id, resolve);
+    studio.ws.send(JSON.stringify({ type: 'params', id, changes }));
+  });
 }
 
 // ---- live views ---------------------------------------------------------------------
@@ -319,8 +365,8 @@ async function onBinary(buf) {
   const dv = new DataView(buf);
   const n = dv.getUint32(0, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  if (head.type === 'preview') return onPushedPreview(head, new Uint8Array(buf, 4 + n));
   const blob = new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/png' });
-  if (head.type === 'preview') return onPushedPreview(head, blob);
   const w = frameWaiters.get(head.id);
   frameWaiters.delete(head.id);
   if (w) w({ url: URL.createObjectURL(blob), info: head });
@@ -332,9 +378,20 @@ function connect() {
   ws.binaryType = 'arraybuffer';
   studio.ws = ws;
   ws.onmessage = ev => {
-    studio.events += 1;
-    if (typeof ev.data !== 'string') return onBinary(ev.data);
+    if (typeof ev.data !== 'string') { studio.events += 1; return onBinary(ev.data); }
     const m = JSON.parse(ev.data);
+    if (m.type === 'batch') m.events.forEach(onEvent); else onEvent(m);
+  };
+  ws.onclose = () => {
+    $('run-status').textContent = 'disconnected';
+    for (const w of paramsWaiters.values()) w({ ok: false, error: 'disconnected' });
+    paramsWaiters.clear();
+    setTimeout(connect, 1000);
+  };
+}
+
+function onEvent(m) {
+    studio.events += 1;
     if (m.type === 'state') {
       render(m.state);
     } else if (m.type === 'node') {
@@ -358,9 +415,11 @@ function connect() {
       if (w) w({ url: '', info: m });
     } else if (m.type === 'commit') {
       if (!m.ok) log((m.errors || []).map(e => e.text).join('\n'));
+    } else if (m.type === 'params') {
+      const w = paramsWaiters.get(m.id);
+      paramsWaiters.delete(m.id);
+      if (w) w(m);
     } else if (m.type === 'notice') log(m.message);
-  };
-  ws.onclose = () => { $('run-status').textContent = 'disconnected'; setTimeout(connect, 1000); };
 }
 
 $('run-btn').addEventListener('click', async () => {
