@@ -155,6 +155,10 @@ def test_slider_changes_preview_and_only_downstream_reruns(browser, server):
     assert all(not n["hit"] for n in first["nodes"].values())
     page.click('#dag g.node[data-node="gain"]')
     page.wait_for_selector('#node-panel .ctl[data-param="stops"] input[type=range]')
+    # the preview canvas is drawn when its pixels arrive (fetched, or pushed over the websocket):
+    # wait until it shows gain's output (data-digest is set once the pixels are on the canvas)
+    (gain_digest,) = first["nodes"]["gain"]["outputs"].values()
+    wait_for(lambda: page.get_attribute("#preview", "data-digest") == gain_digest, what="gain's preview")
     assert preview_pixel(page)[:3] == [srgb8(0.25)] * 3
     gen = run_status(page)[1]
     before = page.get_attribute("#preview", "data-digest")
