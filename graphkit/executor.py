@@ -78,7 +78,8 @@ def run_local(session: Session, targets: list[str], jobs: int = 1,
     graph = session.graph
     order = graph.upstream(targets)
     if first:
-        early = graph.upstream([n for n in first if n in set(order)])
+        needed = set(order)
+        early = graph.upstream([n for n in first if n in needed])
         seen = set(early)
         order = early + [n for n in order if n not in seen]  # still topological: early is closed upstream
     result = RunResult(graph.name)

@@ -68,6 +68,13 @@ class TokenGate:
         await send({"type": "http.response.body", "body": body})
 
 
+def _changes_shape(changes) -> bool:
+    """A param-change list as the page sends it (POST /api/params or over the websocket):
+    [{node, param, value}] with ``param`` a name (set_params checks the rest)."""
+    return isinstance(changes, list) and all(isinstance(c, dict) and isinstance(c.get("param"), str)
+                                             for c in changes)
+
+
 def build_app(studio, token: str, cookie: str = "graphkit_token"):
     from starlette.applications import Starlette
     from starlette.concurrency import run_in_threadpool
@@ -99,8 +106,7 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
     async def params(request):
         data = await body(request)
         changes = data.get("changes")
-        if not isinstance(changes, list) or not all(isinstance(c, dict) and isinstance(c.get("param"), str)
-                                                   for c in changes):
+        if not _changes_shape(changes):
             return err(400, "expected {\"changes\": [{\"node\": NAME or null, \"param\": NAME, \"value\": V}]}")
         res = await run_in_threadpool(studio.set_params, changes)
         return JSONResponse(res, status_code=200 if res.get("ok") else 422)
@@ -233,8 +239,7 @@ def build_app(studio, token: str, cookie: str = "graphkit_token"):
             """A param change over the socket (the page's sliders): as POST /api/params,
             without an HTTP request per move; the answer carries the message's id."""
             changes = msg.get("changes")
-            if not isinstance(changes, list) or not all(isinstance(c, dict) and isinstance(c.get("param"), str)
-                                                       for c in changes):
+            if not _changes_shape(changes):
                 res = {"ok": False, "errors": [{"text": "expected changes: [{node, param, value}]"}]}
             else:
                 res = await run_in_threadpool(studio.set_params, changes)

@@ -604,10 +604,10 @@ class Studio:
             rgb8 = preview_rgb(ptype.name, v, exposure, max_side)
             # a page on the loopback takes raw pixels (no PNG to encode here, none to decode
             # there); elsewhere the PNG (a twentieth of the bytes)
-            data = rgba(rgb8) if level == 0 else png(rgb8, level)
+            fmt = "rgba" if level == 0 else "png"
+            data = rgba(rgb8) if fmt == "rgba" else png(rgb8, level)
             self._keep_png(key, data)
-            out.append((port, d, {"exposure": exposure, "max": max_side, "level": level,
-                                  "format": "rgba" if level == 0 else "png",
+            out.append((port, d, {"exposure": exposure, "max": max_side, "level": level, "format": fmt,
                                   "width": int(rgb8.shape[1]), "height": int(rgb8.shape[0])}, data))
         with self._lock:
             self._served_digests.difference_update(d for _, d, _, _ in out)

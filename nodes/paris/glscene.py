@@ -149,9 +149,9 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera):
         eyes = eye_spheres(eye_mesh, p.eyes, p.cornea_radius_mm, p.mm_per_unit,
                            p.eye_protrusion_mm, camera.position)
     job["eyes"] = eyes
-    if eyes is not None:
-        job["ray_org"], job["ray_dir"] = camera.ray_matrices()
-        job["fwd"] = camera.forward
+    # each pixel's world ray (the eye highlights; the WebGL surface pass's EXACT mode)
+    job["ray_org"], job["ray_dir"] = camera.ray_matrices()
+    job["fwd"] = camera.forward
     # the lighting pass runs only where a surface or an eye can be (every other pixel is the
     # background, glscene.background_out): the mesh's box without the eye highlights, then
     # the eyes' box with them (a second program over that small box)

@@ -57,6 +57,8 @@ function target(gl, W, H, formats, depth = true) {
   return { fbo, tex, W, H, n: formats.length };
 }
 
+// A vertex array of float vec3 attributes (``layout``: their names, interleaved in ``verts``),
+// drawn indexed by ``faces``, or un-indexed when ``faces`` is null.
 function mesh(gl, prog, verts, faces, layout) {
   const vao = gl.createVertexArray();
   gl.bindVertexArray(vao);
@@ -70,11 +72,23 @@ function mesh(gl, prog, verts, faces, layout) {
     gl.enableVertexAttribArray(l);
     gl.vertexAttribPointer(l, 3, gl.FLOAT, false, stride, i * 12);
   });
-  const ib = gl.createBuffer();
-  gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
-  gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, faces, gl.STATIC_DRAW);
+  let ib = null;
+  if (faces) {
+    ib = gl.createBuffer();
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, faces, gl.STATIC_DRAW);
+  }
   gl.bindVertexArray(null);
-  return { vao, vb, ib, count: faces.length, release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); gl.deleteBuffer(ib); } };
+  const count = faces ? faces.length : verts.length / (layout.length * 3);
+  return {
+    vao, vb, ib, count,
+    draw() {
+      gl.bindVertexArray(vao);
+      if (faces) gl.drawElements(gl.TRIANGLES, count, gl.UNSIGNED_INT, 0);
+      else gl.drawArrays(gl.TRIANGLES, 0, count);
+    },
+    release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); if (ib) gl.deleteBuffer(ib); },
+  };
 }
 
 // The surface pass's mesh for gbuffer.frag's EXACT mode: triangles drawn un-indexed, each
@@ -93,23 +107,7 @@ function exactMesh(gl, prog, verts, faces) {
       }
     }
   }
-  const vao = gl.createVertexArray();
-  gl.bindVertexArray(vao);
-  const vb = gl.createBuffer();
-  gl.bindBuffer(gl.ARRAY_BUFFER, vb);
-  gl.bufferData(gl.ARRAY_BUFFER, out, gl.STATIC_DRAW);
-  ['q', 'P', 'N', 'A0', 'A1', 'A2', 'B0', 'B1', 'B2'].forEach((name, i) => {
-    const l = gl.getAttribLocation(prog, name);
-    if (l < 0) return;
-    gl.enableVertexAttribArray(l);
-    gl.vertexAttribPointer(l, 3, gl.FLOAT, false, 27 * 4, i * 12);
-  });
-  gl.bindVertexArray(null);
-  return {
-    vao, count: n,
-    draw() { gl.bindVertexArray(vao); gl.drawArrays(gl.TRIANGLES, 0, n); },
-    release() { gl.deleteVertexArray(vao); gl.deleteBuffer(vb); },
-  };
+  return mesh(gl, prog, out, null, ['q', 'P', 'N', 'A0', 'A1', 'A2', 'B0', 'B1', 'B2']);
 }
 
 export function createFaceRenderer(canvas, d) {
@@ -135,8 +133,7 @@ export function createFaceRenderer(canvas, d) {
     gl.useProgram(P.depth);
     gl.uniformMatrix4fv(P.depth.u('proj'), false, geom.clip);
     gl.viewport(...viewport);
-    gl.bindVertexArray(geom.mesh.vao);
-    gl.drawElements(gl.TRIANGLES, geom.mesh.count, gl.UNSIGNED_INT, 0);
+    geom.mesh.draw();
   }
 
   function depthTarget(W, H) {  // a depth texture only (shadow maps: window depths)
@@ -174,8 +171,7 @@ export function createFaceRenderer(canvas, d) {
       if (sm.faces) shadowMeshes.push(m = mesh(gl, P.shadow, verts, decode(sm.faces), ['q', 'P', 'N']));
       gl.uniformMatrix4fv(P.shadow.u('proj'), false, sm.world_clip);
       gl.viewport(atlasTiles[i][0], atlasTiles[i][1], size, size);
-      gl.bindVertexArray(m.vao);
-      gl.drawElements(gl.TRIANGLES, m.count, gl.UNSIGNED_INT, 0);
+      m.draw();
     });
   }
 
@@ -262,7 +258,7 @@ export function createFaceRenderer(canvas, d) {
     gl.uniform1f(s.u('exposure'), d.exposure); gl.uniform1i(s.u('clamp01'), d.clamp ? 1 : 0);
     const e = d.eyes;
     if (e) {
-      gl.uniformMatrix3fv(s.u('ray_org'), false, e.ray_org); gl.uniformMatrix3fv(s.u('ray_dir'), false, e.ray_dir);
+      gl.uniformMatrix3fv(s.u('ray_org'), false, d.ray_org); gl.uniformMatrix3fv(s.u('ray_dir'), false, d.ray_dir);
       gl.uniform3fv(s.u('fwd'), e.fwd); gl.uniform3fv(s.u('eye_c'), e.c); gl.uniform3fv(s.u('eye_axis'), e.axis);
       gl.uniform1f(s.u('eye_R'), e.R); gl.uniform1f(s.u('eye_s'), e.s); gl.uniform1f(s.u('eye_ks'), e.ks);
     }

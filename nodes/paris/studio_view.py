@@ -111,6 +111,7 @@ class FaceView(LiveView):
              "kd": _vec(kd), "i_s": i_s, "shininess": s, "ambient": _vec(amb),
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
              "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
+             "ray_org": _mat(job["ray_org"]), "ray_dir": _mat(job["ray_dir"]),  # each pixel's world ray
              "boxes": [[int(x) for x in b] for b in job["boxes"]],
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
              **self._light_part(job, p, len(job["mesh_faces"]))}
@@ -122,15 +123,12 @@ class FaceView(LiveView):
         if eyes is not None:
             c, a, R = eyes
             d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
-                         "ks": float(p.eye_specular), "ray_org": _mat(job["ray_org"]),
-                         "ray_dir": _mat(job["ray_dir"]), "fwd": _vec(job["fwd"])}
+                         "ks": float(p.eye_specular), "fwd": _vec(job["fwd"])}
         defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0,
                 "SM_WINDOW": 1}
-        # EXACT: the surface pass intersects each pixel's ray with the exact triangle (SwiftShader
-        # snaps vertices to 1/16 px; see gbuffer.frag), from these rays
+        # EXACT: the surface pass intersects each pixel's ray (ray_org, ray_dir) with the exact
+        # triangle (SwiftShader snaps vertices to 1/16 px; see gbuffer.frag)
         gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None), "EXACT": 1}
-        ro, rd = cam.ray_matrices()
-        d["ray_org"], d["ray_dir"] = _mat(ro), _mat(rd)
         d["glsl"] = {
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
             "shadow": [source("depth.vert", "es300", {"WORLD": 1}), source("depth.frag", "es300", {"DEPTH_ONLY": 1})],
