@@ -11,7 +11,8 @@
 // Outputs: o_image.rgb = the image; o_image.a = the camera z where a surface is (0 elsewhere),
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
-// Defines: N_LIGHTS (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY.  The drivers draw it scissored to the
+// Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY,
+// DETAIL.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -29,6 +30,9 @@
 #endif
 #ifndef DISPLAY
 #define DISPLAY 0
+#endif
+#ifndef DETAIL
+#define DETAIL 1                          // 0: no detail texture (g_detail is 1: not fetched)
 #endif
 #if DISPLAY
 // The studio's frames: the image straight onto the canvas as display.frag would show it
@@ -79,11 +83,17 @@ uniform vec2 sm_bias[N_LIGHTS];           // (texel, reference distance)
 float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     vec4 q = sm_to_light[i] * vec4(P, 1.0);
     vec2 xy;
+#if DIRECTIONAL
+    xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
+#else
     if (light_kind[i] == 0) xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
     else xy = q.xy / q.z * sm_proj[i].xy + sm_proj[i].zw;
+#endif
     float cosv = clamp(abs(dot(n, ldir)), 0.05, 1.0);
     float b = 1.5 * sm_bias[i].x * min(sqrt(1.0 - cosv * cosv) / cosv + 1.0, 10.0);
+#if !DIRECTIONAL
     if (light_kind[i] == 1) b = b * max(q.z, 1e-9) / sm_bias[i].y;
+#endif
     float db = q.z - b;
 #if SM_WINDOW
     vec3 zm = sm_zmap[i];
@@ -205,7 +215,11 @@ void main() {
             col += kd * (L * diff) + i_s * L * spec;
         }
         col += kd * ambient;
+#if DETAIL
         img = col * texelFetch(g_detail, px, 0).rgb;
+#else
+        img = col;
+#endif
     }
 #if EYES
     img += eye_highlights(px, cov ? gp.w : 3.0e38);

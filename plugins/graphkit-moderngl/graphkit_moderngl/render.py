@@ -385,8 +385,11 @@ def _render(rt, job):
         atlas, size, tiles = _shadow_atlas(rt, job)
     g = _gbuffer(rt, job)
     masks = nL > 1  # one light: its "lit somewhere" check is the sign of the image's alpha
+    # specialised (the same maths, less of it): DETAIL 0 when no detail texture (the g-buffer's
+    # factor is 1, not fetched), DIRECTIONAL 1 when no light is a point light (no such branch)
     defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0,
-               "LIT_MASKS": int(masks)}
+               "LIT_MASKS": int(masks), "DETAIL": int(job["detail"] is not None),
+               "DIRECTIONAL": int(all(kind == 0 for kind, *_ in lights))}
     # the mesh's box without the eye highlights, then the eyes' box with them (glscene.scene)
     # (the eyes' program shades every pixel of its box: the other one skips it, job["boxes"])
     prog = rt.program("screen.vert", "shade.frag", defines)
