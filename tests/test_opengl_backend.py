@@ -215,6 +215,34 @@ def test_setup_kept_between_calls_changes_nothing():
     assert np.array_equal(got["image"], arrays(gl(p).compute(**other))["image"])
 
 
+def test_surface_kept_between_light_changes():
+    """Depth and coverage of a call on the same g-buffer (a light drag) come from the last such
+    call (graphkit_moderngl.render._SURFACE): they must equal what a call without that memory
+    computes, be the call's own arrays (writing into one output changes no later one), and the
+    light checks must still run on every call."""
+    from graphkit import BadInput
+    from graphkit_moderngl import render as R
+
+    node, gl = _classes()
+    c = cases()
+    for name in ("detail_texture_other_camera", "orthographic_rotated_mm_point_light_eyes", "exposure_clamp"):
+        params, inputs = c[name]
+        p = node.Params.model_validate(params)
+        first = gl(p).compute(**inputs)
+        first["depth"].pixels[:] = -7.0  # a caller writing into its outputs
+        first["coverage"].alpha[:] = 0.5
+        moved = {**inputs, "lights": [Light(direction=(-0.3, -0.4, -0.85), intensity=0.9)] + inputs["lights"][1:]}
+        kept = arrays(gl(p).compute(**moved))
+        R._SURFACE._d.clear()
+        fresh = arrays(gl(p).compute(**moved))
+        assert kept["coverage"].sum() > 0
+        for port in fresh:
+            assert np.array_equal(kept[port], fresh[port]), (name, port)
+        if name == "exposure_clamp":  # (as test_bad_inputs_match_reference) the surface is kept: still checked
+            with pytest.raises(BadInput, match="behind the face"):
+                gl(p).compute(**{**inputs, "lights": [Light(direction=(0.0, 0.0, 1.0))]})
+
+
 def test_bad_inputs_match_reference():
     from graphkit import BadInput
 

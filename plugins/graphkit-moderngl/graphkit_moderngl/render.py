@@ -90,21 +90,24 @@ class RenderGL(Backend):
             img, zs, masks = runtime().call(_render_job, job)
         except Unavailable as e:
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
-        # zs: shade.frag's alpha over the shaded box: ± camera z where covered, 0 elsewhere
-        x, y, w, h = job["bbox"]
-        box = np.s_[y:y + h, x:x + w]
-        depth = np.zeros((H, W), np.float32)
-        cov = np.zeros((H, W), np.float32)  # the coverage mask's values (1 / 0) straight away
-        cb = zs != 0.0
-        cov[box] = cb
-        np.abs(zs, out=depth[box])
-        M = int(np.count_nonzero(cb))
+        # zs: shade.frag's alpha over the shaded box: ± camera z where covered, 0 elsewhere.
+        # Depth and coverage depend only on the g-buffer (content-keyed: job["gbuffer_key"]),
+        # so a call on the same g-buffer (a light drag) takes them from the last such call
+        # (copies: each call's outputs are its own arrays) and only checks the lights.
+        dkey = (job["gbuffer_key"], tuple(job["bbox"]), W, H)
+        kept = _SURFACE.get(dkey)
+        if kept is None:
+            kept = _surface(zs, job["bbox"], W, H)
+            _SURFACE.put(dkey, kept)
+        depth0, cov0, M = kept
         if M == 0:  # as the reference (nodes.paris.render.surface)
             raise BadInput("mesh", f"the mesh covers 0 pixels of the {W}×{H} camera image: it does "
                                    "not match the camera (wrong pose, units or image size?)")
+        depth, cov = depth0.copy(), cov0.copy()
         if masks is None:  # one light: lit somewhere iff some covered pixel has z > 0
-            lit = int(bool((zs > 0.0).any()))
+            lit = int(bool(zs.max() > 0.0))
         else:
+            cb = zs != 0.0
             m0, m1 = masks[..., 0][cb].astype(np.int64), masks[..., 1][cb].astype(np.int64)
             lit = np.bitwise_or.reduce(m0) | (np.bitwise_or.reduce(m1) << 24)
         for i, light in enumerate(lights):
@@ -120,6 +123,52 @@ class RenderGL(Backend):
         return {"image": Image(img),
                 "depth": Image(depth),
                 "coverage": Mask(cov)}
+
+
+def _surface(zs: np.ndarray, bbox, W: int, H: int):
+    """(depth H×W, coverage H×W, number of covered pixels) from shade.frag's alpha ``zs``
+    over ``bbox`` (± camera z where covered, 0 elsewhere; outside the box: uncovered)."""
+    x, y, w, h = bbox
+    box = np.s_[y:y + h, x:x + w]
+    depth = np.zeros((H, W), np.float32)
+    cov = np.zeros((H, W), np.float32)  # the coverage mask's values (1 / 0) straight away
+    cb = zs != 0.0
+    cov[box] = cb
+    np.abs(zs, out=depth[box])
+    return depth, cov, int(np.count_nonzero(cb))
+
+
+class _Kept:
+    """A few recent (depth, coverage, count) results by key, bounded in entries and bytes
+    (node threads share it)."""
+
+    def __init__(self, entries: int = 4, budget: int = 64 << 20):
+        import threading
+        from collections import OrderedDict
+
+        self.entries, self.budget = entries, budget
+        self._d: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            hit = self._d.get(key)
+            if hit is not None:
+                self._d.move_to_end(key)
+            return hit
+
+    def put(self, key, value):
+        n = value[0].nbytes + value[1].nbytes
+        with self._lock:
+            if n > self.budget:
+                return
+            self._d[key] = value
+            self._d.move_to_end(key)
+            while len(self._d) > self.entries or sum(v[0].nbytes + v[1].nbytes for v in self._d.values()) > self.budget:
+                self._d.popitem(last=False)
+
+
+_SURFACE = _Kept()
 
 
 def _check_atlas(n: int, size: int):
