@@ -86,16 +86,18 @@ class RenderGL(Backend):
         if job["shadow"] is not None:
             _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
-        try:
-            img, zs, masks = runtime().call(_render_job, job)
-        except Unavailable as e:
-            raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
-        # zs: shade.frag's alpha over the shaded box: ± camera z where covered, 0 elsewhere.
         # Depth and coverage depend only on the g-buffer (content-keyed: job["gbuffer_key"]),
         # so a call on the same g-buffer (a light drag) takes them from the last such call
         # (copies: each call's outputs are its own arrays) and only checks the lights.
         dkey = (job["gbuffer_key"], tuple(job["bbox"]), W, H)
         kept = _SURFACE.get(dkey)
+        job["want_alpha"] = kept is None
+        try:
+            img, zs, top, masks = runtime().call(_render_job, job)
+        except Unavailable as e:
+            raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
+        # zs: shade.frag's alpha over the shaded box (± camera z where covered, 0 elsewhere),
+        # given when asked for; top: its maximum
         if kept is None:
             kept = _surface(zs, job["bbox"], W, H)
             _SURFACE.put(dkey, kept)
@@ -105,9 +107,10 @@ class RenderGL(Backend):
                                    "not match the camera (wrong pose, units or image size?)")
         depth, cov = depth0.copy(), cov0.copy()
         if masks is None:  # one light: lit somewhere iff some covered pixel has z > 0
-            lit = int(bool(zs.max() > 0.0))
+            lit = int(bool(top > 0.0))
         else:
-            cb = zs != 0.0
+            x, y, w, h = job["bbox"]
+            cb = cov0[y:y + h, x:x + w] != 0.0
             m0, m1 = masks[..., 0][cb].astype(np.int64), masks[..., 1][cb].astype(np.int64)
             lit = np.bitwise_or.reduce(m0) | (np.bitwise_or.reduce(m1) << 24)
         for i, light in enumerate(lights):
@@ -420,7 +423,8 @@ def _render_job(rt, job):
 def _render(rt, job):
     """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
     (image H×W×3, shade.frag's alpha over the box job["bbox"] (± camera z, 0 where
-    uncovered), the lit masks over that box (h×w×4) or None with one light), float32."""
+    uncovered; None unless job["want_alpha"]), that alpha's maximum, the lit masks over that
+    box (h×w×4) or None with one light), float32."""
     ctx, mgl = rt.ctx, rt.gl
     W, H, p = job["W"], job["H"], job["p"]
     ctx.enable(mgl.DEPTH_TEST)
@@ -477,12 +481,16 @@ def _render(rt, job):
     img = np.empty((H, W, 3), np.float32)
     fbo.read_into(img, components=3, dtype="f4", attachment=0)
     x, y, w, h = job["bbox"]
-    rgba = np.empty((h, w, 4), np.float32)
-    lit = None
+    # the alpha over the box into a kept buffer (not returned: reduced here, copied if asked)
+    rgba = rt.objects.get(("alpha", w, h), lambda: np.empty((h, w, 4), np.float32), 0)
+    lit, zs, top = None, None, 0.0
     if w and h:
         fbo.read_into(rgba, viewport=(x, y, w, h), components=4, dtype="f4", attachment=0)
+        top = float(rgba[..., 3].max())
         if masks:
             lit = np.empty((h, w, 4), np.float32)
             fbo.read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
+    if job.get("want_alpha", True):
+        zs = rgba[..., 3].copy()
     ctx.enable(mgl.DEPTH_TEST)
-    return img, rgba[..., 3], lit
+    return img, zs, top, lit
