@@ -243,6 +243,35 @@ def test_surface_kept_between_light_changes():
                 gl(p).compute(**{**inputs, "lights": [Light(direction=(0.0, 0.0, 1.0))]})
 
 
+def test_split_alpha_target_same_as_rgba(monkeypatch):
+    """The lighting pass writes its image into an RGB32F target and its alpha (± camera z) into
+    an R32F one where the driver renders RGB32F (render._split_alpha), else both into one
+    RGBA32F target: the two layouts must give the same bytes (every case, and one light with the
+    eyes: the union box's corners that no pass draws must read as uncovered)."""
+    from graphkit_moderngl import render as R
+    from graphkit_moderngl.runtime import runtime
+
+    node, gl = _classes()
+    c = dict(cases())
+    params, inputs = c["eye_highlights"]
+    c["eye_highlights_one_light"] = (params, {**inputs, "lights": inputs["lights"][:1]})
+    # an eye beyond the silhouette's corner, on a coloured background: the box shaded (the
+    # union of the mesh's and the eyes' boxes) has corners that neither pass draws
+    c["eye_outside_box"] = ({**params, "eyes": [[-1.3, -1.1, 3.4], [0.33, -0.25, 3.06]],
+                             "background": (0.3, 0.2, 0.1)}, {**inputs, "lights": inputs["lights"][:1]})
+    if not runtime().call(R._split_alpha):
+        pytest.skip(f"no RGB32F render target on {runtime().describe()}: only the RGBA32F layout runs")
+    for name, (params, inputs) in c.items():
+        p = node.Params.model_validate(params)
+        got = {}
+        for split in (True, False):
+            monkeypatch.setattr(R, "SPLIT_ALPHA", split)
+            R._SURFACE._d.clear()  # depth and coverage from this layout's alpha
+            got[split] = arrays(gl(p).compute(**inputs))
+        for port in got[True]:
+            assert np.array_equal(got[True][port], got[False][port]), (name, port)
+
+
 def test_bad_inputs_match_reference():
     from graphkit import BadInput
 

@@ -12,7 +12,7 @@
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
 // Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY,
-// DETAIL.  The drivers draw it scissored to the
+// DETAIL, ALPHA_OUT.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -45,6 +45,12 @@ uniform int view_h;                       // H
 layout(location = 0) out vec4 o_image;    // rgb = image, a = ±camera z (covered), 0 (uncovered)
 #if LIT_MASKS
 layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24–) with n·l > 0 here
+#endif
+#ifndef ALPHA_OUT
+#define ALPHA_OUT 0
+#endif
+#if ALPHA_OUT
+layout(location = ALPHA_OUT) out float o_alpha;  // o_image.a also at this location (own target)
 #endif
 
 uniform sampler2D g_pos;                  // gbuffer.frag's outputs
@@ -230,6 +236,9 @@ void main() {
     o_image = vec4(srgb_encode(img * display_scale), 1.0);
 #else
     o_image = vec4(img, cov ? (any_lit ? gp.w : -gp.w) : 0.0);
+#if ALPHA_OUT
+    o_alpha = o_image.a;
+#endif
 #endif
 #if LIT_MASKS
     o_lit = vec4(mask0, mask1, 0.0, 0.0);

@@ -415,6 +415,36 @@ def _shade_uniforms(prog, job, p, size: int, tiles):
         _set(prog, "eye_ks", float(p.eye_specular))
 
 
+#: the lighting pass writes the image into an RGB32F target and the alpha into an R32F one
+#: where the driver renders RGB32F (checked once: ``_split_alpha``); False: one RGBA32F target
+SPLIT_ALPHA = True
+
+
+def _split_alpha(rt) -> bool:
+    """Whether this context renders into RGB32F textures (not required by OpenGL 3.3): a 2×2
+    target cleared and read back (GL thread)."""
+    ok = getattr(rt, "_rgb32f_ok", None)
+    if ok is None:
+        ok = False
+        try:
+            t = rt.ctx.texture((2, 2), 3, dtype="f4")
+            try:
+                f = rt.ctx.framebuffer(color_attachments=[t])
+                try:
+                    f.use()
+                    f.clear(0.5, 0.25, -2.0, 1.0)
+                    got = np.frombuffer(f.read(components=3, dtype="f4"), np.float32)
+                    ok = bool(np.array_equal(got, np.tile(np.float32([0.5, 0.25, -2.0]), 4)))
+                finally:
+                    f.release()
+            finally:
+                t.release()
+        except Exception:  # noqa: BLE001 - not renderable here: one RGBA32F target
+            ok = False
+        rt._rgb32f_ok = ok
+    return ok and SPLIT_ALPHA
+
+
 def _render_job(rt, job):
     rt.objects.begin()
     return _render(rt, job)
@@ -443,6 +473,11 @@ def _render(rt, job):
     defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0,
                "LIT_MASKS": int(masks), "DETAIL": int(job["detail"] is not None),
                "DIRECTIONAL": int(all(kind == 0 for kind, *_ in lights))}
+    # the image in an RGB32F target (read back as it is stored) and the alpha in its own R32F
+    # target (ALPHA_OUT: its location), where the driver renders RGB32F; else one RGBA32F
+    split = _split_alpha(rt)
+    if split:
+        defines["ALPHA_OUT"] = 2 if masks else 1
     # the mesh's box without the eye highlights, then the eyes' box with them (glscene.scene)
     # (the eyes' program shades every pixel of its box: the other one skips it, job["boxes"])
     prog = rt.program("screen.vert", "shade.frag", defines)
@@ -455,7 +490,8 @@ def _render(rt, job):
         atlas.use(location=3)
     for prog in {id(pr): pr for pr, _ in passes}.values():
         _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
-    out = _target(rt, "shade", W, H, (4, 4) if masks else (4,), depth=False)
+    colors = ((3,) if split else (4,)) + ((4,) if masks else ()) + ((1,) if split else ())
+    out = _target(rt, "shade", W, H, colors, depth=False)
     fbo = out["fbo"]
     fbo.use()
     fbo.viewport = (0, 0, W, H)
@@ -471,6 +507,11 @@ def _render(rt, job):
     layout = (tuple(job["bg_out"]), tuple(tuple(b) for _, b in passes))
     if out["key"] != layout:
         fbo.clear(*job["bg_out"], 0.0)
+        if split:  # the alpha target: 0 (uncovered), not the background's red
+            if "afbo" not in out:
+                out["afbo"] = ctx.framebuffer(color_attachments=[out["tex"][-1]])
+            out["afbo"].clear(0.0, 0.0, 0.0, 0.0)
+            fbo.use()
         out["key"] = layout
     for prog, (x, y, w, h) in passes:
         if w and h:
@@ -482,15 +523,17 @@ def _render(rt, job):
     fbo.read_into(img, components=3, dtype="f4", attachment=0)
     x, y, w, h = job["bbox"]
     # the alpha over the box into a kept buffer (not returned: reduced here, copied if asked)
-    rgba = rt.objects.get(("alpha", w, h), lambda: np.empty((h, w, 4), np.float32), 0)
+    nc = 1 if split else 4
+    buf = rt.objects.get(("alpha", w, h, nc), lambda: np.empty((h, w, nc), np.float32), 0)
+    alpha = buf[..., nc - 1]
     lit, zs, top = None, None, 0.0
     if w and h:
-        fbo.read_into(rgba, viewport=(x, y, w, h), components=4, dtype="f4", attachment=0)
-        top = float(rgba[..., 3].max())
+        fbo.read_into(buf, viewport=(x, y, w, h), components=nc, dtype="f4", attachment=len(colors) - 1 if split else 0)
+        top = float(alpha.max())
         if masks:
             lit = np.empty((h, w, 4), np.float32)
             fbo.read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
     if job.get("want_alpha", True):
-        zs = rgba[..., 3].copy()
+        zs = alpha.copy()
     ctx.enable(mgl.DEPTH_TEST)
     return img, zs, top, lit
