@@ -333,14 +333,17 @@ def _shadow_setup(V, F, light, size: int, margin: float = 0.02, up=None):
 
 
 def digest(*parts) -> bytes:
-    """A content key for GL objects (arrays by dtype, shape and bytes; other parts by repr)."""
-    import hashlib
+    """A content key for GL objects (arrays by dtype, shape and bytes; other parts by repr):
+    xxh3-128, as the engine's own content digests (graphkit.hashing); 16 bytes."""
+    import xxhash
 
-    h = hashlib.blake2b(digest_size=16)
+    h = xxhash.xxh3_128()
     for x in parts:
         if isinstance(x, np.ndarray):
-            h.update(f"{x.dtype.str}{x.shape}".encode())
-            h.update(np.ascontiguousarray(x).data)
+            a = np.ascontiguousarray(x)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            if a.size:
+                h.update(a.reshape(-1).view(np.uint8))
         else:
             h.update(repr(x).encode())
         h.update(b"|")
