@@ -156,7 +156,7 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera):
     # background, glscene.background_out): the mesh's box without the eye highlights, then
     # the eyes' box with them (a second program over that small box)
     Fm = job["main"][1]
-    job["bbox"] = screen_box(camera, qc[np.unique(Fm)] if len(Fm) else qc[:0])
+    job["bbox"] = screen_box(camera, qc[used_vertices(Fm, len(qc))])
     job["eye_box"] = None
     job["boxes"] = [job["bbox"]]  # the boxes of the pass without the eye highlights
     if eyes is not None:
@@ -299,8 +299,16 @@ def _view_geometry(q: np.ndarray, F: np.ndarray, P: np.ndarray, perspective: boo
     if perspective if near is None else near:
         ok &= np.all(fq[..., 2] > NEAR, axis=1)
     Fk = np.ascontiguousarray(F[ok], np.int32)
-    used = np.unique(Fk) if len(Fk) else np.zeros(0, np.int64)
+    used = used_vertices(Fk, len(q))
     return _set_depth_range(P, q[used, 2], perspective), Fk
+
+
+def used_vertices(F: np.ndarray, n: int) -> np.ndarray:
+    """The sorted indices of the vertices that faces ``F`` use (= np.unique(F), in O(n)
+    with a mask instead of a sort), of ``n`` vertices."""
+    used = np.zeros(n, bool)
+    used[np.asarray(F).reshape(-1)] = True
+    return np.flatnonzero(used)
 
 
 def _light_uniforms(light: Light):
