@@ -312,11 +312,13 @@ def _gbuffer(rt, job):
     camera or detail texture changed.  Returns the target."""
     ctx, mgl = rt.ctx, rt.gl
     W, H = job["W"], job["H"]
-    g = _target(rt, "gbuffer", W, H, (4, 4, 4))
+    det = job["detail"]
+    # without a detail texture the factor is 1 and shade.frag (DETAIL 0) does not read it:
+    # no third target (gbuffer.frag's o_detail then goes to no draw buffer)
+    g = _target(rt, "gbuffer", W, H, (4, 4, 4) if det is not None else (4, 4))
     if g["key"] == job["gbuffer_key"]:
         return g
     g["key"] = None
-    det = job["detail"]
     defines = {"ORTHO": int(bool(job["cam_ortho"])), "DETAIL": int(det is not None)}
     prog = rt.program("gbuffer.vert", "gbuffer.frag", defines)
     if det is not None:
