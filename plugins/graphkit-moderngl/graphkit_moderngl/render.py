@@ -359,7 +359,7 @@ def _gbuffer(rt, job):
         bufs = _mesh_buffers(rt, job["vertices"], faces, job["vertices_key"], job["faces_key"])
         # depth pre-pass (the same positions, `invariant gl_Position`), then the surface pass
         # on the nearest fragment of each pixel only (no overdraw)
-        zprog = rt.program("depth.vert", "depth.frag")
+        zprog = rt.program("depth.vert", "depth.frag", {"DEPTH_ONLY": 1})  # no colour: depth only
         zprog["proj"].write(_mat(clip))
         g["zfbo"].use()
         g["zfbo"].viewport = (0, 0, W, H)
