@@ -531,7 +531,7 @@ def _render(rt, job):
     lit, zs, top = None, None, 0.0
     if w and h:
         fbo.read_into(buf, viewport=(x, y, w, h), components=nc, dtype="f4", attachment=len(colors) - 1 if split else 0)
-        top = float(alpha.max())
+        top = float(np.fmax.reduce(alpha, axis=None))  # NaN-blind, as (alpha > 0).any()
         if masks:
             lit = np.empty((h, w, 4), np.float32)
             fbo.read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
