@@ -33,6 +33,12 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   negated where no light has n·l > 0 (one light; 2+ lights: per-light masks in a second
   target, ``LIT_MASKS``), so the read-back is the image, whole, as RGB straight into the
   output array, and the alpha over the box only (depth, coverage, the "lights nothing" check).
+  Where the driver renders RGB32F (probed once) the image goes to an RGB32F target and the
+  alpha to its own R32F one (``ALPHA_OUT``): both read back as stored, no conversion.  The
+  programs are specialised by ``#define``s that change no value (``DETAIL`` 0: no detail
+  fetch; ``DIRECTIONAL`` 1: no point-light branch).  Depth and coverage depend only on the
+  g-buffer: they are kept per g-buffer key (``_SURFACE``), so a light drag only checks the
+  lights (the alpha's maximum).
 * a direct call without the engine's input digests keys the kept set-up by the content of
   the inputs (``glscene.static_key``).
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
