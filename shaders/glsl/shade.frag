@@ -12,7 +12,7 @@
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
 // Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY,
-// DETAIL, ALPHA_OUT.  The drivers draw it scissored to the
+// DETAIL, ALPHA_OUT, VIEW_RAY, NO_DEPTH.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -48,6 +48,18 @@ layout(location = 1) out vec4 o_lit;      // r, g = bit masks (lights 0–23, 24
 #endif
 #ifndef ALPHA_OUT
 #define ALPHA_OUT 0
+#endif
+// VIEW_RAY (not ORTHO): the view vector from screen.vert's pixel ray, not from P;
+// NO_DEPTH: no g_pos fetch where P is not needed (DIRECTIONAL, VIEW_RAY, no SHADOWS, no EYES);
+// the alpha is then ±1 where covered, not ±z (the driver keeps depth from an earlier call)
+#ifndef VIEW_RAY
+#define VIEW_RAY 0
+#endif
+#ifndef NO_DEPTH
+#define NO_DEPTH 0
+#endif
+#if VIEW_RAY
+in vec3 v_ray;
 #endif
 #if ALPHA_OUT
 layout(location = ALPHA_OUT) out float o_alpha;  // o_image.a also at this location (own target)
@@ -176,7 +188,11 @@ void main() {
 #else
     ivec2 px = ivec2(gl_FragCoord.xy);
 #endif
+#if NO_DEPTH
+    vec4 gp = vec4(0.0, 0.0, 0.0, 1.0);
+#else
     vec4 gp = texelFetch(g_pos, px, 0);
+#endif
     vec4 gn = texelFetch(g_normal, px, 0);
     bool cov = gn.w > 0.5;
     vec3 img = background;
@@ -188,7 +204,11 @@ void main() {
 #if ORTHO
         vec3 v = cam_back;
 #else
+#if VIEW_RAY
+        vec3 v = v_ray;
+#else
         vec3 v = cam_pos - P;
+#endif
         float vl = length(v);
         v = vl > 0.0 ? v / vl : vec3(0.0);
 #endif

@@ -64,7 +64,9 @@ class RenderGL(Backend):
 
     node = "Render"
     name = "opengl"
-    version = "2"  # bump when the output for the same inputs changes
+    version = "3"  # bump when the output for the same inputs changes
+    # 3: the view vector from the pixel's ray (shade.frag VIEW_RAY), not from the interpolated
+    #    world position: float32-rounding changes (see tolerance)
     # float32 vs float64 maths and GL's fill rule move pixels whose centre lies on a
     # silhouette, shadow-map or texture-occlusion boundary (or a PCF tap at a texel boundary):
     # 0.5% of the values may differ (measured: ≤ 0.06% on tests/test_opengl_backend.py, 0.02%
@@ -411,10 +413,11 @@ def _shade_uniforms(prog, job, p, size: int, tiles):
     _set(prog, "exposure", float(p.exposure))
     _set(prog, "clamp01", bool(p.clamp))
     _set_lights(prog, lights, nL)
+    _write(prog, "ray_dir", _mat(job["ray_dir"]))  # screen.vert VIEW_RAY, the eyes
+    _set(prog, "view_size", (float(job["W"]), float(job["H"])))
     if eyes is not None:
         centres, axes, R = eyes
         _write(prog, "ray_org", _mat(job["ray_org"]))
-        _write(prog, "ray_dir", _mat(job["ray_dir"]))
         _set(prog, "fwd", tuple(job["fwd"]))
         _write(prog, "eye_c", np.asarray(centres, np.float32).tobytes())
         _write(prog, "eye_axis", np.asarray(axes, np.float32).tobytes())
@@ -478,9 +481,15 @@ def _render(rt, job):
     masks = nL > 1  # one light: its "lit somewhere" check is the sign of the image's alpha
     # specialised (the same maths, less of it): DETAIL 0 when no detail texture (the g-buffer's
     # factor is 1, not fetched), DIRECTIONAL 1 when no light is a point light (no such branch)
-    defines = {"N_LIGHTS": nL, "ORTHO": int(bool(job["cam_ortho"])), "SHADOWS": int(shadows), "EYES": 0,
+    # VIEW_RAY (perspective): the view vector from the pixel's ray (the reference's, exactly
+    # up to float32), which needs no world position; then NO_DEPTH where nothing else needs it
+    # and depth and coverage are kept from an earlier call (job["want_alpha"] False)
+    ortho = bool(job["cam_ortho"])
+    directional = all(kind == 0 for kind, *_ in lights)
+    defines = {"N_LIGHTS": nL, "ORTHO": int(ortho), "SHADOWS": int(shadows), "EYES": 0,
                "LIT_MASKS": int(masks), "DETAIL": int(job["detail"] is not None),
-               "DIRECTIONAL": int(all(kind == 0 for kind, *_ in lights))}
+               "DIRECTIONAL": int(directional), "VIEW_RAY": int(not ortho),
+               "NO_DEPTH": int(not ortho and directional and not shadows and not job.get("want_alpha", True))}
     # the image in an RGB32F target (read back as it is stored) and the alpha in its own R32F
     # target (ALPHA_OUT: its location), where the driver renders RGB32F; else one RGBA32F
     split = _split_alpha(rt)
@@ -491,7 +500,8 @@ def _render(rt, job):
     prog = rt.program("screen.vert", "shade.frag", defines)
     passes = [(prog, box) for box in job["boxes"]]
     if eyes is not None:
-        passes.append((rt.program("screen.vert", "shade.frag", {**defines, "EYES": 1}), job["eye_box"]))
+        passes.append((rt.program("screen.vert", "shade.frag", {**defines, "EYES": 1, "NO_DEPTH": 0}),
+                       job["eye_box"]))
     for i, t in enumerate(g["tex"]):
         t.use(location=i)
     if shadows:
