@@ -72,9 +72,13 @@ def _enc(v: Any, out: list[bytes]) -> None:
         for x in v:
             _enc(x, out)
         out.append(b"]")
-    elif isinstance(v, BaseModel):
-        _enc(f"{t.__module__}.{t.__qualname__}", out)
-        _enc({k: getattr(v, k) for k in t.model_fields}, out)
+    elif isinstance(v, BaseModel):  # = _enc(class name) + _enc({field: value}), laid out once per class
+        head, fields = _model_layout(t)
+        out.append(head)
+        for name, kb in fields:
+            out.append(kb)
+            _enc(getattr(v, name), out)
+        out.append(b"}")
     elif isinstance(v, enum.Enum):
         _enc(v.value, out)
     elif isinstance(v, int):  # int subclasses (bool cannot be subclassed: `t is bool` took it)
@@ -95,6 +99,14 @@ def _enc(v: Any, out: list[bytes]) -> None:
         _enc(dict(v), out)
     else:
         raise CanonicalError(_cannot(v))
+
+
+@functools.lru_cache(maxsize=1024)
+def _model_layout(t: type) -> tuple[bytes, tuple[tuple[str, bytes], ...]]:
+    """A pydantic model class's encoding without its values: the class name and the dict header,
+    then each field name (sorted, as _enc sorts a dict's keys) with its encoding."""
+    names = sorted(t.model_fields)
+    return canonical(f"{t.__module__}.{t.__qualname__}") + b"d%d{" % len(names), tuple((n, canonical(n)) for n in names)
 
 
 def _cannot(v: Any) -> str:
@@ -152,7 +164,7 @@ def canonical_merge(static: dict[str, bytes], varying: dict) -> bytes:
     """Canonical encoding of a dict whose entries are partly pre-encoded (see canonical_items)."""
     items = dict(static)
     items.update(canonical_items(varying))
-    return b"d%d{" % len(items) + b"".join(items[k] for k in sorted(items)) + b"}"
+    return b"d%d{" % len(items) + b"".join([items[k] for k in sorted(items)]) + b"}"
 
 
 def _update_array(h, a: np.ndarray) -> None:

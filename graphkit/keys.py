@@ -37,6 +37,6 @@ def encode_static(parts: dict) -> dict[str, bytes]:
 
 def node_key(static: dict, encoded: dict[str, bytes], input_digests: dict) -> tuple[str, dict]:
     """(key, all parts) given the static parts, their encoding and the input digests."""
-    inputs = {"inputs": dict(sorted(input_digests.items()))}
+    inputs = {"inputs": dict(input_digests)}  # (canonical sorts the ports)
     key = hashlib.blake2b(canonical_merge(encoded, inputs), digest_size=16).hexdigest()
     return key, {**static, **inputs}

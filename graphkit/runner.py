@@ -254,8 +254,13 @@ class Session:
         key, parts = self.key(g, input_digests)
         rec = self._lookup(g, key, parts, touch=True)
         if rec is None:
-            with self.store.key_lock(key):
-                rec = self._lookup(g, key, parts)  # another process may have made it meanwhile
+            with self.store.key_lock(key) as waited:
+                # another run held the key (it was computing it): look again.  A lock taken at
+                # once (False) means nobody computed the key since the miss just above, bar a run
+                # that did all of it within those microseconds: at worst a node is computed twice,
+                # with the same bytes (None: this lock cannot tell, so look again)
+                if waited is not False:
+                    rec = self._lookup(g, key, parts)
                 if rec is None:
                     outputs = self._compute(g, bcls, key, parts, input_digests)
                     o = NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver, outputs, parts)

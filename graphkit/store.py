@@ -31,9 +31,15 @@ same guarantee with fewer files, but it is unsafe on the network folders a Dask 
 needs writable ``-shm`` files (read-only and multi-user caches) and would give the store two
 formats (fsspec stores cannot hold it); one syncfs per group gives the fsync saving without that.
 
-Locks.  Per-key locks make concurrent runs compute each key once.  On Linux they are open-file
--description byte-range locks on one file (``keys.lock``), so a cold node creates no lock file;
-elsewhere one lock file per key (``locks/``).  The OS releases them when a process dies.
+Locks.  Per-key locks make concurrent runs compute each key once: a run that misses a key takes
+its lock and, if it had to wait for it (another run was computing the key), looks again and uses
+that run's result.  A lock taken at once costs one system call and no second lookup (the one
+case left: another run computing and storing the key entirely between the miss and the lock, a
+few microseconds, costs a duplicate computation of the same bytes, never a wrong result).  On
+Linux they are open-file-description byte-range locks on one file (``keys.lock``), so a cold
+node creates no lock file; elsewhere one lock file per key (``locks/``).  The OS releases them
+when a process dies.  While a run holds the run lock, objects it has stored or read back whole
+are not looked for again (gc cannot remove them meanwhile).
 
 Sharing.  Folders, lock files and entries are created with the mode of the cache folder (a
 group-writable folder, e.g. ``chmod 2775``, gives group-writable entries whatever the umask), so
@@ -47,6 +53,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import itertools
 import json
 import os
@@ -70,6 +77,9 @@ RECORD_MAGIC = b"GKREC1 "
 _counter = itertools.count()
 _CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 _TOKEN = uuid.uuid4().hex[:12]  # with the pid, thread and counter: unique temp names on a shared folder
+_PID = [os.getpid()]  # os.getpid() is a system call on each use; a forked child learns its own
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=lambda: _PID.__setitem__(0, os.getpid()))
 ALIGN = 64
 MiB = 1 << 20
 #: the one JSON form of record bodies and object headers (a prebuilt encoder: json.dumps with
@@ -259,7 +269,7 @@ class LocalFS:
         self.file_mode = 0o666
         self._fix_file_mode = self._fix_dir_mode = False
         self._local = threading.local()
-        self._key_lock_fd_ok = hasattr(__import__("fcntl"), "F_OFD_SETLKW")
+        self._key_lock_fd_ok = hasattr(fcntl, "F_OFD_SETLKW")
 
     def describe(self) -> str:
         return str(self.root)
@@ -326,7 +336,7 @@ class LocalFS:
         """Write ``chunks`` to a temp file and rename it to ``rel``; ``sync``: fsync it first
         (only for single files outside a group commit)."""
         dest = self._s(rel)
-        tmp = self._s(f"tmp/{_TOKEN}-{os.getpid()}-{threading.get_ident()}-{next(_counter)}")
+        tmp = self._s(f"tmp/{_TOKEN}-{_PID[0]}-{threading.get_ident()}-{next(_counter)}")
         try:
             fd = self._create(tmp)
             try:
@@ -423,23 +433,23 @@ class LocalFS:
 
     @contextlib.contextmanager
     def lock(self, rel: str, shared: bool = False, on_wait: Callable[[], None] | None = None):
-        import fcntl
-
         p = self._s(rel)
         self.mkdir(os.path.dirname(p)) if "/" in rel else None
         fd = self._open_lock(p)
         if fd is None:
-            yield
+            yield None
             return
         try:
             mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
+            waited = False
             try:
                 fcntl.flock(fd, mode | fcntl.LOCK_NB)
             except BlockingIOError:
                 if on_wait is not None:
                     on_wait()
                 fcntl.flock(fd, mode)
-            yield
+                waited = True
+            yield waited
         finally:
             os.close(fd)  # closing releases the flock
 
@@ -461,22 +471,27 @@ class LocalFS:
 
 
 class _OFDLock:
-    """Context manager: F_OFD_SETLKW on one byte on enter, F_UNLCK on exit (a class, not a
-    generator: it is taken once per computed node)."""
+    """Context manager: an exclusive F_OFD lock on one byte on enter, F_UNLCK on exit (a class,
+    not a generator: it is taken once per computed node).  ``__enter__`` returns whether it had
+    to wait (another holder: see :meth:`LocalFS.key_lock`)."""
 
     __slots__ = ("fd", "byte")
 
     def __init__(self, fd: int, byte: int):
         self.fd, self.byte = fd, byte
 
-    def __enter__(self) -> None:
-        import fcntl
-
-        fcntl.fcntl(self.fd, fcntl.F_OFD_SETLKW, struct.pack("hhqqi4x", fcntl.F_WRLCK, 0, self.byte, 1, 0))
+    def __enter__(self) -> bool:
+        lk = struct.pack("hhqqi4x", fcntl.F_WRLCK, 0, self.byte, 1, 0)
+        try:
+            fcntl.fcntl(self.fd, fcntl.F_OFD_SETLK, lk)  # free (the usual case): one system call
+            return False
+        except OSError as e:
+            if e.errno not in (errno.EAGAIN, errno.EACCES):
+                raise
+        fcntl.fcntl(self.fd, fcntl.F_OFD_SETLKW, lk)
+        return True
 
     def __exit__(self, *exc) -> None:
-        import fcntl
-
         fcntl.fcntl(self.fd, fcntl.F_OFD_SETLK, struct.pack("hhqqi4x", fcntl.F_UNLCK, 0, self.byte, 1, 0))
 
 
@@ -634,6 +649,10 @@ class Store:
         self._run_lock_depth = 0
         self._run_lock_guard = threading.Lock()
         self._noticed: set[str] = set()
+        #: digests of objects this process wrote or read back whole while holding the run lock
+        #: (gc and verify --repair cannot remove them then): put_value does not look for them again
+        self._present: set[str] = set()
+        self._local = isinstance(self.fs, LocalFS)
         #: called with one line for each damaged entry found (Session sets it to its notice)
         self.on_notice: Callable[[str], None] | None = None
 
@@ -716,6 +735,8 @@ class Store:
 
     def quarantine(self, rel: str, what: str) -> None:
         """Move a damaged entry to quarantine/ (out of every lookup) and say so in one line."""
+        if rel.startswith("objects/"):
+            self._present.discard(rel.rsplit("/", 1)[-1])
         if not self.fs.exists(rel):
             return  # another thread or run has moved it already (and said so)
         name = rel.replace("/", "_")
@@ -733,12 +754,16 @@ class Store:
         if self.read_only:
             self._read_only_notice()
             return digest
+        if digest in self._present:
+            return digest
         rel = self._orel(digest)
         if not self.fs.exists(rel):
             head, offsets = encode_header(ptype.name, meta, arrays, digest)
             with self._errors("write a cache object"):
                 self.fs.write_atomic(rel, iter_chunks(head, offsets, arrays))
                 self._dirty = True
+        if self._run_lock_depth and self._local:
+            self._present.add(digest)
         return digest
 
     def load_value(self, digest: str, ptype: PortType | None = None) -> Any:
@@ -753,6 +778,8 @@ class Store:
         except CorruptObject as e:
             self.quarantine(rel, f"cache object {digest[:16]} {e.why}")
             raise
+        if self._run_lock_depth and self._local:
+            self._present.add(digest)
         if ptype is None:
             ptype = BUILTIN_PORT_TYPES.get(tname)
             if ptype is None:
@@ -791,6 +818,7 @@ class Store:
             self._run_lock_depth += 1
             first = self._run_lock_depth == 1
             if first:
+                self._present.clear()
                 cm = self.fs.lock("store.lock", shared=True)
                 try:
                     with self._errors("lock the cache"):
@@ -805,6 +833,7 @@ class Store:
             with self._run_lock_guard:
                 self._run_lock_depth -= 1
                 if self._run_lock_depth == 0:
+                    self._present.clear()
                     self._run_cm.__exit__(None, None, None)
 
     def _exclusive(self, what: str):

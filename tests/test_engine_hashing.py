@@ -206,3 +206,31 @@ def test_value_digests():
     h.update(b"<f8(3,);")
     h.update(np.arange(3.0).tobytes())
     assert base == h.hexdigest()  # the documented layout: type, meta, count, then dtype+shape+bytes
+
+
+def test_a_model_is_encoded_as_its_class_name_then_its_fields_as_a_dict():
+    """The per-class layout _enc keeps for pydantic models gives the bytes of the plain rule,
+    written out here: canonical(class name) + canonical({field: value}) (fields sorted by name,
+    whatever their declaration order; nested models the same)."""
+    from pydantic import BaseModel
+
+    class Inner(BaseModel):
+        zeta: int = 2
+        alpha: str = "é"
+
+    class Outer(BaseModel):
+        b: float = 0.5
+        a: Inner = Inner()
+        c: list = [1, "x"]
+
+    def plain(m):
+        t = type(m)
+        return canonical(f"{t.__module__}.{t.__qualname__}") + canonical({k: getattr(m, k) for k in t.model_fields})
+
+    inner = Inner(zeta=7)
+    assert canonical(inner) == plain(inner)
+    assert canonical(inner).endswith(b"d2{s5:alphas2:\xc3\xa9s4:zetai7;}")
+    o = Outer(a=inner)
+    want = (canonical(f"{Outer.__module__}.{Outer.__qualname__}") + b"d3{" + canonical("a") + plain(inner)
+            + canonical("b") + canonical(0.5) + canonical("c") + canonical([1, "x"]) + b"}")
+    assert canonical(o) == want
