@@ -222,6 +222,72 @@ export function createFaceRenderer(canvas, d) {
     mainG.draw();
     gl.depthFunc(gl.LESS);
     gbufDone = true;
+    coverRects();
+  }
+
+  // The lighting pass without the eye highlights is drawn over rectangles that hold every
+  // pixel the surface covers in its boxes (d.boxes: the mesh's screen box without the eyes'
+  // box, glscene.scene), from the g-buffer's coverage read back once: bands of BAND rows, each
+  // cut into runs of covered columns (gaps of up to GAP pixels bridged).  SwiftShader runs the
+  // whole shader on every pixel drawn, covered or not (a branch is lane-masked), so this
+  // shades ~117k pixels instead of the boxes' ~140k (face_relight left60 at 512²); the others
+  // keep the background the target was cleared to, what shade.frag writes there
+  // (glscene.background_out).  (2-row bands: 113k pixels but slower, the thin triangles cost.)
+  let BAND = 16, GAP = 8;
+  let rects = null;
+  function coverRects() {
+    const list = [];  // [x, y, w, h], window (image) rows
+    gl.bindFramebuffer(gl.FRAMEBUFFER, gbuf.fbo);
+    gl.readBuffer(gl.COLOR_ATTACHMENT1);  // o_normal: w = 1 where covered (shade.frag's test)
+    for (const box of d.boxes) {
+      if (!box || !(box[2] > 0 && box[3] > 0)) continue;
+      const [bx, by, bw, bh] = box;
+      const cov = new Float32Array(bw * bh * 4);
+      gl.readPixels(bx, by, bw, bh, gl.RGBA, gl.FLOAT, cov);
+      const col = new Uint8Array(bw);
+      for (let y0 = by; y0 < by + bh; y0 += BAND) {
+        const y1 = Math.min(y0 + BAND, by + bh);
+        col.fill(0);
+        for (let y = y0; y < y1; y++) {
+          const row = (y - by) * bw * 4;
+          for (let x = 0; x < bw; x++) if (cov[row + 4 * x + 3] > 0.5) col[x] = 1;
+        }
+        for (let x = 0; x < bw;) {
+          if (!col[x]) { x++; continue; }
+          let last = x;
+          for (let e = x + 1; e < bw && e - last <= GAP + 1; e++) if (col[e]) last = e;
+          list.push([bx + x, y0, last + 1 - x, y1 - y0]);
+          x = last + 1;
+        }
+      }
+    }
+    gl.readBuffer(gl.COLOR_ATTACHMENT0);
+    const v = new Float32Array(list.length * 12);
+    list.forEach(([x, y, w, h], i) => v.set([x, y, x + w, y, x + w, y + h, x, y, x + w, y + h, x, y + h], 12 * i));
+    const flipped = v.map((c, i) => (i & 1 ? H - c : c));  // canvas rows (DISPLAY): y → H − y
+    if (rects) rects.release();
+    const bufs = [v, flipped].map(a => { const b = gl.createBuffer(); gl.bindBuffer(gl.ARRAY_BUFFER, b); gl.bufferData(gl.ARRAY_BUFFER, a, gl.STATIC_DRAW); return b; });
+    const vaos = new Map();  // (program, rows) → its vertex array over that buffer
+    rects = {
+      n: list.length, pixels: list.reduce((a, r) => a + r[2] * r[3], 0),
+      draw(prog, canvasRows) {
+        const key = canvasRows ? 1 : 0;
+        let m = vaos.get(prog);
+        if (!m) vaos.set(prog, m = []);
+        if (!m[key]) {
+          m[key] = gl.createVertexArray();
+          gl.bindVertexArray(m[key]);
+          gl.bindBuffer(gl.ARRAY_BUFFER, bufs[key]);
+          const loc = gl.getAttribLocation(prog, 'corner');
+          gl.enableVertexAttribArray(loc);
+          gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 8, 0);
+        }
+        gl.bindVertexArray(m[key]);
+        gl.uniform2f(prog.u('view_size'), W, H);
+        gl.drawArrays(gl.TRIANGLES, 0, list.length * 6);
+      },
+      release() { for (const m of vaos.values()) m.forEach(x => x && gl.deleteVertexArray(x)); bufs.forEach(b => gl.deleteBuffer(b)); },
+    };
   }
 
   function shadeUniforms(s) {
@@ -268,22 +334,22 @@ export function createFaceRenderer(canvas, d) {
     gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
-    // only the boxes where a surface or an eye can be are shaded (glscene.scene): the mesh's
-    // without the eye highlights, then the eyes' with them; the rest is the background as
-    // shade.frag would write it (glscene.background_out)
+    // only the pixels where a surface or an eye can be are shaded: the surface's rectangles
+    // (coverRects) without the eye highlights, then the eyes' box with them; the rest is the
+    // background as shade.frag would write it (glscene.background_out)
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
+    shadeUniforms(P.shade);
+    rects.draw(P.shade, false);
+    eyesPass(P.shade_eyes, d.eye_box);
+  }
+
+  function eyesPass(prog, box) {  // the eyes' program over every pixel of their box (scissored)
+    if (!prog || !box || !(box[2] > 0 && box[3] > 0)) return;
+    shadeUniforms(prog);
     gl.enable(gl.SCISSOR_TEST);
+    gl.scissor(...box);
     gl.bindVertexArray(empty);
-    // (the eyes' program shades every pixel of its box: the other one skips it, d.boxes)
-    for (const [prog, boxes] of [[P.shade, d.boxes], [P.shade_eyes, [d.eye_box]]]) {
-      if (!prog) continue;
-      shadeUniforms(prog);
-      for (const box of boxes) {
-        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
-        gl.scissor(...box);
-        gl.drawArrays(gl.TRIANGLES, 0, 3);
-      }
-    }
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
     gl.disable(gl.SCISSOR_TEST);
   }
 
@@ -303,28 +369,26 @@ export function createFaceRenderer(canvas, d) {
 
   function lightingDisplay(exposure) {
     // a frame: the lighting pass straight onto the canvas (shade.frag DISPLAY: the same maths,
-    // then display.frag's encoding), over the same boxes flipped to canvas rows; elsewhere the
-    // background output as the display pass would show it
+    // then display.frag's encoding), over the same rectangles and box flipped to canvas rows;
+    // elsewhere the background output as the display pass would show it
     const scale = Math.pow(2, exposure);
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
     gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
     gl.clear(gl.COLOR_BUFFER_BIT);
-    gl.enable(gl.SCISSOR_TEST);
-    gl.bindVertexArray(empty);
-    for (const [prog, boxes] of [[P.shade_display, d.boxes], [P.shade_eyes_display, [d.eye_box]]]) {
-      if (!prog) continue;
-      shadeUniforms(prog);
-      gl.uniform1f(prog.u('display_scale'), scale);
-      gl.uniform1i(prog.u('view_h'), H);
-      for (const box of boxes) {
-        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
-        gl.scissor(box[0], H - box[1] - box[3], box[2], box[3]);
-        gl.drawArrays(gl.TRIANGLES, 0, 3);
-      }
+    const s = P.shade_display;
+    shadeUniforms(s);
+    gl.uniform1f(s.u('display_scale'), scale);
+    gl.uniform1i(s.u('view_h'), H);
+    rects.draw(s, true);
+    const e = P.shade_eyes_display, b = d.eye_box;
+    if (e && b) {
+      gl.useProgram(e);
+      gl.uniform1f(e.u('display_scale'), scale);
+      gl.uniform1i(e.u('view_h'), H);
+      eyesPass(e, [b[0], H - b[1] - b[3], b[2], b[3]]);
     }
-    gl.disable(gl.SCISSOR_TEST);
   }
 
   return {

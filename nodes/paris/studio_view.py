@@ -133,12 +133,13 @@ class FaceView(LiveView):
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
             "shadow": [source("depth.vert", "es300", {"WORLD": 1}), source("depth.frag", "es300", {"DEPTH_ONLY": 1})],
             "gbuffer": [source("gbuffer.vert", "es300", gdefs), source("gbuffer.frag", "es300", gdefs)],
-            "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
+            # the lighting pass over the covered pixels' rectangles (studio_view.js coverRects)
+            "shade": [source("rects.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
         }
         # the view's frames: the same lighting pass straight onto the canvas (DISPLAY); the
         # float programs above are what readImage() reads back
-        d["glsl"]["shade_display"] = [source("screen.vert", "es300", {**defs, "DISPLAY": 1}),
+        d["glsl"]["shade_display"] = [source("rects.vert", "es300", {**defs, "DISPLAY": 1}),
                                       source("shade.frag", "es300", {**defs, "DISPLAY": 1})]
         if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
             for k, extra in (("shade_eyes", {}), ("shade_eyes_display", {"DISPLAY": 1})):
