@@ -15,7 +15,71 @@ function decode(a) {
   const bin = atob(a.b64);
   const u8 = new Uint8Array(bin.length);
   for (let i = 0; i < bin.length; i++) u8[i] = bin.charCodeAt(i);
-  return a.dtype === 'u4' ? new Uint32Array(u8.buffer) : new Float32Array(u8.buffer);
+  return a.dtype === 'u4' ? new Uint32Array(u8.buffer) : a.dtype === 'f8' ? new Float64Array(u8.buffer) : new Float32Array(u8.buffer);
+}
+
+// Light 0's part of the scene (FaceView._light_part's shape: lights' uniforms, shadow frames)
+// for ``light`` = {direction, intensity, color} made directional, as FaceView.frame computes
+// it on the host (_lights, render.world_lights, glscene.light_part → _shadow_setup →
+// raster.shadow_frame / _look_frame, _view_geometry, _set_depth_range): the same formulas in
+// float64 over the constants of FaceView._frame_constants (``fc``), so a drag needs no round
+// trip; the other lights' parts are the view's (``d``).  null where a value is not valid
+// (the host then says why).  tests/test_studio_face.py compares it with the host's.
+function lightFrame(d, fc, light) {
+  const norm = v => Math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const dir = light.direction, col = light.color, I = light.intensity;
+  if (!Array.isArray(dir) || dir.length !== 3 || !Array.isArray(col) || col.length !== 3) return null;
+  if (![...dir, ...col, I].every(x => typeof x === 'number' && Number.isFinite(x)) || I < 0) return null;
+  const n0 = norm(dir);
+  if (!(n0 > 0)) return null;
+  const d1 = dir.map(x => x / n0);  // FaceView._lights
+  const n1 = norm(d1);
+  const l0 = { kind: 0, dir: d1.map(x => x / n1), pos: d.light.position.slice(), rgb: col.map(c => c * I) };
+  const part = { lights: [l0, ...d.lights.slice(1)] };
+  if (!d.shadow) return part;
+  // raster._look_frame(−d1, up)
+  const fw = d1.map(x => -x), nf = norm(fw), f = fw.map(x => x / nf);
+  let up = fc.up;
+  if (norm(cross(up, f)) < 0.1 * norm(up)) up = null;
+  if (!up) up = Math.abs(f[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0];
+  let x = cross(up, f);
+  const nx = norm(x);
+  x = x.map(v => v / nx);
+  const y = cross(f, x);
+  // raster.shadow_frame (directional): q = V Rᵀ, the texel frame fitted to all vertices
+  const V = fc.V64 || (fc.V64 = decode(fc.V)), nv = V.length / 3;
+  let lo0 = Infinity, lo1 = Infinity, hi0 = -Infinity, hi1 = -Infinity;
+  const qz = new Float64Array(nv);
+  for (let i = 0; i < nv; i++) {
+    const a = V[3 * i], b = V[3 * i + 1], c = V[3 * i + 2];
+    const q0 = a * x[0] + b * x[1] + c * x[2], q1 = a * y[0] + b * y[1] + c * y[2];
+    qz[i] = a * f[0] + b * f[1] + c * f[2];
+    if (!(Number.isFinite(q0) && Number.isFinite(q1) && Number.isFinite(qz[i]))) return null;
+    if (q0 < lo0) lo0 = q0; if (q0 > hi0) hi0 = q0;
+    if (q1 < lo1) lo1 = q1; if (q1 > hi1) hi1 = q1;
+  }
+  const size = fc.size;
+  const ext = Math.max(hi0 - lo0, hi1 - lo1) * (1 + 2 * fc.margin) || 1.0;
+  const sc = size / ext;
+  const ox = size / 2 - (lo0 + hi0) / 2 * sc, oy = size / 2 - (lo1 + hi1) / 2 * sc;
+  // glscene._shadow_setup: the orthographic clip matrix; _view_geometry → _set_depth_range
+  // over the vertices the faces use
+  const used = fc.used ? (fc.usedIdx || (fc.usedIdx = decode(fc.used))) : null;
+  let zlo = Infinity, zhi = -Infinity;
+  const m = used ? used.length : nv;
+  for (let k = 0; k < m; k++) { const z = qz[used ? used[k] : k]; if (z < zlo) zlo = z; if (z > zhi) zhi = z; }
+  if (m === 0) zlo = zhi = 1.0;
+  const pad = 0.01 * (zhi - zlo) + 1e-6 * Math.max(Math.abs(zlo), Math.abs(zhi), 1.0);
+  const zn = zlo - pad, zf = zhi + pad;
+  const P = [[2 * sc / size, 0, 0, 2 * ox / size - 1], [0, 2 * sc / size, 0, 2 * oy / size - 1],
+             [0, 0, 2 / (zf - zn), -(zf + zn) / (zf - zn)], [0, 0, 0, 1]];
+  const M = [[...x, 0], [...y, 0], [...f, 0], [0, 0, 0, 1]];
+  const colMajor = A => [0, 1, 2, 3].flatMap(j => [0, 1, 2, 3].map(i => A[i][j]));
+  const PM = P.map(row => [0, 1, 2, 3].map(j => row[0] * M[0][j] + row[1] * M[1][j] + row[2] * M[2][j] + row[3] * M[3][j]));
+  const sm0 = { to_light: colMajor(M), proj: [sc, sc, ox, oy], bias: [ext / size, 1.0], world_clip: colMajor(PM),
+                zmap: [0.5 + 0.5 * P[2][3], 0.5 * P[2][2], 0.0], faces: null };
+  return { ...part, shadow: [sm0, ...d.shadow.slice(1)], shadow_map_size: d.shadow_map_size };
 }
 
 function program(gl, [vs, fs]) {
@@ -470,8 +534,17 @@ export function mount(el, api) {
   let frames = 0;
   async function update() {
     if (inflight) { queued = true; return; }
+    const part = d.light_frame ? lightFrame(d, d.light_frame, light) : null;
+    if (part) {  // computed here (lightFrame): no round trip
+      r.setLights(part);
+      r.draw(api.exposure());
+      frames += 1;
+      canvas.dataset.frames = String(frames);
+      info.textContent = `${r.W}×${r.H} WebGL2 · light frame in the page`;
+      return;
+    }
     inflight = true;
-    try {
+    try {  // a value lightFrame does not take: the host's frame (its error)
       const res = await api.frame({ ...light });
       if (res.info.error) { info.textContent = res.info.error; return; }
       r.setLights(res.info.scene);
@@ -513,6 +586,8 @@ export function mount(el, api) {
   canvas.dataset.frames = '1';
   canvas.gkFace = {
     async setLight(values) { Object.assign(light, values); drawBall(); await update(); return frames; },
+    lightFrame(values) { return lightFrame(d, d.light_frame, { ...light, ...values }); },  // tests: the page's part
+    async hostFrame(values) { const res = await api.frame({ ...light, ...values }); return res.info.error || res.info.scene; },
     readImage() { return b64(r.readImage()); },
     profile(n) { return r.profile(n); },
     program(k, s) { r.program(k, s); },

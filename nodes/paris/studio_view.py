@@ -6,9 +6,11 @@ the clamp) itself, with the programs of ``shaders/glsl/`` preprocessed for GLSL 
 ``nodes.paris.glscene.scene`` prepares from the node's inputs as the current run computed them
 (the mesh, detail texture, material and camera) — the same arrays and uniforms the opengl
 backend uses.  The first light is dragged on a sphere widget (direction, intensity, colour):
-each change asks :meth:`FaceView.frame` for that light's uniforms and shadow-map frame (host
-float64 maths, one implementation), then the browser re-renders the shadow map and the lighting
-pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
+each change makes it a directional light whose uniforms and shadow-map frame the page computes
+itself (studio_view.js lightFrame, float64, from :meth:`FaceView._frame_constants`: the
+formulas of :meth:`FaceView.frame`, which the page asks instead where a value is not valid, for
+its error; tests/test_studio_face.py compares the two), then re-renders the shadow map and the
+lighting pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
 """
 from __future__ import annotations
 
@@ -148,8 +150,28 @@ class FaceView(LiveView):
             d["eye_box"] = [int(x) for x in job["eye_box"]]
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
-                      "color": _vec(l0.color), "kind": l0.kind}
+                      "color": _vec(l0.color), "kind": l0.kind,
+                      # as given (metres): what frame() keeps of it when it makes light 0 directional
+                      "position": _vec(self._lights({})[0].position)}
+        d["light_frame"] = self._frame_constants()
         return d
+
+    def _frame_constants(self) -> dict:
+        """What the page needs to compute light 0's part itself when a drag makes it a
+        directional light (studio_view.js lightFrame: the same formulas as frame() here, i.e.
+        glscene.light_part → _shadow_setup → raster.shadow_frame, in float64): the drawn mesh's
+        float64 vertices (the light frame fits them all; its depth range the ones its faces
+        use), the camera's y axis (the map's up) and the shadow map's margin and size."""
+        import inspect
+
+        from .glscene import _shadow_setup
+
+        camera, _, V, F, _ = self._mesh_for_lights()
+        used = np.unique(F)
+        return {"V": _arr(V, "f8"), "used": None if len(used) == len(V) else _arr(used, "u4"),
+                "up": _vec(camera.rotation[1]),
+                "margin": float(inspect.signature(_shadow_setup).parameters["margin"].default),
+                "size": int(self.params.shadow_map_size)}
 
     def _mesh_for_lights(self):
         """(camera, drawn mesh, its vertices, faces), kept while the node's inputs are the same
