@@ -291,7 +291,7 @@ export function createFaceRenderer(canvas, d) {
 
   // The lighting pass without the eye highlights is drawn over rectangles that hold every
   // pixel the surface covers in its boxes (d.boxes: the mesh's screen box without the eyes'
-  // box, glscene.scene), from the g-buffer's coverage read back once: bands of BAND rows, each
+  // boxes, FaceView._eye_boxes), from the g-buffer's coverage read back once: bands of BAND rows, each
   // cut into runs of covered columns (gaps of up to GAP pixels bridged).  SwiftShader runs the
   // whole shader on every pixel drawn, covered or not (a branch is lane-masked), so this
   // shades ~117k pixels instead of the boxes' ~140k (face_relight left60 at 512²); the others
@@ -404,16 +404,19 @@ export function createFaceRenderer(canvas, d) {
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
     shadeUniforms(P.shade);
     rects.draw(P.shade, false);
-    eyesPass(P.shade_eyes, d.eye_box);
+    eyesPass(P.shade_eyes, d.eye_boxes);
   }
 
-  function eyesPass(prog, box) {  // the eyes' program over every pixel of their box (scissored)
-    if (!prog || !box || !(box[2] > 0 && box[3] > 0)) return;
+  function eyesPass(prog, boxes) {  // the eyes' program over every pixel of their boxes (scissored)
+    if (!prog || !boxes) return;
     shadeUniforms(prog);
     gl.enable(gl.SCISSOR_TEST);
-    gl.scissor(...box);
     gl.bindVertexArray(empty);
-    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    for (const box of boxes) {
+      if (!(box[2] > 0 && box[3] > 0)) continue;
+      gl.scissor(...box);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
     gl.disable(gl.SCISSOR_TEST);
   }
 
@@ -446,12 +449,12 @@ export function createFaceRenderer(canvas, d) {
     gl.uniform1f(s.u('display_scale'), scale);
     gl.uniform1i(s.u('view_h'), H);
     rects.draw(s, true);
-    const e = P.shade_eyes_display, b = d.eye_box;
-    if (e && b) {
+    const e = P.shade_eyes_display;
+    if (e && d.eye_boxes) {
       gl.useProgram(e);
       gl.uniform1f(e.u('display_scale'), scale);
       gl.uniform1i(e.u('view_h'), H);
-      eyesPass(e, [b[0], H - b[1] - b[3], b[2], b[3]]);
+      eyesPass(e, d.eye_boxes.map(b => [b[0], H - b[1] - b[3], b[2], b[3]]));
     }
   }
 

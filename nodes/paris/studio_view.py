@@ -114,7 +114,7 @@ class FaceView(LiveView):
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
              "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
              "ray_org": _mat(job["ray_org"]), "ray_dir": _mat(job["ray_dir"]),  # each pixel's world ray
-             "boxes": [[int(x) for x in b] for b in job["boxes"]],
+             "boxes": [[int(x) for x in b] for b in job["boxes"]],  # eyes: _eye_boxes
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
              **self._light_part(job, p, len(job["mesh_faces"]))}
         if det is not None:
@@ -143,11 +143,11 @@ class FaceView(LiveView):
         # float programs above are what readImage() reads back
         d["glsl"]["shade_display"] = [source("rects.vert", "es300", {**defs, "DISPLAY": 1}),
                                       source("shade.frag", "es300", {**defs, "DISPLAY": 1})]
-        if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
+        if eyes is not None:  # drawn over the eyes' boxes only (_eye_boxes)
             for k, extra in (("shade_eyes", {}), ("shade_eyes_display", {"DISPLAY": 1})):
                 d["glsl"][k] = [source("screen.vert", "es300", {**defs, "EYES": 1, **extra}),
                                 source("shade.frag", "es300", {**defs, "EYES": 1, **extra})]
-            d["eye_box"] = [int(x) for x in job["eye_box"]]
+            d["eye_boxes"], d["boxes"] = self._eye_boxes(job, cam)
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
                       "color": _vec(l0.color), "kind": l0.kind,
@@ -155,6 +155,23 @@ class FaceView(LiveView):
                       "position": _vec(self._lights({})[0].position)}
         d["light_frame"] = self._frame_constants()
         return d
+
+    @staticmethod
+    def _eye_boxes(job, camera):
+        """(the eyes' boxes, the mesh's boxes without them): one screen box per eye (its
+        cornea sphere's cube, glscene.screen_box; every pixel whose ray meets that sphere is
+        in it), not glscene's one box round both (213×64 pixels at face_relight left60 512²,
+        most of it the nose between the eyes), so the eyes' program (the heavier one) shades
+        less and the mesh's rectangles (coverRects) the rest."""
+        from .glscene import _eye_cube_corners, box_minus, screen_box
+
+        c, a, R = job["eyes"]
+        eyes = [screen_box(camera, camera.to_camera(_eye_cube_corners((np.asarray(c)[k:k + 1], a, R))))
+                for k in range(len(c))]
+        boxes = [job["bbox"]]
+        for e in eyes:
+            boxes = [q for b in boxes for q in box_minus(b, e)]
+        return [[int(x) for x in e] for e in eyes if e[2] > 0 and e[3] > 0], [[int(x) for x in b] for b in boxes]
 
     def _frame_constants(self) -> dict:
         """What the page needs to compute light 0's part itself when a drag makes it a
