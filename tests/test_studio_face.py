@@ -102,6 +102,12 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
                 print(f"  eye highlights: {int(eye.sum())} pixels, {bad_eye:.1%} of their values outside")
                 assert bad_eye <= 0.1, (d, bad_eye)
             imgs.append(got)
+            # the general programs (point-light code in) give the same image as the DIRECTIONAL
+            # ones the view draws with a directional light
+            gen = np.frombuffer(base64.b64decode(page.evaluate(
+                "() => document.querySelector('#view-body canvas.face-gl').gkFace.readImage(true)")),
+                np.float32).reshape(96, 96, 4)[..., :3]
+            assert np.abs(gen - got).max() <= 1e-6, np.abs(gen - got).max()
         assert np.abs(imgs[0] - imgs[1]).max() > 0.2  # the light moved the shading
         # a frame draws the lighting pass straight onto the canvas (shade.frag DISPLAY): the
         # same pixels as the float image through display.frag (sRGB, flipped), to 1/255

@@ -182,6 +182,13 @@ export function createFaceRenderer(canvas, d) {
   canvas.width = W; canvas.height = H;
   const P = {};
   for (const k of Object.keys(d.glsl)) P[k] = program(gl, d.glsl[k]);
+  // the lighting programs with DIRECTIONAL (compiled when first needed), while every light is
+  // directional; else the general ones
+  const PD = {};
+  const lit = k => {
+    if (!scene.lights.every(l => l.kind === 0) || !(d.glsl_directional || {})[k]) return P[k];
+    return PD[k] || (PD[k] = program(gl, d.glsl_directional[k]));
+  };
   const empty = gl.createVertexArray();
   const verts = decode(d.vertices), faces = decode(d.faces);
   const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
@@ -220,8 +227,11 @@ export function createFaceRenderer(canvas, d) {
     // light change uploads its matrix (and faces only where its frame drops some)
     const sms = scene.shadow, size = scene.shadow_map_size;
     const n = sms.length, cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
-    if (!atlas || atlas.W !== cols * size || atlas.H !== rows * size) atlas = depthTarget(cols * size, rows * size);
-    atlasTiles = sms.map((_, i) => [(i % cols) * size, Math.floor(i / cols) * size]);
+    // each tile: the size² map inside a border of 2 texels left at the clear's 1.0, which
+    // shade.frag SM_WINDOW's taps outside the map read (lit) instead of clamping each tap
+    const pitch = size + 4;
+    if (!atlas || atlas.W !== cols * pitch || atlas.H !== rows * pitch) atlas = depthTarget(cols * pitch, rows * pitch);
+    atlasTiles = sms.map((_, i) => [(i % cols) * pitch, Math.floor(i / cols) * pitch]);
     gl.bindFramebuffer(gl.FRAMEBUFFER, atlas.fbo);
     gl.viewport(0, 0, atlas.W, atlas.H);
     gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true);
@@ -234,7 +244,7 @@ export function createFaceRenderer(canvas, d) {
       let m = allFaces;
       if (sm.faces) shadowMeshes.push(m = mesh(gl, P.shadow, verts, decode(sm.faces), ['q', 'P', 'N']));
       gl.uniformMatrix4fv(P.shadow.u('proj'), false, sm.world_clip);
-      gl.viewport(atlasTiles[i][0], atlasTiles[i][1], size, size);
+      gl.viewport(atlasTiles[i][0] + 2, atlasTiles[i][1] + 2, size, size);
       m.draw();
     });
   }
@@ -394,7 +404,7 @@ export function createFaceRenderer(canvas, d) {
     }
   }
 
-  function lighting() {
+  function lighting(general = false) {  // general: the programs without DIRECTIONAL (tests)
     gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
@@ -402,9 +412,10 @@ export function createFaceRenderer(canvas, d) {
     // (coverRects) without the eye highlights, then the eyes' box with them; the rest is the
     // background as shade.frag would write it (glscene.background_out)
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
-    shadeUniforms(P.shade);
-    rects.draw(P.shade, false);
-    eyesPass(P.shade_eyes, d.eye_boxes);
+    const s = general ? P.shade : lit('shade');
+    shadeUniforms(s);
+    rects.draw(s, false);
+    eyesPass(general ? P.shade_eyes : lit('shade_eyes'), d.eye_boxes);
   }
 
   function eyesPass(prog, boxes) {  // the eyes' program over every pixel of their boxes (scissored)
@@ -444,12 +455,12 @@ export function createFaceRenderer(canvas, d) {
     gl.disable(gl.DEPTH_TEST);
     gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
     gl.clear(gl.COLOR_BUFFER_BIT);
-    const s = P.shade_display;
+    const s = lit('shade_display');
     shadeUniforms(s);
     gl.uniform1f(s.u('display_scale'), scale);
     gl.uniform1i(s.u('view_h'), H);
     rects.draw(s, true);
-    const e = P.shade_eyes_display;
+    const e = lit('shade_eyes_display');
     if (e && d.eye_boxes) {
       gl.useProgram(e);
       gl.uniform1f(e.u('display_scale'), scale);
@@ -470,9 +481,9 @@ export function createFaceRenderer(canvas, d) {
       lighting();
       display(exposure);
     },
-    readImage() {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
+    readImage(general = false) {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
       if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
-      lighting();
+      lighting(general);
       gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
       gl.readBuffer(gl.COLOR_ATTACHMENT0);
       const px = new Float32Array(W * H * 4);
@@ -591,7 +602,7 @@ export function mount(el, api) {
     async setLight(values) { Object.assign(light, values); drawBall(); await update(); return frames; },
     lightFrame(values) { return lightFrame(d, d.light_frame, { ...light, ...values }); },  // tests: the page's part
     async hostFrame(values) { const res = await api.frame({ ...light, ...values }); return res.info.error || res.info.scene; },
-    readImage() { return b64(r.readImage()); },
+    readImage(general = false) { return b64(r.readImage(general)); },
     profile(n) { return r.profile(n); },
     program(k, s) { r.program(k, s); },
     sync() { return r.sync(); },  // a 1-pixel read-back of the canvas: waits for the frame

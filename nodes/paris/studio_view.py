@@ -148,6 +148,14 @@ class FaceView(LiveView):
                 d["glsl"][k] = [source("screen.vert", "es300", {**defs, "EYES": 1, **extra}),
                                 source("shade.frag", "es300", {**defs, "EYES": 1, **extra})]
             d["eye_boxes"], d["boxes"] = self._eye_boxes(job, cam)
+        # the lighting programs again with DIRECTIONAL (lights.glsl: the point-light code left
+        # out), used while every light is directional (always once a drag has made light 0 one)
+        d["glsl_directional"] = {
+            k: [src if i == 0 else source("shade.frag", "es300", {**defs, "DIRECTIONAL": 1,
+                                                                  "EYES": int("eyes" in k),
+                                                                  "DISPLAY": int("display" in k)})
+                for i, src in enumerate(d["glsl"][k])]
+            for k in ("shade", "shade_display", "shade_eyes", "shade_eyes_display") if k in d["glsl"]}
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
                       "color": _vec(l0.color), "kind": l0.kind,

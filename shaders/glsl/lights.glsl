@@ -7,6 +7,16 @@
 #define N_LIGHTS 1
 #endif
 uniform int light_kind[N_LIGHTS];         // 0 directional, 1 point
+// DIRECTIONAL: every light is directional (the studio's programs once a drag has made light 0
+// one), so the point-light code is compiled out (SwiftShader runs both sides of a branch)
+#ifndef DIRECTIONAL
+#define DIRECTIONAL 0
+#endif
+#if DIRECTIONAL
+#define LIGHT_IS_DIRECTIONAL(i) true
+#else
+#define LIGHT_IS_DIRECTIONAL(i) (light_kind[i] == 0)
+#endif
 uniform vec3 light_dir[N_LIGHTS];         // unit, towards the light (directional)
 uniform vec3 light_pos[N_LIGHTS];         // world units (point)
 uniform vec3 light_rgb[N_LIGHTS];         // colour × intensity (point: radiant intensity)
@@ -15,7 +25,7 @@ uniform vec3 light_rgb[N_LIGHTS];         // colour × intensity (point: radiant
 // (render.light_vectors: point lights always fall off as 1/d²).
 vec3 towards_light(int i, vec3 X, out vec3 L) {
     L = light_rgb[i];
-    if (light_kind[i] == 0) return light_dir[i];
+    if (LIGHT_IS_DIRECTIONAL(i)) return light_dir[i];
     vec3 d = light_pos[i] - X;
     float dist = length(d);
     L = L / max(dot(d, d), 1e-24);
