@@ -15,8 +15,9 @@ Rows (median and best of ``--rounds`` rounds of ``--n`` frames; the two pages al
   requestAnimationFrame (capped at the display rate); the peer the same with its one pass.
   Ratio = face view / peer (goal of issue 14: ≤ 2×).
 * drag: ``canvas.gkFace.setLight({direction})`` n times along an arc, each waiting for the new
-  frame: the websocket round trip to the server (FaceView.frame: the light's uniforms and its
-  shadow-map frame on the host), the upload and the draw, synced; reported as fps (goal ≥ 30).
+  frame: the light's uniforms and shadow-map frame (computed in the page, studio_view.js
+  lightFrame, with FaceView.frame's formulas; before, a websocket round trip to the host's
+  FaceView.frame), the upload and the draw, synced; reported as fps (goal ≥ 30).
 
     .venv/bin/python benchmarks/bench_studio_webgl.py [--n 30] [--rounds 7] [--cache DIR]
 
@@ -205,7 +206,7 @@ def main():
                   f"peer one-light Phong: median {pm:.2f} ms, best {pb:.2f} ms")
             print(f"    ratio face/peer (per round): median {statistics.median(ratios):.2f}x, best {min(ratios):.2f}x"
                   f" (goal <= 2x); over all frames: median {fm / pm:.2f}x, best {fb / pb:.2f}x")
-            print(f"    drag (server frame + upload + draw + sync): median {dm:.2f} ms = {1e3 / dm:.1f} fps, "
+            print(f"    drag (light frame + upload + draw + sync): median {dm:.2f} ms = {1e3 / dm:.1f} fps, "
                   f"best {db:.2f} ms = {1e3 / db:.1f} fps (goal >= 30 fps)")
             if errors:
                 print("browser errors:", errors[:5])

@@ -28,6 +28,8 @@ PROGRAMS = [
     ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 0, "EYES": 0, "ORTHO": 1}),
     ("screen.vert", "display.frag", {}),
     ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 1, "SM_WINDOW": 1, "DISPLAY": 1}),
+    ("rects.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 0, "SM_WINDOW": 1, "DISPLAY": 1,
+                                  "DIRECTIONAL": 1}),
 ]
 
 

@@ -102,6 +102,12 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
                 print(f"  eye highlights: {int(eye.sum())} pixels, {bad_eye:.1%} of their values outside")
                 assert bad_eye <= 0.1, (d, bad_eye)
             imgs.append(got)
+            # the general programs (point-light code in) give the same image as the DIRECTIONAL
+            # ones the view draws with a directional light
+            gen = np.frombuffer(base64.b64decode(page.evaluate(
+                "() => document.querySelector('#view-body canvas.face-gl').gkFace.readImage(true)")),
+                np.float32).reshape(96, 96, 4)[..., :3]
+            assert np.abs(gen - got).max() <= 1e-6, np.abs(gen - got).max()
         assert np.abs(imgs[0] - imgs[1]).max() > 0.2  # the light moved the shading
         # a frame draws the lighting pass straight onto the canvas (shade.frag DISPLAY): the
         # same pixels as the float image through display.frag (sRGB, flipped), to 1/255
@@ -111,6 +117,57 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
         assert np.abs(one - two).max() <= 1 and np.abs(two[..., :3] - two[0, 0, :3]).max() > 50, \
             np.abs(one - two).max()
         assert not errors, errors
+    finally:
+        ctx.close()
+        b.close()
+        s.stop()
+
+
+def test_face_view_light_frame_in_page_equals_host(pw, tmp_path):
+    """A drag's light frame is computed in the page (studio_view.js lightFrame: the light's
+    uniforms and its shadow map's frame, float64) with FaceView.frame's formulas: the two agree
+    to float64 rounding for directions all round the face (grazing, from behind, near the
+    camera's y axis, where _look_frame changes its up vector) with colours and intensities; a
+    value the page does not take gives null there and the host's error."""
+    import json
+
+    g = tmp_path / "g.yaml"
+    g.write_text(GRAPH.replace("PARAMS", json.dumps({"shadow_map_size": 256, "eye_highlights": "off"})))
+    s = Server(g, tmp_path)
+    b, ctx = browser_page(pw, webgl=True)
+    face = "document.querySelector('#view-body canvas.face-gl').gkFace"
+    try:
+        page = ctx.new_page()
+        page.goto(s.url)
+        page.wait_for_selector("#dag g.node")
+        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
+        page.click('#dag g.node[data-node="render"]')
+        page.wait_for_selector("#view-body canvas.face-gl", timeout=60000)
+        wait_for(lambda: page.evaluate(f"() => !!{face}"), 30, "the WebGL view")
+        cases = [{"direction": [0.4, -0.5, -0.75]}, {"direction": [-0.6, 0.3, -0.75], "intensity": 2.5},
+                 {"direction": [1.0, 0.0, 0.0], "color": [0.2, 0.5, 1.0]}, {"direction": [0.0, 0.0, 1.0]},
+                 {"direction": [0.01, 0.999, -0.02], "intensity": 0.0}, {"direction": [0.05, -3.0, 0.1]},
+                 {"direction": [3.0, 4.0, -12.0], "intensity": 1.7, "color": [1.0, 0.9, 0.8]}]
+        for v in cases:
+            mine = page.evaluate(f"v => {face}.lightFrame(v)", v)
+            host = page.evaluate(f"v => {face}.hostFrame(v)", v)
+            assert isinstance(host, dict) and mine is not None, (v, host)
+            assert mine.keys() == host.keys(), (mine.keys(), host.keys())
+            assert len(mine["lights"]) == len(host["lights"]) and len(mine["shadow"]) == len(host["shadow"])
+            assert mine["shadow_map_size"] == host["shadow_map_size"]
+            for a, h in zip(mine["lights"] + mine["shadow"], host["lights"] + host["shadow"]):
+                assert a.keys() == h.keys(), (a.keys(), h.keys())
+                for k in a:
+                    if h[k] is None or isinstance(h[k], (int, str)):
+                        assert a[k] == h[k], (v, k, a[k], h[k])
+                        continue
+                    x, y = np.asarray(a[k], np.float64), np.asarray(h[k], np.float64)
+                    assert x.shape == y.shape and np.allclose(x, y, rtol=1e-12, atol=1e-12 * max(np.abs(y).max(), 1)), \
+                        (v, k, x, y)
+        for bad in ({"direction": [0.0, 0.0, 0.0]}, {"direction": [1.0, "x", 0.0]}, {"intensity": -1.0}):
+            assert page.evaluate(f"v => {face}.lightFrame(v)", bad) is None, bad
+        # (the host's own refusal, as a drag with such a value would show it)
+        assert "not a direction" in page.evaluate(f"v => {face}.hostFrame(v)", {"direction": [0.0, 0.0, 0.0]})
     finally:
         ctx.close()
         b.close()

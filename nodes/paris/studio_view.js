@@ -15,7 +15,71 @@ function decode(a) {
   const bin = atob(a.b64);
   const u8 = new Uint8Array(bin.length);
   for (let i = 0; i < bin.length; i++) u8[i] = bin.charCodeAt(i);
-  return a.dtype === 'u4' ? new Uint32Array(u8.buffer) : new Float32Array(u8.buffer);
+  return a.dtype === 'u4' ? new Uint32Array(u8.buffer) : a.dtype === 'f8' ? new Float64Array(u8.buffer) : new Float32Array(u8.buffer);
+}
+
+// Light 0's part of the scene (FaceView._light_part's shape: lights' uniforms, shadow frames)
+// for ``light`` = {direction, intensity, color} made directional, as FaceView.frame computes
+// it on the host (_lights, render.world_lights, glscene.light_part → _shadow_setup →
+// raster.shadow_frame / _look_frame, _view_geometry, _set_depth_range): the same formulas in
+// float64 over the constants of FaceView._frame_constants (``fc``), so a drag needs no round
+// trip; the other lights' parts are the view's (``d``).  null where a value is not valid
+// (the host then says why).  tests/test_studio_face.py compares it with the host's.
+function lightFrame(d, fc, light) {
+  const norm = v => Math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const dir = light.direction, col = light.color, I = light.intensity;
+  if (!Array.isArray(dir) || dir.length !== 3 || !Array.isArray(col) || col.length !== 3) return null;
+  if (![...dir, ...col, I].every(x => typeof x === 'number' && Number.isFinite(x)) || I < 0) return null;
+  const n0 = norm(dir);
+  if (!(n0 > 0)) return null;
+  const d1 = dir.map(x => x / n0);  // FaceView._lights
+  const n1 = norm(d1);
+  const l0 = { kind: 0, dir: d1.map(x => x / n1), pos: d.light.position.slice(), rgb: col.map(c => c * I) };
+  const part = { lights: [l0, ...d.lights.slice(1)] };
+  if (!d.shadow) return part;
+  // raster._look_frame(−d1, up)
+  const fw = d1.map(x => -x), nf = norm(fw), f = fw.map(x => x / nf);
+  let up = fc.up;
+  if (norm(cross(up, f)) < 0.1 * norm(up)) up = null;
+  if (!up) up = Math.abs(f[1]) < 0.9 ? [0, 1, 0] : [1, 0, 0];
+  let x = cross(up, f);
+  const nx = norm(x);
+  x = x.map(v => v / nx);
+  const y = cross(f, x);
+  // raster.shadow_frame (directional): q = V Rᵀ, the texel frame fitted to all vertices
+  const V = fc.V64 || (fc.V64 = decode(fc.V)), nv = V.length / 3;
+  let lo0 = Infinity, lo1 = Infinity, hi0 = -Infinity, hi1 = -Infinity;
+  const qz = new Float64Array(nv);
+  for (let i = 0; i < nv; i++) {
+    const a = V[3 * i], b = V[3 * i + 1], c = V[3 * i + 2];
+    const q0 = a * x[0] + b * x[1] + c * x[2], q1 = a * y[0] + b * y[1] + c * y[2];
+    qz[i] = a * f[0] + b * f[1] + c * f[2];
+    if (!(Number.isFinite(q0) && Number.isFinite(q1) && Number.isFinite(qz[i]))) return null;
+    if (q0 < lo0) lo0 = q0; if (q0 > hi0) hi0 = q0;
+    if (q1 < lo1) lo1 = q1; if (q1 > hi1) hi1 = q1;
+  }
+  const size = fc.size;
+  const ext = Math.max(hi0 - lo0, hi1 - lo1) * (1 + 2 * fc.margin) || 1.0;
+  const sc = size / ext;
+  const ox = size / 2 - (lo0 + hi0) / 2 * sc, oy = size / 2 - (lo1 + hi1) / 2 * sc;
+  // glscene._shadow_setup: the orthographic clip matrix; _view_geometry → _set_depth_range
+  // over the vertices the faces use
+  const used = fc.used ? (fc.usedIdx || (fc.usedIdx = decode(fc.used))) : null;
+  let zlo = Infinity, zhi = -Infinity;
+  const m = used ? used.length : nv;
+  for (let k = 0; k < m; k++) { const z = qz[used ? used[k] : k]; if (z < zlo) zlo = z; if (z > zhi) zhi = z; }
+  if (m === 0) zlo = zhi = 1.0;
+  const pad = 0.01 * (zhi - zlo) + 1e-6 * Math.max(Math.abs(zlo), Math.abs(zhi), 1.0);
+  const zn = zlo - pad, zf = zhi + pad;
+  const P = [[2 * sc / size, 0, 0, 2 * ox / size - 1], [0, 2 * sc / size, 0, 2 * oy / size - 1],
+             [0, 0, 2 / (zf - zn), -(zf + zn) / (zf - zn)], [0, 0, 0, 1]];
+  const M = [[...x, 0], [...y, 0], [...f, 0], [0, 0, 0, 1]];
+  const colMajor = A => [0, 1, 2, 3].flatMap(j => [0, 1, 2, 3].map(i => A[i][j]));
+  const PM = P.map(row => [0, 1, 2, 3].map(j => row[0] * M[0][j] + row[1] * M[1][j] + row[2] * M[2][j] + row[3] * M[3][j]));
+  const sm0 = { to_light: colMajor(M), proj: [sc, sc, ox, oy], bias: [ext / size, 1.0], world_clip: colMajor(PM),
+                zmap: [0.5 + 0.5 * P[2][3], 0.5 * P[2][2], 0.0], faces: null };
+  return { ...part, shadow: [sm0, ...d.shadow.slice(1)], shadow_map_size: d.shadow_map_size };
 }
 
 function program(gl, [vs, fs]) {
@@ -118,6 +182,13 @@ export function createFaceRenderer(canvas, d) {
   canvas.width = W; canvas.height = H;
   const P = {};
   for (const k of Object.keys(d.glsl)) P[k] = program(gl, d.glsl[k]);
+  // the lighting programs with DIRECTIONAL (compiled when first needed), while every light is
+  // directional; else the general ones
+  const PD = {};
+  const lit = k => {
+    if (!scene.lights.every(l => l.kind === 0) || !(d.glsl_directional || {})[k]) return P[k];
+    return PD[k] || (PD[k] = program(gl, d.glsl_directional[k]));
+  };
   const empty = gl.createVertexArray();
   const verts = decode(d.vertices), faces = decode(d.faces);
   const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
@@ -156,8 +227,11 @@ export function createFaceRenderer(canvas, d) {
     // light change uploads its matrix (and faces only where its frame drops some)
     const sms = scene.shadow, size = scene.shadow_map_size;
     const n = sms.length, cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
-    if (!atlas || atlas.W !== cols * size || atlas.H !== rows * size) atlas = depthTarget(cols * size, rows * size);
-    atlasTiles = sms.map((_, i) => [(i % cols) * size, Math.floor(i / cols) * size]);
+    // each tile: the size² map inside a border of 2 texels left at the clear's 1.0, which
+    // shade.frag SM_WINDOW's taps outside the map read (lit) instead of clamping each tap
+    const pitch = size + 4;
+    if (!atlas || atlas.W !== cols * pitch || atlas.H !== rows * pitch) atlas = depthTarget(cols * pitch, rows * pitch);
+    atlasTiles = sms.map((_, i) => [(i % cols) * pitch, Math.floor(i / cols) * pitch]);
     gl.bindFramebuffer(gl.FRAMEBUFFER, atlas.fbo);
     gl.viewport(0, 0, atlas.W, atlas.H);
     gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true);
@@ -170,7 +244,7 @@ export function createFaceRenderer(canvas, d) {
       let m = allFaces;
       if (sm.faces) shadowMeshes.push(m = mesh(gl, P.shadow, verts, decode(sm.faces), ['q', 'P', 'N']));
       gl.uniformMatrix4fv(P.shadow.u('proj'), false, sm.world_clip);
-      gl.viewport(atlasTiles[i][0], atlasTiles[i][1], size, size);
+      gl.viewport(atlasTiles[i][0] + 2, atlasTiles[i][1] + 2, size, size);
       m.draw();
     });
   }
@@ -222,6 +296,72 @@ export function createFaceRenderer(canvas, d) {
     mainG.draw();
     gl.depthFunc(gl.LESS);
     gbufDone = true;
+    coverRects();
+  }
+
+  // The lighting pass without the eye highlights is drawn over rectangles that hold every
+  // pixel the surface covers in its boxes (d.boxes: the mesh's screen box without the eyes'
+  // boxes, FaceView._eye_boxes), from the g-buffer's coverage read back once: bands of BAND rows, each
+  // cut into runs of covered columns (gaps of up to GAP pixels bridged).  SwiftShader runs the
+  // whole shader on every pixel drawn, covered or not (a branch is lane-masked), so this
+  // shades ~117k pixels instead of the boxes' ~140k (face_relight left60 at 512²); the others
+  // keep the background the target was cleared to, what shade.frag writes there
+  // (glscene.background_out).  (2-row bands: 113k pixels but slower, the thin triangles cost.)
+  let BAND = 16, GAP = 8;
+  let rects = null;
+  function coverRects() {
+    const list = [];  // [x, y, w, h], window (image) rows
+    gl.bindFramebuffer(gl.FRAMEBUFFER, gbuf.fbo);
+    gl.readBuffer(gl.COLOR_ATTACHMENT1);  // o_normal: w = 1 where covered (shade.frag's test)
+    for (const box of d.boxes) {
+      if (!box || !(box[2] > 0 && box[3] > 0)) continue;
+      const [bx, by, bw, bh] = box;
+      const cov = new Float32Array(bw * bh * 4);
+      gl.readPixels(bx, by, bw, bh, gl.RGBA, gl.FLOAT, cov);
+      const col = new Uint8Array(bw);
+      for (let y0 = by; y0 < by + bh; y0 += BAND) {
+        const y1 = Math.min(y0 + BAND, by + bh);
+        col.fill(0);
+        for (let y = y0; y < y1; y++) {
+          const row = (y - by) * bw * 4;
+          for (let x = 0; x < bw; x++) if (cov[row + 4 * x + 3] > 0.5) col[x] = 1;
+        }
+        for (let x = 0; x < bw;) {
+          if (!col[x]) { x++; continue; }
+          let last = x;
+          for (let e = x + 1; e < bw && e - last <= GAP + 1; e++) if (col[e]) last = e;
+          list.push([bx + x, y0, last + 1 - x, y1 - y0]);
+          x = last + 1;
+        }
+      }
+    }
+    gl.readBuffer(gl.COLOR_ATTACHMENT0);
+    const v = new Float32Array(list.length * 12);
+    list.forEach(([x, y, w, h], i) => v.set([x, y, x + w, y, x + w, y + h, x, y, x + w, y + h, x, y + h], 12 * i));
+    const flipped = v.map((c, i) => (i & 1 ? H - c : c));  // canvas rows (DISPLAY): y → H − y
+    if (rects) rects.release();
+    const bufs = [v, flipped].map(a => { const b = gl.createBuffer(); gl.bindBuffer(gl.ARRAY_BUFFER, b); gl.bufferData(gl.ARRAY_BUFFER, a, gl.STATIC_DRAW); return b; });
+    const vaos = new Map();  // (program, rows) → its vertex array over that buffer
+    rects = {
+      n: list.length, pixels: list.reduce((a, r) => a + r[2] * r[3], 0),
+      draw(prog, canvasRows) {
+        const key = canvasRows ? 1 : 0;
+        let m = vaos.get(prog);
+        if (!m) vaos.set(prog, m = []);
+        if (!m[key]) {
+          m[key] = gl.createVertexArray();
+          gl.bindVertexArray(m[key]);
+          gl.bindBuffer(gl.ARRAY_BUFFER, bufs[key]);
+          const loc = gl.getAttribLocation(prog, 'corner');
+          gl.enableVertexAttribArray(loc);
+          gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 8, 0);
+        }
+        gl.bindVertexArray(m[key]);
+        gl.uniform2f(prog.u('view_size'), W, H);
+        gl.drawArrays(gl.TRIANGLES, 0, list.length * 6);
+      },
+      release() { for (const m of vaos.values()) m.forEach(x => x && gl.deleteVertexArray(x)); bufs.forEach(b => gl.deleteBuffer(b)); },
+    };
   }
 
   function shadeUniforms(s) {
@@ -264,25 +404,29 @@ export function createFaceRenderer(canvas, d) {
     }
   }
 
-  function lighting() {
+  function lighting(general = false) {  // general: the programs without DIRECTIONAL (tests)
     gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
-    // only the boxes where a surface or an eye can be are shaded (glscene.scene): the mesh's
-    // without the eye highlights, then the eyes' with them; the rest is the background as
-    // shade.frag would write it (glscene.background_out)
+    // only the pixels where a surface or an eye can be are shaded: the surface's rectangles
+    // (coverRects) without the eye highlights, then the eyes' box with them; the rest is the
+    // background as shade.frag would write it (glscene.background_out)
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
+    const s = general ? P.shade : lit('shade');
+    shadeUniforms(s);
+    rects.draw(s, false);
+    eyesPass(general ? P.shade_eyes : lit('shade_eyes'), d.eye_boxes);
+  }
+
+  function eyesPass(prog, boxes) {  // the eyes' program over every pixel of their boxes (scissored)
+    if (!prog || !boxes) return;
+    shadeUniforms(prog);
     gl.enable(gl.SCISSOR_TEST);
     gl.bindVertexArray(empty);
-    // (the eyes' program shades every pixel of its box: the other one skips it, d.boxes)
-    for (const [prog, boxes] of [[P.shade, d.boxes], [P.shade_eyes, [d.eye_box]]]) {
-      if (!prog) continue;
-      shadeUniforms(prog);
-      for (const box of boxes) {
-        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
-        gl.scissor(...box);
-        gl.drawArrays(gl.TRIANGLES, 0, 3);
-      }
+    for (const box of boxes) {
+      if (!(box[2] > 0 && box[3] > 0)) continue;
+      gl.scissor(...box);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
     }
     gl.disable(gl.SCISSOR_TEST);
   }
@@ -303,28 +447,26 @@ export function createFaceRenderer(canvas, d) {
 
   function lightingDisplay(exposure) {
     // a frame: the lighting pass straight onto the canvas (shade.frag DISPLAY: the same maths,
-    // then display.frag's encoding), over the same boxes flipped to canvas rows; elsewhere the
-    // background output as the display pass would show it
+    // then display.frag's encoding), over the same rectangles and box flipped to canvas rows;
+    // elsewhere the background output as the display pass would show it
     const scale = Math.pow(2, exposure);
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
     gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
     gl.clear(gl.COLOR_BUFFER_BIT);
-    gl.enable(gl.SCISSOR_TEST);
-    gl.bindVertexArray(empty);
-    for (const [prog, boxes] of [[P.shade_display, d.boxes], [P.shade_eyes_display, [d.eye_box]]]) {
-      if (!prog) continue;
-      shadeUniforms(prog);
-      gl.uniform1f(prog.u('display_scale'), scale);
-      gl.uniform1i(prog.u('view_h'), H);
-      for (const box of boxes) {
-        if (!box || !(box[2] > 0 && box[3] > 0)) continue;
-        gl.scissor(box[0], H - box[1] - box[3], box[2], box[3]);
-        gl.drawArrays(gl.TRIANGLES, 0, 3);
-      }
+    const s = lit('shade_display');
+    shadeUniforms(s);
+    gl.uniform1f(s.u('display_scale'), scale);
+    gl.uniform1i(s.u('view_h'), H);
+    rects.draw(s, true);
+    const e = lit('shade_eyes_display');
+    if (e && d.eye_boxes) {
+      gl.useProgram(e);
+      gl.uniform1f(e.u('display_scale'), scale);
+      gl.uniform1i(e.u('view_h'), H);
+      eyesPass(e, d.eye_boxes.map(b => [b[0], H - b[1] - b[3], b[2], b[3]]));
     }
-    gl.disable(gl.SCISSOR_TEST);
   }
 
   return {
@@ -339,9 +481,9 @@ export function createFaceRenderer(canvas, d) {
       lighting();
       display(exposure);
     },
-    readImage() {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
+    readImage(general = false) {  // RGBA float32 of the lighting pass, image row 0 first (as the moderngl backend)
       if (!gbufDone) { surface(); if (scene.shadow && !atlas) shadowAtlas(); }
-      lighting();
+      lighting(general);
       gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
       gl.readBuffer(gl.COLOR_ATTACHMENT0);
       const px = new Float32Array(W * H * 4);
@@ -406,8 +548,17 @@ export function mount(el, api) {
   let frames = 0;
   async function update() {
     if (inflight) { queued = true; return; }
+    const part = d.light_frame ? lightFrame(d, d.light_frame, light) : null;
+    if (part) {  // computed here (lightFrame): no round trip
+      r.setLights(part);
+      r.draw(api.exposure());
+      frames += 1;
+      canvas.dataset.frames = String(frames);
+      info.textContent = `${r.W}×${r.H} WebGL2 · light frame in the page`;
+      return;
+    }
     inflight = true;
-    try {
+    try {  // a value lightFrame does not take: the host's frame (its error)
       const res = await api.frame({ ...light });
       if (res.info.error) { info.textContent = res.info.error; return; }
       r.setLights(res.info.scene);
@@ -449,7 +600,9 @@ export function mount(el, api) {
   canvas.dataset.frames = '1';
   canvas.gkFace = {
     async setLight(values) { Object.assign(light, values); drawBall(); await update(); return frames; },
-    readImage() { return b64(r.readImage()); },
+    lightFrame(values) { return lightFrame(d, d.light_frame, { ...light, ...values }); },  // tests: the page's part
+    async hostFrame(values) { const res = await api.frame({ ...light, ...values }); return res.info.error || res.info.scene; },
+    readImage(general = false) { return b64(r.readImage(general)); },
     profile(n) { return r.profile(n); },
     program(k, s) { r.program(k, s); },
     sync() { return r.sync(); },  // a 1-pixel read-back of the canvas: waits for the frame

@@ -6,9 +6,11 @@ the clamp) itself, with the programs of ``shaders/glsl/`` preprocessed for GLSL 
 ``nodes.paris.glscene.scene`` prepares from the node's inputs as the current run computed them
 (the mesh, detail texture, material and camera) — the same arrays and uniforms the opengl
 backend uses.  The first light is dragged on a sphere widget (direction, intensity, colour):
-each change asks :meth:`FaceView.frame` for that light's uniforms and shadow-map frame (host
-float64 maths, one implementation), then the browser re-renders the shadow map and the lighting
-pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
+each change makes it a directional light whose uniforms and shadow-map frame the page computes
+itself (studio_view.js lightFrame, float64, from :meth:`FaceView._frame_constants`: the
+formulas of :meth:`FaceView.frame`, which the page asks instead where a value is not valid, for
+its error; tests/test_studio_face.py compares the two), then re-renders the shadow map and the
+lighting pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
 """
 from __future__ import annotations
 
@@ -112,7 +114,7 @@ class FaceView(LiveView):
              "background": _vec(p.background), "exposure": float(p.exposure), "clamp": bool(p.clamp),
              "bbox": [int(x) for x in job["bbox"]], "bg_out": _vec(job["bg_out"]),
              "ray_org": _mat(job["ray_org"]), "ray_dir": _mat(job["ray_dir"]),  # each pixel's world ray
-             "boxes": [[int(x) for x in b] for b in job["boxes"]],
+             "boxes": [[int(x) for x in b] for b in job["boxes"]],  # eyes: _eye_boxes
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
              **self._light_part(job, p, len(job["mesh_faces"]))}
         if det is not None:
@@ -133,22 +135,68 @@ class FaceView(LiveView):
             "depth": [source("depth.vert", "es300"), source("depth.frag", "es300")],
             "shadow": [source("depth.vert", "es300", {"WORLD": 1}), source("depth.frag", "es300", {"DEPTH_ONLY": 1})],
             "gbuffer": [source("gbuffer.vert", "es300", gdefs), source("gbuffer.frag", "es300", gdefs)],
-            "shade": [source("screen.vert", "es300", defs), source("shade.frag", "es300", defs)],
+            # the lighting pass over the covered pixels' rectangles (studio_view.js coverRects)
+            "shade": [source("rects.vert", "es300", defs), source("shade.frag", "es300", defs)],
             "display": [source("screen.vert", "es300"), source("display.frag", "es300")],
         }
         # the view's frames: the same lighting pass straight onto the canvas (DISPLAY); the
         # float programs above are what readImage() reads back
-        d["glsl"]["shade_display"] = [source("screen.vert", "es300", {**defs, "DISPLAY": 1}),
+        d["glsl"]["shade_display"] = [source("rects.vert", "es300", {**defs, "DISPLAY": 1}),
                                       source("shade.frag", "es300", {**defs, "DISPLAY": 1})]
-        if eyes is not None:  # drawn over the eyes' box only (glscene.scene)
+        if eyes is not None:  # drawn over the eyes' boxes only (_eye_boxes)
             for k, extra in (("shade_eyes", {}), ("shade_eyes_display", {"DISPLAY": 1})):
                 d["glsl"][k] = [source("screen.vert", "es300", {**defs, "EYES": 1, **extra}),
                                 source("shade.frag", "es300", {**defs, "EYES": 1, **extra})]
-            d["eye_box"] = [int(x) for x in job["eye_box"]]
+            d["eye_boxes"], d["boxes"] = self._eye_boxes(job, cam)
+        # the lighting programs again with DIRECTIONAL (lights.glsl: the point-light code left
+        # out), used while every light is directional (always once a drag has made light 0 one)
+        d["glsl_directional"] = {
+            k: [src if i == 0 else source("shade.frag", "es300", {**defs, "DIRECTIONAL": 1,
+                                                                  "EYES": int("eyes" in k),
+                                                                  "DISPLAY": int("display" in k)})
+                for i, src in enumerate(d["glsl"][k])]
+            for k in ("shade", "shade_display", "shade_eyes", "shade_eyes_display") if k in d["glsl"]}
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
-                      "color": _vec(l0.color), "kind": l0.kind}
+                      "color": _vec(l0.color), "kind": l0.kind,
+                      # as given (metres): what frame() keeps of it when it makes light 0 directional
+                      "position": _vec(self._lights({})[0].position)}
+        d["light_frame"] = self._frame_constants()
         return d
+
+    @staticmethod
+    def _eye_boxes(job, camera):
+        """(the eyes' boxes, the mesh's boxes without them): one screen box per eye (its
+        cornea sphere's cube, glscene.screen_box; every pixel whose ray meets that sphere is
+        in it), not glscene's one box round both (213×64 pixels at face_relight left60 512²,
+        most of it the nose between the eyes), so the eyes' program (the heavier one) shades
+        less and the mesh's rectangles (coverRects) the rest."""
+        from .glscene import _eye_cube_corners, box_minus, screen_box
+
+        c, a, R = job["eyes"]
+        eyes = [screen_box(camera, camera.to_camera(_eye_cube_corners((np.asarray(c)[k:k + 1], a, R))))
+                for k in range(len(c))]
+        boxes = [job["bbox"]]
+        for e in eyes:
+            boxes = [q for b in boxes for q in box_minus(b, e)]
+        return [[int(x) for x in e] for e in eyes if e[2] > 0 and e[3] > 0], [[int(x) for x in b] for b in boxes]
+
+    def _frame_constants(self) -> dict:
+        """What the page needs to compute light 0's part itself when a drag makes it a
+        directional light (studio_view.js lightFrame: the same formulas as frame() here, i.e.
+        glscene.light_part → _shadow_setup → raster.shadow_frame, in float64): the drawn mesh's
+        float64 vertices (the light frame fits them all; its depth range the ones its faces
+        use), the camera's y axis (the map's up) and the shadow map's margin and size."""
+        import inspect
+
+        from .glscene import _shadow_setup
+
+        camera, _, V, F, _ = self._mesh_for_lights()
+        used = np.unique(F)
+        return {"V": _arr(V, "f8"), "used": None if len(used) == len(V) else _arr(used, "u4"),
+                "up": _vec(camera.rotation[1]),
+                "margin": float(inspect.signature(_shadow_setup).parameters["margin"].default),
+                "size": int(self.params.shadow_map_size)}
 
     def _mesh_for_lights(self):
         """(camera, drawn mesh, its vertices, faces), kept while the node's inputs are the same

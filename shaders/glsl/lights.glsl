@@ -6,10 +6,17 @@
 #ifndef N_LIGHTS
 #define N_LIGHTS 1
 #endif
-#ifndef DIRECTIONAL
-#define DIRECTIONAL 0                     // 1: every light is directional (light_kind all 0)
-#endif
 uniform int light_kind[N_LIGHTS];         // 0 directional, 1 point
+// DIRECTIONAL: every light is directional (the studio's programs once a drag has made light 0
+// one), so the point-light code is compiled out (SwiftShader runs both sides of a branch)
+#ifndef DIRECTIONAL
+#define DIRECTIONAL 0
+#endif
+#if DIRECTIONAL
+#define LIGHT_IS_DIRECTIONAL(i) true
+#else
+#define LIGHT_IS_DIRECTIONAL(i) (light_kind[i] == 0)
+#endif
 uniform vec3 light_dir[N_LIGHTS];         // unit, towards the light (directional)
 uniform vec3 light_pos[N_LIGHTS];         // world units (point)
 uniform vec3 light_rgb[N_LIGHTS];         // colour × intensity (point: radiant intensity)
@@ -18,15 +25,11 @@ uniform vec3 light_rgb[N_LIGHTS];         // colour × intensity (point: radiant
 // (render.light_vectors: point lights always fall off as 1/d²).
 vec3 towards_light(int i, vec3 X, out vec3 L) {
     L = light_rgb[i];
-#if DIRECTIONAL
-    return light_dir[i];
-#else
-    if (light_kind[i] == 0) return light_dir[i];
+    if (LIGHT_IS_DIRECTIONAL(i)) return light_dir[i];
     vec3 d = light_pos[i] - X;
     float dist = length(d);
     L = L / max(dot(d, d), 1e-24);
     return dist > 0.0 ? d / dist : vec3(0.0);
-#endif
 }
 
 // phong.lobes' specular factor: (r·v)^s with r = 2(n·l)n − l, 0 unless n·l > 0 and r·v > 0.

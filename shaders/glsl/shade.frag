@@ -101,22 +101,21 @@ uniform vec2 sm_bias[N_LIGHTS];           // (texel, reference distance)
 float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     vec4 q = sm_to_light[i] * vec4(P, 1.0);
     vec2 xy;
-#if DIRECTIONAL
-    xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
-#else
-    if (light_kind[i] == 0) xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
+    if (LIGHT_IS_DIRECTIONAL(i)) xy = q.xy * sm_proj[i].xy + sm_proj[i].zw;
     else xy = q.xy / q.z * sm_proj[i].xy + sm_proj[i].zw;
-#endif
     float cosv = clamp(abs(dot(n, ldir)), 0.05, 1.0);
     float b = 1.5 * sm_bias[i].x * min(sqrt(1.0 - cosv * cosv) / cosv + 1.0, 10.0);
-#if !DIRECTIONAL
-    if (light_kind[i] == 1) b = b * max(q.z, 1e-9) / sm_bias[i].y;
-#endif
+    if (!LIGHT_IS_DIRECTIONAL(i)) b = b * max(q.z, 1e-9) / sm_bias[i].y;
     float db = q.z - b;
 #if SM_WINDOW
     vec3 zm = sm_zmap[i];
-    // a point light's db ≤ 0 is nearer than any surface: lit (as the light-frame test)
-    db = (zm.z != 0.0 && db <= 0.0) ? -1.0 : zm.x + zm.y * db + (zm.z != 0.0 ? zm.z / db : 0.0);
+    // a point light's db ≤ 0 is nearer than any surface: lit (as the light-frame test); at
+    // most 1 (farther than the depth range: lit over an empty texel, as the reference's inf)
+#if DIRECTIONAL
+    db = min(zm.x + zm.y * db, 1.0);          // zm.z = 0
+#else
+    db = min((zm.z != 0.0 && db <= 0.0) ? -1.0 : zm.x + zm.y * db + (zm.z != 0.0 ? zm.z / db : 0.0), 1.0);
+#endif
 #endif
     int ix = int(clamp(floor(xy.x), -1.0, float(sm_size)));
     int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
@@ -125,10 +124,17 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     // the 3×3 taps written out (no loop: SwiftShader runs loops lane-masked), rows dy = −1, 0,
     // 1, each dx = −1, 0, 1 (the reference's order); outside the map: lit (as the reference);
     // clamped fetch + select, no branch
+#if SM_WINDOW
+    // each tile has a border of 2 texels of 1.0 (studio_view.js shadowAtlas), ≥ db: a tap
+    // outside the map reads it and is lit, as below, with no clamp
+    ivec2 base = tile + 2 + ivec2(ix, iy);
+#define SM_TAP(DX, DY) acc += (db <= texelFetch(shadow_maps, base + ivec2(DX, DY), 0).r) ? 1.0 : 0.0;
+#else
 #define SM_TAP(DX, DY) { \
         ivec2 at = ivec2(ix + DX, iy + DY); \
         ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1)); \
         acc += (at != c || db <= texelFetch(shadow_maps, tile + c, 0).r) ? 1.0 : 0.0; }
+#endif
     SM_TAP(-1, -1) SM_TAP(0, -1) SM_TAP(1, -1)
     SM_TAP(-1, 0)  SM_TAP(0, 0)  SM_TAP(1, 0)
     SM_TAP(-1, 1)  SM_TAP(0, 1)  SM_TAP(1, 1)
