@@ -111,11 +111,13 @@ def bench_overhead():
             def cold(kind):
                 loc = d / f"{kind}-{name}-{next(counter)}"
                 store = Store(loc, sync=(kind == "durable")).open()
+                settle()
                 t = time.perf_counter()
                 run_local(Session(graph, reg, store), target)
                 return time.perf_counter() - t
 
             def floor():
+                settle()
                 return fs_floor(d / f"floor-{name}-{next(counter)}", N)
 
             # one repetition = dask.get (median of 3, just before), then each graphkit variant and
@@ -157,6 +159,13 @@ def bench_overhead():
             print(f"  {name:5} {'cold durable minus the floor (engine alone)':44} best ×{min(above):6.2f} dask"
                   f"                 median ×{statistics.median(above):6.2f} dask")
     return rows
+
+
+def settle() -> None:
+    """Before each timed variant (not timed): write back what this benchmark's earlier variants
+    left dirty.  Without it a durable run's syncfs also writes back the 1000 files of the no-sync
+    run (or the floor) just before it, and charges them to the durable run."""
+    os.sync()
 
 
 def fs_floor(root: Path, n: int) -> float:
