@@ -555,3 +555,16 @@ def test_gc_budget_is_exact(store, tmp_path):
     assert info["bytes"] == size(c / "runs" / "new.json") + size(c / "filememo.json")
     info = store.gc(0)
     assert store.size() == 0 and info["bytes"] == 0 and not (c / "filememo.json").exists()
+
+
+def test_the_kept_json_encoder_writes_what_json_writes():
+    """Records and object headers go through store._json_encode (json's C encoder, kept between
+    calls); its text must be json.dumps(sort_keys=True, separators=(",", ":")) exactly."""
+    from graphkit import store as store_mod
+
+    cases = [{"key": "ab" * 16, "node": "n", "outputs": {"out": {"digest": "cd" * 16, "type": "Array"}},
+              "parts": {"params": {"é": [1, 2.5, None, True, float("nan"), float("-inf"), 10**30, "q\"\\\n"]},
+                        "inputs": {"b": ["x", "y"], "a": "z"}}, "seconds": 1e-06},
+             {"z": {}, "a": [], "m": {"k": [{"y": 1, "b": 2}]}}, [], "s", 0.1]
+    for c in cases:
+        assert store_mod._json_encode(c) == json.dumps(c, sort_keys=True, separators=(",", ":"))
