@@ -91,22 +91,19 @@ def _kept_encoder() -> Callable[[Any], str]:
     """_JSON.encode without building a new C encoder per call (JSONEncoder.encode does, which
     was a quarter of a record's encoding): the same C encoder json uses, kept.  It skips the
     circular-reference check (records and headers are trees built here; a value's meta was
-    already encoded with the check by hashing.meta_bytes).  Used only if it gives _JSON's text
-    for a sample; else _JSON.encode."""
+    already encoded with the check by hashing.meta_bytes).  A Python without it: _JSON.encode
+    (tests/test_engine_store_unit.py compares the two texts)."""
     try:
         from json.encoder import c_make_encoder, encode_basestring_ascii
 
         enc = c_make_encoder(None, _JSON.default, encode_basestring_ascii, None, ":", ",", True, False, True)
+    except (ImportError, TypeError):  # pragma: no cover - CPython has it
+        return _JSON.encode
 
-        def encode(o: Any) -> str:
-            return "".join(enc(o, 0))
+    def encode(o: Any) -> str:
+        return "".join(enc(o, 0))
 
-        sample = {"b": [1, 2.5, float("nan"), None, True], "a": {"é": "x\"", "z": -1e300}, "c": 1e-06}
-        if encode(sample) == _JSON.encode(sample):
-            return encode
-    except Exception:  # noqa: BLE001 - any other Python: the plain encoder
-        pass
-    return _JSON.encode
+    return encode
 
 
 _json_encode = _kept_encoder()
