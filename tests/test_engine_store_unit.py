@@ -567,6 +567,24 @@ def test_the_kept_json_encoder_writes_what_json_writes():
                         "inputs": {"b": ["x", "y"], "a": "z"}}, "seconds": 1e-06},
              {"z": {}, "a": [], "m": {"k": [{"y": 1, "b": 2}]}}, [], "s", 0.1]
     fresh = store_mod._kept_encoder()  # (the module's own one is made at import, outside any test)
+    assert fresh is not store_mod._JSON.encode  # CPython: the kept C encoder, not the fallback
+    with pytest.raises(TypeError):  # keys json cannot write are refused, not skipped
+        fresh({(1, 2): 3})
     for c in cases:
         want = json.dumps(c, sort_keys=True, separators=(",", ":"))
         assert store_mod._json_encode(c) == want and fresh(c) == want
+
+
+def test_objects_are_known_present_only_inside_the_run_lock(tmp_path):
+    """Outside a run lock (gc may run between two calls) put_value looks for the object every
+    time, and neither a write nor a read makes it known present."""
+    s = Store(tmp_path / "c").open()
+    value = np.full(3, 2.0)
+    vp = value_parts(ARRAY, value)
+    d = s.put_value(ARRAY, value, vp)
+    s.load_value(d, ARRAY)
+    assert not s._present
+    obj = tmp_path / "c" / "objects" / d[:2] / d
+    obj.unlink()  # e.g. `cache gc` between two calls
+    s.put_value(ARRAY, value, vp)
+    assert obj.is_file()
