@@ -567,7 +567,7 @@ def test_the_kept_json_encoder_writes_what_json_writes():
                         "inputs": {"b": ["x", "y"], "a": "z"}}, "seconds": 1e-06},
              {"z": {}, "a": [], "m": {"k": [{"y": 1, "b": 2}]}}, [], "s", 0.1]
     fresh = store_mod._kept_encoder()  # (the module's own one is made at import, outside any test)
-    assert fresh is not store_mod._JSON.encode  # CPython: the kept C encoder, not the fallback
+    assert fresh != store_mod._JSON.encode  # CPython: the kept C encoder, not the fallback (bound methods: ==)
     with pytest.raises(TypeError):  # keys json cannot write are refused, not skipped
         fresh({(1, 2): 3})
     for c in cases:
