@@ -37,7 +37,7 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
   alpha to its own R32F one (``ALPHA_OUT``): both read back as stored, no conversion.  The
   programs are specialised by ``#define``s that change no value (``DETAIL`` 0: no detail
   fetch; ``DIRECTIONAL`` 1: no point-light branch).  Depth and coverage depend only on the
-  g-buffer: they are kept per g-buffer key (``_SURFACE``), so a light drag only checks the
+  g-buffer: they are kept per g-buffer key (``surface_key``, with the GL objects), so a light drag only checks the
   lights (the alpha's maximum).
 * a direct call without the engine's input digests keys the kept set-up by the content of
   the inputs (``glscene.static_key``).
@@ -94,22 +94,12 @@ class RenderGL(Backend):
         if job["shadow"] is not None:
             _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
-        # Depth and coverage depend only on the g-buffer (content-keyed: job["gbuffer_key"]),
-        # so a call on the same g-buffer (a light drag) takes them from the last such call
-        # (copies: each call's outputs are its own arrays) and only checks the lights.
-        dkey = (job["gbuffer_key"], tuple(job["bbox"]), W, H)
-        kept = _SURFACE.get(dkey)
-        job["want_alpha"] = kept is None
         try:
-            img, zs, top, masks = runtime().call(_render_job, job)
+            img, (depth0, cov0, M), top, masks = runtime().call(_render_job, job)
         except Unavailable as e:
             raise RuntimeError(f"OpenGL backend unavailable: {e}") from None
-        # zs: shade.frag's alpha over the shaded box (± camera z where covered, 0 elsewhere),
-        # given when asked for; top: its maximum
-        if kept is None:
-            kept = _surface(zs, job["bbox"], W, H)
-            _SURFACE.put(dkey, kept)
-        depth0, cov0, M = kept
+        # depth0, cov0: kept between calls on the same g-buffer (copied: each call's outputs
+        # are its own arrays); top: the maximum of shade.frag's alpha (the one-light check)
         if M == 0:  # as the reference (nodes.paris.render.surface)
             raise BadInput("mesh", f"the mesh covers 0 pixels of the {W}×{H} camera image: it does "
                                    "not match the camera (wrong pose, units or image size?)")
@@ -149,37 +139,17 @@ def _surface(zs: np.ndarray, bbox, W: int, H: int):
     return depth, cov, int(np.count_nonzero(cb))
 
 
-class _Kept:
-    """A few recent (depth, coverage, count) results by key, bounded in entries and bytes
-    (node threads share it)."""
-
-    def __init__(self, entries: int = 4, budget: int = 64 << 20):
-        import threading
-        from collections import OrderedDict
-
-        self.entries, self.budget = entries, budget
-        self._d: OrderedDict = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key):
-        with self._lock:
-            hit = self._d.get(key)
-            if hit is not None:
-                self._d.move_to_end(key)
-            return hit
-
-    def put(self, key, value):
-        n = value[0].nbytes + value[1].nbytes
-        with self._lock:
-            if n > self.budget:
-                return
-            self._d[key] = value
-            self._d.move_to_end(key)
-            while len(self._d) > self.entries or sum(v[0].nbytes + v[1].nbytes for v in self._d.values()) > self.budget:
-                self._d.popitem(last=False)
+def surface_key(job) -> tuple:
+    """The key of a render's depth and coverage among the GL objects: they depend only on the
+    g-buffer (content-keyed: job["gbuffer_key"]), the shaded box and the size, so calls on the
+    same g-buffer (a light drag) share them."""
+    return ("surface", job["gbuffer_key"], tuple(job["bbox"]), job["W"], job["H"])
 
 
-_SURFACE = _Kept()
+def _drop_surfaces(rt) -> None:
+    """Forget every kept depth and coverage (GL thread; tests)."""
+    for k in [k for k in rt.objects._d if isinstance(k, tuple) and k[:1] == ("surface",)]:
+        rt.objects.drop(k)
 
 
 def _check_atlas(n: int, size: int):
@@ -463,9 +433,9 @@ def _render_job(rt, job):
 
 def _render(rt, job):
     """The GL passes: shadow atlas, surface (g-buffer), lighting (shade.frag); returns
-    (image H×W×3, shade.frag's alpha over the box job["bbox"] (± camera z, 0 where
-    uncovered; None unless job["want_alpha"]), that alpha's maximum, the lit masks over that
-    box (h×w×4) or None with one light), float32."""
+    (image H×W×3, (depth H×W, coverage H×W, covered pixels) from shade.frag's alpha over
+    the box job["bbox"] (± camera z, 0 where uncovered; kept per surface_key), that alpha's
+    maximum, the lit masks over that box (h×w×4) or None with one light), float32."""
     ctx, mgl = rt.ctx, rt.gl
     W, H, p = job["W"], job["H"], job["p"]
     ctx.enable(mgl.DEPTH_TEST)
@@ -483,13 +453,15 @@ def _render(rt, job):
     # factor is 1, not fetched), DIRECTIONAL 1 when no light is a point light (no such branch)
     # VIEW_RAY (perspective): the view vector from the pixel's ray (the reference's, exactly
     # up to float32), which needs no world position; then NO_DEPTH where nothing else needs it
-    # and depth and coverage are kept from an earlier call (job["want_alpha"] False)
+    # and depth and coverage are kept from an earlier call
+    skey = surface_key(job)
+    surf = rt.objects.peek(skey)
     ortho = bool(job["cam_ortho"])
     directional = all(kind == 0 for kind, *_ in lights)
     defines = {"N_LIGHTS": nL, "ORTHO": int(ortho), "SHADOWS": int(shadows), "EYES": 0,
                "LIT_MASKS": int(masks), "DETAIL": int(job["detail"] is not None),
                "DIRECTIONAL": int(directional), "VIEW_RAY": int(not ortho),
-               "NO_DEPTH": int(not ortho and directional and not shadows and not job.get("want_alpha", True))}
+               "NO_DEPTH": int(not ortho and directional and not shadows and surf is not None)}
     # the image in an RGB32F target (read back as it is stored) and the alpha in its own R32F
     # target (ALPHA_OUT: its location), where the driver renders RGB32F; else one RGBA32F
     split = _split_alpha(rt)
@@ -544,14 +516,15 @@ def _render(rt, job):
     nc = 1 if split else 4
     buf = rt.objects.get(("alpha", w, h, nc), lambda: np.empty((h, w, nc), np.float32), 0)
     alpha = buf[..., nc - 1]
-    lit, zs, top = None, None, 0.0
+    lit, top = None, 0.0
     if w and h:
         fbo.read_into(buf, viewport=(x, y, w, h), components=nc, dtype="f4", attachment=len(colors) - 1 if split else 0)
         top = float(np.fmax.reduce(alpha, axis=None))  # NaN-blind, as (alpha > 0).any()
         if masks:
             lit = np.empty((h, w, 4), np.float32)
             fbo.read_into(lit, viewport=(x, y, w, h), components=4, dtype="f4", attachment=1)
-    if job.get("want_alpha", True):
-        zs = alpha.copy()
+    if surf is None:
+        surf = _surface(alpha, job["bbox"], W, H)
+        rt.objects.put(skey, surf, surf[0].nbytes + surf[1].nbytes)
     ctx.enable(mgl.DEPTH_TEST)
-    return img, zs, top, lit
+    return img, surf, top, lit

@@ -104,6 +104,15 @@ class GLObjects:
         self.bytes += nbytes
         return obj
 
+    def peek(self, key):
+        """The object stored under ``key`` (marked used by this render), or None."""
+        hit = self._d.get(key)
+        if hit is None:
+            return None
+        self._d.move_to_end(key)
+        self._d[key] = (hit[0], hit[1], self._gen)
+        return hit[0]
+
     def put(self, key, obj, nbytes: int = 0):
         """Store ``obj`` under ``key`` (releasing what was there)."""
         self.drop(key)
