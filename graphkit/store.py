@@ -784,9 +784,15 @@ class Store:
             with self._errors("write a cache object"):
                 self.fs.write_atomic(rel, iter_chunks(head, offsets, arrays))
                 self._dirty = True
+        self._seen_whole(digest)
+        return digest
+
+    def _seen_whole(self, digest: str) -> None:
+        """Object ``digest`` is in place, whole: while the run lock is held (gc and verify
+        --repair wait for it) put_value need not look for it again; the set empties when the
+        lock is released."""
         if self._run_lock_depth and self._local:
             self._present.add(digest)
-        return digest
 
     def load_value(self, digest: str, ptype: PortType | None = None) -> Any:
         """The value named ``digest``, checked against it.
@@ -800,8 +806,7 @@ class Store:
         except CorruptObject as e:
             self.quarantine(rel, f"cache object {digest[:16]} {e.why}")
             raise
-        if self._run_lock_depth and self._local:
-            self._present.add(digest)
+        self._seen_whole(digest)
         if ptype is None:
             ptype = BUILTIN_PORT_TYPES.get(tname)
             if ptype is None:
@@ -840,7 +845,6 @@ class Store:
             self._run_lock_depth += 1
             first = self._run_lock_depth == 1
             if first:
-                self._present.clear()
                 cm = self.fs.lock("store.lock", shared=True)
                 try:
                     with self._errors("lock the cache"):
