@@ -319,7 +319,10 @@ def _light_uniforms(light: Light):
     return (0 if light.kind == "directional" else 1, d, np.asarray(light.position, np.float64), rgb)
 
 
-def _shadow_setup(V, F, light, size: int, margin: float = 0.02, up=None):
+SHADOW_MARGIN = 0.02  # the shadow frame's margin round the mesh (raster.shadow_frame; the studio's page too)
+
+
+def _shadow_setup(V, F, light, size: int, margin: float = SHADOW_MARGIN, up=None):
     """The light frame of ``nodes.common.raster.shadow_map`` (one implementation:
     ``shadow_frame``) and the clip matrix that rasterises it in GL: dict(to_light 4×4,
     proj (sx, sy, ox, oy), bias (texel, dref), clip, faces, q)."""

@@ -307,7 +307,7 @@ export function createFaceRenderer(canvas, d) {
   // shades ~117k pixels instead of the boxes' ~140k (face_relight left60 at 512²); the others
   // keep the background the target was cleared to, what shade.frag writes there
   // (glscene.background_out).  (2-row bands: 113k pixels but slower, the thin triangles cost.)
-  let BAND = 16, GAP = 8;
+  const BAND = 16, GAP = 8;
   let rects = null;
   function coverRects() {
     const list = [];  // [x, y, w, h], window (image) rows

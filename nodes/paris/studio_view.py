@@ -187,15 +187,13 @@ class FaceView(LiveView):
         glscene.light_part → _shadow_setup → raster.shadow_frame, in float64): the drawn mesh's
         float64 vertices (the light frame fits them all; its depth range the ones its faces
         use), the camera's y axis (the map's up) and the shadow map's margin and size."""
-        import inspect
-
-        from .glscene import _shadow_setup
+        from .glscene import SHADOW_MARGIN, used_vertices
 
         camera, _, V, F, _ = self._mesh_for_lights()
-        used = np.unique(F)
+        used = used_vertices(F, len(V))
         return {"V": _arr(V, "f8"), "used": None if len(used) == len(V) else _arr(used, "u4"),
                 "up": _vec(camera.rotation[1]),
-                "margin": float(inspect.signature(_shadow_setup).parameters["margin"].default),
+                "margin": SHADOW_MARGIN,
                 "size": int(self.params.shadow_map_size)}
 
     def _mesh_for_lights(self):
