@@ -167,11 +167,17 @@ def canonical_merge(static: dict[str, bytes], varying: dict) -> bytes:
     return b"d%d{" % len(items) + b"".join([items[k] for k in sorted(items)]) + b"}"
 
 
+@functools.lru_cache(maxsize=1024)
+def _array_head(dtype: np.dtype, shape: tuple) -> bytes:
+    """What an array's digest starts with: dtype and shape (the same few repeat in a run)."""
+    if dtype.hasobject:
+        raise CanonicalError("object arrays cannot be hashed")
+    return f"{dtype.str}{shape};".encode()
+
+
 def _update_array(h, a: np.ndarray) -> None:
     a = np.ascontiguousarray(a)
-    h.update(f"{a.dtype.str}{a.shape};".encode())
-    if a.dtype.hasobject:
-        raise CanonicalError("object arrays cannot be hashed")
+    h.update(_array_head(a.dtype, a.shape))
     h.update(memoryview(a).cast("B") if a.size else b"")
 
 

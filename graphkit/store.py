@@ -751,9 +751,13 @@ class Store:
     def put_record(self, key: str, record: dict) -> None:
         if self.read_only:
             return self._read_only_notice()
-        with self._errors("write a cache record"):
-            self.fs.write_atomic(self._krel(key), [encode_record(record)])
-            self._dirty = True
+        raw = encode_record(record)
+        try:  # (not `with self._errors(...)` around it: a generator context per cold node)
+            self.fs.write_atomic(self._krel(key), [raw])
+        except OSError:
+            with self._errors("write a cache record"):
+                raise
+        self._dirty = True
 
     def quarantine(self, rel: str, what: str) -> None:
         """Move a damaged entry to quarantine/ (out of every lookup) and say so in one line."""
