@@ -180,37 +180,42 @@ uniform float eye_R;
 uniform float eye_s;
 uniform float eye_ks;
 
-// Ray–sphere in a cancellation-free form (h = oc − (d·oc) d).
+// Ray–sphere in a cancellation-free form (h = oc − (d·oc) d): cornea k's highlight on the ray
+// (ro, d), added to acc.
+void eye_highlight(int k, vec3 ro, vec3 d, float depth, inout vec3 acc) {
+    vec3 oc = ro - eye_c[k];
+    float bq = dot(d, oc);
+    vec3 h = oc - bq * d;
+    float disc = eye_R * eye_R - dot(h, h);
+    if (!(disc > 0.0)) return;
+    float sq = sqrt(disc);
+    float t = -bq - sq;
+    vec3 XC = h - sq * d;                     // X − c
+    if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) return;
+    float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
+    if (!(zc <= depth + eye_R * 0.35)) return;
+    vec3 n = XC / eye_R;
+    vec3 X = eye_c[k] + XC;
+#if N_LIGHTS == 1
+    {
+        const int i = 0;
+#else
+    for (int i = 0; i < N_LIGHTS; ++i) {
+#endif
+        vec3 L;
+        vec3 l = towards_light(i, X, L);
+        acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
+    }
+}
+
 vec3 eye_highlights(ivec2 px, float depth) {
     vec3 pix = vec3(vec2(px) + 0.5, 1.0);     // the pixel centre
     vec3 ro = ray_org * pix;
     vec3 d = normalize(ray_dir * pix);
     vec3 acc = vec3(0.0);
-    for (int k = 0; k < 2; ++k) {
-        vec3 oc = ro - eye_c[k];
-        float bq = dot(d, oc);
-        vec3 h = oc - bq * d;
-        float disc = eye_R * eye_R - dot(h, h);
-        if (!(disc > 0.0)) continue;
-        float sq = sqrt(disc);
-        float t = -bq - sq;
-        vec3 XC = h - sq * d;                 // X − c
-        if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) continue;
-        float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
-        if (!(zc <= depth + eye_R * 0.35)) continue;
-        vec3 n = XC / eye_R;
-        vec3 X = eye_c[k] + XC;
-#if N_LIGHTS == 1
-        {
-            const int i = 0;
-#else
-        for (int i = 0; i < N_LIGHTS; ++i) {
-#endif
-            vec3 L;
-            vec3 l = towards_light(i, X, L);
-            acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
-        }
-    }
+    // the two eyes written out (a loop over them costs more: SwiftShader runs it lane-masked)
+    eye_highlight(0, ro, d, depth, acc);
+    eye_highlight(1, ro, d, depth, acc);
     return acc;
 }
 #endif
