@@ -326,6 +326,13 @@ export function createFaceRenderer(canvas, d) {
   // (glscene.background_out).  (2-row bands: 113k pixels but slower, the thin triangles cost.)
   const BAND = 16, GAP = 8;
   let rects = null;
+
+  // The colour the canvas's pixels outside the rectangles and the eyes' boxes were last cleared
+  // to (null: unknown); the drawing buffer is kept between frames (preserveDrawingBuffer), so a
+  // frame with the same background clears nothing: only those pixels are drawn.
+  let canvasBg = null;
+  const preserved = gl.getContextAttributes().preserveDrawingBuffer;
+
   function coverRects() {
     const list = [];  // [x, y, w, h], window (image) rows
     gl.bindFramebuffer(gl.FRAMEBUFFER, gbuf.fbo);
@@ -357,6 +364,7 @@ export function createFaceRenderer(canvas, d) {
     list.forEach(([x, y, w, h], i) => v.set([x, y, x + w, y, x + w, y + h, x, y, x + w, y + h, x, y + h], 12 * i));
     const flipped = v.map((c, i) => (i & 1 ? H - c : c));  // canvas rows (DISPLAY): y → H − y
     if (rects) rects.release();
+    canvasBg = null;
     const bufs = [v, flipped].map(a => { const b = gl.createBuffer(); gl.bindBuffer(gl.ARRAY_BUFFER, b); gl.bufferData(gl.ARRAY_BUFFER, a, gl.STATIC_DRAW); return b; });
     const vaos = new Map();  // (program, rows) → its vertex array over that buffer
     rects = {
@@ -451,6 +459,7 @@ export function createFaceRenderer(canvas, d) {
   }
 
   function display(exposure) {  // the float target onto the canvas (display.frag)
+    canvasBg = null;  // every canvas pixel drawn
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.useProgram(P.display);
@@ -472,8 +481,12 @@ export function createFaceRenderer(canvas, d) {
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
-    gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
-    gl.clear(gl.COLOR_BUFFER_BIT);
+    const bg = d.bg_out.map(v => srgb(v * scale));
+    if (!preserved || String(bg) !== canvasBg) {
+      gl.clearColor(...bg, 1);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+      canvasBg = String(bg);
+    }
     const s = lit('shade_display');
     shadeUniforms(s);
     gl.uniform1f(s.u('display_scale'), scale);
