@@ -29,7 +29,8 @@ TARGETS = {"330": "#version 330 core", "es300": "#version 300 es"}
 #: what GLSL ES 3.00 needs and GLSL 3.30 does not have: default precisions (ES gives floats
 #: none in fragment shaders and the sampler types lowp or none)
 ES_PRECISION = ("precision highp float;", "precision highp int;", "precision highp sampler2D;",
-                "precision highp sampler2DArray;", "precision highp sampler3D;")
+                "precision highp sampler2DArray;", "precision highp sampler3D;",
+                "precision highp sampler2DShadow;")
 
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([A-Za-z0-9_./-]+)"\s*$')
 _VERSION = re.compile(r"^\s*#\s*version\s+(\d+)\s*(\w*)\s*$")

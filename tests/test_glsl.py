@@ -30,6 +30,10 @@ PROGRAMS = [
     ("screen.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 1, "SM_WINDOW": 1, "DISPLAY": 1}),
     ("rects.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 0, "SM_WINDOW": 1, "DISPLAY": 1,
                                   "DIRECTIONAL": 1}),
+    # the studio's: the PCF as depth-compare samples (sampler2DShadow)
+    ("rects.vert", "shade.frag", {"N_LIGHTS": 1, "SHADOWS": 1, "EYES": 0, "SM_WINDOW": 1, "SM_BILINEAR": 1,
+                                  "DISPLAY": 1, "DIRECTIONAL": 1}),
+    ("screen.vert", "shade.frag", {"N_LIGHTS": 2, "SHADOWS": 1, "EYES": 1, "SM_WINDOW": 1, "SM_BILINEAR": 1}),
 ]
 
 

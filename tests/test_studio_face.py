@@ -108,6 +108,13 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
                 "() => document.querySelector('#view-body canvas.face-gl').gkFace.readImage(true)")),
                 np.float32).reshape(96, 96, 4)[..., :3]
             assert np.abs(gen - got).max() <= 1e-6, np.abs(gen - got).max()
+            # the PCF as 4 depth-compare samples (shade.frag SM_BILINEAR, what the view draws
+            # with) counts the same lit taps as the 9 texel fetches: the very same bytes
+            taps = base64.b64decode(page.evaluate(
+                "() => document.querySelector('#view-body canvas.face-gl').gkFace.readImage('taps')"))
+            gen_raw = base64.b64decode(page.evaluate(
+                "() => document.querySelector('#view-body canvas.face-gl').gkFace.readImage(true)"))
+            assert taps == gen_raw, np.abs(np.frombuffer(taps, np.float32) - np.frombuffer(gen_raw, np.float32)).max()
         assert np.abs(imgs[0] - imgs[1]).max() > 0.2  # the light moved the shading
         # a frame draws the lighting pass straight onto the canvas (shade.frag DISPLAY): the
         # same pixels as the float image through display.frag (sRGB, flipped), to 1/255

@@ -95,6 +95,9 @@ function program(gl, [vs, fs]) {
   if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
   const loc = {};
   p.u = name => (name in loc ? loc[name] : (loc[name] = gl.getUniformLocation(p, name)));
+  // shade.frag SM_BILINEAR declares the shadow atlas a sampler2DShadow: bound with comparison
+  p.shadowCompare = Array.from({ length: gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS) }, (_, i) => gl.getActiveUniform(p, i))
+    .some(u => u.name === 'shadow_maps' && u.type === gl.SAMPLER_2D_SHADOW);
   return p;
 }
 
@@ -189,6 +192,15 @@ export function createFaceRenderer(canvas, d) {
     if (!scene.lights.every(l => l.kind === 0) || !(d.glsl_directional || {})[k]) return P[k];
     return PD[k] || (PD[k] = program(gl, d.glsl_directional[k]));
   };
+  const PT = {};  // the general ones with the PCF's 9 texel fetches (readImage('taps'), tests)
+  const taps = k => (d.glsl_taps && d.glsl_taps[k] ? PT[k] || (PT[k] = program(gl, d.glsl_taps[k])) : null);
+  // the atlas as shade.frag SM_BILINEAR samples it: depth comparison (LEQUAL: lit where the
+  // biased depth ≤ the map's), bilinear; the texture's own state (nearest, no comparison) is
+  // what the 9-tap programs' texelFetch reads
+  const compareSampler = gl.createSampler();
+  for (const [k, v] of [[gl.TEXTURE_COMPARE_MODE, gl.COMPARE_REF_TO_TEXTURE], [gl.TEXTURE_COMPARE_FUNC, gl.LEQUAL],
+                        [gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
+                        [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) gl.samplerParameteri(compareSampler, k, v);
   const empty = gl.createVertexArray();
   const verts = decode(d.vertices), faces = decode(d.faces);
   const mainZ = mesh(gl, P.depth, verts, faces, ['q', 'P', 'N']);
@@ -228,14 +240,19 @@ export function createFaceRenderer(canvas, d) {
     const sms = scene.shadow, size = scene.shadow_map_size;
     const n = sms.length, cols = Math.ceil(Math.sqrt(n)), rows = Math.ceil(n / cols);
     // each tile: the size² map inside a border of 2 texels left at the clear's 1.0, which
-    // shade.frag SM_WINDOW's taps outside the map read (lit) instead of clamping each tap
-    const pitch = size + 4;
-    if (!atlas || atlas.W !== cols * pitch || atlas.H !== rows * pitch) atlas = depthTarget(cols * pitch, rows * pitch);
+    // shade.frag SM_WINDOW's taps outside the map read (lit) instead of clamping each tap; the
+    // texture's sides are powers of two (SM_BILINEAR's exact sample coordinates), only the
+    // tiles' part is cleared (no tap reads beyond its tile)
+    const pitch = size + 4, aw = cols * pitch, ah = rows * pitch;
+    const pow2 = n => 2 ** Math.ceil(Math.log2(n));
+    if (!atlas || atlas.W !== pow2(aw) || atlas.H !== pow2(ah)) atlas = depthTarget(pow2(aw), pow2(ah));
     atlasTiles = sms.map((_, i) => [(i % cols) * pitch, Math.floor(i / cols) * pitch]);
     gl.bindFramebuffer(gl.FRAMEBUFFER, atlas.fbo);
-    gl.viewport(0, 0, atlas.W, atlas.H);
     gl.enable(gl.DEPTH_TEST); gl.depthFunc(gl.LESS); gl.depthMask(true);
+    gl.enable(gl.SCISSOR_TEST);
+    gl.scissor(0, 0, aw, ah);
     gl.clearBufferfv(gl.DEPTH, 0, [1.0]);
+    gl.disable(gl.SCISSOR_TEST);
     shadowMeshes.forEach(m => m && m.release());
     shadowMeshes = [];
     gl.useProgram(P.shadow);
@@ -309,6 +326,13 @@ export function createFaceRenderer(canvas, d) {
   // (glscene.background_out).  (2-row bands: 113k pixels but slower, the thin triangles cost.)
   const BAND = 16, GAP = 8;
   let rects = null;
+
+  // The colour the canvas's pixels outside the rectangles and the eyes' boxes were last cleared
+  // to (null: unknown); the drawing buffer is kept between frames (preserveDrawingBuffer), so a
+  // frame with the same background clears nothing: only those pixels are drawn.
+  let canvasBg = null;
+  const preserved = gl.getContextAttributes().preserveDrawingBuffer;
+
   function coverRects() {
     const list = [];  // [x, y, w, h], window (image) rows
     gl.bindFramebuffer(gl.FRAMEBUFFER, gbuf.fbo);
@@ -340,6 +364,7 @@ export function createFaceRenderer(canvas, d) {
     list.forEach(([x, y, w, h], i) => v.set([x, y, x + w, y, x + w, y + h, x, y, x + w, y + h, x, y + h], 12 * i));
     const flipped = v.map((c, i) => (i & 1 ? H - c : c));  // canvas rows (DISPLAY): y → H − y
     if (rects) rects.release();
+    canvasBg = null;
     const bufs = [v, flipped].map(a => { const b = gl.createBuffer(); gl.bindBuffer(gl.ARRAY_BUFFER, b); gl.bufferData(gl.ARRAY_BUFFER, a, gl.STATIC_DRAW); return b; });
     const vaos = new Map();  // (program, rows) → its vertex array over that buffer
     rects = {
@@ -376,7 +401,9 @@ export function createFaceRenderer(canvas, d) {
     gl.uniform3fv(s.u('light_dir'), dir); gl.uniform3fv(s.u('light_pos'), pos); gl.uniform3fv(s.u('light_rgb'), rgb);
     if (scene.shadow) {
       gl.activeTexture(gl.TEXTURE3); gl.bindTexture(gl.TEXTURE_2D, atlas.tex[0]);
+      gl.bindSampler(3, s.shadowCompare ? compareSampler : null);
       gl.uniform1i(s.u('shadow_maps'), 3);
+      if (s.shadowCompare) gl.uniform2f(s.u('sm_texel'), 1 / atlas.W, 1 / atlas.H);
       gl.uniform1i(s.u('sm_size'), scene.shadow_map_size);
       const tl = new Int32Array(2 * nL), M = new Float32Array(16 * nL), pr = new Float32Array(4 * nL), b = new Float32Array(2 * nL).fill(1);
       const zm = new Float32Array(3 * nL);
@@ -404,7 +431,7 @@ export function createFaceRenderer(canvas, d) {
     }
   }
 
-  function lighting(general = false) {  // general: the programs without DIRECTIONAL (tests)
+  function lighting(general = false) {  // general: the programs without DIRECTIONAL; 'taps': those with the PCF's 9 fetches (tests)
     gl.bindFramebuffer(gl.FRAMEBUFFER, out.fbo);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
@@ -412,10 +439,10 @@ export function createFaceRenderer(canvas, d) {
     // (coverRects) without the eye highlights, then the eyes' box with them; the rest is the
     // background as shade.frag would write it (glscene.background_out)
     gl.clearBufferfv(gl.COLOR, 0, [...d.bg_out, 0]);
-    const s = general ? P.shade : lit('shade');
+    const s = general === 'taps' ? taps('shade') : general ? P.shade : lit('shade');
     shadeUniforms(s);
     rects.draw(s, false);
-    eyesPass(general ? P.shade_eyes : lit('shade_eyes'), d.eye_boxes);
+    eyesPass(general === 'taps' ? taps('shade_eyes') : general ? P.shade_eyes : lit('shade_eyes'), d.eye_boxes);
   }
 
   function eyesPass(prog, boxes) {  // the eyes' program over every pixel of their boxes (scissored)
@@ -432,6 +459,7 @@ export function createFaceRenderer(canvas, d) {
   }
 
   function display(exposure) {  // the float target onto the canvas (display.frag)
+    canvasBg = null;  // every canvas pixel drawn
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.useProgram(P.display);
@@ -453,8 +481,12 @@ export function createFaceRenderer(canvas, d) {
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
     gl.viewport(0, 0, W, H);
     gl.disable(gl.DEPTH_TEST);
-    gl.clearColor(...d.bg_out.map(v => srgb(v * scale)), 1);
-    gl.clear(gl.COLOR_BUFFER_BIT);
+    const bg = d.bg_out.map(v => srgb(v * scale));
+    if (!preserved || String(bg) !== canvasBg) {
+      gl.clearColor(...bg, 1);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+      canvasBg = String(bg);
+    }
     const s = lit('shade_display');
     shadeUniforms(s);
     gl.uniform1f(s.u('display_scale'), scale);

@@ -126,8 +126,10 @@ class FaceView(LiveView):
             c, a, R = eyes
             d["eyes"] = {"c": _vec(c), "axis": _vec(a), "R": float(R), "s": float(p.eye_shininess),
                          "ks": float(p.eye_specular), "fwd": _vec(job["fwd"])}
+        # SM_BILINEAR: the 3×3 PCF as 4 depth-compare samples of the power-of-two atlas (the
+        # same count as 9 fetches, exactly; shade.frag); glsl_taps below: the 9 fetches (tests)
         defs = {"N_LIGHTS": nl, "ORTHO": ortho, "SHADOWS": int(job["shadow"] is not None), "EYES": 0,
-                "SM_WINDOW": 1}
+                "SM_WINDOW": 1, "SM_BILINEAR": 1}
         # EXACT: the surface pass intersects each pixel's ray (ray_org, ray_dir) with the exact
         # triangle (SwiftShader snaps vertices to 1/16 px; see gbuffer.frag)
         gdefs = {"ORTHO": ortho, "DETAIL": int(det is not None), "EXACT": 1}
@@ -156,6 +158,13 @@ class FaceView(LiveView):
                                                                   "DISPLAY": int("display" in k)})
                 for i, src in enumerate(d["glsl"][k])]
             for k in ("shade", "shade_display", "shade_eyes", "shade_eyes_display") if k in d["glsl"]}
+        # the general lighting programs with the 9 texel fetches of the PCF instead (SM_BILINEAR
+        # 0), for readImage('taps'): tests/test_studio_face.py checks the image is the same
+        d["glsl_taps"] = {
+            k: [src if i == 0 else source("shade.frag", "es300", {**defs, "SM_BILINEAR": 0,
+                                                                  "EYES": int("eyes" in k)})
+                for i, src in enumerate(d["glsl"][k])]
+            for k in ("shade", "shade_eyes") if k in d["glsl"]}
         l0 = lights[0]
         d["light"] = {"direction": _vec(l0.direction), "intensity": float(l0.intensity),
                       "color": _vec(l0.color), "kind": l0.kind,

@@ -11,7 +11,7 @@
 // Outputs: o_image.rgb = the image; o_image.a = the camera z where a surface is (0 elsewhere),
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
-// Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, DISPLAY,
+// Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, SM_BILINEAR, DISPLAY,
 // DETAIL, ALPHA_OUT, VIEW_RAY, NO_DEPTH.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
@@ -88,7 +88,22 @@ uniform bool clamp01;
 // where nothing is in the way), compared with the biased light-frame depth db mapped the same
 // way, zw = a + b·db + c/db (sm_zmap[i] = (a, b, c), from the light's clip matrix: b = 0 for
 // a point light, c = 0 for a directional one) — an increasing map, so the test is the same.
+#ifndef SM_BILINEAR
+#define SM_BILINEAR 0
+#endif
+// SM_BILINEAR (with SM_WINDOW): the same 3×3 PCF in 4 compare samples instead of 9 fetches. The
+// atlas is bound with depth comparison (LEQUAL) and linear filtering, so one sample is the
+// bilinear mix of its 2×2 texels' tests; a sample at a texel corner weighs each of its 4 texels
+// 1/4, one at a texel centre (in x or y) weighs that texel's row or column alone: the 3×3 box
+// sum is 4·(2×2) + 2·(1×2) + 2·(2×1) + (1×1), exactly the 9 taps' count when the coordinates
+// are exact (integers, and half-integers for centres, times sm_texel = 1 / the atlas size, a
+// power of two: studio_view.js shadowAtlas) and so the weights are exactly 0, 1/2 or 1.
+#if SM_WINDOW && SM_BILINEAR
+uniform sampler2DShadow shadow_maps;
+uniform vec2 sm_texel;                    // 1 / the atlas's width and height (powers of two)
+#else
 uniform sampler2D shadow_maps;
+#endif
 #if SM_WINDOW
 uniform vec3 sm_zmap[N_LIGHTS];
 #endif
@@ -117,8 +132,19 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     db = min((zm.z != 0.0 && db <= 0.0) ? -1.0 : zm.x + zm.y * db + (zm.z != 0.0 ? zm.z / db : 0.0), 1.0);
 #endif
 #endif
-    int ix = int(clamp(floor(xy.x), -1.0, float(sm_size)));
-    int iy = int(clamp(floor(xy.y), -1.0, float(sm_size)));
+    vec2 fxy = clamp(floor(xy), -1.0, float(sm_size));
+#if SM_WINDOW && SM_BILINEAR
+    // texel (x, y) spans [x, x + 1) × [y, y + 1); the taps are the texels base + (−1…1)², base
+    // as below: the corner c = base is between the 2×2 taps dx, dy ∈ {−1, 0}, c + 1.5 the centre
+    // of dx (dy) = 1
+    vec2 c = vec2(sm_tile[i] + 2) + fxy;
+    float acc = 4.0 * texture(shadow_maps, vec3(c * sm_texel, db))
+              + 2.0 * texture(shadow_maps, vec3(vec2(c.x + 1.5, c.y) * sm_texel, db))
+              + 2.0 * texture(shadow_maps, vec3(vec2(c.x, c.y + 1.5) * sm_texel, db))
+              + texture(shadow_maps, vec3((c + 1.5) * sm_texel, db));
+#else
+    int ix = int(fxy.x);
+    int iy = int(fxy.y);
     float acc = 0.0;
     ivec2 tile = sm_tile[i];
     // the 3×3 taps written out (no loop: SwiftShader runs loops lane-masked), rows dy = −1, 0,
@@ -139,6 +165,7 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     SM_TAP(-1, 0)  SM_TAP(0, 0)  SM_TAP(1, 0)
     SM_TAP(-1, 1)  SM_TAP(0, 1)  SM_TAP(1, 1)
 #undef SM_TAP
+#endif
     return acc / 9.0;
 }
 #endif
@@ -153,37 +180,42 @@ uniform float eye_R;
 uniform float eye_s;
 uniform float eye_ks;
 
-// Ray–sphere in a cancellation-free form (h = oc − (d·oc) d).
+// Ray–sphere in a cancellation-free form (h = oc − (d·oc) d): cornea k's highlight on the ray
+// (ro, d), added to acc.
+void eye_highlight(int k, vec3 ro, vec3 d, float depth, inout vec3 acc) {
+    vec3 oc = ro - eye_c[k];
+    float bq = dot(d, oc);
+    vec3 h = oc - bq * d;
+    float disc = eye_R * eye_R - dot(h, h);
+    if (!(disc > 0.0)) return;
+    float sq = sqrt(disc);
+    float t = -bq - sq;
+    vec3 XC = h - sq * d;                     // X − c
+    if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) return;
+    float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
+    if (!(zc <= depth + eye_R * 0.35)) return;
+    vec3 n = XC / eye_R;
+    vec3 X = eye_c[k] + XC;
+#if N_LIGHTS == 1
+    {
+        const int i = 0;
+#else
+    for (int i = 0; i < N_LIGHTS; ++i) {
+#endif
+        vec3 L;
+        vec3 l = towards_light(i, X, L);
+        acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
+    }
+}
+
 vec3 eye_highlights(ivec2 px, float depth) {
     vec3 pix = vec3(vec2(px) + 0.5, 1.0);     // the pixel centre
     vec3 ro = ray_org * pix;
     vec3 d = normalize(ray_dir * pix);
     vec3 acc = vec3(0.0);
-    for (int k = 0; k < 2; ++k) {
-        vec3 oc = ro - eye_c[k];
-        float bq = dot(d, oc);
-        vec3 h = oc - bq * d;
-        float disc = eye_R * eye_R - dot(h, h);
-        if (!(disc > 0.0)) continue;
-        float sq = sqrt(disc);
-        float t = -bq - sq;
-        vec3 XC = h - sq * d;                 // X − c
-        if (!(t > 0.0) || dot(XC, eye_axis[k]) < 0.0) continue;
-        float zc = dot(ro - cam_pos, fwd) + t * dot(d, fwd);
-        if (!(zc <= depth + eye_R * 0.35)) continue;
-        vec3 n = XC / eye_R;
-        vec3 X = eye_c[k] + XC;
-#if N_LIGHTS == 1
-        {
-            const int i = 0;
-#else
-        for (int i = 0; i < N_LIGHTS; ++i) {
-#endif
-            vec3 L;
-            vec3 l = towards_light(i, X, L);
-            acc += eye_ks * L * phong_spec(n, l, -d, eye_s);
-        }
-    }
+    // the two eyes written out (a loop over them costs more: SwiftShader runs it lane-masked)
+    eye_highlight(0, ro, d, depth, acc);
+    eye_highlight(1, ro, d, depth, acc);
     return acc;
 }
 #endif
