@@ -10,9 +10,11 @@ depth test, onto a 512² canvas: its buffers made once, as any hand-written view
 
 Rows (median and best of ``--rounds`` rounds of ``--n`` frames; the two pages alternate):
 
-* frame time: ``canvas.gkFace.time(n)``: n frames with the light changed (the shadow atlas, then
-  the lighting pass straight onto the canvas; the g-buffer is kept), each synced with a 1-pixel gl.readPixels, not
-  requestAnimationFrame (capped at the display rate); the peer the same with its one pass.
+* frame time: ``canvas.gkFace.time(n, round)``: n frames, light 0 turned each time along the
+  drag's arc (the shadow atlas, then the lighting pass straight onto the canvas; the g-buffer is
+  kept; the light parts are computed before the clock, the drag row below includes them), each
+  synced with a 1-pixel gl.readPixels, not requestAnimationFrame (capped at the display rate);
+  the peer the same with its one pass, its light turned each frame too.
   Ratio = face view / peer (goal of issue 14: ≤ 2×).
 * drag: ``canvas.gkFace.setLight({direction})`` n times along an arc, each waiting for the new
   frame: the light's uniforms and shadow-map frame (computed in the page, studio_view.js
@@ -189,7 +191,7 @@ def main():
             peer.evaluate("() => peer.time(5)")
             page.evaluate(DRAG, [5, 0.0])
             for r in range(a.rounds):
-                ft = page.evaluate(f"n => {FACE}.time(n)", a.n)
+                ft = page.evaluate(f"([n, r]) => {FACE}.time(n, r)", [a.n, float(r)])
                 pt = peer.evaluate("n => peer.time(n)", a.n)
                 dt = page.evaluate(DRAG, [a.n, float(r)])
                 face_t += ft

@@ -646,15 +646,25 @@ export function mount(el, api) {
       r.draw(api.exposure());
       return btoa(Array.from({ length: Math.ceil(px.length / 0x8000) }, (_, i) => String.fromCharCode.apply(null, px.subarray(i * 0x8000, (i + 1) * 0x8000))).join(''));
     },
-    time(n) {  // n lighting frames (light changed: shadow atlas + lighting + display), each synced with readPixels
+    // n frames with light 0 turned each time (the drag's directions, offset d0): shadow atlas,
+    // lighting and display, each synced with a 1-pixel readPixels.  The n light parts are
+    // computed before the clock (lightFrame; the drag's timing includes it); without a
+    // page-side frame the atlas is redrawn for the same light.  The view is left as it was.
+    time(n, d0 = 0) {
+      const parts = Array.from({ length: n }, (_, i) => {
+        const a = 0.5 * Math.sin(0.29 * i + d0);
+        return d.light_frame ? lightFrame(d, d.light_frame, { ...light, direction: [Math.sin(a), -0.2, -Math.cos(a)] }) : null;
+      });
       const ts = [];
       for (let i = 0; i < n; i++) {
         const t = performance.now();
-        if (r && light) r.setLights({});
+        r.setLights(parts[i] || {});
         r.draw(api.exposure());
         r.sync();
         ts.push(performance.now() - t);
       }
+      const now = d.light_frame ? lightFrame(d, d.light_frame, light) : null;
+      if (now) { r.setLights(now); r.draw(api.exposure()); }
       return ts;
     },
   };
