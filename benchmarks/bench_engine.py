@@ -6,7 +6,7 @@
 (b) an all-cached re-run of the demo graph, wall time including interpreter start;
 (c) array hashing throughput (GB/s).
 
-Run:  .venv/bin/python benchmarks/bench_engine.py
+Run:  .venv/bin/python benchmarks/bench_engine.py [hashing] [demo] [overhead]   (default: all three)
 """
 from __future__ import annotations
 
@@ -262,7 +262,14 @@ def bench_hashing():
 
 if __name__ == "__main__":
     os.environ.setdefault("GRAPHKIT_PLUGINS", "")
-    which = sys.argv[1:] or ["hashing", "demo", "overhead"]
+    sections = ["hashing", "demo", "overhead"]
+    which = sys.argv[1:] or sections
+    unknown = [w for w in which if w not in sections]
+    if unknown:  # e.g. --help: say what there is instead of running nothing
+        print(f"usage: bench_engine.py [{' | '.join(sections)} ...]  (default: all; BENCH_REPS sets "
+              f"the repetitions of overhead){'' if unknown in (['--help'], ['-h']) else f'; unknown: {unknown}'}",
+              file=sys.stderr)
+        sys.exit(0 if unknown in (["--help"], ["-h"]) else 2)
     if "hashing" in which:
         bench_hashing()
     if "demo" in which:
