@@ -262,14 +262,13 @@ def bench_hashing():
 
 if __name__ == "__main__":
     os.environ.setdefault("GRAPHKIT_PLUGINS", "")
-    sections = ["hashing", "demo", "overhead"]
-    which = sys.argv[1:] or sections
-    unknown = [w for w in which if w not in sections]
-    if unknown:  # e.g. --help: say what there is instead of running nothing
-        print(f"usage: bench_engine.py [{' | '.join(sections)} ...]  (default: all; BENCH_REPS sets "
-              f"the repetitions of overhead){'' if unknown in (['--help'], ['-h']) else f'; unknown: {unknown}'}",
-              file=sys.stderr)
-        sys.exit(0 if unknown in (["--help"], ["-h"]) else 2)
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Engine overhead, all-cached re-run and hashing throughput "
+                                 "(BENCH_REPS sets the repetitions of overhead).")
+    ap.add_argument("which", nargs="*", choices=["hashing", "demo", "overhead"],
+                    help="the sections to run (default: all three)")
+    which = ap.parse_args().which or ["hashing", "demo", "overhead"]
     if "hashing" in which:
         bench_hashing()
     if "demo" in which:
