@@ -498,7 +498,7 @@ def cmd_cache(args) -> int:
             print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {fmt_size(r['bytes']):>14}{flag}")
         u = store.usage()
         print(f"{len(rows)} entries, {fmt_size(u['total'])} in {store.location} (objects {fmt_size(u['objects'])}, "
-              f"each counted once; records {fmt_size(u['keys'])}; tmp {fmt_size(u['tmp'])}; "
+              f"each counted once; records {fmt_size(u['keys'] + u['journal'])}; tmp {fmt_size(u['tmp'])}; "
               f"quarantine {fmt_size(u['quarantine'])}; other {fmt_size(u['runs'] + u['locks'] + u['other'])}; "
               "MiB = 2^20 bytes)")
         return 0

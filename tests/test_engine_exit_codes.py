@@ -197,6 +197,9 @@ def test_ctrl_c_in_the_first_fifth_of_a_second(tmp_path, write):
         p.wait(timeout=60)
         if p.returncode == 0:  # finished before the signal (a fast machine): nothing to check
             continue
+        if p.returncode == -signal.SIGINT and "files in" in err:  # landed after main returned (the
+            assert "Traceback" not in err, (delay, err[-2000:])  # run was done): a plain death by
+            continue  # SIGINT, which a shell reports as 130, as for any program
         assert p.returncode == 130, (delay, p.returncode, err[-2000:])
         assert "Traceback" not in err and "graphkit: interrupted" in err, (delay, err[-2000:])
 

@@ -141,7 +141,13 @@ def test_record_body_is_canonical_json():
 
 def test_a_record_that_vanishes_while_listed_reads_as_untrustworthy(store, monkeypatch):
     rec(store, "ab" * 16, [])
-    monkeypatch.setattr(store.fs, "read", lambda rel: None)
+    listdir = store.fs.listdir
+
+    def listed_then_gone(rel):
+        for item in listdir(rel):
+            os.unlink(store.fs._s(item[0]))  # removed between the listing and the read
+            yield item
+    monkeypatch.setattr(store.fs, "listdir", listed_then_gone)
     ((key, r, _),) = list(store.records())
     assert key == "ab" * 16 and r is None
 
@@ -677,18 +683,17 @@ def test_synced_single_writes_and_cleanup_after_a_failed_rename(store, tmp_path)
 
 
 def test_listing_skips_files_that_vanish(store, tmp_path, monkeypatch):
-    import pathlib
-
     c = tmp_path / "c"
     for n in ("a", "b", "c"):
         (c / "tmp" / n).write_bytes(b"x")
-    real = pathlib.Path.lstat
+    real = os.lstat
+    first = str(c / "tmp" / os.listdir(c / "tmp")[0])  # the first one the walk meets
 
-    def flaky(self):
-        if self.name == os.listdir(c / "tmp")[0]:  # the first one the walk meets
-            raise FileNotFoundError(self)
-        return real(self)
-    monkeypatch.setattr(pathlib.Path, "lstat", flaky)
+    def flaky(path, *a, **k):
+        if str(path) == first:
+            raise FileNotFoundError(path)
+        return real(path, *a, **k)
+    monkeypatch.setattr(os, "lstat", flaky)
     assert len(list(store.fs.listdir("tmp"))) == 2
 
 

@@ -1,0 +1,319 @@
+"""Records of a run live in one journal, linked from keys/ (issue 10, cold runs without a file per
+node): what a reader sees, what damage does, how gc counts and frees them, and the fall-backs.
+
+The layout is checked from outside with os.stat (inodes, link counts) and an independent parse
+of the frames (``\\0GKJF <key> <length>\\n<record>``), not with the store's own reader."""
+from __future__ import annotations
+
+import errno
+import os
+
+import numpy as np
+import pytest
+
+import graphkit.store as st
+from graphkit.executor import run_local
+from graphkit.graphfile import load_graph
+from graphkit.runner import Session
+from graphkit.store import Store, encode_record
+
+CHAIN = """\
+graphkit: 1
+name: chain
+nodes:
+  a: {type: Const, params: {value: 2.0, size: 8}}
+  b: {type: Add, inputs: {a: a.out}, params: {offset: 1.0}}
+  c: {type: Add, inputs: {a: b.out}, params: {offset: 10.0}}
+  d: {type: Add, inputs: {a: c.out}, params: {offset: 100.0}}
+outputs: {d: d.out}
+"""
+EXPECTED = np.full(8, 113.0)
+
+
+class Run:
+    """Runs of one graph against one cache folder, each with a fresh Store (as a new process)."""
+
+    def __init__(self, write, registry, cache, text=CHAIN):
+        self.graph = load_graph(write("g.yaml", text), registry)
+        self.registry, self.cache = registry, cache
+        self.notes: list[str] = []
+
+    def __call__(self, store: Store | None = None):
+        store = store or Store(self.cache).open()
+        session = Session(self.graph, self.registry, store, notice=self.notes.append)
+        result = run_local(session, ["d"])
+        with store.run_lock():
+            value = session.output_value("d", "out")
+        return result, session, value
+
+
+def keyfiles(cache):
+    return {p.name.removesuffix(".json"): p for p in (cache / "keys").rglob("*.json")}
+
+
+def journals(cache):
+    return sorted((cache / "journal").glob("*.gkj")) if (cache / "journal").is_dir() else []
+
+
+def frames(path) -> dict[str, bytes]:
+    """key -> record of every whole frame of a journal (a later frame of a key wins)."""
+    raw = path.read_bytes()
+    assert raw.startswith(b"GKJRN1 ") and raw[39:40] == b"\n", raw[:40]
+    out, pos = {}, 40
+    while pos < len(raw) and raw.startswith(b"\0GKJF ", pos):
+        nl = raw.index(b"\n", pos)
+        key, n = raw[pos + 6:nl].split(b" ")
+        end = nl + 1 + int(n)
+        if end > len(raw):
+            break
+        out[key.decode()] = raw[nl + 1:end]
+        pos = end
+    return out
+
+
+def inode(p):
+    s = os.stat(p)
+    return s.st_dev, s.st_ino
+
+
+def true_size(cache) -> int:
+    """Bytes below the folder, each file (inode) once: what `du` would say, without blocks."""
+    seen, total = set(), 0
+    for dirpath, _, files in os.walk(cache):
+        for fn in files:
+            s = os.lstat(os.path.join(dirpath, fn))
+            if (s.st_dev, s.st_ino) not in seen:
+                seen.add((s.st_dev, s.st_ino))
+                total += s.st_size
+    return total
+
+
+@pytest.fixture
+def run(write, engine_registry, tmp_path):
+    return Run(write, engine_registry, tmp_path / "c")
+
+
+def test_a_run_links_every_record_to_its_one_journal(run):
+    result, session, value = run()
+    np.testing.assert_array_equal(value, EXPECTED)
+    (j,) = journals(run.cache)
+    files = keyfiles(run.cache)
+    assert len(files) == 4
+    assert {inode(p) for p in files.values()} == {inode(j)}  # hard links, no file per record
+    assert os.stat(j).st_nlink == 5
+    written = frames(j)
+    assert set(written) == set(files)
+    for key, rec in written.items():  # each frame is the record, with its check line
+        assert rec.startswith(b"GKREC1 ") and f'"key":"{key}"'.encode() in rec
+    result2, _, value2 = run()  # a new process reads them back: all hits, nothing written
+    assert all(o.hit for o in result2.outcomes.values()) and journals(run.cache) == [j]
+    np.testing.assert_array_equal(value2, EXPECTED)
+    assert run.notes == []
+
+
+def test_records_written_outside_a_run_are_files_of_their_own(tmp_path):
+    s = Store(tmp_path / "c").open()
+    rec = {"key": "ab" * 16, "node": "n", "parts": {}, "outputs": {}}
+    s.put_record("ab" * 16, rec)
+    p = tmp_path / "c" / s._krel("ab" * 16)
+    assert os.stat(p).st_nlink == 1 and p.read_bytes() == encode_record(rec)
+    assert not (tmp_path / "c" / "journal").exists()
+    with s.run_lock():  # inside one: the journal
+        s.put_record("cd" * 16, {**rec, "key": "cd" * 16})
+    q = tmp_path / "c" / s._krel("cd" * 16)
+    assert os.stat(q).st_nlink == 2 and frames(journals(tmp_path / "c")[0]) == {"cd" * 16: encode_record(
+        {**rec, "key": "cd" * 16})}
+    assert s.get_record("cd" * 16)["key"] == "cd" * 16 and s.get_record("ab" * 16)["key"] == "ab" * 16
+
+
+def test_a_record_written_again_replaces_its_link(tmp_path):
+    s = Store(tmp_path / "c").open()
+    old = {"key": "ab" * 16, "node": "old", "parts": {}, "outputs": {}}
+    s.put_record("ab" * 16, old)  # a record file
+    with s.run_lock():
+        s.put_record("ab" * 16, {**old, "node": "new"})
+        s.put_record("ab" * 16, {**old, "node": "newer"})  # the same journal, a later frame
+    assert Store(tmp_path / "c").open().get_record("ab" * 16)["node"] == "newer"
+    assert os.listdir(tmp_path / "c" / "tmp") == []
+
+
+def test_a_reader_sees_what_another_run_appends_to_its_journal(tmp_path):
+    """Two Store objects (as two processes): the reader indexes the writer's journal on first use
+    and reads on when the journal has grown."""
+    w, r = Store(tmp_path / "c").open(), Store(tmp_path / "c").open()
+    rec = {"key": "", "node": "n", "parts": {}, "outputs": {}}
+    with w.run_lock():
+        w.put_record("a1" * 16, {**rec, "key": "a1" * 16})
+        assert r.get_record("a1" * 16)["key"] == "a1" * 16
+        assert r.get_record("b2" * 16) is None
+        w.put_record("b2" * 16, {**rec, "key": "b2" * 16})
+        w.put_record("a1" * 16, {**rec, "key": "a1" * 16, "node": "again"})
+        assert r.get_record("b2" * 16)["key"] == "b2" * 16
+        assert r.get_record("a1" * 16)["node"] == "again"  # the later frame
+    assert r.verify() == [] and len(journals(tmp_path / "c")) == 1
+
+
+def test_a_torn_last_frame_is_never_seen(run):
+    """A run killed while appending leaves part of a frame at the journal's end, never linked:
+    the records before it read as before; nothing is reported damaged."""
+    run()
+    (j,) = journals(run.cache)
+    with open(j, "ab") as f:
+        f.write(b"\0GKJF " + b"f" * 32 + b" 500\nGKREC1 0123")  # 500 bytes announced, 11 written
+    store = Store(run.cache).open()
+    assert store.verify() == []
+    result, _, value = run()
+    assert all(o.hit for o in result.outcomes.values()) and run.notes == []
+    np.testing.assert_array_equal(value, EXPECTED)
+
+
+def test_a_bit_flipped_in_one_frame_quarantines_that_record_only(run):
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    kc = first.outcomes["c"].key
+    raw = bytearray(j.read_bytes())
+    at = raw.index(b'"node":"c"')
+    raw[at + 8] ^= 0x01  # "c" -> "b" inside c's frame, same length
+    j.write_bytes(bytes(raw))
+    result, _, value = run()
+    np.testing.assert_array_equal(value, EXPECTED)
+    assert {n for n, o in result.outcomes.items() if not o.hit} == {"c"}  # d's inputs did not change
+    assert len(run.notes) == 1 and kc[:16] in run.notes[0] and "quarantine" in run.notes[0], run.notes
+    (q,) = (run.cache / "quarantine").iterdir()
+    assert q.name.startswith(f"keys_{kc[:2]}_{kc}.json.") and q.read_bytes() == bytes(frames(j)[kc])
+    new = [x for x in journals(run.cache) if x != j]
+    assert len(new) == 1 and inode(keyfiles(run.cache)[kc]) == inode(new[0])
+
+
+def test_a_journal_overwritten_through_one_link_damages_no_result(run):
+    """Writing a record's file in place writes the journal all records link to: every record is
+    then untrustworthy, and every node is recomputed (never served)."""
+    first, _, _ = run()
+    keyfiles(run.cache)[first.outcomes["b"].key].write_bytes(b"GKREC1 00\n{}")
+    result, _, value = run()
+    np.testing.assert_array_equal(value, EXPECTED)
+    assert not any(o.hit for o in result.outcomes.values())
+    assert len(run.notes) == 4 and all("quarantine" in n for n in run.notes), run.notes
+
+
+def test_a_record_missing_from_its_journal_is_untrustworthy(run):
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    kd = first.outcomes["d"].key
+    raw = j.read_bytes()
+    at = raw.index(b"\0GKJF " + kd.encode())
+    j.write_bytes(raw[:at])  # d's frame cut off (the file shrank)
+    store = Store(run.cache).open()
+    assert store.verify() == [f"record {kd}: {st.NOT_IN_JOURNAL}"]
+    result, _, value = run()
+    np.testing.assert_array_equal(value, EXPECTED)
+    assert {n for n, o in result.outcomes.items() if not o.hit} == {"d"}
+    assert any(kd[:16] in n and st.NOT_IN_JOURNAL in n for n in run.notes), run.notes
+
+
+def test_usage_counts_a_journal_once_and_gc_frees_it_with_its_last_link(run):
+    first, _, _ = run()
+    store = Store(run.cache).open()
+    u = store.usage()
+    (j,) = journals(run.cache)
+    assert u["journal"] == j.stat().st_size and u["keys"] == 0
+    assert u["total"] == true_size(run.cache)
+    # drop records until one is left: the journal stays (a record links to it) and counts whole
+    info = store.gc(u["total"] - 1)
+    assert info["removed_records"] >= 1 and j.exists()
+    assert store.size() == true_size(run.cache) == info["bytes"]
+    info = store.gc(0)
+    assert keyfiles(run.cache) == {} and journals(run.cache) == []
+    assert store.size() == true_size(run.cache) == info["bytes"]
+
+
+def test_gc_removes_journals_no_record_links_to(run):
+    run()
+    (j,) = journals(run.cache)
+    for p in keyfiles(run.cache).values():
+        p.unlink()
+    store = Store(run.cache).open()
+    assert store.clean_stale(dry_run=True) == {"files": 1, "bytes": j.stat().st_size}
+    assert j.exists()
+    info = store.gc(10**9)
+    assert info["stale_files"] == 1 and not j.exists()
+
+
+def test_a_record_used_long_after_its_journal_moves_to_the_readers_journal(run, write, engine_registry):
+    """gc's least-recently-used order stays per record: reading one record of an old journal
+    moves that record (not the journal's others) to the reading run's journal."""
+    first, _, _ = run()
+    (old,) = journals(run.cache)
+    t = os.stat(old).st_mtime - 3600
+    os.utime(old, (t, t))
+    part = load_graph(write("part.yaml", "graphkit: 1\nname: part\nnodes:\n"
+                            "  a: {type: Const, params: {value: 2.0, size: 8}}\noutputs: {a: a.out}\n"),
+                      engine_registry)
+    r = run_local(Session(part, engine_registry, Store(run.cache).open()), ["a"])
+    assert r.outcomes["a"].hit
+    (new,) = [x for x in journals(run.cache) if x != old]
+    ka = first.outcomes["a"].key
+    files = keyfiles(run.cache)
+    assert inode(files[ka]) == inode(new)
+    assert all(inode(p) == inode(old) for k, p in files.items() if k != ka)
+    assert os.stat(old).st_mtime == pytest.approx(t)
+    # gc now drops the three records of the old journal first, and the journal with the last
+    info = Store(run.cache).open().gc(true_size(run.cache) - old.stat().st_size)
+    assert info["removed_records"] == 3 and not old.exists() and set(keyfiles(run.cache)) == {ka}
+
+
+def test_a_file_system_without_hard_links_gets_record_files(run, monkeypatch):
+    def no_links(src, dst, *a, **k):
+        raise OSError(errno.EPERM, "Operation not permitted")
+    monkeypatch.setattr(st.os, "link", no_links)
+    _, _, value = run()
+    np.testing.assert_array_equal(value, EXPECTED)
+    files = keyfiles(run.cache)
+    assert len(files) == 4 and all(os.stat(p).st_nlink == 1 for p in files.values())
+    assert all(p.read_bytes().startswith(b"GKREC1 ") for p in files.values())
+    monkeypatch.undo()
+    result, _, _ = run()
+    assert all(o.hit for o in result.outcomes.values())
+
+
+def test_a_full_journal_is_followed_by_a_new_one(run, monkeypatch):
+    monkeypatch.setattr(st, "JOURNAL_MAX_FRAMES", 3)
+    run()
+    js = journals(run.cache)
+    assert [len(frames(j)) for j in js] == [3, 1]
+    calls = []
+    real = os.link
+
+    def emlink_once(src, dst, *a, **k):  # a file system with a lower link limit says so
+        if not calls:
+            calls.append(dst)
+            raise OSError(errno.EMLINK, "Too many links")
+        return real(src, dst, *a, **k)
+    monkeypatch.setattr(st, "JOURNAL_MAX_FRAMES", 50_000)
+    monkeypatch.setattr(st.os, "link", emlink_once)
+    store = Store(run.cache).open()
+    with store.run_lock():
+        store.put_record("ab" * 16, {"key": "ab" * 16, "node": "n", "parts": {}, "outputs": {}})
+    assert calls and store.get_record("ab" * 16)["node"] == "n"
+    assert len(journals(run.cache)) == 4  # the frame went to a second journal of that run
+
+
+def test_a_journal_removed_while_a_run_writes_is_replaced(tmp_path):
+    s = Store(tmp_path / "c").open()
+    rec = {"key": "", "node": "n", "parts": {}, "outputs": {}}
+    with s.run_lock():
+        s.put_record("a1" * 16, {**rec, "key": "a1" * 16})
+        (j,) = journals(tmp_path / "c")
+        j.unlink()  # (not something graphkit does while a run holds the lock; a user might)
+        s.put_record("b2" * 16, {**rec, "key": "b2" * 16})
+    assert s.get_record("b2" * 16)["key"] == "b2" * 16 and s.get_record("a1" * 16)["key"] == "a1" * 16
+    assert len(journals(tmp_path / "c")) == 1
+
+
+def test_fsspec_reads_records_linked_to_a_journal(run):
+    first, _, _ = run()
+    s = Store(f"file://{run.cache}").open()
+    kb = first.outcomes["b"].key
+    assert s.get_record(kb)["node"] == "b"
+    assert s.get_record("ff" * 16) is None
+    assert s.verify() == []
