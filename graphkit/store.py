@@ -264,28 +264,27 @@ _LINK_UNSUPPORTED = {getattr(errno, n) for n in ("EPERM", "ENOTSUP", "EOPNOTSUPP
 
 
 def is_journal(head: bytes | memoryview) -> bool:
+    """Whether a file starting with ``head`` is a journal (its header: magic, id, newline)."""
     return len(head) >= JOURNAL_HEAD and bytes(head[:len(JOURNAL_MAGIC)]) == JOURNAL_MAGIC \
-        and head[JOURNAL_HEAD - 1] in (10, b"\n")
+        and head[JOURNAL_HEAD - 1] == 10
+
+
+_FRAME_HEAD = re.compile(rb"\0GKJF ([0-9A-Za-z]{1,64}) ([0-9]{1,12})\n")
 
 
 def parse_frames(buf: bytes | bytearray, pos: int, frames: dict[str, tuple[int, int]]) -> int:
     """Index the whole frames of a journal from ``pos`` (key -> (start, end) of its record; a
-    later frame of a key replaces an earlier one); returns where it stopped: the end, or the
-    start of a torn or damaged frame (what follows one cannot be found)."""
+    later frame of a key replaces an earlier one); returns the end of the last whole frame, where
+    the next call starts.  A record never holds a NUL byte (its JSON is ASCII with escapes), so
+    every NUL + "GKJF " starts a frame: a damaged stretch is skipped, and the frames after it are
+    still found (a false start inside damage only names a record that then fails its checks)."""
     n = len(buf)
-    while pos < n:
-        if buf[pos:pos + 6] != FRAME:
+    for m in _FRAME_HEAD.finditer(buf, pos):
+        start = m.end()
+        end = start + int(m.group(2))
+        if end > n:  # torn (a killed run) or still being written
             break
-        nl = buf.find(b"\n", pos + 6, pos + 6 + 160)
-        if nl < 0:
-            break
-        head = bytes(buf[pos + 6:nl]).split(b" ")
-        if len(head) != 2 or not head[1].isdigit():
-            break
-        end = nl + 1 + int(head[1])
-        if end > n:
-            break
-        frames[head[0].decode("ascii", "replace")] = (nl + 1, end)
+        frames[m.group(1).decode()] = (start, end)
         pos = end
     return pos
 
@@ -313,9 +312,9 @@ class _JournalView:
         self.buf += data
         self.parsed = parse_frames(self.buf, self.parsed, self.frames)
 
-    def record(self, key: str) -> bytes | None:
+    def record(self, key: str) -> bytearray | None:
         span = self.frames.get(key)
-        return None if span is None else bytes(self.buf[span[0]:span[1]])
+        return None if span is None else self.buf[span[0]:span[1]]
 
 
 class _Journal:
@@ -506,23 +505,6 @@ class LocalFS:
                 return False
         except OSError:
             return False
-
-    def read_touch(self, rel: str, fresh_s: float) -> bytes | None:
-        """Read a small file and mark it used (mtime = now) unless it was marked in the last
-        ``fresh_s`` seconds: one open, fstat, read and close, and no utime on a warm re-run."""
-        try:
-            fd = os.open(self._s(rel), os.O_RDONLY | _CLOEXEC)
-        except (FileNotFoundError, NotADirectoryError):
-            return None
-        try:
-            st = os.fstat(fd)
-            data = _read_fd(fd, st.st_size)
-            if time.time() - st.st_mtime > fresh_s:
-                with contextlib.suppress(OSError):  # read-only caches stay readable
-                    os.utime(fd)
-            return data
-        finally:
-            os.close(fd)
 
     def stats(self, rel: str) -> Iterator[tuple[str, os.stat_result]]:
         """(path below the root, lstat) of every file below ``rel``."""
@@ -715,9 +697,6 @@ class FsspecFS:
         except Exception:  # noqa: BLE001 - best effort: the entry is skipped either way
             return False
 
-    def read_touch(self, rel: str, fresh_s: float) -> bytes | None:
-        return self.read(rel)
-
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
         base = self._p(rel)
         if not self.fs.exists(base):
@@ -898,9 +877,15 @@ class Store:
                 if linked:
                     raw = journal_record(raw, key)
             else:
-                head = os.pread(fd, JOURNAL_HEAD, 0)
-                linked = is_journal(head)
-                raw = self._journal_lookup(fd, st, head, key) if linked else _read_fd(fd, st.st_size)
+                view = self._jviews.get((st.st_dev, st.st_ino)) if self._run_lock_depth else None
+                if view is not None and st.st_size == len(view.buf):
+                    # a journal this run has read whole: no header to read again (within a run no
+                    # journal is removed, so its inode is not another file's)
+                    linked, raw = True, view.record(key)
+                else:
+                    head = os.pread(fd, JOURNAL_HEAD, 0)
+                    linked = is_journal(head)
+                    raw = self._journal_lookup(fd, st, head, key) if linked else _read_fd(fd, st.st_size)
             if raw is None:
                 return None, NOT_IN_JOURNAL, False
             if touch and time.time() - st.st_mtime > self.TOUCH_GRANULARITY_S:
@@ -915,8 +900,11 @@ class Store:
     def _journal_lookup(self, fd: int, st: os.stat_result, head: bytes, key: str) -> bytes | None:
         """The record of ``key`` in the journal open as ``fd``: from what this process has read
         of it, after reading what has been appended since."""
+        ident = (st.st_dev, st.st_ino)
+        view = self._jviews.get(ident)
+        if view is not None and st.st_size == len(view.buf) and view.head == head:
+            return view.record(key)  # (the usual hit: read already; no lock, as views only grow)
         with self._jlock:
-            ident = (st.st_dev, st.st_ino)
             view = self._jviews.get(ident)
             if view is None or view.head != head or st.st_size < len(view.buf):
                 if self._jview_bytes > JOURNAL_CACHE_BYTES:
@@ -1131,6 +1119,8 @@ class Store:
             self._run_lock_depth += 1
             first = self._run_lock_depth == 1
             if first:
+                self._jviews.clear()  # (read outside a run: journals may have been removed since)
+                self._jview_bytes = 0
                 cm = self.fs.lock("store.lock", shared=True)
                 try:
                     with self._errors("lock the cache"):
