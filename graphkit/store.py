@@ -18,9 +18,10 @@ memory speed, so this costs about as much as the read); a record starts with a l
 point at another (valid) object, or copied under another key, is detected.  A damaged entry is
 moved to ``quarantine/``, reported in one notice line, and recomputed.
 
-Writes and durability (group commit).  Every write goes to ``tmp/`` and is renamed into place,
-objects before the record that names them, so a reader or a process killed at any point sees a
-whole entry or none (the kernel keeps what a killed process wrote).  For power loss we do NOT
+Writes and durability (group commit).  Every object goes to ``tmp/`` and is renamed into place
+(a record too, or it is linked to its run's journal once whole: below), objects before the
+record that names them, so a reader or a process killed at any point sees a whole entry or none
+(the kernel keeps what a killed process wrote).  For power loss we do NOT
 fsync every file: on ext4 each fsync is a journal commit plus a device flush (the 3.4 ms per
 node measured in issue 10), paid twice per node.  Instead a run commits in groups:
 :meth:`Store.commit` calls ``syncfs(2)`` on the cache's file system (all data, inodes and
@@ -37,7 +38,7 @@ Records of a run: one journal, a hard link per key.  A run appends each record i
 own journal file (a header line with a unique id, then frames ``\0GKJF <key> <length>\n<record>``,
 each record with its check line as above) and makes ``keys/12/1234….json`` a hard link to that
 journal.  A new hard link is a directory entry only, where a file per record is also a new inode:
-on a busy disk that allocation costs 100-300 µs, the link 2-5 µs (benchmarks/bench_engine.py).  A
+on a busy disk that allocation costs 100-300 µs, a link a few µs (benchmarks/bench_engine.py).  A
 reader opens the key's file as before; a file that starts with the journal header is looked up in
 its frame index (read once per journal and process, extended when the journal has grown).  The
 link is made after the frame is whole, so a reader or a process killed at any point sees a whole
