@@ -365,19 +365,6 @@ def _read_fd(fd: int, size: int) -> bytes:
     return data
 
 
-def _pread_all(fd: int, n: int, offset: int) -> bytes:
-    """``n`` bytes of ``fd`` from ``offset`` (fewer at the end of the file)."""
-    chunks = []
-    while n > 0:
-        b = os.pread(fd, n, offset)
-        if not b:
-            break
-        chunks.append(b)
-        n -= len(b)
-        offset += len(b)
-    return b"".join(chunks)
-
-
 def _write_all(fd: int, chunks) -> None:
     """Write every chunk (bytes or buffers) to ``fd`` with os.write (no Python file object)."""
     for c in chunks:
@@ -914,7 +901,7 @@ class Store:
                 view = self._jviews[ident] = _JournalView(head)
             if st.st_size > len(view.buf):
                 n0 = len(view.buf)
-                view.extend(_pread_all(fd, st.st_size - n0, n0))
+                view.extend(os.pread(fd, st.st_size - n0, n0))  # (a short read: the rest next time)
                 self._jview_bytes += len(view.buf) - n0
             return view.record(key)
 
@@ -937,11 +924,12 @@ class Store:
 
     def _journal_put(self, key: str, raw: bytes) -> bool:
         """Append the record to this run's journal and link keys/…/KEY.json to it; False if this
-        file system has no hard links (the caller writes a record file instead)."""
+        file system has no hard links, or will not link the journal (the caller writes a record
+        file instead)."""
         frame = b"%s%s %d\n" % (FRAME, key.encode(), len(raw)) + raw
         dest = self.fs._s(self._krel(key))
         with self._jlock:
-            for _ in range(3):
+            for _ in range(2):  # this run's journal, then (full, or removed meanwhile) a new one
                 j = self._journal
                 if j is None or j.pid != _PID[0]:  # (a forked child starts its own)
                     j = self._journal = self._open_journal()
@@ -957,12 +945,12 @@ class Store:
                         return False
                     if e.errno not in (errno.EMLINK, errno.ENOENT):
                         raise
-                    self._end_journal()  # full, or removed meanwhile: the frame goes to a new one
+                    self._end_journal()
                     continue
                 if j.frames >= JOURNAL_MAX_FRAMES or j.size >= JOURNAL_MAX_BYTES:
                     self._end_journal()
                 return True
-        raise OSError(errno.EMLINK, "cannot link a record to a journal")
+        return False
 
     def _open_journal(self) -> _Journal:
         folder = self.fs._s("journal")
@@ -1174,7 +1162,7 @@ class Store:
 
     def _record_why(self, key: str) -> str:
         raw, why, _ = self._raw_record(self._krel(key), key)
-        return why or decode_record(raw or b"", key)[1] or "is not a valid record"
+        return why or decode_record(raw or b"", key)[1]
 
     def _record_files(self) -> tuple[dict[str, int], dict[str, tuple[int, int]], dict[tuple[int, int], list]]:
         """(key -> size of its record file; key -> the journal it links to; journal ->

@@ -354,3 +354,291 @@ def test_kill_9_while_a_run_appends_records_leaves_no_bad_entry(tmp_path, write)
     a, b = (json.loads((tmp_path / d / "manifest.json").read_text())["nodes"] for d in ("final", "clean_out"))
     assert {k: v["key"] for k, v in a.items()} == {k: v["key"] for k, v in b.items()}
     assert sum(not v["hit"] for v in a.values()) < n  # the killed runs' records were used
+
+
+# ---------------------------------------------------------------------------------------------
+# edges of the reader, the writer and the accounting (unit level: Store objects in this process)
+
+REC = {"key": "", "node": "n", "parts": {}, "outputs": {}}
+
+
+def put(store, key, **extra):
+    store.put_record(key, {**REC, "key": key, **extra})
+
+
+def test_a_reader_inside_a_run_sees_what_is_appended_after_it_read(tmp_path):
+    w, r = Store(tmp_path / "c").open(), Store(tmp_path / "c").open()
+    with w.run_lock(), r.run_lock():
+        put(w, "a1" * 16)
+        assert r.get_record("a1" * 16)["key"] == "a1" * 16  # r has read the journal whole
+        put(w, "b2" * 16)
+        assert r.get_record("b2" * 16)["key"] == "b2" * 16  # ... and reads on: it grew
+
+
+def test_a_frame_read_half_written_is_found_whole_later(tmp_path):
+    w, r = Store(tmp_path / "c").open(), Store(tmp_path / "c").open()
+    with w.run_lock():
+        put(w, "a1" * 16)
+        (j,) = journals(tmp_path / "c")
+        assert r.get_record("a1" * 16) is not None
+        raw = encode_record({**REC, "key": "b2" * 16})
+        frame = b"\0GKJF " + b"b2" * 16 + b" %d\n" % len(raw) + raw
+        with open(j, "ab") as f:  # a writer half-way through its append
+            f.write(frame[:60])
+        assert r.get_record("a1" * 16) is not None  # r reads the half frame
+        with open(j, "ab") as f:
+            f.write(frame[60:])
+        os.makedirs(tmp_path / "c" / "keys" / "b2", exist_ok=True)
+        os.link(j, tmp_path / "c" / r._krel("b2" * 16))
+        assert r.get_record("b2" * 16)["key"] == "b2" * 16
+
+
+def test_a_journal_rewritten_or_cut_in_place_is_read_again(tmp_path):
+    """A reader's index of a journal is keyed by its inode and header: a file of the same size
+    with another header (another journal in the same inode), or a shorter one, is read again."""
+    w, r = Store(tmp_path / "c").open(), Store(tmp_path / "c").open()
+    with w.run_lock():
+        put(w, "a1" * 16, node="x")
+    (j,) = journals(tmp_path / "c")
+    assert r.get_record("a1" * 16)["node"] == "x"
+    raw = j.read_bytes()
+    other = raw[:7] + b"f" * 32 + raw[39:]
+    other = other.replace(b'"node":"x"', b'"node":"y"')  # same length; its check line fails
+    j.write_bytes(other)
+    notes = []
+    r.on_notice = notes.append
+    assert r.get_record("a1" * 16) is None and "check line" in notes[0], notes
+    put(w, "a1" * 16, node="z")  # (outside a run: a record file of its own, replacing the link)
+    with w.run_lock():
+        put(w, "b2" * 16)
+        put(w, "c3" * 16)
+    (j2,) = [x for x in journals(tmp_path / "c") if x != j]
+    assert r.get_record("c3" * 16) is not None
+    data = j2.read_bytes()
+    j2.write_bytes(data[:data.index(b"\0GKJF " + b"c3" * 16)])  # c3's frame cut off
+    assert r.get_record("c3" * 16) is None
+    assert r.get_record("b2" * 16) is not None and r.get_record("a1" * 16)["node"] == "z"
+
+
+def test_a_process_forgets_journals_beyond_its_memory_bound(tmp_path, monkeypatch):
+    w = Store(tmp_path / "c").open()
+    for k in ("a1", "b2", "c3"):
+        with w.run_lock():  # three runs, three journals
+            put(w, k * 16)
+    assert len(journals(tmp_path / "c")) == 3
+    monkeypatch.setattr(st, "JOURNAL_CACHE_BYTES", 100)  # less than one journal
+    r = Store(tmp_path / "c").open()
+    for k in ("a1", "b2", "c3"):
+        assert r.get_record(k * 16)["key"] == k * 16
+    (view,) = r._jviews.values()  # each journal read put it over the bound: the others forgotten
+    assert r._jview_bytes == len(view.buf) - 40 > 100
+
+
+def test_links_refused_once_are_not_tried_again_in_that_store(tmp_path, monkeypatch):
+    calls = []
+
+    def refuse(src, dst, *a, **k):
+        calls.append(dst)
+        raise OSError(errno.ENOTSUP, "Operation not supported")
+    monkeypatch.setattr(st.os, "link", refuse)
+    s = Store(tmp_path / "c").open()
+    with s.run_lock():
+        for k in ("a1", "b2", "c3"):
+            put(s, k * 16)
+    assert len(calls) == 1
+    assert all(os.stat(tmp_path / "c" / s._krel(k * 16)).st_nlink == 1 for k in ("a1", "b2", "c3"))
+
+
+def test_a_journal_that_will_not_take_links_gives_a_record_file(tmp_path, monkeypatch):
+    calls = []
+
+    def full(src, dst, *a, **k):
+        calls.append(dst)
+        raise OSError(errno.EMLINK, "Too many links")
+    monkeypatch.setattr(st.os, "link", full)
+    s = Store(tmp_path / "c").open()
+    with s.run_lock():
+        put(s, "a1" * 16)
+    assert len(calls) == 2 and len(journals(tmp_path / "c")) == 2  # its journal, then a new one
+    p = tmp_path / "c" / s._krel("a1" * 16)
+    assert os.stat(p).st_nlink == 1 and s.get_record("a1" * 16)["key"] == "a1" * 16
+
+
+def test_a_journal_is_closed_at_its_size_limit(tmp_path, monkeypatch):
+    one = len(encode_record({**REC, "key": "a1" * 16})) + len(b"\0GKJF " + b"a1" * 16 + b" 999\n")
+    monkeypatch.setattr(st, "JOURNAL_MAX_BYTES", 40 + 2 * one)
+    s = Store(tmp_path / "c").open()
+    with s.run_lock():
+        for k in ("a1", "b2", "c3", "d4", "e5"):
+            put(s, k * 16)
+    assert [len(frames(j)) for j in journals(tmp_path / "c")] == [2, 2, 1]
+
+
+def test_journals_get_the_folder_s_mode_and_are_not_inherited(tmp_path):
+    root = tmp_path / "g"
+    root.mkdir()
+    os.chmod(root, 0o2770)
+    old = os.umask(0o077)
+    try:
+        s = Store(root).open()
+        with s.run_lock():
+            put(s, "a1" * 16)
+            assert os.get_inheritable(s._journal.fd) is False
+            fd = s._journal.fd
+        (j,) = journals(root)
+        assert os.stat(j).st_mode & 0o777 == 0o660
+        with pytest.raises(OSError):  # closed when the run ended
+            os.fstat(fd)
+    finally:
+        os.umask(old)
+
+
+def test_a_journal_whose_header_cannot_be_written_is_not_left(tmp_path, monkeypatch):
+    from graphkit.errors import CacheError
+
+    s = Store(tmp_path / "c").open()
+    real = st._write_all
+
+    def full_disk(fd, chunks):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(st, "_write_all", full_disk)
+    with s.run_lock(), pytest.raises(CacheError, match="the disk is full"):
+        put(s, "a1" * 16)
+    monkeypatch.setattr(st, "_write_all", real)
+    assert journals(tmp_path / "c") == [] and s._journal is None
+
+
+def test_damaged_records_leave_keys_for_quarantine_on_fsspec_and_local(tmp_path):
+    import uuid
+
+    for s in (Store(f"memory://j-{uuid.uuid4().hex}").open(), Store(tmp_path / "c").open()):
+        notes = []
+        s.on_notice = notes.append
+        s.fs.write_atomic(s._krel("ab" * 16), [b"GKREC1 00\n{}"])
+        assert s.get_record("ab" * 16) is None and not s.fs.exists(s._krel("ab" * 16))
+        (q,) = [rel for rel, _, _ in s.fs.listdir("quarantine")]
+        assert s.fs.read(q) == b"GKREC1 00\n{}" and "moved to quarantine/" in notes[0]
+
+
+def test_a_record_cut_from_its_journal_is_quarantined_as_nothing(run):
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    kd = first.outcomes["d"].key
+    raw = j.read_bytes()
+    j.write_bytes(raw[:raw.index(b"\0GKJF " + kd.encode())])
+    s = Store(run.cache).open()
+    assert s.get_record(kd) is None
+    (q,) = (run.cache / "quarantine").iterdir()
+    assert q.read_bytes() == b"" and not keyfiles(run.cache).get(kd)
+    assert Store(f"file://{run.cache}").open().get_record(first.outcomes["c"].key) is not None
+
+
+def test_fsspec_reports_a_record_its_journal_lacks(run):
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    kd = first.outcomes["d"].key
+    raw = j.read_bytes()
+    j.write_bytes(raw[:raw.index(b"\0GKJF " + kd.encode())])
+    assert Store(f"file://{run.cache}").open().verify() == [f"record {kd}: {st.NOT_IN_JOURNAL}"]
+
+
+def test_verify_names_the_damage_of_a_frame(run):
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    raw = bytearray(j.read_bytes())
+    at = raw.index(b'"node":"b"')
+    raw[at + 8] ^= 0x01
+    j.write_bytes(bytes(raw))
+    kb = first.outcomes["b"].key
+    assert Store(run.cache).open().verify() == [f"record {kb}: does not match its check line (damaged or edited)"]
+
+
+def test_clean_stale_counts_every_unlinked_journal(tmp_path):
+    s = Store(tmp_path / "c").open()
+    for k in ("a1", "b2"):
+        with s.run_lock():
+            put(s, k * 16)
+    js = journals(tmp_path / "c")
+    for k in ("a1", "b2"):
+        os.unlink(tmp_path / "c" / s._krel(k * 16))
+    sizes = sum(j.stat().st_size for j in js)
+    assert s.clean_stale(dry_run=True) == {"files": 2, "bytes": sizes}
+    assert s.clean_stale() == {"files": 2, "bytes": sizes}
+    assert journals(tmp_path / "c") == []
+
+
+def test_usage_of_linked_and_plain_records_together(tmp_path):
+    s = Store(tmp_path / "c").open()
+    with s.run_lock():
+        put(s, "a1" * 16)  # a journal with one link (two names)
+    for k in ("00", "ff"):
+        put(s, k * 16)  # record files of their own, one before and one after the link in the walk
+    u = s.usage()
+    (j,) = journals(tmp_path / "c")
+    plain = sum(os.stat(tmp_path / "c" / s._krel(k * 16)).st_size for k in ("00", "ff"))
+    assert (u["journal"], u["keys"]) == (j.stat().st_size, plain)
+    assert u["total"] == true_size(tmp_path / "c")
+
+
+def test_gc_frees_the_bytes_of_linked_records_only_with_their_journal(write, engine_registry, tmp_path):
+    """Three records in one journal and one object they all name: gc asked to free one byte must
+    drop all three (no single record frees anything), and then fits."""
+    g = load_graph(write("n.yaml", "graphkit: 1\nname: n\nnodes:\n  a: {type: Const, params: {value: 1.0}}\n"
+                         "  b: {type: Noop, inputs: {x: a.out}, params: {i: 1}}\n"
+                         "  c: {type: Noop, inputs: {x: b.out}, params: {i: 2}}\noutputs: {c: c.out}\n"),
+                   engine_registry)
+    s = Store(tmp_path / "c").open()
+    run_local(Session(g, engine_registry, s), ["c"])
+    for p in (tmp_path / "c" / "runs").iterdir():
+        p.unlink()
+    total = s.size()
+    info = s.gc(total - 1)
+    assert info["removed_records"] == 3 and info["removed_objects"] == 1 and info["bytes"] <= total - 1
+    assert journals(tmp_path / "c") == [] and info["bytes"] == true_size(tmp_path / "c")
+
+
+def test_gc_on_an_fsspec_store_counts_each_record_s_bytes(tmp_path):
+    import uuid
+
+    import graphkit.types as T
+
+    s = Store(f"memory://gc-{uuid.uuid4().hex}").open()
+    for i, k in enumerate(("a1", "b2", "c3")):
+        d = s.put_value(T.ARRAY, np.full(50, float(i)))
+        put(s, k * 16, outputs={"out": {"digest": d, "type": "Array"}})
+    sizes = {rel: n for rel, n, _ in s.fs.listdir("keys")}
+    objs = {rel: n for rel, n, _ in s.fs.listdir("objects")}
+    total = s.size()
+    info = s.gc(total - min(sizes.values()) - min(objs.values()))
+    assert info["removed_records"] == 1 and info["removed_objects"] == 1
+
+
+def test_touching_records_in_a_run(tmp_path, monkeypatch):
+    """Used long after: a record file is marked used (mtime), a linked record moves to the run's
+    journal; a move that fails leaves the record served."""
+    s = Store(tmp_path / "c").open()
+    put(s, "00" * 16)
+    with s.run_lock():
+        put(s, "a1" * 16)
+    old = time_ago(3600)
+    for p in [tmp_path / "c" / s._krel("00" * 16)] + journals(tmp_path / "c"):
+        os.utime(p, (old, old))
+    with s.run_lock():
+        assert s.get_record("00" * 16, touch=True) is not None
+        p = tmp_path / "c" / s._krel("00" * 16)
+        assert os.stat(p).st_nlink == 1 and os.stat(p).st_mtime > old + 3000
+        monkeypatch.setattr(st.os, "link", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EIO, "I/O error")))
+        assert s.get_record("a1" * 16, touch=True)["key"] == "a1" * 16
+
+
+def time_ago(seconds):
+    import time
+
+    return time.time() - seconds
+
+
+def test_a_record_file_over_a_mebibyte_is_read_whole(tmp_path):
+    s = Store(tmp_path / "c").open()
+    put(s, "ab" * 16, note="x" * (1 << 21))
+    assert os.stat(tmp_path / "c" / s._krel("ab" * 16)).st_size > 1 << 20
+    assert s.get_record("ab" * 16)["note"] == "x" * (1 << 21)
