@@ -505,7 +505,8 @@ def cmd_cache(args) -> int:
     if args.cache_cmd == "gc":
         info = store.gc(_parse_size(args.max_size))
         print(f"removed {info['removed_records']} records, {info['removed_objects']} objects and "
-              f"{info['stale_files']} stale temp/lock/quarantined files ({fmt_size(info['stale_bytes'])}); "
+              f"{info['stale_files']} stale temp, lock, quarantined and unlinked journal files "
+              f"({fmt_size(info['stale_bytes'])}); "
               f"{fmt_size(info['bytes'])} left in {store.location}")
         return 0
     stale = store.clean_stale(dry_run=True)
@@ -513,7 +514,8 @@ def cmd_cache(args) -> int:
     for p in problems:
         print(p)
     if stale["files"]:
-        print(f"{stale['files']} stale temp/lock/quarantined files ({fmt_size(stale['bytes'])})"
+        print(f"{stale['files']} stale temp, lock, quarantined and unlinked journal files "
+              f"({fmt_size(stale['bytes'])})"
               + (" removed" if args.repair else "; `verify --repair` or `gc` removes them"))
     print(f"{len(problems)} problems" + (" (repaired)" if args.repair and problems else "") + f" in {store.location}")
     return 0 if not problems or args.repair else 1
