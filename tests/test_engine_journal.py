@@ -71,6 +71,30 @@ def frames(path) -> dict[str, bytes]:
     return out
 
 
+def links_fail(monkeypatch, err, times=None):
+    """os.link raising ``err`` (every time, or the first ``times`` calls); the calls it saw."""
+    calls = []
+    real = os.link
+
+    def link(src, dst, *a, **k):
+        calls.append(dst)
+        if times is None or len(calls) <= times:
+            raise OSError(err, os.strerror(err))
+        return real(src, dst, *a, **k)
+    monkeypatch.setattr(st.os, "link", link)
+    return calls
+
+
+def cut_last_record(run):
+    """Run, then cut node d's frame (the last) off the journal: (the run's outcomes, d's key)."""
+    first, _, _ = run()
+    (j,) = journals(run.cache)
+    kd = first.outcomes["d"].key
+    raw = j.read_bytes()
+    j.write_bytes(raw[:raw.index(b"\0GKJF " + kd.encode())])
+    return first, kd
+
+
 def inode(p):
     s = os.stat(p)
     return s.st_dev, s.st_ino
@@ -197,12 +221,7 @@ def test_a_journal_overwritten_through_one_link_damages_no_result(run):
 
 
 def test_a_record_missing_from_its_journal_is_untrustworthy(run):
-    first, _, _ = run()
-    (j,) = journals(run.cache)
-    kd = first.outcomes["d"].key
-    raw = j.read_bytes()
-    at = raw.index(b"\0GKJF " + kd.encode())
-    j.write_bytes(raw[:at])  # d's frame cut off (the file shrank)
+    first, kd = cut_last_record(run)  # d's frame cut off (the file shrank)
     store = Store(run.cache).open()
     assert store.verify() == [f"record {kd}: {st.NOT_IN_JOURNAL}"]
     result, _, value = run()
@@ -264,9 +283,7 @@ def test_a_record_used_long_after_its_journal_moves_to_the_readers_journal(run, 
 
 
 def test_a_file_system_without_hard_links_gets_record_files(run, monkeypatch):
-    def no_links(src, dst, *a, **k):
-        raise OSError(errno.EPERM, "Operation not permitted")
-    monkeypatch.setattr(st.os, "link", no_links)
+    links_fail(monkeypatch, errno.EPERM)
     _, _, value = run()
     np.testing.assert_array_equal(value, EXPECTED)
     files = keyfiles(run.cache)
@@ -282,16 +299,8 @@ def test_a_full_journal_is_followed_by_a_new_one(run, monkeypatch):
     run()
     js = journals(run.cache)
     assert [len(frames(j)) for j in js] == [3, 1]
-    calls = []
-    real = os.link
-
-    def emlink_once(src, dst, *a, **k):  # a file system with a lower link limit says so
-        if not calls:
-            calls.append(dst)
-            raise OSError(errno.EMLINK, "Too many links")
-        return real(src, dst, *a, **k)
     monkeypatch.setattr(st, "JOURNAL_MAX_FRAMES", 50_000)
-    monkeypatch.setattr(st.os, "link", emlink_once)
+    calls = links_fail(monkeypatch, errno.EMLINK, times=1)  # a file system with a lower link limit
     store = Store(run.cache).open()
     with store.run_lock():
         store.put_record("ab" * 16, {"key": "ab" * 16, "node": "n", "parts": {}, "outputs": {}})
@@ -436,12 +445,7 @@ def test_a_process_forgets_journals_beyond_its_memory_bound(tmp_path, monkeypatc
 
 
 def test_links_refused_once_are_not_tried_again_in_that_store(tmp_path, monkeypatch):
-    calls = []
-
-    def refuse(src, dst, *a, **k):
-        calls.append(dst)
-        raise OSError(errno.ENOTSUP, "Operation not supported")
-    monkeypatch.setattr(st.os, "link", refuse)
+    calls = links_fail(monkeypatch, errno.ENOTSUP)
     s = Store(tmp_path / "c").open()
     with s.run_lock():
         for k in ("a1", "b2", "c3"):
@@ -451,12 +455,7 @@ def test_links_refused_once_are_not_tried_again_in_that_store(tmp_path, monkeypa
 
 
 def test_a_journal_that_will_not_take_links_gives_a_record_file(tmp_path, monkeypatch):
-    calls = []
-
-    def full(src, dst, *a, **k):
-        calls.append(dst)
-        raise OSError(errno.EMLINK, "Too many links")
-    monkeypatch.setattr(st.os, "link", full)
+    calls = links_fail(monkeypatch, errno.EMLINK)
     s = Store(tmp_path / "c").open()
     with s.run_lock():
         put(s, "a1" * 16)
@@ -483,25 +482,6 @@ def test_journals_are_plain_files_by_default(tmp_path):
             put(s, "a1" * 16)
         (j,) = journals(tmp_path / "c")
         assert os.stat(j).st_mode & 0o7777 == 0o644
-    finally:
-        os.umask(old)
-
-
-def test_journals_get_the_folder_s_mode_and_are_not_inherited(tmp_path):
-    root = tmp_path / "g"
-    root.mkdir()
-    os.chmod(root, 0o2770)
-    old = os.umask(0o077)
-    try:
-        s = Store(root).open()
-        with s.run_lock():
-            put(s, "a1" * 16)
-            assert os.get_inheritable(s._journal.fd) is False
-            fd = s._journal.fd
-        (j,) = journals(root)
-        assert os.stat(j).st_mode & 0o777 == 0o660
-        with pytest.raises(OSError):  # closed when the run ended
-            os.fstat(fd)
     finally:
         os.umask(old)
 
@@ -534,11 +514,7 @@ def test_damaged_records_leave_keys_for_quarantine_on_fsspec_and_local(tmp_path)
 
 
 def test_a_record_cut_from_its_journal_is_quarantined_as_nothing(run):
-    first, _, _ = run()
-    (j,) = journals(run.cache)
-    kd = first.outcomes["d"].key
-    raw = j.read_bytes()
-    j.write_bytes(raw[:raw.index(b"\0GKJF " + kd.encode())])
+    first, kd = cut_last_record(run)
     s = Store(run.cache).open()
     assert s.get_record(kd) is None
     (q,) = (run.cache / "quarantine").iterdir()
@@ -547,11 +523,7 @@ def test_a_record_cut_from_its_journal_is_quarantined_as_nothing(run):
 
 
 def test_fsspec_reports_a_record_its_journal_lacks(run):
-    first, _, _ = run()
-    (j,) = journals(run.cache)
-    kd = first.outcomes["d"].key
-    raw = j.read_bytes()
-    j.write_bytes(raw[:raw.index(b"\0GKJF " + kd.encode())])
+    first, kd = cut_last_record(run)
     assert Store(f"file://{run.cache}").open().verify() == [f"record {kd}: {st.NOT_IN_JOURNAL}"]
 
 
@@ -640,7 +612,7 @@ def test_touching_records_in_a_run(tmp_path, monkeypatch):
         assert s.get_record("00" * 16, touch=True) is not None
         p = tmp_path / "c" / s._krel("00" * 16)
         assert os.stat(p).st_nlink == 1 and os.stat(p).st_mtime > old + 3000
-        monkeypatch.setattr(st.os, "link", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EIO, "I/O error")))
+        links_fail(monkeypatch, errno.EIO)
         assert s.get_record("a1" * 16, touch=True)["key"] == "a1" * 16
     put(s, "ff" * 16)
     os.utime(tmp_path / "c" / s._krel("ff" * 16), (old, old))

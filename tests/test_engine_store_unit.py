@@ -213,14 +213,20 @@ def test_entries_get_the_folder_mode(tmp_path):
         d = s.put_value(ARRAY, np.arange(2.0))
         s.put_record("ab" * 16, {"key": "ab" * 16, "outputs": {}})
         with s.run_lock():
-            pass
+            s.put_record("cd" * 16, {"key": "cd" * 16, "outputs": {}})  # into the run's journal
+            assert os.get_inheritable(s._journal.fd) is False
+            fd = s._journal.fd
+        with pytest.raises(OSError):  # the journal was closed when the run ended
+            os.fstat(fd)
         with s.key_lock("ab" * 16):
             pass
     finally:
         os.umask(old)
-    for p in (root / "objects" / d[:2], root / "keys" / "ab", root / "objects", root / "tmp"):
+    (journal,) = (root / "journal").iterdir()
+    for p in (root / "objects" / d[:2], root / "keys" / "ab", root / "objects", root / "tmp", root / "journal"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o2775, p
-    for p in (root / "objects" / d[:2] / d, root / s._krel("ab" * 16), root / "store.lock", root / "keys.lock"):
+    for p in (root / "objects" / d[:2] / d, root / s._krel("ab" * 16), root / "store.lock", root / "keys.lock",
+              journal):
         assert stat.S_IMODE(p.stat().st_mode) == 0o664, p
 
 
