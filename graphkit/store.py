@@ -815,6 +815,11 @@ class Store:
         return f"keys/{key[:2]}/{key}.json"
 
     @staticmethod
+    def _key_of(rel: str) -> str:
+        """The key whose record is at ``rel`` (see _krel)."""
+        return rel.rsplit("/", 1)[-1].removesuffix(".json")
+
+    @staticmethod
     def _orel(digest: str) -> str:
         return f"objects/{digest[:2]}/{digest}"
 
@@ -865,15 +870,9 @@ class Store:
                 if linked:
                     raw = journal_record(raw, key)
             else:
-                view = self._jviews.get((st.st_dev, st.st_ino)) if self._run_lock_depth else None
-                if view is not None and st.st_size == len(view.buf):
-                    # a journal this run has read whole: no header to read again (within a run no
-                    # journal is removed, so its inode is not another file's)
-                    linked, raw = True, view.record(key)
-                else:
-                    head = os.pread(fd, JOURNAL_HEAD, 0)
-                    linked = is_journal(head)
-                    raw = self._journal_lookup(fd, st, head, key) if linked else _read_fd(fd, st.st_size)
+                linked, raw = self._journal_lookup(fd, st, key)
+                if not linked:
+                    raw = _read_fd(fd, st.st_size)
             if raw is None:
                 return None, NOT_IN_JOURNAL, False
             if touch and time.time() - st.st_mtime > self.TOUCH_GRANULARITY_S:
@@ -885,25 +884,34 @@ class Store:
         finally:
             os.close(fd)
 
-    def _journal_lookup(self, fd: int, st: os.stat_result, head: bytes, key: str) -> bytes | None:
-        """The record of ``key`` in the journal open as ``fd``: from what this process has read
-        of it, after reading what has been appended since."""
+    def _journal_lookup(self, fd: int, st: os.stat_result, key: str) -> tuple[bool, bytearray | None]:
+        """(whether the file open as ``fd`` is a journal, the record of ``key`` in it): from what
+        this process has read of it, after reading what has been appended since."""
         ident = (st.st_dev, st.st_ino)
         view = self._jviews.get(ident)
+        if view is not None and self._run_lock_depth:
+            head = view.head  # read in this run, in which no journal is removed: still that file
+        else:
+            head = os.pread(fd, JOURNAL_HEAD, 0)
+            if not is_journal(head):
+                return False, None
         if view is not None and st.st_size == len(view.buf) and view.head == head:
-            return view.record(key)  # (the usual hit: read already; no lock, as views only grow)
+            return True, view.record(key)  # (the usual hit: read already; no lock, as views only grow)
         with self._jlock:
             view = self._jviews.get(ident)
             if view is None or view.head != head or st.st_size < len(view.buf):
                 if self._jview_bytes > JOURNAL_CACHE_BYTES:
-                    self._jviews.clear()
-                    self._jview_bytes = 0
+                    self._forget_journals()
                 view = self._jviews[ident] = _JournalView(head)
             if st.st_size > len(view.buf):
                 n0 = len(view.buf)
                 view.extend(os.pread(fd, st.st_size - n0, n0))  # (a short read: the rest next time)
                 self._jview_bytes += len(view.buf) - n0
-            return view.record(key)
+            return True, view.record(key)
+
+    def _forget_journals(self) -> None:
+        self._jviews.clear()
+        self._jview_bytes = 0
 
     def put_record(self, key: str, record: dict) -> None:
         if self.read_only:
@@ -1014,17 +1022,16 @@ class Store:
             self.notice(msg)
 
     def _quarantine_link(self, rel: str, to: str) -> bool:
-        """A record linked to a journal: its frame is copied to ``to`` and the link removed (the
-        journal holds other records).  False if ``rel`` is not such a link."""
+        """A record file with other names (a link to the journal other records share): its record
+        is copied to ``to`` and the link removed.  False if ``rel`` has no other name."""
         if not (self._local and rel.startswith("keys/")):
             return False
         try:
-            with open(self.fs._s(rel), "rb") as f:
-                if not is_journal(f.read(JOURNAL_HEAD)):
-                    return False
+            if os.stat(self.fs._s(rel)).st_nlink < 2:
+                return False
         except OSError:
             return False
-        raw, _, _ = self._raw_record(rel, rel.rsplit("/", 1)[-1].removesuffix(".json"))
+        raw = self._raw_record(rel, self._key_of(rel))[0]
         try:
             self.fs.mkdir(os.path.dirname(self.fs._s(to)))
             self.fs.write_atomic(to, [raw or b""])
@@ -1108,8 +1115,7 @@ class Store:
             self._run_lock_depth += 1
             first = self._run_lock_depth == 1
             if first:
-                self._jviews.clear()  # (read outside a run: journals may have been removed since)
-                self._jview_bytes = 0
+                self._forget_journals()  # (read outside a run: journals may have been removed since)
                 cm = self.fs.lock("store.lock", shared=True)
                 try:
                     with self._errors("lock the cache"):
@@ -1127,8 +1133,7 @@ class Store:
                     self._present.clear()
                     with self._jlock:  # this run's journal is complete; what others wrote may change
                         self._end_journal()
-                        self._jviews.clear()
-                        self._jview_bytes = 0
+                        self._forget_journals()
                     self._run_cm.__exit__(None, None, None)
 
     def _exclusive(self, what: str):
@@ -1155,7 +1160,7 @@ class Store:
     def records(self) -> Iterator[tuple[str, dict | None, float]]:
         """(key, record or None if untrustworthy, last use) for every record file."""
         for rel, _, mtime in self.fs.listdir("keys"):
-            key = rel.rsplit("/", 1)[-1].removesuffix(".json")
+            key = self._key_of(rel)
             raw = self._raw_record(rel, key)[0]
             rec = decode_record(raw, key)[0] if raw is not None else None
             yield key, rec, mtime
@@ -1168,11 +1173,11 @@ class Store:
         """(key -> size of its record file; key -> the journal it links to; journal ->
         [size, how many records link to it, its name in journal/ or None])."""
         if not self._local:
-            return {rel.rsplit("/", 1)[-1].removesuffix(".json"): s for rel, s in self._sizes("keys").items()}, {}, {}
+            return {self._key_of(rel): s for rel, s in self._sizes("keys").items()}, {}, {}
         sizes, links, journals = {}, {}, {}
         names = {(st.st_dev, st.st_ino): rel for rel, st in self.fs.stats("journal")}
         for rel, st in self.fs.stats("keys"):
-            key = rel.rsplit("/", 1)[-1].removesuffix(".json")
+            key = self._key_of(rel)
             ident = (st.st_dev, st.st_ino)
             if st.st_nlink > 1 or ident in names:
                 links[key] = ident
@@ -1187,11 +1192,11 @@ class Store:
 
     def usage(self) -> dict:
         """True bytes on disk by part: objects (each once), records, tmp, quarantine, other."""
-        names = ("objects", "keys", "journal", "tmp", "quarantine", "runs", "locks")
+        names = ("journal", "objects", "keys", "tmp", "quarantine", "runs", "locks")
         if self._local:  # a file with several names (a journal and its links) counts once, as journal
             seen: set[tuple[int, int]] = set()
             parts = {}
-            for name in ("journal",) + tuple(n for n in names if n != "journal"):
+            for name in names:
                 total = 0
                 for _, st in self.fs.stats(name):
                     if st.st_nlink > 1:
@@ -1200,7 +1205,6 @@ class Store:
                         seen.add((st.st_dev, st.st_ino))
                     total += st.st_size
                 parts[name] = total
-            parts = {n: parts[n] for n in names}
         else:
             parts = {name: sum(self._sizes(name).values()) for name in names}
         other = 0
