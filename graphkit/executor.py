@@ -30,8 +30,8 @@ from typing import Any
 import xxhash
 
 from .errors import GraphkitError, UsageError
-from .paths import safe_relpath  # noqa: F401 - the one output-name rule (also graphkit.executor.safe_relpath)
-from .report import REPORT_NAME, report_file
+from .paths import MANIFEST, OutputNames, safe_relpath  # safe_relpath: also graphkit.executor.safe_relpath
+from .report import report_file
 from .runner import NodeOutcome, Session
 from .types import File
 
@@ -168,30 +168,18 @@ def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
     return f"{stem}.json", json.dumps(meta, indent=1, sort_keys=True).encode()
 
 
-MANIFEST = "manifest.json"
 STAGE_PREFIX = ".graphkit-stage-"      # a run's outputs being written (removed by the next run)
 PUBLISH_PREFIX = ".graphkit-publish-"  # a complete stage being published (finished by the next run)
 _LEGACY_TMP = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp$")  # per-file temps of graphkit < issue 10
 
 
 def check_output_names(names: list[str], out: Path | str = "--out") -> None:
-    """Refuse output names that collide with each other, with the manifest or with graphkit's
-    own entries in --out (``.graphkit-*``)."""
-    seen: set[str] = set()
+    """Refuse output names that do not fit together in --out (:class:`graphkit.paths.OutputNames`)."""
+    taken = OutputNames()
     for name in names:
-        if name in seen:
-            raise UsageError(f"two outputs would both be written to {Path(out) / name}")
-        seen.add(name)
-        if name in (MANIFEST, REPORT_NAME):
-            raise UsageError(f"an output would be written to {Path(out) / name}, where graphkit writes the "
-                             "run " + ("manifest" if name == MANIFEST else "report") + ": rename that output (or its file)")
-        if name.split("/")[0].startswith(".graphkit-"):
-            raise UsageError(f"refusing to write {name!r}: names starting with .graphkit- are graphkit's own")
-    for name in names:
-        parts = name.split("/")
-        for i in range(1, len(parts)):
-            if "/".join(parts[:i]) in seen:
-                raise UsageError(f"output {'/'.join(parts[:i])!r} is a file but {name!r} needs it to be a folder")
+        clash = taken.claim(name)
+        if clash is not None:
+            raise UsageError(f"refusing to write into {out}: {clash[0]}; rename that output (or its file)")
 
 
 def check_output_plan(graph) -> None:

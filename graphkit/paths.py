@@ -2,7 +2,9 @@
 
 One rule for every output name (``SaveImage`` / ``SaveMesh`` params and the names of ``File``
 values the executor writes), so the nodes that check a name early (when the graph is loaded)
-and the executor that checks it again before writing cannot drift apart.
+and the executor that checks it again before writing cannot drift apart: :func:`safe_relpath`
+says whether one name stays inside ``--out``, :class:`OutputNames` whether a run's names fit
+together there (validation, the plan and publishing all ask it).
 """
 from __future__ import annotations
 
@@ -48,6 +50,49 @@ def safe_relpath(name: str, suffixes: tuple[str, ...] | None = None) -> str:
     return str(p)
 
 
+#: the files a run writes into --out beside its outputs
+MANIFEST = "manifest.json"
+REPORT = "report.html"
+#: graphkit's own entries in --out (stages being written or published)
+OWN_PREFIX = ".graphkit-"
+
+
+class OutputNames:
+    """The names one run writes into ``--out``, admitted one at a time by :meth:`claim`."""
+
+    def __init__(self):
+        self._files: dict[str, object] = {}  # name -> who writes it
+        self._folders: dict[str, str] = {}  # folder -> a name below it
+
+    def claim(self, name: str, who: object = None) -> tuple[str, object] | None:
+        """None when ``name`` (a :func:`safe_relpath`) may be written by ``who``, beside the
+        names claimed before; else (why not, in words; who already writes it, for a name
+        claimed twice, else None).  The one rule: not the run's manifest or report, not
+        graphkit's own ``.graphkit-*`` entries, not a name given twice, not a file where
+        another name needs a folder."""
+        if name in (MANIFEST, REPORT):
+            return f"{name!r} is the name of the run's own {name} in --out", None
+        if name.split("/")[0].startswith(OWN_PREFIX):
+            return f"{name!r}: names starting with {OWN_PREFIX} are graphkit's own", None
+        if name in self._files:
+            return f"{name!r} is written by two outputs", self._files[name]
+        if name in self._folders:
+            return f"output {name!r} is a file but {self._folders[name]!r} needs it to be a folder", None
+        folders = _folders_of(name)
+        for d in folders:
+            if d in self._files:
+                return f"output {d!r} is a file but {name!r} needs it to be a folder", None
+        self._files[name] = who
+        for d in folders:
+            self._folders.setdefault(d, name)
+        return None
+
+
+def _folders_of(name: str) -> list[str]:
+    parts = name.split("/")
+    return ["/".join(parts[:i]) for i in range(1, len(parts))]
+
+
 def input_file_problem(path: str) -> str | None:
     """Why ``path`` cannot be read as an input file (None when it is a regular file, or does
     not exist: the caller reports a missing file its own way).  A FIFO, socket or device is
@@ -69,4 +114,4 @@ def input_file_problem(path: str) -> str | None:
     return f"{path} is {kind}, not a regular file"
 
 
-__all__ = ["safe_relpath", "input_file_problem", "UnsafePath"]
+__all__ = ["safe_relpath", "input_file_problem", "UnsafePath", "OutputNames", "MANIFEST", "REPORT"]

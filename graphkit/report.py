@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 
 from .hashing import key_digest
+from .paths import REPORT
 
-REPORT_NAME = "report.html"
+REPORT_NAME = REPORT  # the one list of the run's own files in --out: graphkit.paths
 THUMB_PX = 96
 THUMB_VERSION = 1
 #: a report of a very large sweep keeps its first this-many thumbnails

@@ -28,12 +28,11 @@ from pydantic import BaseModel, ValidationError
 from .errors import BadInput, GraphError, GraphkitError, UsageError
 from .graphfile import FORMAT, NODE_KEYS, TOP_KEYS, GNode, Graph, _NAME_RE, _kind
 from .node import probe
+from .paths import OutputNames, UnsafePath, safe_relpath
 from .registry import NUMPY, Registry
 from .suggest import did_you_mean, unknown_keys
 from .sweeps import SUB_RE, Sweep, instance_node, parse_sweeps
 
-#: files ``export_outputs`` writes beside the graph's outputs
-RESERVED_OUTPUT_FILES = ("manifest.json", "report.html")
 _MISSING = object()
 _ANY_REF = re.compile(r"\$\{[^}]*\}")
 _REF = re.compile(r"^(?P<node>[^\[\].\s]+)(?:\[(?P<pick>[^\]]*)\])?\.(?P<port>[^.\[\]\s]+)$")
@@ -609,34 +608,41 @@ def build_outputs(c: Check) -> None:
 
 
 def check_output_files(c: Check) -> None:
-    """No two exported files (e.g. two instances of a SaveImage) may have the same name in --out."""
-    writers: dict[str, tuple[str, str]] = {}
+    """The files File outputs write into --out (their output path params) fit together there
+    (:class:`graphkit.paths.OutputNames`: e.g. no two instances of a SaveImage write one name)."""
+    names = OutputNames()
     for node, port in c.outputs.values():
         g = c.nodes[node]
         if g.cls.out_ports[port].type.name != "File":
             continue
         for p in getattr(g.cls, "output_path_params", lambda: [])():
             value = getattr(g.params, p, None)
-            if not isinstance(value, str) or not value:
-                continue
-            norm = os.path.normpath(value.replace("\\", "/"))
-            spec = c.specs[g.base]
-            where = spec.path + ("params", p)
-            if norm in RESERVED_OUTPUT_FILES:
-                c.at(where, f"{spec.label(g.instance)}, param '{p}': {value!r} is the name of the run's own "
-                     f"{norm} in --out; choose another name")
-                continue
-            prev = writers.get(norm)
-            if prev is None:
-                writers[norm] = (node, p)
-                continue
-            other = c.nodes[prev[0]]
-            if other.base == g.base and g.sweep:
-                c.at(where, f"{spec.label()}, param '{p}': instances '{other.instance}' and '{g.instance}' both "
-                     f"write {value!r} into --out; name the instance in it, e.g. "
-                     f"\"…${{{g.sweep}.name}}…\"")
+            if isinstance(value, str) and value and not _claim_output_file(c, names, g, p, value):
                 return
-            c.at(where, f"nodes '{prev[0]}' and '{node}' both write {value!r} into --out")
+
+
+def _claim_output_file(c: Check, names: OutputNames, g: GNode, p: str, value: str) -> bool:
+    """Claim the file of param ``p`` of node ``g``; False after a problem that ends the check."""
+    spec = c.specs[g.base]
+    where = spec.path + ("params", p)
+    try:
+        clash = names.claim(safe_relpath(value), g.name)
+    except UnsafePath as e:
+        c.at(where, f"{spec.label(g.instance)}, param '{p}': {e}")
+        return True
+    if clash is None:
+        return True
+    why, prev = clash
+    if prev is None:
+        c.at(where, f"{spec.label(g.instance)}, param '{p}': {why}; choose another name")
+        return True
+    other = c.nodes[prev]
+    if other.base == g.base and g.sweep:
+        c.at(where, f"{spec.label()}, param '{p}': instances '{other.instance}' and '{g.instance}' both "
+             f"write {value!r} into --out; name the instance in it, e.g. \"…${{{g.sweep}.name}}…\"")
+        return False
+    c.at(where, f"nodes '{prev}' and '{g.name}' both write {value!r} into --out")
+    return True
 
 
 # ---------------------------------------------------------------------------------------------
@@ -668,4 +674,4 @@ def validate(doc, data: dict, graph_path: str, base_dir: str, reg: Registry, ove
     return graph
 
 
-__all__ = ["validate", "substitute", "RESERVED_OUTPUT_FILES"]
+__all__ = ["validate", "substitute"]
