@@ -5,8 +5,9 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .executor import Progress, RunResult, check_output_plan, export_outputs, record_last_run, run_local
+from .executor import Progress, RunResult, execute, export_outputs, locked_run, record_last_run
 from .graphfile import Graph, load
+from .plan import make_plan
 from .registry import Registry, default_registry
 from .runner import Session
 from .store import Store
@@ -43,34 +44,30 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
               registry: Registry | None = None, progress: Progress | None = None,
               scheduler_timeout: float = 10.0) -> Run:
     """Load, validate and run a graph (a file, a dict, or a loaded Graph); write its outputs into
-    ``out`` when given."""
+    ``out`` when given.  The stages, in order: load + validate, plan, run, publish."""
     registry = registry or default_registry()
     graph = load(path, registry, overrides or {})  # a graph file, a dict (load_dict) or a Graph
-    if outputs:
-        graph.select_outputs(outputs)  # an output name, or a swept output's group name
-    if out is not None:
-        check_output_plan(graph)
+    plan = make_plan(graph, outputs, out)  # outputs: an output name, or a swept output's group name
     store = Store(cache).open()
     progress = progress or Progress()
     session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)
-    targets = sorted({n for n, _ in graph.outputs.values()})
-    ok = False
-    # the store lock is held (shared) from the first lookup until the outputs are exported, on
-    # every executor, so a concurrent `cache gc` waits instead of removing what this run reads
-    with store.run_lock():
-        try:
-            if executor == "dask":
-                from .dask_executor import run_dask
 
-                result = run_dask(session, targets, scheduler, jobs, progress, timeout=scheduler_timeout)
-            else:
-                result = run_local(session, targets, jobs, progress)
+    def run() -> RunResult:
+        ok = False
+        try:
+            result = execute(session, plan.targets, executor, jobs, progress, scheduler, scheduler_timeout)
             ok = True
         finally:
             progress.finish(ok)
-        store.commit()  # group commit of this run's writes (Dask workers' too, on this machine)
+        return result
+
+    def publish(result: RunResult) -> Run:
         record_last_run(session, result)
-        run = Run(graph, result, session)
+        done = Run(graph, result, session)
         if out is not None:
-            run.files = export_outputs(session, result, out, {"targets": list(graph.outputs)})
-    return run
+            done.files = export_outputs(session, result, out, {"targets": list(graph.outputs)})
+        return done
+
+    # the store lock is held (shared) from the first lookup until the outputs are exported, on
+    # every executor, so a concurrent `cache gc` waits instead of removing what this run reads
+    return locked_run(store, run, publish)

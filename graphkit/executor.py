@@ -25,13 +25,14 @@ import uuid
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import xxhash
 
 from .errors import GraphkitError, UsageError
 from .paths import MANIFEST, OutputNames, safe_relpath  # safe_relpath: also graphkit.executor.safe_relpath
 from .report import report_file
+from .plan import Plan, plan_nodes
 from .runner import NodeOutcome, Session
 from .types import File
 
@@ -68,6 +69,29 @@ def input_digests(session: Session, name: str, outcomes: dict[str, NodeOutcome])
     return g.map_inputs(lambda src, sport: outcomes[src].outputs[sport])
 
 
+def locked_run(store, work: Callable[[], Any], then: Callable[[Any], Any] | None = None) -> Any:
+    """The one lock-then-commit sequence of a run: ``work()`` under the store's run lock (shared,
+    so a concurrent ``cache gc`` waits instead of removing what the run reads), this run's
+    writes committed as one group when it ends, also when it fails (what ran is durable); then
+    ``then(work's result)`` (recording the run, exporting its outputs) still under the lock."""
+    with store.run_lock():
+        try:
+            result = work()
+        finally:
+            store.commit()
+        return result if then is None else then(result)
+
+
+def execute(session: Session, targets: list[str], executor: str = "local", jobs: int = 1,
+            progress: Progress | None = None, scheduler: str | None = None, timeout: float = 10.0) -> RunResult:
+    """Run the nodes ``targets`` need on ``executor`` ("local": :func:`run_local`, "dask")."""
+    if executor == "dask":
+        from .dask_executor import run_dask
+
+        return run_dask(session, targets, scheduler, jobs, progress, timeout=timeout)
+    return run_local(session, targets, jobs, progress)
+
+
 def run_local(session: Session, targets: list[str], jobs: int = 1,
               progress: Progress | None = None, first: list[str] | None = None) -> RunResult:
     """Run the nodes ``targets`` need, ``jobs`` at a time, in threads of this process.
@@ -75,70 +99,71 @@ def run_local(session: Session, targets: list[str], jobs: int = 1,
     ``first``: nodes (of those needed) to run as early as the graph allows, with what they
     need before them (the studio's previews on show); the rest follows in the usual order."""
     progress = progress or Progress()
-    graph = session.graph
-    order = graph.upstream(targets)
-    if first:
-        needed = set(order)
-        early = graph.upstream([n for n in first if n in needed])
-        seen = set(early)
-        order = early + [n for n in order if n not in seen]  # still topological: early is closed upstream
-    result = RunResult(graph.name)
+    plan = plan_nodes(session.graph, targets, first)
+    result = RunResult(plan.graph.name)
     t0 = time.perf_counter()
-    progress.start(len(order))
-    with session.store.run_lock():
-        try:
-            if jobs <= 1:
-                for n in order:
-                    progress.running(n, graph.nodes[n].type)
-                    o = session.run_node(n, input_digests(session, n, result.outcomes))
-                    result.outcomes[n] = o
-                    progress.done(o)
-            else:
-                _run_pool(session, order, jobs, progress, result)
-        finally:
-            session.store.commit()  # the last group commit: what ran is durable, even on failure
+    progress.start(len(plan.order))
+    if jobs <= 1:
+        locked_run(session.store, lambda: _run_serial(session, plan, progress, result))
+    else:
+        locked_run(session.store, lambda: _Pool(session, plan, jobs, progress, result).run())
     result.seconds = time.perf_counter() - t0
     return result
 
 
-def _run_pool(session: Session, order: list[str], jobs: int, progress: Progress, result: RunResult) -> None:
-    graph = session.graph
-    wanted = set(order)
-    waiting = {n: graph.nodes[n].sources() & wanted for n in order}
-    dependants: dict[str, list[str]] = {n: [] for n in order}
-    for n in order:
-        for s in waiting[n]:
-            dependants[s].append(n)
-    ready = deque(n for n in order if not waiting[n])
-    running: dict[Any, str] = {}
-    error: BaseException | None = None
-    with ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="graphkit") as pool:
-        while ready or running:
-            while ready and error is None and len(running) < jobs:
-                n = ready.popleft()
-                progress.running(n, graph.nodes[n].type)
-                fut = pool.submit(session.run_node, n, input_digests(session, n, result.outcomes))
-                running[fut] = n
-            if not running:
-                break
-            finished, _ = wait(running, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                n = running.pop(fut)
-                exc = fut.exception()
-                if exc is not None:
-                    error = error or exc
-                    continue
-                o = fut.result()
-                result.outcomes[n] = o
-                progress.done(o)
-                for d in dependants[n]:
-                    waiting[d].discard(n)
-                    if not waiting[d]:
-                        ready.append(d)
-            if error is not None:
-                ready.clear()
-    if error is not None:
-        raise error
+def _run_serial(session: Session, plan: Plan, progress: Progress, result: RunResult) -> None:
+    for n in plan.order:
+        progress.running(n, plan.graph.nodes[n].type)
+        o = session.run_node(n, input_digests(session, n, result.outcomes))
+        result.outcomes[n] = o
+        progress.done(o)
+
+
+class _Pool:
+    """The nodes of a plan run ``jobs`` at a time, each as soon as every node it needs is done;
+    after a failure nothing new starts, what runs finishes, and the first error is raised."""
+
+    def __init__(self, session: Session, plan: Plan, jobs: int, progress: Progress, result: RunResult):
+        self.session, self.jobs, self.progress, self.result = session, jobs, progress, result
+        self.waiting, self.dependants = plan.dependencies()
+        self.ready = deque(n for n in plan.order if not self.waiting[n])
+        self.running: dict[Any, str] = {}
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        with ThreadPoolExecutor(max_workers=self.jobs, thread_name_prefix="graphkit") as pool:
+            while self.ready or self.running:
+                self._start(pool)
+                if not self.running:
+                    break
+                finished, _ = wait(self.running, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    self._finished(fut)
+                if self.error is not None:
+                    self.ready.clear()
+        if self.error is not None:
+            raise self.error
+
+    def _start(self, pool: ThreadPoolExecutor) -> None:
+        session, outcomes = self.session, self.result.outcomes
+        while self.ready and self.error is None and len(self.running) < self.jobs:
+            n = self.ready.popleft()
+            self.progress.running(n, session.graph.nodes[n].type)
+            self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes))] = n
+
+    def _finished(self, fut) -> None:
+        n = self.running.pop(fut)
+        exc = fut.exception()
+        if exc is not None:
+            self.error = self.error or exc
+            return
+        o = fut.result()
+        self.result.outcomes[n] = o
+        self.progress.done(o)
+        for d in self.dependants[n]:
+            self.waiting[d].discard(n)
+            if not self.waiting[d]:
+                self.ready.append(d)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -177,19 +202,7 @@ def check_output_names(names: list[str], out: Path | str = "--out") -> None:
     """Refuse output names that do not fit together in --out (:class:`graphkit.paths.OutputNames`)."""
     taken = OutputNames()
     for name in names:
-        clash = taken.claim(name)
-        if clash is not None:
-            raise UsageError(f"refusing to write into {out}: {clash[0]}; rename that output (or its file)")
-
-
-def check_output_plan(graph) -> None:
-    """Before anything runs: the outputs whose file names are known (all but File outputs)."""
-    names = []
-    for oname, (node, port) in graph.outputs.items():
-        ptype = graph.nodes[node].cls.out_ports[port].type
-        if ptype.name != "File":
-            names.append(f"{oname}{'.npy' if ptype.export_ext == '.npy' else ptype.export_ext}")
-    check_output_names(names)
+        taken.admit(name, out)
 
 
 def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLike,
@@ -474,4 +487,4 @@ def graph_id(graph) -> str:
     return f"{graph.name}-{hashlib.blake2b(graph.path.encode(), digest_size=6).hexdigest()}"
 
 
-__all__ = ["run_local", "export_outputs", "publish", "RunResult", "Progress"]
+__all__ = ["run_local", "execute", "locked_run", "export_outputs", "publish", "RunResult", "Progress"]

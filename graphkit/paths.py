@@ -87,6 +87,12 @@ class OutputNames:
             self._folders.setdefault(d, name)
         return None
 
+    def admit(self, name: str, out: object = "--out") -> None:
+        """Claim ``name`` or refuse it (UsageError, exit 2) in the run's words."""
+        clash = self.claim(name)
+        if clash is not None:
+            raise UsageError(f"refusing to write into {out}: {clash[0]}; rename that output (or its file)")
+
 
 def _folders_of(name: str) -> list[str]:
     parts = name.split("/")
