@@ -302,6 +302,24 @@ class Session:
         return o
 
     def _compute(self, g: GNode, bcls: type, key: str, parts: dict, input_digests: dict[str, str]) -> dict[str, str]:
+        """Compute node ``g`` with backend ``bcls`` and store its outputs under ``key``; {port: digest}."""
+        inputs = self._input_values(g, input_digests)
+        pin_blas_threads()
+        ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
+                      recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
+                      inputs=dict(input_digests),
+                      report=lambda frac, msg: self.report(g.name, frac, msg))
+        t0 = time.perf_counter()
+        result = _call_compute(g, bcls, ctx, inputs)
+        seconds = time.perf_counter() - t0
+        staged = _staged_outputs(g, result)
+        if self.on_outputs is not None:
+            self.on_outputs(g.name, {port: vp[2] for port, _, _, vp in staged},
+                            {port: v for port, _, v, _ in staged})
+        return self._store_outputs(g, key, parts, staged, seconds)
+
+    def _input_values(self, g: GNode, input_digests: dict) -> dict[str, Any]:
+        """{port: value} of ``g``'s inputs (a list of values for a variadic port)."""
         inputs = {}
         for port, d in input_digests.items():
             ptype = g.cls.in_ports[port].type
@@ -311,46 +329,11 @@ class Session:
                 inputs[port] = [self.value(x, ptype, s) for x, s in zip(d, srcs)]
             else:
                 inputs[port] = self.value(d, ptype, src if isinstance(src, tuple) else None)
-        pin_blas_threads()
-        ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
-                      recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
-                      inputs=dict(input_digests),
-                      report=lambda frac, msg: self.report(g.name, frac, msg))
-        t0 = time.perf_counter()
-        try:
-            inst = bcls(g.params, ctx)
-            result = inst.compute(**inputs)
-        except BadInput as e:
-            e.node, e.node_type = g.name, g.type
-            raise
-        except GraphkitError:
-            raise
-        except Exception as e:  # noqa: BLE001 - any other failure is the node's
-            raise NodeFailed(g.name, g.type, e) from e
-        seconds = time.perf_counter() - t0
-        outs = g.cls.out_ports
-        if not isinstance(result, dict) or (len(outs) == 1 and set(result) != set(outs)):
-            if len(outs) == 1:
-                result = {next(iter(outs)): result}
-        if not isinstance(result, dict) or set(result) != set(outs):
-            got = sorted(result) if isinstance(result, dict) else type(result).__name__
-            raise NodeFailed(g.name, g.type, TypeError(f"compute returned {got}, expected outputs {sorted(outs)}"))
-        digests, rec_out, staged = {}, {}, []
-        for port, p in outs.items():
-            v = result[port]
-            problem = p.type.check(v)
-            if problem:
-                raise NodeFailed(g.name, g.type, TypeError(f"output '{port}': {problem}"))
-            vp = value_parts(p.type, v)
-            for a in vp[1]:  # consumers share the value: make accidental in-place edits fail
-                try:
-                    a.flags.writeable = False
-                except ValueError:  # a view of a buffer it does not own
-                    pass
-            staged.append((port, p, v, vp))
-        if self.on_outputs is not None:
-            self.on_outputs(g.name, {port: vp[2] for port, _, _, vp in staged},
-                            {port: v for port, _, v, _ in staged})
+        return inputs
+
+    def _store_outputs(self, g: GNode, key: str, parts: dict, staged: list, seconds: float) -> dict[str, str]:
+        """Store the checked outputs ``staged`` and the record of ``key``; {port: digest}."""
+        digests, rec_out = {}, {}
         for port, p, v, vp in staged:
             d = self.store.put_value(p.type, v, vp)
             digests[port] = d
@@ -365,6 +348,52 @@ class Session:
         }
         self.store.put_record(key, record)
         return digests
+
+
+def _call_compute(g: GNode, bcls: type, ctx: Context, inputs: dict[str, Any]) -> Any:
+    """What ``bcls(g.params, ctx).compute(**inputs)`` returns; its errors named after the node."""
+    try:
+        return bcls(g.params, ctx).compute(**inputs)
+    except BadInput as e:
+        e.node, e.node_type = g.name, g.type
+        raise
+    except GraphkitError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any other failure is the node's
+        raise NodeFailed(g.name, g.type, e) from e
+
+
+def _output_dict(g: GNode, result: Any) -> dict[str, Any]:
+    """``result`` as {port: value}: a node with one output may return the bare value."""
+    outs = g.cls.out_ports
+    if not isinstance(result, dict) or (len(outs) == 1 and set(result) != set(outs)):
+        if len(outs) == 1:
+            result = {next(iter(outs)): result}
+    if not isinstance(result, dict) or set(result) != set(outs):
+        got = sorted(result) if isinstance(result, dict) else type(result).__name__
+        raise NodeFailed(g.name, g.type, TypeError(f"compute returned {got}, expected outputs {sorted(outs)}"))
+    return result
+
+
+def _staged_outputs(g: GNode, result: Any) -> list[tuple[str, Any, Any, tuple]]:
+    """[(port, port declaration, value, value parts)] of ``result``, each checked against its
+    port type; the arrays are made read-only (consumers share the value: an accidental in-place
+    edit fails)."""
+    result = _output_dict(g, result)
+    staged = []
+    for port, p in g.cls.out_ports.items():
+        v = result[port]
+        problem = p.type.check(v)
+        if problem:
+            raise NodeFailed(g.name, g.type, TypeError(f"output '{port}': {problem}"))
+        vp = value_parts(p.type, v)
+        for a in vp[1]:
+            try:
+                a.flags.writeable = False
+            except ValueError:  # a view of a buffer it does not own
+                pass
+        staged.append((port, p, v, vp))
+    return staged
 
 
 def _declines(bcls) -> str | None:
