@@ -5,7 +5,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .executor import Progress, RunResult, check_output_plan, export_outputs, record_last_run, run_local
+from .executor import Progress, RunResult, record_last_run, run_local
+from .publish import check_output_plan, export_outputs
 from .graphfile import Graph, load
 from .registry import Registry, default_registry
 from .runner import Session
