@@ -5,9 +5,10 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .executor import Progress, RunResult, execute, export_outputs, locked_run, record_last_run
+from .executor import Progress, RunResult, execute, locked_run, record_last_run
 from .graphfile import Graph, load
 from .plan import make_plan
+from .publish import export_outputs
 from .registry import Registry, default_registry
 from .runner import Session
 from .store import Store

@@ -221,7 +221,7 @@ def report_html(session, result, manifest: dict) -> bytes:
 
 
 def report_file(session, result, manifest: dict) -> tuple[str, bytes]:
-    """(file name, bytes) of the report, for :func:`graphkit.executor.export_outputs`."""
+    """(file name, bytes) of the report, for :func:`graphkit.publish.export_outputs`."""
     return REPORT_NAME, report_html(session, result, manifest)
 
 

@@ -109,7 +109,7 @@ def test_a_finished_stage_is_published_by_the_next_run(tmp_path, write):
     st.mkdir()
     (st / "b.npy").write_bytes(b"new")
     (st / "manifest.json").write_text(json.dumps({"files": {"b.npy": {}}}))
-    from graphkit.executor import recover
+    from graphkit.publish import recover
 
     fd = os.open(out, os.O_RDONLY)
     try:

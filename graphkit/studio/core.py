@@ -18,7 +18,8 @@ from collections import OrderedDict
 from typing import Any, Callable
 
 from ..errors import GraphError, GraphkitError, UsageError
-from ..executor import Progress, RunResult, export_outputs, record_last_run, run_local
+from ..executor import Progress, RunResult, record_last_run, run_local
+from ..publish import export_outputs
 from ..graphfile import load_graph
 from ..runner import NodeOutcome, Session
 from ..store import Store
