@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .executor import Progress, RunResult, execute, locked_run, record_last_run
-from .graphfile import Graph, load
+from .graphfile import load
+from .model import Graph
 from .plan import make_plan
 from .publish import export_outputs
 from .registry import Registry, default_registry

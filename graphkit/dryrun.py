@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from .executor import graph_id
-from .graphfile import Graph
+from .model import Graph
 from .runner import Session
 from .store import Store
 

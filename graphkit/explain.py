@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from .executor import graph_id
-from .graphfile import Graph
+from .model import Graph
 from .runner import Session
 from .store import Store
 from .errors import UsageError

@@ -1,4 +1,4 @@
-"""Loading and validating graph files (YAML, format 1).
+"""Loading graph files (YAML, format 1): the first stage of a graph's way through the engine.
 
 ::
 
@@ -17,6 +17,11 @@
 Sweeps (``sweeps:`` and a node's ``foreach:``) instantiate a node or a sub-graph over a list, a
 product of lists or a file glob; see :mod:`graphkit.sweeps`.
 
+The loader here turns a graph file (:func:`read_graph`) or a dict into plain data with the
+place of every value; :func:`load_graph`, :func:`load_dict` and :func:`load` then hand it to
+:mod:`graphkit.validate`, which checks it and builds the plain :mod:`graphkit.model` (that
+module and the checks import nothing from here: no YAML past this stage).
+
 Everything is checked before anything runs (:mod:`graphkit.validate`, one checker per concern);
 each problem is reported as ``file:line:col`` with the node and port, and a did-you-mean where
 one fits.  Only plain YAML data is accepted (no tags that build objects), so a graph file cannot
@@ -26,27 +31,21 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel
 
 from .errors import Diagnostic, GraphError, UsageError
-from .hashing import key_digest
-from .node import Node
+from .model import GNode, Graph, kind  # noqa: F401 - GNode, Graph: also imported from here
 from .registry import Registry
 from .suggest import did_you_mean  # noqa: F401 - also imported from here by older callers
+from .validate import validate
 
-FORMAT = 1
-TOP_KEYS = ("graphkit", "name", "description", "params", "sweeps", "nodes", "outputs")
-NODE_KEYS = ("type", "inputs", "params", "backend", "foreach", "doc")
 _PLAIN_TAGS = {
     "tag:yaml.org,2002:str", "tag:yaml.org,2002:int", "tag:yaml.org,2002:float",
     "tag:yaml.org,2002:bool", "tag:yaml.org,2002:null",
 }
-_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
 MAX_YAML_NODES = 200_000
 #: deepest nesting of YAML collections a graph file (or a --set value) may have.  libyaml's
 #: composer recurses in C (a file 30 000 levels deep overflows the C stack: a segfault) and the
@@ -91,138 +90,44 @@ _FLOAT_RE = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+
 def core_scalar(tag: str, value: str) -> Any:
     """The python value of a YAML 1.2 core-schema scalar (``tag`` resolved or explicit);
     ValueError when ``value`` is not a valid text of that tag (e.g. ``!!int 1:20``)."""
-    kind = tag.rpartition(":")[2]
-    if kind == "str":
+    which = tag.rpartition(":")[2]
+    if which == "str":
         return value
-    if kind == "null":
-        if value in ("~", "null", "Null", "NULL", ""):
-            return None
-    elif kind == "bool":
-        if value in ("true", "True", "TRUE"):
-            return True
-        if value in ("false", "False", "FALSE"):
-            return False
-    elif kind == "int":
-        if _INT_RE.match(value):
-            return int(value, 10)
-        if value[:2] in ("0o", "0x") and len(value) > 2:
-            return int(value[2:], 8 if value[1] == "o" else 16)
-    elif kind == "float":
-        low = value.lower()
-        if low in (".inf", "+.inf", "-.inf", ".nan"):
-            return float(low.replace(".", ""))
-        if _FLOAT_RE.match(value) or _INT_RE.match(value):
-            return float(value)
-    raise ValueError(f"not a YAML 1.2 {kind}")
+    parse = _CORE_SCALARS.get(which)
+    got = _NOT_CORE if parse is None else parse(value)
+    if got is _NOT_CORE:
+        raise ValueError(f"not a YAML 1.2 {which}")
+    return got
 
 
-@dataclass
-class GNode:
-    name: str
-    type: str
-    cls: type[Node]
-    params: BaseModel
-    # port -> (source node, source port); a variadic port holds a list of them
-    inputs: dict[str, tuple[str, str] | list[tuple[str, str]]]
-    backend: str | None  # pinned backend, if any
-    files: dict[str, str]  # InputFile param -> resolved path
-    line: int = 0
-    col: int = 0
-    base: str = ""  # the node's name in the graph file (an instance is named base[instance])
-    instance: str | None = None  # the instance name, for a node swept with foreach
-    sweep: str | None = None  # the sweep it is instantiated over
-
-    def edges(self) -> list[tuple[str, str, str]]:
-        """Every connection into this node as (port, source node, source port)."""
-        out = []
-        for port, ref in self.inputs.items():
-            for src, sport in (ref if isinstance(ref, list) else [ref]):
-                out.append((port, src, sport))
-        return out
-
-    def sources(self) -> set[str]:
-        out = set()
-        for ref in self.inputs.values():
-            if isinstance(ref, list):
-                out.update(src for src, _ in ref)
-            else:
-                out.add(ref[0])
-        return out
-
-    def map_inputs(self, fn) -> dict:
-        """{port: fn(src, sport)} (a list of those for variadic ports)."""
-        return {port: [fn(*r) for r in ref] if isinstance(ref, list) else fn(*ref)
-                for port, ref in self.inputs.items()}
+_NOT_CORE = object()  # a text that is not a valid scalar of the tag
 
 
-@dataclass
-class Graph:
-    name: str
-    path: str
-    base_dir: str
-    params: dict[str, Any]
-    nodes: dict[str, GNode]
-    outputs: dict[str, tuple[str, str]]
-    _recipes: dict[str, str] = field(default_factory=dict)
-    sweeps: dict = field(default_factory=dict)  # name -> graphkit.sweeps.Sweep
-    output_groups: dict[str, list[str]] = field(default_factory=dict)  # a swept output -> its outputs
+def _core_int(value: str) -> Any:
+    if _INT_RE.match(value):
+        return int(value, 10)
+    if value[:2] in ("0o", "0x") and len(value) > 2:
+        return int(value[2:], 8 if value[1] == "o" else 16)
+    return _NOT_CORE
 
-    def select_outputs(self, names) -> None:
-        """Keep only the outputs ``names`` (an output name, or the name of a swept output group)."""
-        keep: list[str] = []
-        unknown = []
-        for n in names:
-            if n in self.outputs:
-                keep.append(n)
-            elif n in self.output_groups:
-                keep.extend(self.output_groups[n])
-            else:
-                unknown.append(n)
-        if unknown:
-            shown = list(self.output_groups) + [o for o in self.outputs
-                                                if not any(o in g for g in self.output_groups.values())]
-            raise UsageError(f"unknown output(s) {', '.join(unknown)}{did_you_mean(unknown[0], shown)}; "
-                             "the graph's outputs: " + ", ".join(shown))
-        self.outputs = {k: v for k, v in self.outputs.items() if k in set(keep)}
-        self.output_groups = {k: [o for o in v if o in self.outputs] for k, v in self.output_groups.items()}
 
-    def instances(self, base: str) -> list[str]:
-        """The nodes written as ``base`` in the graph file (its instances, or itself)."""
-        return [n for n, g in self.nodes.items() if (g.base or n) == base]
+def _core_float(value: str) -> Any:
+    low = value.lower()
+    if low in (".inf", "+.inf", "-.inf", ".nan"):
+        return float(low.replace(".", ""))
+    if _FLOAT_RE.match(value) or _INT_RE.match(value):
+        return float(value)
+    return _NOT_CORE
 
-    def upstream(self, names) -> list[str]:
-        """The nodes ``names`` need, in a deterministic topological order."""
-        need: set[str] = set()
-        stack = list(names)
-        while stack:
-            n = stack.pop()
-            if n in need:
-                continue
-            need.add(n)
-            stack.extend(self.nodes[n].sources())
-        return [n for n in self.order() if n in need]
 
-    def order(self) -> list[str]:
-        if "_order" not in self.__dict__:
-            from graphlib import TopologicalSorter
-
-            ts = TopologicalSorter({n: sorted(g.sources()) for n, g in self.nodes.items()})
-            self.__dict__["_order"] = list(ts.static_order())
-        return self.__dict__["_order"]
-
-    def recipe_digest(self, name: str) -> str:
-        """Digest of the part of the graph that ``name`` depends on (types, params, edges)."""
-        if name not in self._recipes:
-            g = self.nodes[name]
-            self._recipes[name] = key_digest({
-                "type": g.type, "version": g.cls.version,
-                "params": g.params.model_dump(mode="json"),
-                "inputs": g.map_inputs(lambda s, sp: [self.recipe_digest(s), sp]),
-            })
-        return self._recipes[name]
-
-    def digest(self) -> str:
-        return key_digest({n: self.recipe_digest(n) for n in self.nodes})
+_NULLS = ("~", "null", "Null", "NULL", "")
+_BOOLS = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
+_CORE_SCALARS = {
+    "null": lambda v: None if v in _NULLS else _NOT_CORE,
+    "bool": lambda v: _BOOLS.get(v, _NOT_CORE),
+    "int": _core_int,
+    "float": _core_float,
+}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -389,22 +294,28 @@ def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | No
 
     ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
     it in messages and anchors its relative paths."""
+    path = _graph_path(path)
+    doc = read_graph(path, text)
+    try:
+        return validate(doc, doc.data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
+                        overrides or {}, check_backends)
+    except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
+        raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
+
+
+def _graph_path(path: str | os.PathLike) -> str:
     path = os.fspath(path)
     if isinstance(path, bytes):
         path = os.fsdecode(path)
     if "\0" in path:
         raise UsageError(f"{path!r}: a graph file path cannot hold a NUL byte")
-    if text is None and os.path.isdir(path):
-        raise UsageError(f"{path}: is a folder, not a graph file")
-    if text is None and os.path.exists(path) and not os.path.isfile(path):
-        raise UsageError(f"{path}: is not a regular file (a FIFO, socket or device), not a graph file")
-    try:
-        raw = Path(path).read_bytes() if text is None else (
-            text.encode() if isinstance(text, str) else text)
-    except FileNotFoundError:
-        raise UsageError(f"{path}: graph file not found") from None
-    except OSError as e:
-        raise UsageError(f"{path}: cannot read graph file: {e.strerror or e}") from None
+    return path
+
+
+def read_graph(path: str, text: str | bytes | None = None) -> _Doc:
+    """The graph file ``path`` (or its unsaved ``text``) as plain data with places: a mapping,
+    not yet checked (:func:`graphkit.validate.validate` does that)."""
+    raw = _read_bytes(path) if text is None else (text.encode() if isinstance(text, str) else text)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -412,16 +323,22 @@ def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | No
     doc = parse_yaml(text, path)
     if doc.diags:
         raise GraphError(doc.diags)
-    data = doc.data
-    if not isinstance(data, dict):
-        raise GraphError(Diagnostic(path, 1, 1, f"a graph file must be a mapping, got {_kind(data)}"))
-    from .validate import validate
+    if not isinstance(doc.data, dict):
+        raise GraphError(Diagnostic(path, 1, 1, f"a graph file must be a mapping, got {kind(doc.data)}"))
+    return doc
 
+
+def _read_bytes(path: str) -> bytes:
+    if os.path.isdir(path):
+        raise UsageError(f"{path}: is a folder, not a graph file")
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise UsageError(f"{path}: is not a regular file (a FIFO, socket or device), not a graph file")
     try:
-        return validate(doc, data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
-                        overrides or {}, check_backends)
-    except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
-        raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise UsageError(f"{path}: graph file not found") from None
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read graph file: {e.strerror or e}") from None
 
 
 def load_dict(data: dict, registry: Registry, overrides: dict | None = None, *, base_dir: str | os.PathLike = ".",
@@ -434,9 +351,7 @@ def load_dict(data: dict, registry: Registry, overrides: dict | None = None, *, 
     if doc.diags:
         raise GraphError(doc.diags)
     if not isinstance(data, dict):
-        raise GraphError(_PathDiagnostic(source, 0, 0, f"a graph must be a mapping, got {_kind(data)}", ""))
-    from .validate import validate
-
+        raise GraphError(_PathDiagnostic(source, 0, 0, f"a graph must be a mapping, got {kind(data)}", ""))
     return validate(doc, data, source, os.path.abspath(base_dir), registry, overrides or {}, check_backends)
 
 
@@ -501,8 +416,4 @@ class _DictDoc(_Doc):
         return None
 
 
-def _kind(v) -> str:
-    return {dict: "a mapping", list: "a list", str: "a string", type(None): "nothing"}.get(type(v), type(v).__name__)
-
-
-__all__ = ["Graph", "GNode", "load_graph", "load_dict", "load", "parse_set"]
+__all__ = ["Graph", "GNode", "load_graph", "load_dict", "load", "read_graph", "parse_set"]

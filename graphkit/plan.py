@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .graphfile import Graph
+from .model import Graph
 from .paths import OutputNames
 
 

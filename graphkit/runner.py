@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from .errors import BackendCannotRun, BadInput, GraphkitError, NodeFailed
-from .graphfile import GNode, Graph
+from .model import GNode, Graph
 from . import keys
 from .hashing import file_digest
 from .node import Context, probe

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 
-from .graphfile import Graph
+from .model import Graph
 
 COLOURS = {"cached": ("#d8f0d8", "#2e7d32"), "run": ("#ffe3bf", "#e65100"), "partial": ("#fff5b8", "#a68b00")}
 

@@ -26,7 +26,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from .errors import BadInput, GraphError, GraphkitError, UsageError
-from .graphfile import FORMAT, NODE_KEYS, TOP_KEYS, GNode, Graph, _NAME_RE, _kind
+from .model import FORMAT, NODE_KEYS, NAME_RE, TOP_KEYS, GNode, Graph, kind
 from .node import probe
 from .paths import OutputNames, UnsafePath, safe_relpath
 from .registry import NUMPY, Registry
@@ -79,7 +79,7 @@ class Check:
         self.graph_path, self.base_dir = graph_path, base_dir
         self.overrides, self.check_backends = overrides, check_backends
         stem = Path(graph_path).stem
-        self.name = stem if _NAME_RE.match(stem) else "graph"  # a dict's source is "<dict>"
+        self.name = stem if NAME_RE.match(stem) else "graph"  # a dict's source is "<dict>"
         self.gparams: dict[str, Any] = {}
         self.sweeps: dict[str, Sweep] = {}
         self.declared: set[str] = set()  # every node name written in the file
@@ -206,16 +206,16 @@ def check_structure(c: Check) -> None:
     elif data["graphkit"] != FORMAT:
         c.at(("graphkit",), f"unsupported graph format {data['graphkit']!r}; this graphkit reads format {FORMAT}")
     name = data.get("name", c.name)
-    if not isinstance(name, str) or not _NAME_RE.match(name):
+    if not isinstance(name, str) or not NAME_RE.match(name):
         c.at(("name",), f"'name' must be a word of letters, digits, '_' or '-', got {name!r}")
     else:
         c.name = name
     gparams = data.get("params") or {}
     if not isinstance(gparams, dict):
-        c.at(("params",), f"'params' must be a mapping of name: default value, got {_kind(gparams)}")
+        c.at(("params",), f"'params' must be a mapping of name: default value, got {kind(gparams)}")
         gparams = {}
     for k in gparams:
-        if not _NAME_RE.match(k):
+        if not NAME_RE.match(k):
             c.at(("params", k), f"graph param name {k!r} must be letters, digits and '_'", key=True)
     gparams = dict(gparams)
     for k, v in c.overrides.items():
@@ -239,16 +239,16 @@ def check_nodes(c: Check) -> None:
         c.at((), "missing 'nodes'")
         return
     if not isinstance(nodes_raw, dict):
-        c.at(("nodes",), f"'nodes' must be a mapping of node name: node, got {_kind(nodes_raw)}")
+        c.at(("nodes",), f"'nodes' must be a mapping of node name: node, got {kind(nodes_raw)}")
         return
     for nname, raw in nodes_raw.items():
         npath = ("nodes", nname)
-        if not _NAME_RE.match(nname):
+        if not NAME_RE.match(nname):
             c.at(npath, f"node name {nname!r} must start with a letter or '_' and hold letters, digits, '_' or '-'", key=True)
             continue
         c.declared.add(nname)
         if not isinstance(raw, dict):
-            c.at(npath, f"node '{nname}' must be a mapping with 'type', 'inputs', 'params', got {_kind(raw)}")
+            c.at(npath, f"node '{nname}' must be a mapping with 'type', 'inputs', 'params', got {kind(raw)}")
             continue
         unknown_keys(c.doc, npath, raw, NODE_KEYS, f"node '{nname}': ")
         cls = _node_type(c, npath, nname, raw.get("type"), "type" in raw)
@@ -313,7 +313,7 @@ def check_params(c: Check) -> None:
     for spec in c.specs.values():
         raw = spec.raw.get("params")
         if raw is not None and not isinstance(raw, dict):
-            c.at(spec.path + ("params",), f"node '{spec.name}': 'params' must be a mapping, got {_kind(raw)}")
+            c.at(spec.path + ("params",), f"node '{spec.name}': 'params' must be a mapping, got {kind(raw)}")
             continue
         raw = raw or {}
         line, col = c.doc.where(spec.path, key=True)
@@ -525,12 +525,12 @@ def check_outputs(c: Check) -> None:
         entries = [(None, ("outputs", i), r) for i, r in enumerate(outs_raw)]
     elif isinstance(outs_raw, dict):
         for oname, r in outs_raw.items():
-            if not _NAME_RE.match(str(oname)):
+            if not NAME_RE.match(str(oname)):
                 c.at(("outputs", oname), f"output name {oname!r} must be letters, digits, '_' or '-'", key=True)
                 continue
             entries.append((oname, ("outputs", oname), r))
     elif outs_raw is not None:
-        c.at(("outputs",), f"'outputs' must be a list of node.port or a mapping name: node.port, got {_kind(outs_raw)}")
+        c.at(("outputs",), f"'outputs' must be a list of node.port or a mapping name: node.port, got {kind(outs_raw)}")
     for oname, where, r in entries:
         ref = parse_ref(c, where, r, "output" if oname is None else f"output '{oname}'")
         if ref is not None:
