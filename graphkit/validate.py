@@ -140,13 +140,7 @@ def _resolve(c: Check, path, m, ctx):
     ns, star, fld = m.group(1), m.group(2), m.group(3)
     ref = m.group(0)
     if ns == "params":
-        if star:
-            c.at(path, f"{ref}: graph params have no instances; write ${{params.{fld}}}")
-            return _MISSING
-        if fld not in c.gparams:
-            c.at(path, f"unknown graph param '{fld}'{did_you_mean(fld, c.gparams)}")
-            return _MISSING
-        return c.gparams[fld]
+        return _resolve_param(c, path, ref, star, fld)
     if ctx == "sweeps":
         c.at(path, f"{ref}: a sweep's definition may use graph params (${{params.NAME}}) only")
         return _MISSING
@@ -163,6 +157,24 @@ def _resolve(c: Check, path, m, ctx):
     if fld not in fields:
         c.at(path, f"sweep '{ns}' has no field '{fld}'{did_you_mean(fld, fields)} (its fields: {', '.join(fields)})")
         return _MISSING
+    return _resolve_field(c, path, ref, sw, star, fld, ctx)
+
+
+def _resolve_param(c: Check, path, ref: str, star, fld: str):
+    """The value of ``${params.FLD}``."""
+    if star:
+        c.at(path, f"{ref}: graph params have no instances; write ${{params.{fld}}}")
+        return _MISSING
+    if fld not in c.gparams:
+        c.at(path, f"unknown graph param '{fld}'{did_you_mean(fld, c.gparams)}")
+        return _MISSING
+    return c.gparams[fld]
+
+
+def _resolve_field(c: Check, path, ref: str, sw: Sweep, star, fld: str, ctx):
+    """The value of field ``fld`` (which sweep ``sw`` has) for the instance of ``ctx``, or the
+    list of it over every instance (``star``)."""
+    ns = sw.name
     if star:
         missing = [i.name for i in sw.instances if fld not in i.fields]
         if missing:
@@ -343,43 +355,59 @@ def check_params(c: Check) -> None:
 
 def _params_and_files(c: Check, spec: Spec, inst, raw: dict):
     """(params model, {InputFile param: path}) of one node or instance, or None (reported)."""
-    ppath = spec.path + ("params",)
-    n0 = len(c.doc.diags)
     if spec.ref_keys is None:  # which params hold ${...}: only those are substituted per instance
         spec.ref_keys = [k for k, v in raw.items() if _has_ref(v)]
         spec.file_params = spec.cls.input_file_params()
-    values = dict(raw)
-    m0 = c.silent_misses
-    for k in spec.ref_keys:
-        values[k] = substitute(c, ppath + (k,), raw[k], (spec, inst))
-    if len(c.doc.diags) > n0 or c.silent_misses > m0:
-        return None
-    cls = spec.cls
-    try:
-        params = cls.Params.model_validate(values)
-    except ValidationError as e:
-        label = spec.label(inst.name if inst is not None and spec.sweep is not None else None)
-        fields = list(cls.Params.model_fields)
-        for err in e.errors():
-            loc = tuple(err["loc"])
-            field_name = str(loc[0]) if loc else ""
-            if err["type"] == "extra_forbidden":
-                c.at(ppath + loc, f"{label}: unknown param '{field_name}'"
-                     f"{did_you_mean(field_name, fields)} (its params: {', '.join(fields) or 'none'})", key=True)
-            elif err["type"] == "missing":
-                c.at(ppath, f"{label}: missing required param '{field_name}'")
-            else:
-                got = err.get("input")
-                got_s = f" (got {got!r})" if not isinstance(got, (dict, list)) else ""
-                c.at(ppath + loc, f"{label}, param '{'.'.join(map(str, loc))}': {err['msg']}{got_s}")
-        return None
-    except Exception as e:  # noqa: BLE001 - a validator that raised something unusual
-        c.at(ppath, f"{spec.label(inst.name if inst is not None and spec.sweep is not None else None)}: bad params: {e}")
+    values = _substituted(c, spec, inst, raw)
+    params = None if values is None else _params_model(c, spec, inst, values)
+    if params is None:
         return None
     if not spec.file_params:
         return params, {}
-    files = _input_files(c, spec, spec.label(inst.name if inst is not None and spec.sweep is not None else None), params)
+    files = _input_files(c, spec, _label(spec, inst), params)
     return None if files is None else (params, files)
+
+
+def _label(spec: Spec, inst) -> str:
+    return spec.label(inst.name if inst is not None and spec.sweep is not None else None)
+
+
+def _substituted(c: Check, spec: Spec, inst, raw: dict) -> dict | None:
+    """``raw`` params with their ``${...}`` references replaced for ``inst``; None on a problem."""
+    ppath = spec.path + ("params",)
+    n0, m0 = len(c.doc.diags), c.silent_misses
+    values = dict(raw)
+    for k in spec.ref_keys:
+        values[k] = substitute(c, ppath + (k,), raw[k], (spec, inst))
+    return None if len(c.doc.diags) > n0 or c.silent_misses > m0 else values
+
+
+def _params_model(c: Check, spec: Spec, inst, values: dict):
+    """The node's ``Params`` made from ``values``, or None (each problem reported)."""
+    ppath = spec.path + ("params",)
+    try:
+        return spec.cls.Params.model_validate(values)
+    except ValidationError as e:
+        for err in e.errors():
+            _param_error(c, spec, _label(spec, inst), ppath, err)
+    except Exception as e:  # noqa: BLE001 - a validator that raised something unusual
+        c.at(ppath, f"{_label(spec, inst)}: bad params: {e}")
+    return None
+
+
+def _param_error(c: Check, spec: Spec, label: str, ppath: tuple, err: dict) -> None:
+    loc = tuple(err["loc"])
+    field_name = str(loc[0]) if loc else ""
+    if err["type"] == "extra_forbidden":
+        fields = list(spec.cls.Params.model_fields)
+        c.at(ppath + loc, f"{label}: unknown param '{field_name}'"
+             f"{did_you_mean(field_name, fields)} (its params: {', '.join(fields) or 'none'})", key=True)
+    elif err["type"] == "missing":
+        c.at(ppath, f"{label}: missing required param '{field_name}'")
+    else:
+        got = err.get("input")
+        got_s = f" (got {got!r})" if not isinstance(got, (dict, list)) else ""
+        c.at(ppath + loc, f"{label}, param '{'.'.join(map(str, loc))}': {err['msg']}{got_s}")
 
 
 def _has_ref(v: Any) -> bool:
@@ -441,65 +469,76 @@ def parse_ref(c: Check, where: tuple, r: Any, what: str, consumer: Spec | None =
         c.at(where, f"{what}: node '{node}' ({src.type}) has no output port '{port}'"
              f"{did_you_mean(port, outs)} (its outputs: {', '.join(outs)})")
         return None
-    sw = src.sweep
+    problem = _pick_problem(src, pick, port, consumer, variadic)
+    if problem:
+        c.at(where, f"{what}: {problem}")
+        return None
+    return Ref(node, port, pick, where, r)
+
+
+def _pick_problem(src: Spec, pick: str | None, port: str, consumer: Spec | None, variadic: bool) -> str | None:
+    """Why ``src.port`` (``src[pick].port``) cannot feed ``consumer`` (None: an output), or None."""
+    node, sw = src.name, src.sweep
     if pick is None:
         if sw is not None and consumer is not None and consumer.sweep is not sw:
             whose = (f"'{consumer.name}' is swept over '{consumer.sweep.name}'" if consumer.sweep
                      else f"'{consumer.name}' is not swept")
-            c.at(where, f"{what}: '{node}' has {len(sw)} instances (foreach: {sw.name}) and {whose}; "
-                 f"write {node}[*].{port} to take all of them, in order"
-                 + ("" if variadic else ", on an input that takes a list"))
-            return None
-    elif pick == "*":
-        if sw is None:
-            c.at(where, f"{what}: '{node}' is not swept (no foreach), so {node}[*] has nothing to gather")
-            return None
-        if not variadic:
-            c.at(where, f"{what}: {node}[*].{port} gives {len(sw)} values but this input takes one connection "
-                 "(gathering instances needs an input that takes a list)")
-            return None
-    else:
-        if sw is None:
-            c.at(where, f"{what}: '{node}' is not swept (no foreach), so it has no instance '{pick}'")
-            return None
-        if sw.get(pick) is None:
-            c.at(where, f"{what}: sweep '{sw.name}' has no instance '{pick}'{did_you_mean(pick, sw.names())}")
-            return None
-    return Ref(node, port, pick, where, r)
+            return (f"'{node}' has {len(sw)} instances (foreach: {sw.name}) and {whose}; "
+                    f"write {node}[*].{port} to take all of them, in order"
+                    + ("" if variadic else ", on an input that takes a list"))
+        return None
+    if sw is None:
+        return (f"'{node}' is not swept (no foreach), so {node}[*] has nothing to gather" if pick == "*"
+                else f"'{node}' is not swept (no foreach), so it has no instance '{pick}'")
+    if pick == "*":
+        return None if variadic else (f"{node}[*].{port} gives {len(sw)} values but this input takes one "
+                                      "connection (gathering instances needs an input that takes a list)")
+    if sw.get(pick) is None:
+        return f"sweep '{sw.name}' has no instance '{pick}'{did_you_mean(pick, sw.names())}"
+    return None
 
 
 def check_references(c: Check) -> None:
     """Each node's input connections: known ports, required inputs, and ``node.port`` that exist
     (``node[*].port`` gathers every instance of a swept node into an input that takes a list)."""
     for spec in c.specs.values():
-        cls = spec.cls
         ins = spec.raw.get("inputs") or {}
         if not isinstance(ins, dict):
             c.at(spec.path + ("inputs",), f"node '{spec.name}': 'inputs' must be a mapping of port: node.port")
             ins = {}
-        for port in ins:
-            if port not in cls.in_ports:
-                c.at(spec.path + ("inputs", port), f"node '{spec.name}' ({spec.type}) has no input port '{port}'"
-                     f"{did_you_mean(port, cls.in_ports)} (its inputs: {', '.join(cls.in_ports) or 'none'})", key=True)
-        for port, p in cls.in_ports.items():
-            if port not in ins and not p.optional:
-                c.at(spec.path + ("inputs",) if "inputs" in spec.raw else spec.path,
-                     f"node '{spec.name}' ({spec.type}): missing required input '{port}' ({p.type})")
+        _check_ports(c, spec, ins)
         for port, ref in ins.items():
-            if port not in cls.in_ports:
-                continue
-            pdecl = cls.in_ports[port]
-            where = spec.path + ("inputs", port)
-            if pdecl.variadic and isinstance(ref, list):
-                items = [(where + (i,), r) for i, r in enumerate(ref)]
-            elif isinstance(ref, list):
-                c.at(where, f"node '{spec.name}', input '{port}' takes one connection, not a list")
-                continue
-            else:
-                items = [(where, ref)]
-            refs = [parse_ref(c, w, r, f"node '{spec.name}', input '{port}'", spec, pdecl.variadic) for w, r in items]
-            if all(refs):
-                spec.refs[port] = refs
+            if port in spec.cls.in_ports:
+                _connect_port(c, spec, port, ref)
+
+
+def _check_ports(c: Check, spec: Spec, ins: dict) -> None:
+    """Every input named is a port of the node, every required port is given."""
+    in_ports = spec.cls.in_ports
+    for port in ins:
+        if port not in in_ports:
+            c.at(spec.path + ("inputs", port), f"node '{spec.name}' ({spec.type}) has no input port '{port}'"
+                 f"{did_you_mean(port, in_ports)} (its inputs: {', '.join(in_ports) or 'none'})", key=True)
+    for port, p in in_ports.items():
+        if port not in ins and not p.optional:
+            c.at(spec.path + ("inputs",) if "inputs" in spec.raw else spec.path,
+                 f"node '{spec.name}' ({spec.type}): missing required input '{port}' ({p.type})")
+
+
+def _connect_port(c: Check, spec: Spec, port: str, ref: Any) -> None:
+    """The connections written for input ``port``: kept in ``spec.refs`` when all are good."""
+    pdecl = spec.cls.in_ports[port]
+    where = spec.path + ("inputs", port)
+    if pdecl.variadic and isinstance(ref, list):
+        items = [(where + (i,), r) for i, r in enumerate(ref)]
+    elif isinstance(ref, list):
+        c.at(where, f"node '{spec.name}', input '{port}' takes one connection, not a list")
+        return
+    else:
+        items = [(where, ref)]
+    refs = [parse_ref(c, w, r, f"node '{spec.name}', input '{port}'", spec, pdecl.variadic) for w, r in items]
+    if all(refs):
+        spec.refs[port] = refs
 
 
 def check_types(c: Check) -> None:
@@ -599,12 +638,17 @@ def build_outputs(c: Check) -> None:
             c.outputs[key] = (n, r.port)
             group.append(key)
         c.output_groups[oname or r.text] = group
-    if not c.outputs:  # default: every output of every node nobody consumes
-        used = {s for g in c.nodes.values() for s in g.sources()}
-        for n in c.order:
-            if n not in used:
-                for p in c.nodes[n].cls.out_ports:
-                    c.outputs[f"{n}.{p}"] = (n, p)
+    if not c.outputs:
+        _default_outputs(c)
+
+
+def _default_outputs(c: Check) -> None:
+    """Every output of every node nobody consumes (a graph without ``outputs:``)."""
+    used = {s for g in c.nodes.values() for s in g.sources()}
+    for n in c.order:
+        if n not in used:
+            for p in c.nodes[n].cls.out_ports:
+                c.outputs[f"{n}.{p}"] = (n, p)
 
 
 def check_output_files(c: Check) -> None:
