@@ -5,7 +5,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .executor import Progress, RunResult, execute, locked_run, record_last_run
+from .executor import Progress, RunResult, locked_run, record_last_run, run_local
 from .graphfile import load
 from .model import Graph
 from .plan import make_plan
@@ -57,7 +57,12 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
     def run() -> RunResult:
         ok = False
         try:
-            result = execute(session, plan.targets, executor, jobs, progress, scheduler, scheduler_timeout)
+            if executor == "dask":
+                from .dask_executor import run_dask
+
+                result = run_dask(session, plan.targets, scheduler, jobs, progress, timeout=scheduler_timeout)
+            else:
+                result = run_local(session, plan.targets, jobs, progress)
             ok = True
         finally:
             progress.finish(ok)

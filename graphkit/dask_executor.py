@@ -30,6 +30,7 @@ import uuid
 
 from .errors import GraphkitError, NodeFailed, UsageError
 from .executor import Progress, RunResult
+from .plan import plan_nodes
 from .runner import Session
 
 _sessions: dict[str, Session] = {}
@@ -214,7 +215,7 @@ def run_dask(session: Session, targets: list[str], scheduler: str | None = None,
         raise UsageError("the dask executor needs a cache the workers can reach (a folder or a shared "
                          "fsspec URL), not memory://")
     graph = session.graph
-    order = graph.upstream(targets)
+    order = plan_nodes(graph, targets).order
     token = uuid.uuid4().hex
     result = RunResult(graph.name, executor="dask")
     t0 = time.perf_counter()

@@ -65,16 +65,6 @@ def locked_run(store, work: Callable[[], Any], then: Callable[[Any], Any] | None
         return result if then is None else then(result)
 
 
-def execute(session: Session, targets: list[str], executor: str = "local", jobs: int = 1,
-            progress: Progress | None = None, scheduler: str | None = None, timeout: float = 10.0) -> RunResult:
-    """Run the nodes ``targets`` need on ``executor`` ("local": :func:`run_local`, "dask")."""
-    if executor == "dask":
-        from .dask_executor import run_dask
-
-        return run_dask(session, targets, scheduler, jobs, progress, timeout=timeout)
-    return run_local(session, targets, jobs, progress)
-
-
 def run_local(session: Session, targets: list[str], jobs: int = 1,
               progress: Progress | None = None, first: list[str] | None = None) -> RunResult:
     """Run the nodes ``targets`` need, ``jobs`` at a time, in threads of this process.
@@ -164,5 +154,5 @@ def graph_id(graph) -> str:
     return f"{graph.name}-{hashlib.blake2b(graph.path.encode(), digest_size=6).hexdigest()}"
 
 
-__all__ = ["run_local", "execute", "locked_run", "RunResult", "Progress"]
+__all__ = ["run_local", "locked_run", "RunResult", "Progress"]
 
