@@ -122,14 +122,31 @@ class Graph:
             self.__dict__["_order"] = list(ts.static_order())
         return self.__dict__["_order"]
 
+    def pending(self, name: str, done) -> list[str]:
+        """``name`` and the nodes it needs that are not in ``done``, sources first.  An explicit
+        stack, no recursion: a graph's depth is not limited by Python's recursion limit.  The
+        walk stops at nodes in ``done`` (their own sources are not visited)."""
+        out: list[str] = []
+        expanded: set[str] = set()
+        stack = [(name, False)]
+        while stack:
+            n, finished = stack.pop()
+            if finished:
+                out.append(n)
+            elif n not in expanded and n not in done:
+                expanded.add(n)
+                stack.append((n, True))
+                stack.extend((s, False) for s in self.nodes[n].sources())
+        return out
+
     def recipe_digest(self, name: str) -> str:
         """Digest of the part of the graph that ``name`` depends on (types, params, edges)."""
-        if name not in self._recipes:
-            g = self.nodes[name]
-            self._recipes[name] = key_digest({
+        for n in self.pending(name, self._recipes):  # sources first: their digests are known
+            g = self.nodes[n]
+            self._recipes[n] = key_digest({
                 "type": g.type, "version": g.cls.version,
                 "params": g.params.model_dump(mode="json"),
-                "inputs": g.map_inputs(lambda s, sp: [self.recipe_digest(s), sp]),
+                "inputs": g.map_inputs(lambda s, sp: [self._recipes[s], sp]),
             })
         return self._recipes[name]
 

@@ -194,11 +194,9 @@ class Session:
 
     def _outcome(self, name: str) -> NodeOutcome:
         """This run's outcome of node ``name``, looking it (and its upstream) up if needed."""
-        o = self._outcomes.get(name)
-        if o is None:
-            g = self.graph.nodes[name]
-            o = self.run_node(name, g.map_inputs(lambda src, sport: self._outcome(src).outputs[sport]))
-        return o
+        for n in self.graph.pending(name, self._outcomes):  # sources first, no recursion
+            self.run_node(n, self.graph.nodes[n].map_inputs(lambda src, sport: self._outcomes[src].outputs[sport]))
+        return self._outcomes[name]
 
     def _regenerate(self, name: str, port: str, digest: str, why: DamagedEntry) -> Any:
         """Recompute node ``name`` because its stored output ``port`` (``digest``) is damaged."""

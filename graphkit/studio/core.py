@@ -118,26 +118,41 @@ class _RunProgress(Progress):
 def _layout(nodes: dict[str, list[str]]) -> dict[str, tuple[int, int]]:
     """Layered DAG layout: layer = longest path from a source; rows in file order."""
     layer: dict[str, int] = {}
-
-    def depth(n, seen=()):
-        if n in layer:
-            return layer[n]
-        if n in seen:  # a cycle (reported by the loader): break it
-            return 0
-        d = 0
-        for s in nodes.get(n, []):
-            if s in nodes:
-                d = max(d, depth(s, seen + (n,)) + 1)
-        layer[n] = d
-        return d
-
     rows: dict[int, int] = {}
     out = {}
     for n in nodes:
-        lx = depth(n)
+        lx = _depth(n, nodes, layer)
         out[n] = (lx, rows.get(lx, 0))
         rows[lx] = rows.get(lx, 0) + 1
     return out
+
+
+def _depth(root: str, nodes: dict[str, list[str]], layer: dict[str, int]) -> int:
+    """The longest path from a source to ``root`` (memoised in ``layer``), with an explicit
+    stack: a graph's depth is not limited by Python's recursion limit.  An edge back onto the
+    path being walked (a cycle, reported by the loader) counts as coming from a source."""
+    if root in layer:
+        return layer[root]
+    path, on_path, pending, best = [root], {root}, [iter(nodes.get(root, []))], [0]
+    while path:
+        s = next(pending[-1], None)
+        if s is None:  # every source of path[-1] seen: its layer is known
+            n, d = path.pop(), best.pop()
+            pending.pop()
+            on_path.discard(n)
+            layer[n] = d
+            if best:
+                best[-1] = max(best[-1], d + 1)
+        elif s in layer:
+            best[-1] = max(best[-1], layer[s] + 1)
+        elif s in on_path:
+            best[-1] = max(best[-1], 1)
+        elif s in nodes:
+            path.append(s)
+            on_path.add(s)
+            pending.append(iter(nodes.get(s, [])))
+            best.append(0)
+    return layer[root]
 
 
 def _refs(v) -> list[str]:
