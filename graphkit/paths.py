@@ -9,6 +9,7 @@ together there (validation, the plan and publishing all ask it).
 from __future__ import annotations
 
 import os
+import re
 import stat
 from pathlib import PurePosixPath
 
@@ -17,6 +18,8 @@ from .errors import UsageError
 #: characters refused in output names: NUL (no OS accepts it), the Windows drive/stream
 #: separator ':' (also refused on POSIX so a graph writes the same files everywhere)
 _BAD_CHARS = {"\0": "a NUL byte", ":": "':'"}
+#: a name safe_relpath gives back unchanged: '/'-separated parts, none empty, '.' or '..'
+_NORMAL = re.compile(r"(?:(?!\.\.?(?:/|\Z))[^/\\:\0]+/)*(?!\.\.?\Z)[^/\\:\0]+\Z")
 
 
 class UnsafePath(UsageError, ValueError):
@@ -33,6 +36,8 @@ def safe_relpath(name: str, suffixes: tuple[str, ...] | None = None) -> str:
     names, absolute paths, ``..`` parts, names ending in '/', ':' (drive letters, NTFS streams)
     and NUL bytes.  With ``suffixes``, the extension (lower-cased) must be one of them.
     """
+    if isinstance(name, str) and _NORMAL.match(name) and suffixes is None:
+        return name  # already a normalised relative path (the common case: no Path object to build)
     if not isinstance(name, str) or not name:
         raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder, not empty")
     for ch, what in _BAD_CHARS.items():
