@@ -36,8 +36,16 @@ def safe_relpath(name: str, suffixes: tuple[str, ...] | None = None) -> str:
     names, absolute paths, ``..`` parts, names ending in '/', ':' (drive letters, NTFS streams)
     and NUL bytes.  With ``suffixes``, the extension (lower-cased) must be one of them.
     """
-    if isinstance(name, str) and _NORMAL.match(name) and suffixes is None:
-        return name  # already a normalised relative path (the common case: no Path object to build)
+    norm = name if isinstance(name, str) and _NORMAL.match(name) else _normalised(name)
+    if suffixes is not None:
+        suffix = PurePosixPath(norm).suffix
+        if suffix.lower() not in suffixes:
+            raise UnsafePath(f"output name {name!r}: unknown extension {suffix!r}; use one of {', '.join(suffixes)}")
+    return norm
+
+
+def _normalised(name) -> str:
+    """:func:`safe_relpath` of a name that is not one already (no Path object is built for those)."""
     if not isinstance(name, str) or not name:
         raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder, not empty")
     for ch, what in _BAD_CHARS.items():
@@ -49,10 +57,7 @@ def safe_relpath(name: str, suffixes: tuple[str, ...] | None = None) -> str:
     if text.startswith("/") or text.endswith("/") or ".." in parts or not parts:
         raise UnsafePath(f"output name {name!r}: must be a relative path inside the output folder "
                          "to a file (no '..' part, no leading or trailing '/')")
-    p = PurePosixPath(*parts)
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise UnsafePath(f"output name {name!r}: unknown extension {p.suffix!r}; use one of {', '.join(suffixes)}")
-    return str(p)
+    return str(PurePosixPath(*parts))
 
 
 #: the files a run writes into --out beside its outputs
