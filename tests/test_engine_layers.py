@@ -222,3 +222,25 @@ def test_functions_are_small(mod):
            for fn in _functions(f"graphkit.{mod}")
            if fn.end_lineno - fn.lineno + 1 > MAX_LINES or complexity(fn) > MAX_CC]
     assert not big, big
+
+
+@pytest.mark.parametrize("a, b, message", [
+    (".graphkit-x.txt", "y.txt", "node 'a' (WriteText), param 'path': '.graphkit-x.txt': names starting with "
+                                 ".graphkit- are graphkit's own; choose another name"),
+    ("d.txt", "d.txt/e.txt", "node 'b' (WriteText), param 'path': output 'd.txt' is a file but 'd.txt/e.txt' "
+                             "needs it to be a folder; choose another name"),
+    ("./r.txt", "r.txt", "nodes 'a' and 'b' both write 'r.txt' into --out"),
+])
+def test_validation_admits_output_files_by_the_one_rule(engine_registry, a, b, message):
+    """What publishing would refuse after the run is refused when the graph is loaded."""
+    import sweepnodes
+
+    from graphkit.errors import GraphError
+    from graphkit.graphfile import load_dict
+
+    engine_registry.add_provider("nodes", "tests", sweepnodes)
+    graph = {"graphkit": 1, "nodes": {"a": {"type": "WriteText", "params": {"path": a}},
+                                      "b": {"type": "WriteText", "params": {"path": b}}}}
+    with pytest.raises(GraphError) as ei:
+        load_dict(graph, engine_registry)
+    assert [d.message for d in ei.value.diagnostics] == [message]
