@@ -47,9 +47,9 @@ _PLAIN_TAGS = {
     "tag:yaml.org,2002:bool", "tag:yaml.org,2002:null",
 }
 MAX_YAML_NODES = 200_000
-#: deepest nesting of YAML collections a graph file (or a --set value) may have.  libyaml's
-#: composer recurses in C (a file 30 000 levels deep overflows the C stack: a segfault) and the
-#: rest of loading recurses in Python, so depth is checked on the parser's events first.
+#: deepest nesting of YAML collections a graph file (or a --set value) may have, checked on the
+#: parser's events as they come (:class:`_Composer` keeps explicit stacks; the checks and
+#: digests of values after it recurse over a value's nesting, never over the graph's depth).
 MAX_YAML_DEPTH = 100
 
 
@@ -163,79 +163,222 @@ def _mark(n) -> tuple[int, int]:
     return n.start_mark.line + 1, n.start_mark.column + 1
 
 
-def _to_py(doc: _Doc, n: yaml.Node, path: tuple) -> Any:
-    doc.count += 1
-    if doc.count > MAX_YAML_NODES:
-        raise GraphError(Diagnostic(doc.file, *_mark(n), f"graph file too large (over {MAX_YAML_NODES} YAML values, aliases included)"))
-    doc.locs[path] = _mark(n)
-    short = n.tag.replace("tag:yaml.org,2002:", "!!")
-    if isinstance(n, yaml.MappingNode):
-        if n.tag != "tag:yaml.org,2002:map":
-            doc.at(path, f"YAML tag '{short}' is not allowed: graph files hold plain data only")
-            return None
-        out: dict[str, Any] = {}
-        for kn, vn in n.value:
-            if not isinstance(kn, yaml.ScalarNode) or kn.tag not in _PLAIN_TAGS:
-                doc.diags.append(Diagnostic(doc.file, *_mark(kn), "mapping keys must be plain scalars"))
-                continue
-            k = str(kn.value)  # keys are names: take their text (YAML 1.1 would make `off` False)
-            if kn.value == "<<":
-                doc.diags.append(Diagnostic(doc.file, *_mark(kn), "YAML merge keys ('<<') are not supported"))
-                continue
-            if k in out:
-                doc.diags.append(Diagnostic(doc.file, *_mark(kn), f"duplicate key '{k}'"))
-                continue
-            doc.key_locs[path + (k,)] = _mark(kn)
-            out[k] = _to_py(doc, vn, path + (k,))
-        return out
-    if isinstance(n, yaml.SequenceNode):
-        if n.tag != "tag:yaml.org,2002:seq":
-            doc.at(path, f"YAML tag '{short}' is not allowed: graph files hold plain data only")
-            return None
-        return [_to_py(doc, x, path + (i,)) for i, x in enumerate(n.value)]
-    if n.tag not in _PLAIN_TAGS:
-        doc.at(path, f"YAML tag '{short}' is not allowed: graph files hold plain data only")
-        return None
-    try:
-        return core_scalar(n.tag, n.value)
-    except (ValueError, OverflowError) as e:
-        doc.at(path, f"bad scalar {n.value!r}: {e}")
-        return None
+_STARTS = (yaml.MappingStartEvent, yaml.SequenceStartEvent)
+_ENDS = (yaml.MappingEndEvent, yaml.SequenceEndEvent)
 
 
-def _check_depth(text: str, file: str) -> None:
-    """GraphError at the first collection nested deeper than MAX_YAML_DEPTH.  The parser's
-    events come without recursion (both libyaml's and PyYAML's parsers keep explicit stacks),
-    and the scan stops at the first collection that is too deep, so a 10⁶-deep file costs
-    nothing; on the project's graphs it adds about half the cost of composing."""
-    loader = _Loader(text)
-    start, end = (yaml.MappingStartEvent, yaml.SequenceStartEvent), (yaml.MappingEndEvent, yaml.SequenceEndEvent)
-    depth = 0
-    try:
+class _Composer:
+    """Python data and the place of every value, straight from the parser's events.
+
+    libyaml's parser makes the events in C; the ``yaml.Node`` tree that PyYAML's composer would
+    build from them (a Python object and a resolver call per value: about 80 % of the time of
+    loading a large graph file) is skipped.  One pass, with explicit stacks and no recursion,
+    does what composing and walking the tree did: collections nested deeper than
+    MAX_YAML_DEPTH are refused at the first one, an alias is read again from its anchor's
+    events (each time it is used, counted against MAX_YAML_NODES), keys must be plain scalars,
+    and tags other than the plain ones are reported at their place."""
+
+    def __init__(self, doc: _Doc, loader):
+        self.doc, self.loader = doc, loader
+        self.depth = 0
+        self.anchors: dict[str, list] = {}  # anchor -> its node's events (complete)
+        self.recording: list[tuple[str, list, int]] = []  # anchors being read: (name, events, depth)
+        self.replays: list = []  # iterators over the events of the aliases being read again
+        self.documents = 0
+        self.composing = True  # False once composing failed: only the parser's checks are left
+        self.too_deep = False
+
+    def event(self):
+        """The next event: from an alias being read again, else from the parser."""
+        while self.replays:
+            ev = next(self.replays[-1], None)
+            if ev is not None:
+                return ev
+            self.replays.pop()
+        ev = self.loader.get_event()
+        if isinstance(ev, _STARTS):
+            self.depth += 1
+            if self.depth > MAX_YAML_DEPTH:
+                self.too_deep = True
+                raise GraphError(Diagnostic(self.doc.file, *_mark(ev), f"YAML nested too deeply: more than "
+                                            f"{MAX_YAML_DEPTH} levels of lists and mappings"))
+        elif isinstance(ev, _ENDS):
+            self.depth -= 1
+        if self.composing:
+            self._anchor(ev)
+        return ev
+
+    def finish(self, error: Exception) -> None:
+        """After ``error``, read the rest of the stream: a syntax error or nesting over
+        MAX_YAML_DEPTH anywhere is reported first, and after an error found while converting
+        values (too many, a cyclic alias) a composition error too, in the order loading used to
+        find them (parse the whole stream, then compose, then convert)."""
+        if self.too_deep:
+            return
+        self.replays.clear()
+        self.composing = not isinstance(error, yaml.composer.ComposerError)
+        while not isinstance(self.event(), (yaml.StreamEndEvent, type(None))):
+            pass
+
+    def _anchor(self, ev) -> None:
+        """Record the events of anchored nodes; refuse undefined aliases, reused anchors and a
+        second document (as PyYAML's composer)."""
+        for _, events, _ in self.recording:
+            events.append(ev)
+        name = getattr(ev, "anchor", None)
+        if isinstance(ev, yaml.DocumentStartEvent):
+            self.documents += 1
+            if self.documents > 1:
+                raise yaml.composer.ComposerError("expected a single document in the stream", None,
+                                                  "but found another document", ev.start_mark)
+        elif isinstance(ev, yaml.AliasEvent):
+            if name not in self.anchors and all(name != a for a, _, _ in self.recording):
+                raise yaml.composer.ComposerError(None, None, "found undefined alias", ev.start_mark)
+        elif name is not None:
+            if name in self.anchors or any(name == a for a, _, _ in self.recording):
+                raise yaml.composer.ComposerError("found duplicate anchor; first occurrence", None, "second occurrence",
+                                     ev.start_mark)
+            self.recording.append((name, [ev], self.depth - isinstance(ev, _STARTS)))
+        while self.recording and self.recording[-1][2] == self.depth and not isinstance(ev, _STARTS):
+            a, events, _ = self.recording.pop()
+            self.anchors[a] = events
+
+    def node(self):
+        """The next node's first event, an alias replaced by its anchor's events."""
+        ev = self.event()
+        while isinstance(ev, yaml.AliasEvent):
+            if ev.anchor not in self.anchors:  # its own anchor, still being read: a cycle
+                raise GraphError(Diagnostic(self.doc.file, 1, 1, "malformed YAML: nested too deeply"))
+            self.replays.append(iter(self.anchors[ev.anchor]))
+            ev = self.event()
+        return ev
+
+    def skip(self, ev) -> None:
+        """Read past the node that starts with ``ev`` (aliases in it are not read again)."""
+        depth = isinstance(ev, _STARTS)
+        while depth:
+            ev = self.event()
+            depth += isinstance(ev, _STARTS) - isinstance(ev, _ENDS)
+
+    def document(self) -> tuple[bool, Any]:
+        """(whether the stream holds a document, its data)."""
+        self.event()  # StreamStartEvent
+        ev = self.event()
+        if isinstance(ev, yaml.StreamEndEvent):
+            return False, None
+        data = self.compose()
+        self.event()  # DocumentEndEvent
+        self.event()  # StreamEndEvent (a second document is refused by _anchor)
+        return True, data
+
+    def compose(self):
+        """The root node's data: an explicit stack of the collections being filled."""
+        stack: list[tuple[tuple, Any]] = []  # (path, dict or list)
+        ev, path = self.node(), ()
         while True:
-            ev = loader.get_event()
-            if ev is None or isinstance(ev, yaml.StreamEndEvent):
-                return
-            if isinstance(ev, start):
-                depth += 1
-                if depth > MAX_YAML_DEPTH:
-                    raise GraphError(Diagnostic(file, *_mark(ev), f"YAML nested too deeply: more than "
-                                                f"{MAX_YAML_DEPTH} levels of lists and mappings"))
-            elif isinstance(ev, end):
-                depth -= 1
-    finally:
-        loader.dispose()
+            if isinstance(ev, _ENDS):
+                path, value = stack.pop()
+            else:
+                value = self.value(ev, path)
+                if isinstance(value, _Open):
+                    stack.append((path, value.data))
+                    ev, path = self._child(stack)
+                    continue
+            if not stack:
+                return value
+            parent = stack[-1][1]
+            if isinstance(parent, list):
+                parent.append(value)
+            else:
+                parent[path[-1]] = value
+            ev, path = self._child(stack)
+
+    def _child(self, stack) -> tuple[Any, tuple]:
+        """The first event of the next child of the innermost collection, and its path (the
+        collection's end event when it has no more); a mapping's key is read here."""
+        ppath, parent = stack[-1]
+        if isinstance(parent, list):
+            return self.node(), ppath + (len(parent),)
+        while True:
+            kev = self.node()
+            if isinstance(kev, yaml.MappingEndEvent):
+                return kev, ppath
+            key = self.key(kev, ppath, parent)
+            if key is not None:
+                return self.node(), ppath + (key,)
+            self.skip(self.event())  # the value of a refused key (an alias in it is not read)
+
+    def key(self, kev, ppath: tuple, parent: dict) -> str | None:
+        """A mapping key's text, or None (reported) when it cannot be one."""
+        doc = self.doc
+        if not isinstance(kev, yaml.ScalarEvent) or self.tag(kev) not in _PLAIN_TAGS:
+            doc.diags.append(Diagnostic(doc.file, *_mark(kev), "mapping keys must be plain scalars"))
+            self.skip(kev)
+            return None
+        k = str(kev.value)  # keys are names: take their text (YAML 1.1 would make `off` False)
+        if k == "<<":
+            doc.diags.append(Diagnostic(doc.file, *_mark(kev), "YAML merge keys ('<<') are not supported"))
+        elif k in parent:
+            doc.diags.append(Diagnostic(doc.file, *_mark(kev), f"duplicate key '{k}'"))
+        else:
+            doc.key_locs[ppath + (k,)] = _mark(kev)
+            return k
+        return None
+
+    def value(self, ev, path: tuple):
+        """The python value of the node starting with ``ev`` (an _Open for a collection to fill)."""
+        doc = self.doc
+        doc.count += 1
+        if doc.count > MAX_YAML_NODES:
+            raise GraphError(Diagnostic(doc.file, *_mark(ev), f"graph file too large (over {MAX_YAML_NODES} YAML values, aliases included)"))
+        doc.locs[path] = _mark(ev)
+        tag = self.tag(ev)
+        kind = _MAP if isinstance(ev, yaml.MappingStartEvent) else _SEQ if isinstance(ev, yaml.SequenceStartEvent) else None
+        if (tag != kind) if kind else (tag not in _PLAIN_TAGS):
+            doc.at(path, f"YAML tag '{tag.replace('tag:yaml.org,2002:', '!!')}' is not allowed: graph files hold plain data only")
+            self.skip(ev)
+            return None
+        if kind:
+            return _Open({} if kind == _MAP else [])
+        try:
+            return core_scalar(tag, ev.value)
+        except (ValueError, OverflowError) as e:
+            doc.at(path, f"bad scalar {ev.value!r}: {e}")
+            return None
+
+    def tag(self, ev) -> str:
+        """A node event's tag, resolved as PyYAML's composer does (by :class:`_CoreResolver`)."""
+        if ev.tag is not None and ev.tag != "!":
+            return ev.tag
+        if isinstance(ev, yaml.ScalarEvent):
+            return self.loader.resolve(yaml.ScalarNode, ev.value, ev.implicit)
+        return _MAP if isinstance(ev, yaml.MappingStartEvent) else _SEQ
+
+
+_MAP, _SEQ = "tag:yaml.org,2002:map", "tag:yaml.org,2002:seq"
+
+
+class _Open:
+    """A collection just started: filled by the events that follow."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data):
+        self.data = data
 
 
 def parse_yaml(text: str, file: str) -> _Doc:
     """Parse YAML text into python data (YAML 1.2 core-schema scalars, plain data only) with
     the place of every value; GraphError for malformed YAML or nesting over MAX_YAML_DEPTH."""
     doc = _Doc(file)
-    loader = None
+    loader = _Loader(text)
+    composer = _Composer(doc, loader)
     try:
-        _check_depth(text, file)
-        loader = _Loader(text)
-        root = loader.get_single_node()
+        try:
+            found, data = composer.document()
+        except (yaml.composer.ComposerError, GraphError) as e:
+            composer.finish(e)
+            raise
     except yaml.reader.ReaderError as e:  # a character YAML does not allow
         before = text[: e.position]
         line, col = before.count("\n") + 1, len(before) - (before.rfind("\n") + 1) + 1
@@ -247,17 +390,11 @@ def parse_yaml(text: str, file: str) -> _Doc:
         raise GraphError(Diagnostic(file, line, col, f"malformed YAML: {msg}")) from None
     except yaml.YAMLError as e:
         raise GraphError(Diagnostic(file, 1, 1, f"malformed YAML: {e}")) from None
-    except RecursionError:
-        raise GraphError(Diagnostic(file, 1, 1, "malformed YAML: nested too deeply")) from None
     finally:
-        if loader is not None:
-            loader.dispose()
-    if root is None:
+        loader.dispose()
+    if not found:
         raise GraphError(Diagnostic(file, 1, 1, "the graph file is empty"))
-    try:
-        doc.data = _to_py(doc, root, ())
-    except RecursionError:  # cannot happen below MAX_YAML_DEPTH; kept as a guard
-        raise GraphError(Diagnostic(file, 1, 1, "malformed YAML: nested too deeply")) from None
+    doc.data = data
     return doc
 
 

@@ -76,8 +76,9 @@ def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLi
     renamed to mark it complete (the commit point) and published by renames plus directory
     fsyncs: the old manifest is set aside first and the new one installed last.  So at every
     instant ``manifest.json`` either describes the previous run's files or this run's, and a
-    run killed while publishing is finished by the next one (:func:`publish`).  Folders that
-    are symlinks inside ``out_dir`` are refused, never followed."""
+    run killed while publishing is finished by the next one (:func:`publish`).  A file that
+    already holds its bytes there (a warm run's) is left in place (:func:`_in_place`).  Folders
+    that are symlinks inside ``out_dir`` are refused, never followed."""
     graph = session.graph
     out = Path(out_dir)
     files: list[tuple[str, bytes]] = []
@@ -91,7 +92,7 @@ def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLi
     check_output_names([n for n, _ in files], out)
     manifest = build_manifest(session, result, manifest_extra)
     files.append(report_file(session, result, manifest))  # report.html, published with the manifest
-    manifest["files"] = {n: {"bytes": len(d), "xxh3": xxhash.xxh3_128_hexdigest(d)} for n, d in files}
+    manifest["files"] = {n: file_entry(d) for n, d in files}
     try:
         publish(out, files, json.dumps(manifest, indent=1, sort_keys=True).encode())
     except OSError as e:
@@ -165,7 +166,8 @@ def _write(dir_fd: int, name: str, data: bytes) -> None:
 
 
 def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
-    """Stage ``files`` + ``manifest`` inside ``out`` and publish them (see export_outputs)."""
+    """Stage ``files`` + ``manifest`` inside ``out`` and publish them (see export_outputs).
+    Files whose bytes are already published there (:func:`_in_place`) are left as they are."""
     import fcntl
 
     created = not out.exists()
@@ -182,27 +184,73 @@ def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
                     st = os.stat(base, dir_fd=pfd, follow_symlinks=False)
                     if stat.S_ISDIR(st.st_mode):
                         raise UsageError(f"cannot write output {name!r}: {out / name} is a folder")
+        kept = _in_place(dfd, files)
         token = uuid.uuid4().hex[:12]
-        stage = STAGE_PREFIX + token
-        os.mkdir(stage, dir_fd=dfd)
-        try:
-            sfd = os.open(stage, _DIR_FLAGS, dir_fd=dfd)
-            try:
-                for name, data in files + [(MANIFEST, manifest)]:
-                    with _parent(sfd, name, create=True) as (pfd, base):
-                        _write(pfd, base, data)  # written and fsynced
-                _fsync_dirs(sfd, [n for n, _ in files])  # each folder once, after its files
-            finally:
-                os.close(sfd)
-            os.rename(stage, PUBLISH_PREFIX + token, src_dir_fd=dfd, dst_dir_fd=dfd)  # the commit point
-            os.fsync(dfd)
-        except BaseException:
-            shutil.rmtree(out / stage, ignore_errors=True)
-            raise
+        _stage(dfd, out, token, [(n, d) for n, d in files if n not in kept] + [(MANIFEST, manifest)])
         _roll_forward(dfd, out, PUBLISH_PREFIX + token)
         _clean_legacy_temps(dfd, [n for n, _ in files])
     finally:
         os.close(dfd)
+
+
+def _stage(dfd: int, out: Path, token: str, files: list[tuple[str, bytes]]) -> None:
+    """Write and fsync ``files`` in a stage folder, then rename it complete (the commit point)."""
+    stage = STAGE_PREFIX + token
+    os.mkdir(stage, dir_fd=dfd)
+    try:
+        sfd = os.open(stage, _DIR_FLAGS, dir_fd=dfd)
+        try:
+            for name, data in files:
+                with _parent(sfd, name, create=True) as (pfd, base):
+                    _write(pfd, base, data)  # written and fsynced
+            _fsync_dirs(sfd, [n for n, _ in files])  # each folder once, after its files
+        finally:
+            os.close(sfd)
+        os.rename(stage, PUBLISH_PREFIX + token, src_dir_fd=dfd, dst_dir_fd=dfd)  # the commit point
+        os.fsync(dfd)
+    except BaseException:
+        shutil.rmtree(out / stage, ignore_errors=True)
+        raise
+
+
+def file_entry(data: bytes) -> dict:
+    """What the manifest records of a published file."""
+    return {"bytes": len(data), "xxh3": xxhash.xxh3_128_hexdigest(data)}
+
+
+def _in_place(dfd: int, files: list[tuple[str, bytes]]) -> set[str]:
+    """The names of ``files`` already published in --out with exactly these bytes: the
+    manifest there records the same size and xxh3-128, and the file itself still holds them.
+
+    The file is re-read and compared byte for byte, not trusted by a stat signature: size and
+    mtime are put back by ordinary tools after an edit (``cp -p``, ``rsync -t``, ``touch -r``),
+    and the inode and ctime change with the very renames that publish the file, after the
+    manifest is written.  Reading costs a fraction of writing, fsyncing and renaming the file
+    again.  Only a regular file with one link counts (another name for it could change it),
+    opened without following a symlink and without blocking (a FIFO in its place)."""
+    try:
+        old = json.loads(_read(dfd, MANIFEST) or b"{}").get("files")
+    except (ValueError, AttributeError):
+        return set()
+    if not isinstance(old, dict):
+        return set()
+    return {name for name, data in files if old.get(name) == file_entry(data) and _holds(dfd, name, data)}
+
+
+def _holds(dfd: int, name: str, data: bytes) -> bool:
+    """Whether ``name`` below ``dfd`` is a regular, singly linked file holding exactly ``data``."""
+    with _parent(dfd, name, create=False) as (pfd, base):
+        if pfd is None:
+            return False
+        try:
+            fd = os.open(base, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0)
+                         | getattr(os, "O_CLOEXEC", 0), dir_fd=pfd)
+        except OSError:
+            return False
+        with open(fd, "rb") as f:
+            st = os.fstat(fd)
+            return (stat.S_ISREG(st.st_mode) and st.st_nlink == 1 and st.st_size == len(data)
+                    and f.read(len(data) + 1) == data)
 
 
 def recover(dfd: int) -> None:

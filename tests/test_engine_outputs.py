@@ -175,3 +175,47 @@ def test_outputs_and_folders_are_fsynced(tmp_path, write, engine_registry, monke
     names = {os.path.basename(p) for p in synced}
     assert {"x.txt", "a.npy", "manifest.json"} <= names, synced  # the files (in the stage)
     assert str(out) in synced and str(out / "sub") in synced, synced  # and the folders they land in
+
+
+def test_a_warm_run_leaves_files_already_in_place(tmp_path, write, engine_registry):
+    """Issue 25: a file that already holds the bytes the manifest records is not written again
+    (same inode), but one edited since (same size and mtime put back), one with a second hard
+    link and a symlink in its place are all replaced; the manifest is always published anew."""
+    from graphkit import run_graph
+
+    g = write("g.yaml", GRAPH.replace(f"size: {N}", "size: 64"))
+    cache, out, other = tmp_path / "c", tmp_path / "o", tmp_path / "other.npy"
+
+    def run(seed=0):
+        run_graph(g, cache=cache, out=out, overrides={"seed": seed}, registry=engine_registry)
+        assert consistent_small(out, seed)
+        return {p.name: p.lstat().st_ino for p in out.iterdir()}
+
+    first = run()
+    second = run()
+    assert {k: second[k] for k in second if k.endswith(".npy")} == {k: first[k] for k in first if k.endswith(".npy")}
+    assert second["manifest.json"] != first["manifest.json"]
+    edited = out / "o0.npy"
+    st = edited.stat()
+    data = bytearray(edited.read_bytes())
+    data[-1] ^= 0xFF
+    edited.write_bytes(bytes(data))
+    os.utime(edited, ns=(st.st_atime_ns, st.st_mtime_ns))
+    os.link(out / "o1.npy", tmp_path / "second-link.npy")
+    other.write_bytes((out / "o2.npy").read_bytes())
+    (out / "o2.npy").unlink()
+    (out / "o2.npy").symlink_to(other)
+    third = run()
+    assert {k for k in third if third[k] != second.get(k)} == {"o0.npy", "o1.npy", "o2.npy", "manifest.json", "report.html"}
+    assert not (out / "o2.npy").is_symlink() and other.read_bytes() == (out / "o2.npy").read_bytes()
+    fourth = run(seed=7)  # other bytes: every output is written again
+    assert all(fourth[k] != third[k] for k in fourth)
+
+
+def consistent_small(out, seed):
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["params"]["seed"] == seed
+    for k in range(K):
+        a = np.load(out / f"o{k}.npy")
+        assert a.shape == (64,) and a[0] == a[-1] == seed + k
+    return True

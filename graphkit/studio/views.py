@@ -14,6 +14,7 @@ through the cache like any other edit.  The engine knows nothing about what a vi
 """
 from __future__ import annotations
 
+import copy
 import importlib
 import inspect
 from pathlib import Path
@@ -70,7 +71,7 @@ class LiveView:
         """The param as written in the graph file (e.g. ``"${params.weights}"``), or None."""
         data = self.studio.doc.data() or {}
         spec = (data.get("nodes") or {}).get(node) or {}
-        return (spec.get("params") or {}).get(param)
+        return copy.deepcopy((spec.get("params") or {}).get(param))  # the document's data is shared
 
     def change(self, node: str, param: str, value) -> list[dict]:
         """The edit that sets ``node.param`` to ``value``; a param bound to a graph param

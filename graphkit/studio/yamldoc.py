@@ -7,6 +7,7 @@ not in the file is added to its node's ``params`` (flow or block, as that mappin
 """
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import yaml
@@ -44,12 +45,21 @@ class YamlDoc:
     def __init__(self, text: str):
         self.text = text
 
-    def data(self) -> Any:
-        """The document as plain data (None when it is not readable YAML)."""
+    @functools.cached_property
+    def _data(self) -> Any:
+        from ..errors import GraphError
+        from ..graphfile import parse_yaml
+
         try:
-            return yaml.load(self.text, Loader=_Loader)
-        except Exception:  # noqa: BLE001 - malformed YAML: the graph loader says where
+            return parse_yaml(self.text, "")
+        except GraphError:  # malformed YAML: the graph loader says where
             return None
+
+    def data(self) -> Any:
+        """The document as plain data, read as the graph loader reads it (YAML 1.2 core
+        schema); None when it is not readable YAML.  Parsed once per text and shared: read it,
+        do not modify it."""
+        return None if self._data is None else self._data.data
 
     def with_params(self, changes: list[tuple[str | None, str, Any]]) -> "YamlDoc":
         """A copy with each ``(node or None for a graph param, param, value)`` set."""
