@@ -299,6 +299,7 @@ class _Composer:
         self.documents = 0
         self.composing = True  # False once composing failed: only the parser's checks are left
         self.too_deep = False
+        self.tags: dict[tuple, str] = {}  # (text, implicit) -> resolved tag of a plain scalar
 
     def event(self):
         """The next event: from an alias being read again, else from the parser."""
@@ -308,15 +309,17 @@ class _Composer:
                 return ev
             self.replays.pop()
         ev = self.loader.get_event()
-        if isinstance(ev, _STARTS):
+        kind = type(ev)
+        if kind in _STARTS:
             self.depth += 1
             if self.depth > MAX_YAML_DEPTH:
                 self.too_deep = True
                 raise GraphError(Diagnostic(self.doc.file, *_mark(ev), f"YAML nested too deeply: more than "
                                             f"{MAX_YAML_DEPTH} levels of lists and mappings"))
-        elif isinstance(ev, _ENDS):
+        elif kind in _ENDS:
             self.depth -= 1
-        if self.composing:
+        if self.composing and (self.recording or kind is yaml.DocumentStartEvent
+                               or getattr(ev, "anchor", None) is not None):
             self._anchor(ev)
         return ev
 
@@ -463,7 +466,11 @@ class _Composer:
         if ev.tag is not None and ev.tag != "!":
             return ev.tag
         if isinstance(ev, yaml.ScalarEvent):
-            return self.loader.resolve(yaml.ScalarNode, ev.value, ev.implicit)
+            key = (ev.value, ev.implicit)
+            tag = self.tags.get(key)
+            if tag is None:
+                tag = self.tags[key] = self.loader.resolve(yaml.ScalarNode, ev.value, ev.implicit)
+            return tag
         return _MAP if isinstance(ev, yaml.MappingStartEvent) else _SEQ
 
 
