@@ -341,18 +341,19 @@ class _Composer:
         for _, events, _ in self.recording:
             events.append(ev)
         name = getattr(ev, "anchor", None)
+        known = name in self.anchors or name in {a for a, _, _ in self.recording}
         if isinstance(ev, yaml.DocumentStartEvent):
             self.documents += 1
             if self.documents > 1:
                 raise yaml.composer.ComposerError("expected a single document in the stream", None,
                                                   "but found another document", ev.start_mark)
         elif isinstance(ev, yaml.AliasEvent):
-            if name not in self.anchors and all(name != a for a, _, _ in self.recording):
+            if not known:
                 raise yaml.composer.ComposerError(None, None, "found undefined alias", ev.start_mark)
         elif name is not None:
-            if name in self.anchors or any(name == a for a, _, _ in self.recording):
-                raise yaml.composer.ComposerError("found duplicate anchor; first occurrence", None, "second occurrence",
-                                     ev.start_mark)
+            if known:
+                raise yaml.composer.ComposerError("found duplicate anchor; first occurrence", None,
+                                                  "second occurrence", ev.start_mark)
             self.recording.append((name, [ev], self.depth - isinstance(ev, _STARTS)))
         while self.recording and self.recording[-1][2] == self.depth and not isinstance(ev, _STARTS):
             a, events, _ = self.recording.pop()
