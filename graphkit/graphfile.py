@@ -187,6 +187,7 @@ class _Composer:
         self.documents = 0
         self.composing = True  # False once composing failed: only the parser's checks are left
         self.too_deep = False
+        self.tags: dict[tuple, str] = {}  # (text, implicit) -> resolved tag of a plain scalar
 
     def event(self):
         """The next event: from an alias being read again, else from the parser."""
@@ -196,15 +197,17 @@ class _Composer:
                 return ev
             self.replays.pop()
         ev = self.loader.get_event()
-        if isinstance(ev, _STARTS):
+        kind = type(ev)
+        if kind in _STARTS:
             self.depth += 1
             if self.depth > MAX_YAML_DEPTH:
                 self.too_deep = True
                 raise GraphError(Diagnostic(self.doc.file, *_mark(ev), f"YAML nested too deeply: more than "
                                             f"{MAX_YAML_DEPTH} levels of lists and mappings"))
-        elif isinstance(ev, _ENDS):
+        elif kind in _ENDS:
             self.depth -= 1
-        if self.composing:
+        if self.composing and (self.recording or kind is yaml.DocumentStartEvent
+                               or getattr(ev, "anchor", None) is not None):
             self._anchor(ev)
         return ev
 
@@ -226,18 +229,19 @@ class _Composer:
         for _, events, _ in self.recording:
             events.append(ev)
         name = getattr(ev, "anchor", None)
+        known = name in self.anchors or name in {a for a, _, _ in self.recording}
         if isinstance(ev, yaml.DocumentStartEvent):
             self.documents += 1
             if self.documents > 1:
                 raise yaml.composer.ComposerError("expected a single document in the stream", None,
                                                   "but found another document", ev.start_mark)
         elif isinstance(ev, yaml.AliasEvent):
-            if name not in self.anchors and all(name != a for a, _, _ in self.recording):
+            if not known:
                 raise yaml.composer.ComposerError(None, None, "found undefined alias", ev.start_mark)
         elif name is not None:
-            if name in self.anchors or any(name == a for a, _, _ in self.recording):
-                raise yaml.composer.ComposerError("found duplicate anchor; first occurrence", None, "second occurrence",
-                                     ev.start_mark)
+            if known:
+                raise yaml.composer.ComposerError("found duplicate anchor; first occurrence", None,
+                                                  "second occurrence", ev.start_mark)
             self.recording.append((name, [ev], self.depth - isinstance(ev, _STARTS)))
         while self.recording and self.recording[-1][2] == self.depth and not isinstance(ev, _STARTS):
             a, events, _ = self.recording.pop()
@@ -351,7 +355,11 @@ class _Composer:
         if ev.tag is not None and ev.tag != "!":
             return ev.tag
         if isinstance(ev, yaml.ScalarEvent):
-            return self.loader.resolve(yaml.ScalarNode, ev.value, ev.implicit)
+            key = (ev.value, ev.implicit)
+            tag = self.tags.get(key)
+            if tag is None:
+                tag = self.tags[key] = self.loader.resolve(yaml.ScalarNode, ev.value, ev.implicit)
+            return tag
         return _MAP if isinstance(ev, yaml.MappingStartEvent) else _SEQ
 
 
