@@ -29,18 +29,34 @@ from typing import Annotated, Any, Callable, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
+from .contract import Constraints, declaration_problem
 from .errors import BadInput
 from .types import PortType, port_type
 
 
 @dataclass(frozen=True)
 class In:
-    """An input port declaration."""
+    """An input port declaration, with what the port needs (see :mod:`graphkit.contract`):
+    ``channels`` (a count or a tuple of allowed counts), ``same_size_as`` (another input port),
+    ``finite``, bounds ``ge``/``gt``/``le``/``lt`` on every value, and ``min_items`` (variadic
+    ports).  The engine checks them before ``compute``."""
 
     type: Any
     doc: str = ""
     optional: bool = False
     variadic: bool = False  # takes a list of connections; compute gets a list
+    channels: int | tuple[int, ...] | None = None
+    same_size_as: str | None = None
+    finite: bool = False
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    min_items: int | None = None
+
+    def constraints(self) -> Constraints:
+        return Constraints.make(self.channels, same_size_as=self.same_size_as, finite=self.finite,
+                                ge=self.ge, gt=self.gt, le=self.le, lt=self.lt, min_items=self.min_items)
 
 
 @dataclass(frozen=True)
@@ -58,6 +74,7 @@ class Port:
     doc: str = ""
     optional: bool = False
     variadic: bool = False
+    constraints: Constraints = Constraints()
 
 
 class _InputFileMarker:
@@ -128,6 +145,7 @@ class Node(_Computable):
     type_name: ClassVar[str]
     in_ports: ClassVar[dict[str, Port]]
     out_ports: ClassVar[dict[str, Port]]
+    constrained_ports: ClassVar[tuple[str, ...]] = ()  # the input ports that declare constraints
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)
@@ -135,7 +153,12 @@ class Node(_Computable):
         cls.in_ports = {}
         for name, decl in cls.inputs.items():
             d = decl if isinstance(decl, In) else In(decl)
-            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional, d.variadic)
+            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional, d.variadic, d.constraints())
+        for port in cls.in_ports.values():
+            problem = declaration_problem(port, cls.in_ports)
+            if problem:
+                raise TypeError(f"{cls.__name__}: input '{port.name}': {problem}")
+        cls.constrained_ports = tuple(n for n, p in cls.in_ports.items() if p.constraints)
         cls.out_ports = {}
         for name, decl in cls.outputs.items():
             d = decl if isinstance(decl, Out) else Out(decl)

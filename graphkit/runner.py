@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from .contract import check_inputs
 from .errors import BackendCannotRun, BadInput, GraphkitError, NodeFailed
 from .graphfile import GNode, Graph
 from . import keys
@@ -318,6 +319,7 @@ class Session:
                       report=lambda frac, msg: self.report(g.name, frac, msg))
         t0 = time.perf_counter()
         try:
+            check_inputs(g.cls, inputs)
             inst = bcls(g.params, ctx)
             result = inst.compute(**inputs)
         except BadInput as e:
