@@ -251,6 +251,11 @@ class Constraints:
     def describe(self) -> list[str]:
         return [r.describe() for r in self.rules()]
 
+    @classmethod
+    def from_json(cls, data: dict) -> "Constraints":
+        """The inverse of :meth:`to_json`."""
+        return cls.make(**data)
+
     def to_json(self) -> dict:
         """The declared fields (those not at their default), as JSON."""
         out = {}

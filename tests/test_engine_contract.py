@@ -186,3 +186,31 @@ def test_bounds_ignore_nan_unless_finite_is_declared():
     a = np.array([np.nan, 0.5])
     assert Bound("ge", 0.0).check(a, {}) is None
     assert Finite().check(a, {}) is not None
+
+
+def test_conform_breaks_every_declared_constraint(tmp_path, env):
+    r = graphkit("conform", "contractnodes", env=env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = [ln for ln in r.stdout.splitlines() if ln.startswith("ok    Needs/contract")]
+    for needle in ["port 'img': 3 channels: refused", "port 'img': finite (no NaN or Inf): refused",
+                   "port 'img': values ≥ 0: refused", "port 'img': values ≤ 1: refused",
+                   "port 'mask': same width and height as 'img': refused", "port 'gain': values > 0: refused",
+                   "port 'extra': at least 1 connection: refused", "port 'extra': 1 or 3 channels: refused"]:
+        assert any(ln.endswith(needle) for ln in lines), (needle, r.stdout)
+
+
+def test_conform_fails_when_a_constraint_is_not_enforced(tmp_path, env, monkeypatch):
+    import sys
+
+    from graphkit import contract, conformance
+    from graphkit.registry import discover
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("GRAPHKIT_PLUGINS", "contractnodes")
+    monkeypatch.delitem(sys.modules, "contractnodes", raising=False)
+    reg = discover()
+    assert all(f.ok for f in conformance.check_contracts(reg, plugin="contractnodes"))
+    monkeypatch.setattr(contract, "check_inputs", lambda cls, inputs: None)  # the engine forgets to check
+    found = conformance.check_contracts(reg, plugin="contractnodes")
+    assert found and not any(f.ok for f in found), [str(f) for f in found]
+    assert "accepted a value that breaks it" in found[0].message

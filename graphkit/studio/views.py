@@ -139,9 +139,11 @@ class LiveView:
 
     def compute(self, **inputs):
         """Run the node's own compute (its reference backend) on ``inputs``, outside the cache."""
+        from ..contract import check_inputs
         from ..node import Context
 
         g = self.gnode
+        check_inputs(g.cls, inputs)
         return g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
                                        base_dir=self.studio.graph.base_dir)).compute(**inputs)
 
@@ -163,11 +165,10 @@ def view_for(registry, node_type: str) -> type[LiveView] | None:
         return _cache[node_type]
     cls = None
     try:
-        ncls = registry.node_class(node_type)
+        spec = registry.studio_view(node_type)
     except Exception:  # noqa: BLE001 - unknown or broken node type: no view
-        ncls = None
-    spec = getattr(ncls, "studio_view", None) if ncls is not None else None
-    if isinstance(spec, str) and ":" in spec:
+        spec = None
+    if spec is not None:
         mod, _, attr = spec.partition(":")
         try:
             cls = getattr(importlib.import_module(mod), attr)

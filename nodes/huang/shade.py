@@ -53,6 +53,7 @@ class CosmeticShade(Node):
                "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the per-pixel maths, hooks a backend replaces (plugins/graphkit-opencl)
+    hooks = ("pixel_stack", "sss_blur")
     pixel_stack = staticmethod(pixel_stack)
     sss_blur = staticmethod(sss_blur)
 

@@ -105,6 +105,7 @@ class KMStack(Node):
                "transmittance": Out(Image, "linear RGB diffuse transmittance of the layers")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the per-pixel maths, as hooks a backend replaces (plugins/graphkit-opencl)
+    hooks = ("pixel_stack", "stack_over_rgb")
     pixel_stack = staticmethod(pixel_stack)
     stack_over_rgb = staticmethod(stack_over_rgb)
 
