@@ -254,12 +254,11 @@ def _spoil(rule, port, value, inputs):
 
 def _refusal(cls, params: dict, inputs: dict, port: str) -> str | None:
     """None when the engine refuses ``inputs`` with exit 2 naming ``port``, else what happened."""
-    from .contract import check_inputs
+    from .contract import compute_checked
     from .errors import BadInput
 
     try:
-        check_inputs(cls, inputs)
-        cls(cls.Params.model_validate(params), Context()).compute(**inputs)
+        compute_checked(cls(cls.Params.model_validate(params), Context()), **inputs)
     except BadInput as e:
         if e.port == port and e.exit_code == 2:
             return None

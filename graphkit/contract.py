@@ -157,12 +157,18 @@ _OPS = {"ge": ("≥", np.greater_equal, -1), "gt": (">", np.greater, 0),
         "le": ("≤", np.less_equal, 1), "lt": ("<", np.less, 0)}
 
 
+_SIDE = {"ge": "below", "gt": "at or below", "le": "above", "lt": "at or above"}
+
+
 @dataclass(frozen=True)
 class Bound:
-    """Every value ``op`` ``limit`` (op: ge, gt, le, lt); NaN is left to :class:`Finite`."""
+    """Every value ``op`` ``limit`` (op: ge, gt, le, lt); NaN is left to :class:`Finite`.
+    ``interval`` ("[0, 1]") is the port's whole range when it declares a bound on each side:
+    the message then names it."""
 
     op: str
     limit: float
+    interval: str = ""
     types: ClassVar[tuple] = (IMAGE, MASK, SPECTRUM, SCALAR, VECTOR, ARRAY)
 
     def check(self, value, inputs) -> str | None:
@@ -171,12 +177,15 @@ class Bound:
         bad = ~ok(arr, self.limit) & ~np.isnan(arr) if arr.dtype.kind == "f" else ~ok(arr, self.limit)
         if not bad.any():
             return None
+        rule = f"lie in {self.interval}" if self.interval else f"be {sym} {self.limit:g}"
         if arr.ndim == 0:
-            return f"must be {sym} {self.limit:g}, got {float(arr):g}"
-        worst = np.min(arr[bad]) if self.op in ("ge", "gt") else np.max(arr[bad])
+            return f"must {rule}, got {float(arr):g}"
+        low = self.op in ("ge", "gt")
+        worst = np.min(arr[bad]) if low else np.max(arr[bad])
         n = int(bad.sum())
-        return (f"values must be {sym} {self.limit:g}; {n} of {arr.size} {'is' if n == 1 else 'are'} not "
-                f"({'min' if self.op in ('ge', 'gt') else 'max'} {float(worst):.6g})")
+        side = "negative" if (self.op, self.limit) == ("ge", 0) else f"{_SIDE[self.op]} {self.limit:g}"
+        return (f"values must {rule}; {n} of {arr.size} {'is' if n == 1 else 'are'} {side} "
+                f"({'min' if low else 'max'} {float(worst):.6g})")
 
     def describe(self) -> str:
         return f"values {_OPS[self.op][0]} {self.limit:g}"
@@ -242,8 +251,20 @@ class Constraints:
             out.append(SameSizeAs(self.same_size_as))
         if self.finite:
             out.append(Finite())
-        out += [Bound(op, float(getattr(self, op))) for op in _OPS if getattr(self, op) is not None]
+        bounds = {op: float(getattr(self, op)) for op in _OPS if getattr(self, op) is not None}
+        interval = self._interval(bounds)
+        out += [Bound(op, limit, interval) for op, limit in bounds.items()]
         return tuple(out)
+
+    @staticmethod
+    def _interval(bounds: dict) -> str:
+        """"[0, 1]" for ge=0, le=1 ("(" / ")" for gt / lt); "" unless bounded on both sides."""
+        lo = [(op, v) for op, v in bounds.items() if op in ("ge", "gt")]
+        hi = [(op, v) for op, v in bounds.items() if op in ("le", "lt")]
+        if not (lo and hi):
+            return ""
+        (lop, lv), (hop, hv) = lo[-1], hi[0]
+        return f"{'[' if lop == 'ge' else '('}{lv:g}, {hv:g}{']' if hop == 'le' else ')'}"
 
     def __bool__(self) -> bool:
         return self != Constraints()
@@ -300,6 +321,13 @@ def check_inputs(node_cls, inputs: dict) -> None:
                 raise BadInput(name, msg)
 
 
+def compute_checked(node, **inputs):
+    """``node.compute(**inputs)`` after ``node``'s declared constraints, as the engine calls it
+    (for the studio, the conformance harness and tests that call a node directly)."""
+    check_inputs(type(node), inputs)
+    return node.compute(**inputs)
+
+
 def declaration_problem(port, ports: dict) -> str | None:
     """Why ``port``'s constraints cannot apply to its type (checked when the class is made)."""
     for rule in port.constraints.rules():
@@ -321,4 +349,4 @@ def _type_in(ptype, types: tuple) -> bool:
 
 
 __all__ = ["Constraints", "Channels", "SameSizeAs", "Finite", "Bound", "MinItems", "check_inputs",
-           "port_problem", "declaration_problem"]
+           "compute_checked", "port_problem", "declaration_problem"]

@@ -138,14 +138,14 @@ class LiveView:
         return {k: cut(v) for k, v in values.items()}
 
     def compute(self, **inputs):
-        """Run the node's own compute (its reference backend) on ``inputs``, outside the cache."""
-        from ..contract import check_inputs
+        """Run the node's own compute (its reference backend) on ``inputs``, outside the cache,
+        after its declared port constraints (as the engine does)."""
+        from ..contract import compute_checked
         from ..node import Context
 
         g = self.gnode
-        check_inputs(g.cls, inputs)
-        return g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
-                                       base_dir=self.studio.graph.base_dir)).compute(**inputs)
+        return compute_checked(g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
+                                                       base_dir=self.studio.graph.base_dir)), **inputs)
 
     @classmethod
     def js_path(cls) -> Path:
