@@ -104,7 +104,8 @@ def build_parser():
     _cache_arg(p)
     _backend_arg(p)
 
-    p = sub.add_parser("conform", help="check backends against the numpy reference on the nodes' examples")
+    p = sub.add_parser("conform", help="check backends against the numpy reference on the nodes' examples, "
+                       "and that every declared port constraint refuses a value that breaks it")
     p.add_argument("plugin", nargs="?", help="only the backends this plugin (distribution or GRAPHKIT_PLUGINS module) provides")
     p.add_argument("--node", action="append", default=[], metavar="TYPE", help="only these node types (repeatable)")
     p.add_argument("--allow-unavailable", action="store_true",
@@ -369,68 +370,92 @@ def cmd_show(args) -> int:
 
 
 def cmd_conform(args) -> int:
-    from .conformance import check_backends
+    from .conformance import conform
 
-    reg = _registry()
-    findings = check_backends(reg, plugin=args.plugin, nodes=args.node or None)
+    findings = conform(_registry(), plugin=args.plugin, nodes=args.node or None)
     bad = [f for f in findings if not f.ok and f.checked]
     unchecked = [f for f in findings if not f.checked]
     for f in findings:
-        state = "ok" if f.ok else ("FAIL" if f.checked else "skip")
-        case = f" example {f.case}" if f.case >= 0 else ""
-        print(f"{state:<4}  {f.node}/{f.backend}{case}" + ("" if f.ok else f": {f.message}"))
-    n_ok = sum(f.ok for f in findings)
-    print(f"{n_ok} ok, {len(bad)} failed, {len(unchecked)} not checked"
+        print(_finding_line(f))
+    print(f"{len(findings) - len(bad) - len(unchecked)} ok, {len(bad)} failed, {len(unchecked)} not checked"
           + (f" ({', '.join(sorted({f'{f.node}/{f.backend}' for f in unchecked}))})" if unchecked else ""))
     if bad:
         return 1
     return 2 if unchecked and not args.allow_unavailable else 0
 
 
+def _finding_line(f) -> str:
+    from .conformance import CONTRACT
+
+    state = "ok" if f.ok else ("FAIL" if f.checked else "skip")
+    case = f" example {f.case}" if f.case >= 0 else ""
+    return f"{state:<4}  {f.node}/{f.backend}{case}" + ("" if f.ok and f.backend != CONTRACT else f": {f.message}")
+
+
 def cmd_nodes(args) -> int:
-    import inspect
     import json
 
     reg = _registry()
-    names = [args.name] if args.name else reg.node_names()
     if args.name and args.name not in reg.nodes:
         from .graphfile import did_you_mean
 
         raise UsageError(f"unknown node type '{args.name}'{did_you_mean(args.name, reg.nodes)}")
     rows = []
-    for n in names:
+    for n in [args.name] if args.name else reg.node_names():
         try:
-            cls = reg.node_class(n)
+            rows.append(_node_info(reg, n))
         except GraphkitError as e:
             print(f"warning: {e}", file=sys.stderr)
-            continue
-        rows.append({
-            "type": n, "version": cls.version, "provider": reg.nodes[n].provider,
-            "doc": inspect.getdoc(cls) or "",
-            "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "doc": p.doc} for p in cls.in_ports.values()},
-            "outputs": {p.name: {"type": p.type.name, "doc": p.doc} for p in cls.out_ports.values()},
-            "params": {k: _param_info(f) for k, f in cls.Params.model_fields.items()},
-            "backends": reg.backend_names(n),
-        })
     if args.json:
         print(json.dumps(rows, indent=1))
-        return 0
-    for r in rows:
-        if not args.name:
+    elif args.name:
+        for r in rows:
+            _print_node(r)
+    else:
+        for r in rows:
             print(f"{r['type']:<24} {r['doc'].splitlines()[0] if r['doc'] else ''}")
-            continue
-        print(f"{r['type']} (version {r['version']}, from {r['provider']}; backends: {', '.join(r['backends'])})\n")
-        print(r["doc"] + "\n")
-        for title, key in (("inputs", "inputs"), ("outputs", "outputs")):
-            print(f"{title}:")
-            for pn, p in r[key].items():
-                opt = " (optional)" if p.get("optional") else ""
-                print(f"  {pn}: {p['type']}{opt}  {p['doc']}")
-        print("params:")
-        for pn, p in r["params"].items():
-            default = "(required)" if p["required"] else f"= {json.dumps(p['default'], ensure_ascii=False)}"
-            print(f"  {pn}: {p['type']} {default}  {p['doc']}".rstrip())
     return 0
+
+
+def _node_info(reg, name: str) -> dict:
+    """What `graphkit nodes` says about node type ``name`` (the --json row)."""
+    import inspect
+
+    cls = reg.node_class(name)
+    return {
+        "type": name, "version": cls.version, "provider": reg.nodes[name].provider,
+        "doc": inspect.getdoc(cls) or "",
+        "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "doc": p.doc,
+                            "constraints": p.constraints.to_json()} for p in cls.in_ports.values()},
+        "outputs": {p.name: {"type": p.type.name, "doc": p.doc} for p in cls.out_ports.values()},
+        "params": {k: _param_info(f) for k, f in cls.Params.model_fields.items()},
+        "backends": reg.backend_names(name),
+        "hooks": list(reg.hooks(name)),
+        "studio_view": reg.studio_view(name),
+    }
+
+
+def _print_node(r: dict) -> None:
+    import json
+
+    from .contract import Constraints
+
+    print(f"{r['type']} (version {r['version']}, from {r['provider']}; backends: {', '.join(r['backends'])})\n")
+    print(r["doc"] + "\n")
+    for key in ("inputs", "outputs"):
+        print(f"{key}:")
+        for pn, p in r[key].items():
+            opt = " (optional)" if p.get("optional") else ""
+            needs = Constraints.from_json(p.get("constraints", {})).describe()
+            print(f"  {pn}: {p['type']}{opt}  {p['doc']}" + (f"  [needs: {'; '.join(needs)}]" if needs else ""))
+    print("params:")
+    for pn, p in r["params"].items():
+        default = "(required)" if p["required"] else f"= {json.dumps(p['default'], ensure_ascii=False)}"
+        print(f"  {pn}: {p['type']} {default}  {p['doc']}".rstrip())
+    if r["hooks"]:
+        print(f"hooks (a backend may replace): {', '.join(r['hooks'])}")
+    if r["studio_view"]:
+        print(f"studio view: {r['studio_view']}")
 
 
 def type_name(ann) -> str:

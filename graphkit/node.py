@@ -24,23 +24,40 @@ the node's own ``compute`` is always the ``numpy`` reference backend.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
+from .contract import Constraints, declaration_problem
 from .errors import BadInput
 from .types import PortType, port_type
 
 
 @dataclass(frozen=True)
 class In:
-    """An input port declaration."""
+    """An input port declaration, with what the port needs (see :mod:`graphkit.contract`):
+    ``channels`` (a count or a tuple of allowed counts), ``same_size_as`` (another input port),
+    ``finite``, bounds ``ge``/``gt``/``le``/``lt`` on every value, and ``min_items`` (variadic
+    ports).  The engine checks them before ``compute``."""
 
     type: Any
     doc: str = ""
     optional: bool = False
     variadic: bool = False  # takes a list of connections; compute gets a list
+    channels: int | tuple[int, ...] | None = None
+    same_size_as: str | None = None
+    finite: bool = False
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    min_items: int | None = None
+
+    def constraints(self) -> Constraints:
+        return Constraints.make(self.channels, same_size_as=self.same_size_as, finite=self.finite,
+                                ge=self.ge, gt=self.gt, le=self.le, lt=self.lt, min_items=self.min_items)
 
 
 @dataclass(frozen=True)
@@ -58,6 +75,7 @@ class Port:
     doc: str = ""
     optional: bool = False
     variadic: bool = False
+    constraints: Constraints = Constraints()
 
 
 class _InputFileMarker:
@@ -123,11 +141,19 @@ class Node(_Computable):
     tolerance: ClassVar[dict[str, float]] = {"rtol": 1e-5, "atol": 1e-6}
     #: True when the result embeds provenance (the run's recipe digest and key)
     provenance: ClassVar[bool] = False
+    #: names of this class's staticmethods that a backend may replace with its own version
+    #: (e.g. an OpenCL kernel of the per-pixel maths, while compute's checks and host maths run
+    #: as they are); a backend may hook nothing else
+    hooks: ClassVar[tuple[str, ...]] = ()
+    #: "module:Class" of the studio's live view of this node type (a
+    #: graphkit.studio.LiveView subclass, imported only by the studio), or None
+    studio_view: ClassVar[str | None] = None
 
     # filled by __init_subclass__
     type_name: ClassVar[str]
     in_ports: ClassVar[dict[str, Port]]
     out_ports: ClassVar[dict[str, Port]]
+    constrained_ports: ClassVar[tuple[str, ...]] = ()  # the input ports that declare constraints
 
     def __init_subclass__(cls, **kw):
         super().__init_subclass__(**kw)
@@ -135,7 +161,13 @@ class Node(_Computable):
         cls.in_ports = {}
         for name, decl in cls.inputs.items():
             d = decl if isinstance(decl, In) else In(decl)
-            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional, d.variadic)
+            cls.in_ports[name] = Port(name, port_type(d.type), d.doc, d.optional, d.variadic, d.constraints())
+        for port in cls.in_ports.values():
+            problem = declaration_problem(port, cls.in_ports)
+            if problem:
+                raise TypeError(f"{cls.__name__}: input '{port.name}': {problem}")
+        cls.constrained_ports = tuple(n for n, p in cls.in_ports.items() if p.constraints)
+        _check_declarations(cls)
         cls.out_ports = {}
         for name, decl in cls.outputs.items():
             d = decl if isinstance(decl, Out) else Out(decl)
@@ -190,6 +222,24 @@ class Node(_Computable):
         """The params typed :data:`OutputPath` (names of the files this node writes)."""
         return [name for name, f in cls.Params.model_fields.items()
                 if any(isinstance(m, _OutputPathMarker) for m in f.metadata)]
+
+
+def _check_declarations(cls: type[Node]) -> None:
+    """TypeError unless ``hooks`` names staticmethods of ``cls`` and ``studio_view`` is a
+    "module:Class" string."""
+    import inspect
+
+    if isinstance(cls.hooks, str) or not all(isinstance(h, str) for h in cls.hooks):
+        raise TypeError(f"{cls.__name__}.hooks must be a tuple of names, got {cls.hooks!r}")
+    for h in cls.hooks:
+        if not isinstance(inspect.getattr_static(cls, h, None), staticmethod):
+            raise TypeError(f"{cls.__name__}.hooks names '{h}', which is not a staticmethod of {cls.__name__}")
+    view = cls.studio_view
+    if view is not None and not (isinstance(view, str) and _TARGET.fullmatch(view)):
+        raise TypeError(f"{cls.__name__}.studio_view must be a \"module:Class\" string, got {view!r}")
+
+
+_TARGET = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_][\w.]*")
 
 
 class Backend(_Computable):

@@ -116,20 +116,32 @@ class Registry:
             return self.node_class(node)
         return self._load(self.backends[node][name], Backend)
 
+    def hooks(self, name: str) -> tuple[str, ...]:
+        """The hooks node type ``name`` declares (``Node.hooks``): what a backend may replace."""
+        return self.node_class(name).hooks
+
+    def studio_view(self, name: str) -> str | None:
+        """The "module:Class" of node type ``name``'s studio live view (``Node.studio_view``)."""
+        return self.node_class(name).studio_view
+
     def _load(self, e: Entry, base: type) -> type:
         with self._lock:
             if e._cls is None:
+                cls = e.target
                 if isinstance(e.target, str):
                     try:
-                        e._cls = _import_target(e.target)
+                        cls = _import_target(e.target)
                     except Exception as exc:  # noqa: BLE001
                         raise GraphkitError(
                             f"cannot import {e.name} from {e.where()}: {type(exc).__name__}: {exc}"
                         ) from exc
-                else:
-                    e._cls = e.target
-                if not (isinstance(e._cls, type) and issubclass(e._cls, base)):
+                if not (isinstance(cls, type) and issubclass(cls, base)):
                     raise GraphkitError(f"{e.where()} is not a {base.__name__} subclass")
+                if base is Node and cls.type_name != e.name:
+                    raise GraphkitError(
+                        f"plugin {e.where()} registers node type '{e.name}', but the class's type_name "
+                        f"is '{cls.type_name}': make the registered name and type_name the same")
+                e._cls = cls
             return e._cls
 
 
@@ -169,9 +181,17 @@ def default_registry() -> Registry:
 
 
 def discover() -> Registry:
+    reg = Registry()
+    _add_entry_points(reg)
+    for spec in filter(None, (s.strip() for s in os.environ.get("GRAPHKIT_PLUGINS", "").split(","))):
+        _add_env_plugin(reg, spec)
+    return reg
+
+
+def _add_entry_points(reg: Registry) -> None:
+    """The providers of the installed ``graphkit.nodes`` and ``graphkit.backends`` entry points."""
     from importlib.metadata import entry_points
 
-    reg = Registry()
     for group in ("nodes", "backends"):
         for ep in entry_points(group=f"graphkit.{group}"):
             provider = ep.dist.name if ep.dist is not None else ep.value
@@ -184,28 +204,28 @@ def discover() -> Registry:
                 )
                 continue
             reg.add_provider(group, provider, obj)
-    for spec in filter(None, (s.strip() for s in os.environ.get("GRAPHKIT_PLUGINS", "").split(","))):
-        try:
-            obj = _import_target(spec)
-        except Exception as exc:  # noqa: BLE001
-            reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}' failed to import: {type(exc).__name__}: {exc}")
-            continue
-        provider = f"GRAPHKIT_PLUGINS:{spec}"
-        if isinstance(obj, ModuleType) and (hasattr(obj, "NODES") or hasattr(obj, "BACKENDS")):
-            # the dicts an installed plugin's entry points name ({"Type": "module:Class"},
-            # {"Type/backend": "module:Class"}): imported lazily, as when installed
-            for group, attr in (("nodes", "NODES"), ("backends", "BACKENDS")):
-                table = getattr(obj, attr, None)
-                if table is None:
-                    continue
-                if not isinstance(table, dict):
-                    reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}'.{attr} must be a dict, got {type(table).__name__}")
-                    continue
+
+
+def _add_env_plugin(reg: Registry, spec: str) -> None:
+    """The provider that one GRAPHKIT_PLUGINS entry (``module`` or ``module:attr``) names."""
+    try:
+        obj = _import_target(spec)
+    except Exception as exc:  # noqa: BLE001
+        reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}' failed to import: {type(exc).__name__}: {exc}")
+        return
+    provider = f"GRAPHKIT_PLUGINS:{spec}"
+    if isinstance(obj, ModuleType) and (hasattr(obj, "NODES") or hasattr(obj, "BACKENDS")):
+        # the dicts an installed plugin's entry points name ({"Type": "module:Class"},
+        # {"Type/backend": "module:Class"}): imported lazily, as when installed
+        for group, attr in (("nodes", "NODES"), ("backends", "BACKENDS")):
+            table = getattr(obj, attr, None)
+            if table is not None and not isinstance(table, dict):
+                reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}'.{attr} must be a dict, got {type(table).__name__}")
+            elif table is not None:
                 reg.add_provider(group, provider, table)
-        elif isinstance(obj, dict):  # "NodeType/backend" keys are backends, plain names node types
-            reg.add_provider("nodes", provider, {k: v for k, v in obj.items() if "/" not in k})
-            reg.add_provider("backends", provider, {k: v for k, v in obj.items() if "/" in k})
-        else:
-            reg.add_provider("nodes", provider, obj)
-            reg.add_provider("backends", provider, obj)
-    return reg
+    elif isinstance(obj, dict):  # "NodeType/backend" keys are backends, plain names node types
+        reg.add_provider("nodes", provider, {k: v for k, v in obj.items() if "/" not in k})
+        reg.add_provider("backends", provider, {k: v for k, v in obj.items() if "/" in k})
+    else:
+        reg.add_provider("nodes", provider, obj)
+        reg.add_provider("backends", provider, obj)

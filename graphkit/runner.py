@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from .contract import check_inputs
 from .errors import BackendCannotRun, BadInput, GraphkitError, NodeFailed
 from .model import GNode, Graph
 from . import keys
@@ -351,6 +352,7 @@ class Session:
 def _call_compute(g: GNode, bcls: type, ctx: Context, inputs: dict[str, Any]) -> Any:
     """What ``bcls(g.params, ctx).compute(**inputs)`` returns; its errors named after the node."""
     try:
+        check_inputs(g.cls, inputs)
         return bcls(g.params, ctx).compute(**inputs)
     except BadInput as e:
         e.node, e.node_type = g.name, g.type

@@ -37,11 +37,15 @@ def _allow_refs(s):
 
 
 def _port_schema(port) -> dict:
+    """A connection to ``port``; its description and ``x-constraints`` say what the value
+    must be (checked when the graph runs, see graphkit.contract)."""
     one = {"type": "string", "pattern": REF}
-    desc = f"{port.type}: {port.doc}"
+    needs = port.constraints.describe()
+    desc = f"{port.type}: {port.doc}" + (f" (needs: {'; '.join(needs)})" if needs else "")
+    extra = {"x-constraints": port.constraints.to_json()} if needs else {}
     if port.variadic:
-        return {"oneOf": [one, {"type": "array", "items": one}], "description": desc}
-    return {**one, "description": desc}
+        return {"oneOf": [one, {"type": "array", "items": one}], "description": desc, **extra}
+    return {**one, "description": desc, **extra}
 
 
 def node_schema(reg: Registry, name: str) -> tuple[dict, dict]:

@@ -376,7 +376,11 @@ class Light(BaseModel):
 
 @dataclass(frozen=True)
 class PortType:
-    """How the engine checks, hashes and stores values of one kind."""
+    """How the engine checks, hashes and stores values of one kind.
+
+    ``name`` is the short name users see; ``qualname`` (module.qualname of the value class, by
+    default the module of ``check`` plus ``name``) identifies the type: two plugins that each
+    define an ``Image`` are different types.  Cache keys and value digests use ``name`` only."""
 
     name: str
     check: Callable[[Any], str | None]  # None if ok, else what is wrong
@@ -384,12 +388,25 @@ class PortType:
     from_parts: Callable[[dict, list[np.ndarray]], Any]
     export_ext: str = ".json"  # how `graphkit run` writes a non-File output
     doc: str = ""
+    qualname: str = ""
+
+    def __post_init__(self):
+        if not self.qualname:
+            object.__setattr__(self, "qualname", f"{getattr(self.check, '__module__', None) or __name__}.{self.name}")
 
     def accepts(self, other: "PortType") -> bool:
-        return self.name == other.name or self.name == "Any"
+        return self.qualname == other.qualname or self.qualname == ANY.qualname
 
     def __str__(self) -> str:
         return self.name
+
+
+def mismatch_names(want: PortType, have: PortType) -> tuple[str, str]:
+    """How to name two port types that do not match: their short names, or their qualified
+    names when the short ones are the same (two plugins' ``Image``)."""
+    if want.name == have.name:
+        return want.qualname, have.qualname
+    return want.name, have.name
 
 
 def _is_finite_float(x) -> bool:
@@ -451,6 +468,7 @@ def _model_port(cls: type[BaseModel]) -> PortType:
 
     return PortType(
         name=cls.__name__,
+        qualname=f"{cls.__module__}.{cls.__qualname__}",
         check=check,
         to_parts=lambda v: ({"model": v.model_dump(mode="json")}, []),
         from_parts=lambda meta, arrays: cls.model_validate(meta["model"]),

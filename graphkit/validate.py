@@ -32,6 +32,7 @@ from .paths import OutputNames, UnsafePath, safe_relpath
 from .registry import NUMPY, Registry
 from .suggest import did_you_mean, unknown_keys
 from .sweeps import SUB_RE, Sweep, instance_node, parse_sweeps
+from .types import mismatch_names
 
 _MISSING = object()
 _ANY_REF = re.compile(r"\$\{[^}]*\}")
@@ -550,7 +551,8 @@ def check_types(c: Check) -> None:
             for r in refs:
                 have = c.specs[r.src].cls.out_ports[r.port].type
                 if not want.accepts(have):
-                    c.at(r.where, f"node '{spec.name}', input '{port}' takes {want} but {r.text} gives {have}")
+                    w, h = mismatch_names(want, have)
+                    c.at(r.where, f"node '{spec.name}', input '{port}' takes {w} but {r.text} gives {h}")
                     ok = False
             if not ok:
                 del spec.refs[port]

@@ -22,7 +22,10 @@ SET3 = ["foundation_light", "blush_rose", "lipstick_red"]
 
 
 def run(cls, inputs=None, ctx=None, **params):
-    return cls(cls.Params(**params), ctx or Context()).compute(**(inputs or {}))
+    """Run a node as the engine does: its declared port constraints, then compute."""
+    from graphkit.contract import compute_checked
+
+    return compute_checked(cls(cls.Params(**params), ctx or Context()), **(inputs or {}))
 
 
 # --------------------------------------------------------------------------------------------

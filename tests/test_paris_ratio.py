@@ -43,11 +43,12 @@ def test_one_channel_denominator_serves_every_channel():
 
 def test_inputs_that_cannot_be_divided_name_port_b():
     from graphkit import BadInput
+    from graphkit.contract import compute_checked
 
     a = Image(np.ones((4, 5, 3), np.float32))
-    with pytest.raises(BadInput) as e:
-        RatioImage().compute(a=a, b=Image(np.ones((4, 6, 3), np.float32)))
+    with pytest.raises(BadInput) as e:  # the size is declared (same_size_as): checked before compute
+        compute_checked(RatioImage(), a=a, b=Image(np.ones((4, 6, 3), np.float32)))
     assert e.value.port == "b" and e.value.message == "image sizes differ: a is 5×4×3, b is 6×4×3"  # width×height×channels
     with pytest.raises(BadInput) as e:
-        RatioImage().compute(a=a, b=Image(np.ones((4, 5, 2), np.float32)))
+        compute_checked(RatioImage(), a=a, b=Image(np.ones((4, 5, 2), np.float32)))
     assert e.value.port == "b" and e.value.message == "b has 2 channels; it needs 1 or 3 (as a)"

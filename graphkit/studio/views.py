@@ -139,12 +139,14 @@ class LiveView:
         return {k: cut(v) for k, v in values.items()}
 
     def compute(self, **inputs):
-        """Run the node's own compute (its reference backend) on ``inputs``, outside the cache."""
+        """Run the node's own compute (its reference backend) on ``inputs``, outside the cache,
+        after its declared port constraints (as the engine does)."""
+        from ..contract import compute_checked
         from ..node import Context
 
         g = self.gnode
-        return g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
-                                       base_dir=self.studio.graph.base_dir)).compute(**inputs)
+        return compute_checked(g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
+                                                       base_dir=self.studio.graph.base_dir)), **inputs)
 
     @classmethod
     def js_path(cls) -> Path:
@@ -164,11 +166,10 @@ def view_for(registry, node_type: str) -> type[LiveView] | None:
         return _cache[node_type]
     cls = None
     try:
-        ncls = registry.node_class(node_type)
+        spec = registry.studio_view(node_type)
     except Exception:  # noqa: BLE001 - unknown or broken node type: no view
-        ncls = None
-    spec = getattr(ncls, "studio_view", None) if ncls is not None else None
-    if isinstance(spec, str) and ":" in spec:
+        spec = None
+    if spec is not None:
         mod, _, attr = spec.partition(":")
         try:
             cls = getattr(importlib.import_module(mod), attr)

@@ -10,7 +10,7 @@ from nodes.common.sss import sss_blur
 from . import km
 from .layer import _thickness_map
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
-from .stack import check_reflectance_image, pixel_stack
+from .stack import pixel_stack
 
 
 class CosmeticShade(Node):
@@ -38,7 +38,8 @@ class CosmeticShade(Node):
     version = "4"  # 4: world-frame lights (turned into the camera frame), orthographic cameras
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
-        "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)"),
+        "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
+                     channels=3, finite=True, ge=0, le=1),
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
         "irradiance": In(Image, "diffuse irradiance, linear RGB (or 1 channel)", optional=True),
@@ -53,6 +54,7 @@ class CosmeticShade(Node):
                "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the per-pixel maths, hooks a backend replaces (plugins/graphkit-opencl)
+    hooks = ("pixel_stack", "sss_blur")
     pixel_stack = staticmethod(pixel_stack)
     sss_blur = staticmethod(sss_blur)
 
@@ -79,7 +81,7 @@ class CosmeticShade(Node):
         check_illuminant(p.illuminant)
         specs = resolve_layers(layers, p.cosmetics)
         wl, S, K = layer_arrays(specs)
-        rho = check_reflectance_image(albedo, "albedo").astype(np.float32)
+        rho = albedo.pixels.astype(np.float32)
         h, w = rho.shape[:2]
         t = _thickness_map(thickness, "thickness", (h, w), len(specs))
         n = None

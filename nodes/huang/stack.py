@@ -14,18 +14,6 @@ from .layer import _thickness_map
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers, skin_spectrum
 
 
-def check_reflectance_image(img: Image, port: str) -> np.ndarray:
-    px = np.asarray(img.pixels, np.float32)
-    if px.shape[2] != 3:
-        raise BadInput(port, f"need a 3-channel linear RGB reflectance image, got {px.shape[2]} channels")
-    if not np.isfinite(px).all():
-        raise BadInput(port, "reflectance image holds NaN or Inf values")
-    lo, hi = float(px.min()), float(px.max())
-    if lo < 0 or hi > 1:
-        raise BadInput(port, f"reflectances must lie in [0, 1]; this image spans [{lo:.4g}, {hi:.4g}]")
-    return px
-
-
 def channel_max(t: np.ndarray, n: int) -> list[float]:
     """Per-channel maxima of an (H, W, n) map: row-wise maxima over (H, W·n) first (a reduction
     over the outer axis runs on whole rows; ``t[..., i].max()`` walks a strided view)."""
@@ -98,13 +86,16 @@ class KMStack(Node):
     inputs = {
         "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
-        "background": In(Image, "linear-RGB reflectance under the layers (e.g. skin albedo)", optional=True),
-        "background_spectrum": In(Spectrum, "spectral reflectance under the layers", optional=True),
+        "background": In(Image, "linear-RGB reflectance under the layers (e.g. skin albedo)", optional=True,
+                         channels=3, finite=True, ge=0, le=1),
+        "background_spectrum": In(Spectrum, "spectral reflectance under the layers", optional=True,
+                                  finite=True, ge=0, le=1),
     }
     outputs = {"reflectance": Out(Image, "linear RGB reflectance of layers + background"),
                "transmittance": Out(Image, "linear RGB diffuse transmittance of the layers")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the per-pixel maths, as hooks a backend replaces (plugins/graphkit-opencl)
+    hooks = ("pixel_stack", "stack_over_rgb")
     pixel_stack = staticmethod(pixel_stack)
     stack_over_rgb = staticmethod(stack_over_rgb)
 
@@ -126,14 +117,11 @@ class KMStack(Node):
         shape = None if background is None else background.pixels.shape[:2]
         t = _thickness_map(thickness, "thickness", shape, len(specs))
         if background is not None:
-            Rg = check_reflectance_image(background, "background")
+            Rg = background.pixels
             R, T = self.stack_over_rgb(S, K, wl, t, Rg, p.illuminant, p.lut_size)
             return {"reflectance": Image(R), "transmittance": Image(T)}
         if background_spectrum is not None:
-            v = background_spectrum.values
-            if not ((v >= 0) & (v <= 1)).all():
-                raise BadInput("background_spectrum", "reflectances must lie in [0, 1]")
-            bg = np.interp(wl, background_spectrum.wavelengths, v)
+            bg = np.interp(wl, background_spectrum.wavelengths, background_spectrum.values)
         else:
             bg = {"skin_tcs13": lambda: skin_spectrum(wl), "black": lambda: np.zeros_like(wl),
                   "white": lambda: np.ones_like(wl)}[p.background]()

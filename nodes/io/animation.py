@@ -20,7 +20,7 @@ class AnimatedPreview(Node):
     """
 
     version = "1"
-    inputs = {"frames": In(Image, "the frames, in order (e.g. relit[*].image)", variadic=True)}
+    inputs = {"frames": In(Image, "the frames, in order (e.g. relit[*].image)", variadic=True, min_items=1)}
     outputs = {"file": File}
 
     class Params(Node.Params):
@@ -40,8 +40,6 @@ class AnimatedPreview(Node):
         ext = PurePosixPath(p.path).suffix.lower()
         if ext not in FORMATS:
             raise BadInput("path", f"{p.path}: the extension must be one of {', '.join(FORMATS)}")
-        if not frames:
-            raise BadInput("frames", "no frames to animate")
         pics, size = [], None
         for i, im in enumerate(frames):
             px = im.pixels

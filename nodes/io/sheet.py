@@ -15,7 +15,7 @@ class ContactSheet(Node):
     """
 
     version = "1"
-    inputs = {"images": In(Image, "the images, in order", variadic=True)}
+    inputs = {"images": In(Image, "the images, in order", variadic=True, min_items=1)}
     outputs = {"image": Image}
 
     class Params(Node.Params):
@@ -29,8 +29,6 @@ class ContactSheet(Node):
         import cv2
 
         p = self.params
-        if not images:
-            raise BadInput("images", "no images to lay out")
         if p.labels and len(p.labels) != len(images):
             raise BadInput("labels", f"{len(p.labels)} labels for {len(images)} images")
         cols = p.columns or int(np.ceil(np.sqrt(len(images))))

@@ -492,6 +492,7 @@ class LocalHistMatch(Node):
                "neutral_mean": Out(Image, "μ_n (eq. 4), at stats_size")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the per-pixel passes of the fast path, as hooks a backend replaces (plugins/graphkit-opencl)
+    hooks = ("cell_moments", "apply_scale_bias")
     cell_moments = staticmethod(_cell_moments)
     apply_scale_bias = staticmethod(apply_scale_bias)
 

@@ -45,6 +45,7 @@ class SkinShade(Node):
                "specular": Out(Image, "specular term (before the light colour)")}
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
     # the screen-space SSS, a hook a backend replaces (plugins/graphkit-opencl)
+    hooks = ("sss_blur",)
     sss_blur = staticmethod(sss_blur)
 
     class Params(Node.Params):

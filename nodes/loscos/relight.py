@@ -190,6 +190,7 @@ class Relight(Node):
               "photo": Image,
               "camera": In(Camera, "needed when inserting virtual lights or boxes", optional=True)}
     outputs = {"image": Image}
+    hooks = ("modulate_pixels",)
 
     @staticmethod
     def modulate_pixels(px, e):

@@ -17,7 +17,7 @@ class RatioImage(Node):
 
     version = "1"
     inputs = {"a": In(Image, "numerator (e.g. the photograph)"),
-              "b": In(Image, "denominator (e.g. the shaded face)")}
+              "b": In(Image, "denominator (e.g. the shaded face)", same_size_as="a")}
     outputs = {"ratio": Image}
     tolerance = {"rtol": 1e-5, "atol": 1e-6}
 
@@ -41,11 +41,10 @@ class RatioImage(Node):
 
 
 def check_ratio_inputs(a: Image, b: Image) -> None:
-    """Raise BadInput unless a and b can be divided channel by channel."""
+    """Raise BadInput unless a and b (of the same size: declared) can be divided channel by
+    channel."""
     from graphkit import BadInput
 
-    if a.pixels.shape[:2] != b.pixels.shape[:2]:
-        raise BadInput("b", f"image sizes differ: a is {a.size_str()}, b is {b.size_str()}")
     if b.channels not in (1, a.channels):
         raise BadInput("b", f"b has {b.channels} channels; it needs 1 or {a.channels} (as a)")
 

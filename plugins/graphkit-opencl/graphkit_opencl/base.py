@@ -61,12 +61,10 @@ class OpenCLBackend(Backend, metaclass=_DeviceVersion):
     shaders: ClassVar[tuple[str, ...]] = ()
     needs_fp64: ClassVar[bool] = False
     cpu_note: ClassVar[str | None] = None
-    #: "module:Class" of the node type whose own compute runs, with :meth:`hooks` replaced
-    node_class: ClassVar[str] = ""
 
     @classmethod
     def hooks(cls) -> dict[str, Any]:
-        """{name of a node hook (a staticmethod of the node class): its device version}."""
+        """{name of a hook the node type declares (``Node.hooks``): its device version}."""
         return {}
 
     def compute(self, **inputs):
@@ -75,19 +73,20 @@ class OpenCLBackend(Backend, metaclass=_DeviceVersion):
 
     @classmethod
     def accelerated(cls) -> type:
-        """The node class with :meth:`hooks` swapped in (made once)."""
+        """The registry's node class of ``node`` with :meth:`hooks` swapped in (made once);
+        TypeError for a hook the node type does not declare in ``Node.hooks``."""
         acc = cls.__dict__.get("_accelerated_cls")
         if acc is None:
-            import importlib
+            from graphkit.registry import default_registry
 
-            mod, _, name = cls.node_class.partition(":")
-            node = getattr(importlib.import_module(mod), name)
+            node = default_registry().node_class(cls.node)
             attrs = {k: staticmethod(f) for k, f in cls.hooks().items()}
-            for k in attrs:
-                if not hasattr(node, k):
-                    raise TypeError(f"{cls.__name__}: node class {name} has no hook '{k}'")
+            undeclared = sorted(set(attrs) - set(node.hooks))
+            if undeclared:
+                raise TypeError(f"{cls.__name__}: node type {cls.node} declares no hook "
+                                f"'{undeclared[0]}' (its hooks: {', '.join(node.hooks) or 'none'})")
             attrs["type_name"] = node.type_name
-            acc = type(f"{name}OnOpenCL", (node,), attrs)
+            acc = type(f"{node.__name__}OnOpenCL", (node,), attrs)
             cls._accelerated_cls = acc
         return acc
 

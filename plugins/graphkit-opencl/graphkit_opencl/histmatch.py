@@ -91,7 +91,6 @@ class LocalHistMatchOpenCL(OpenCLBackend):
     """LocalHistMatch with the fast path's per-pixel passes in ``shaders/opencl/histmatch.cl``."""
 
     node = "LocalHistMatch"
-    node_class = "nodes.jimenez.histmatch:LocalHistMatch"
     kernel_version = "1"
     shaders = (SHADER,)
     needs_fp64 = True

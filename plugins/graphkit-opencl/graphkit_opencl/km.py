@@ -114,7 +114,6 @@ class KMStackOpenCL(OpenCLBackend):
     ``shaders/opencl/km_lookup.cl``."""
 
     node = "KMStack"
-    node_class = "nodes.huang.stack:KMStack"
     kernel_version = "1"
     shaders = (SHADER,)
 

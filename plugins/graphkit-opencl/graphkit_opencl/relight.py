@@ -46,7 +46,6 @@ class RelightOpenCL(OpenCLBackend):
     """Relight with its per-pixel modulation in ``shaders/opencl/relight.cl``."""
 
     node = "Relight"
-    node_class = "nodes.loscos.relight:Relight"
     kernel_version = "2"
     shaders = (SHADER,)
     #: benchmarks/bench_opencl.py, Cornell at 18k leaves, 128×128 (15k drawn pixels), pocl on 2

@@ -84,7 +84,6 @@ class SkinShadeOpenCL(OpenCLBackend):
     """SkinShade with its subsurface scattering in ``shaders/opencl/sss.cl``."""
 
     node = "SkinShade"
-    node_class = "nodes.jimenez.shade:SkinShade"
     kernel_version = "1"
     shaders = (SHADER,)
     tolerance = SSS_TOLERANCE
@@ -100,7 +99,6 @@ class CosmeticShadeOpenCL(OpenCLBackend):
     (``sss.cl``) on the device."""
 
     node = "CosmeticShade"
-    node_class = "nodes.huang.shade:CosmeticShade"
     kernel_version = "1"
     shaders = (SHADER, "opencl/km_lookup.cl")
     tolerance = SSS_TOLERANCE
