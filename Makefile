@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 # blender-data (CC0 HDR environments for the ProbeLight probes).
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium blender-data
 
-.PHONY: demo test bench sysdeps clean lock wheel-check mutate mutate-nodes
+.PHONY: demo test bench complexity sysdeps clean lock wheel-check mutate mutate-nodes
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/contact_sheet.png)"
@@ -23,6 +23,11 @@ test: $(STAMP) sysdeps
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+# Every function in graphkit/ by cyclomatic complexity (radon) and length, those over the
+# limits of tests/test_complexity.py flagged.
+complexity: $(STAMP)
+	$(BIN)/python tests/test_complexity.py
 
 # Mutation testing of graphkit's key, hashing and store code ([tool.mutmut] in pyproject.toml
 # lists the modules and the tests that guard them).  Slow; not part of `make test`.

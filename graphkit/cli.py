@@ -67,7 +67,12 @@ def build_parser():
     ap = argparse.ArgumentParser(prog="graphkit", description="Run typed node graphs with a content-hash cache.")
     ap.add_argument("--version", action=_version_action(argparse), help="print the version and exit")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+    for add in (_run_parser, _inspect_parsers, _tool_parsers, _serve_parser, _cache_parser):
+        add(sub)  # in this order: `graphkit --help` lists the commands as they are added
+    return ap
 
+
+def _run_parser(sub) -> None:
     p = sub.add_parser("run", help="run a graph")
     _graph_args(p)
     _cache_arg(p)
@@ -86,6 +91,9 @@ def build_parser():
     p.add_argument("-q", "--quiet", action="store_true", help="print only notices and errors")
     p.add_argument("-v", "--verbose", action="store_true", help="also list the nodes found in the cache")
 
+
+def _inspect_parsers(sub) -> None:
+    """status, validate, show (explain comes after conform)."""
     p = sub.add_parser("status", help="per node instance: cached or would run, and why (runs nothing)")
     _graph_args(p)
     _cache_arg(p)
@@ -104,6 +112,9 @@ def build_parser():
     _cache_arg(p)
     _backend_arg(p)
 
+
+def _tool_parsers(sub) -> None:
+    """conform, explain, nodes, schema."""
     p = sub.add_parser("conform", help="check backends against the numpy reference on the nodes' examples, "
                        "and that every declared port constraint refuses a value that breaks it")
     p.add_argument("plugin", nargs="?", help="only the backends this plugin (distribution or GRAPHKIT_PLUGINS module) provides")
@@ -123,6 +134,8 @@ def build_parser():
     p = sub.add_parser("schema", help="print the JSON Schema of graph files")
     p.add_argument("-o", "--output", default=None)
 
+
+def _serve_parser(sub) -> None:
     p = sub.add_parser("serve", help="open the graph in a local web studio")
     p.add_argument("graph", help="graph file (YAML)")
     _cache_arg(p)
@@ -134,6 +147,8 @@ def build_parser():
     p.add_argument("--no-run", action="store_true", help="do not run on open or on each change (press Run)")
     p.add_argument("--open", action="store_true", help="open the URL in a web browser")
 
+
+def _cache_parser(sub) -> None:
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
     for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
@@ -143,7 +158,6 @@ def build_parser():
             cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
         if name == "verify":
             cp.add_argument("--repair", action="store_true", help="remove what is corrupt")
-    return ap
 
 
 _INTERRUPTED = []  # a SIGINT arrived (see _on_sigint)
@@ -258,50 +272,49 @@ def _load(args, check_backends=True):
 
 
 def _dispatch(args) -> int:
-    if args.cmd == "run":
-        return cmd_run(args)
-    if args.cmd == "validate":
-        g = _load(args)
-        grouped = {o for v in g.output_groups.values() for o in v}
-        outs = [f"{k} (×{len(v)})" for k, v in g.output_groups.items()] + [o for o in g.outputs if o not in grouped]
-        sweeps = "".join(f", sweep {n} ×{len(s)}" for n, s in g.sweeps.items())
-        print(f"{args.graph}: ok ({len(g.nodes)} nodes{sweeps}; outputs: {', '.join(outs)})")
-        return 0
-    if args.cmd == "show":
-        return cmd_show(args)
-    if args.cmd == "status":
-        return cmd_status(args)
-    if args.cmd == "conform":
-        return cmd_conform(args)
-    if args.cmd == "explain":
-        from .explain import explain
+    cmd = _COMMANDS.get(args.cmd)
+    if cmd is None:
+        raise UsageError(f"unknown command {args.cmd}")
+    return cmd(args)
 
-        print(explain(_load(args), _store(args.cache), args.node))
-        return 0
-    if args.cmd == "nodes":
-        return cmd_nodes(args)
-    if args.cmd == "schema":
-        import json
 
-        from .schema import graph_schema
+def cmd_validate(args) -> int:
+    g = _load(args)
+    grouped = {o for v in g.output_groups.values() for o in v}
+    outs = [f"{k} (×{len(v)})" for k, v in g.output_groups.items()] + [o for o in g.outputs if o not in grouped]
+    sweeps = "".join(f", sweep {n} ×{len(s)}" for n, s in g.sweeps.items())
+    print(f"{args.graph}: ok ({len(g.nodes)} nodes{sweeps}; outputs: {', '.join(outs)})")
+    return 0
 
-        text = json.dumps(graph_schema(_registry()), indent=1)
-        if args.output:
-            Path(args.output).write_text(text + "\n")
-        else:
-            print(text)
-        return 0
-    if args.cmd == "cache":
-        return cmd_cache(args)
-    if args.cmd == "serve":
-        from .studio import serve
 
-        if args.jobs < 1:
-            raise UsageError("--jobs must be at least 1")
-        return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
-                     backends=[b.strip() for b in args.backend.split(",") if b.strip()],
-                     jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
-    raise UsageError(f"unknown command {args.cmd}")
+def cmd_explain(args) -> int:
+    from .explain import explain
+
+    print(explain(_load(args), _store(args.cache), args.node))
+    return 0
+
+
+def cmd_schema(args) -> int:
+    import json
+
+    from .schema import graph_schema
+
+    text = json.dumps(graph_schema(_registry()), indent=1)
+    if args.output:
+        Path(args.output).write_text(text + "\n")
+    else:
+        print(text)
+    return 0
+
+
+def cmd_serve(args) -> int:
+    from .studio import serve
+
+    if args.jobs < 1:
+        raise UsageError("--jobs must be at least 1")
+    return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
+                 backends=[b.strip() for b in args.backend.split(",") if b.strip()],
+                 jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
 
 
 def _store(location):
@@ -513,27 +526,38 @@ def _parse_size(s: str) -> int:
 
 
 def cmd_cache(args) -> int:
+    return {"ls": _cache_ls, "gc": _cache_gc}.get(args.cache_cmd, _cache_verify)(_store(args.cache), args)
+
+
+def _cache_ls(store, args) -> int:
     from .store import fmt_size
 
-    store = _store(args.cache)
-    if args.cache_cmd == "ls":
-        rows = store.ls()
-        for r in rows:
-            flag = "  CORRUPT" if r.get("corrupt") else ""
-            print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {fmt_size(r['bytes']):>14}{flag}")
-        u = store.usage()
-        print(f"{len(rows)} entries, {fmt_size(u['total'])} in {store.location} (objects {fmt_size(u['objects'])}, "
-              f"each counted once; records {fmt_size(u['keys'] + u['journal'])}; tmp {fmt_size(u['tmp'])}; "
-              f"quarantine {fmt_size(u['quarantine'])}; other {fmt_size(u['runs'] + u['locks'] + u['other'])}; "
-              "MiB = 2^20 bytes)")
-        return 0
-    if args.cache_cmd == "gc":
-        info = store.gc(_parse_size(args.max_size))
-        print(f"removed {info['removed_records']} records, {info['removed_objects']} objects and "
-              f"{info['stale_files']} stale temp, lock, quarantined and unlinked journal files "
-              f"({fmt_size(info['stale_bytes'])}); "
-              f"{fmt_size(info['bytes'])} left in {store.location}")
-        return 0
+    rows = store.ls()
+    for r in rows:
+        flag = "  CORRUPT" if r.get("corrupt") else ""
+        print(f"{r['key'][:16]}  {r['type']:<20} {r['node']:<20} {fmt_size(r['bytes']):>14}{flag}")
+    u = store.usage()
+    print(f"{len(rows)} entries, {fmt_size(u['total'])} in {store.location} (objects {fmt_size(u['objects'])}, "
+          f"each counted once; records {fmt_size(u['keys'] + u['journal'])}; tmp {fmt_size(u['tmp'])}; "
+          f"quarantine {fmt_size(u['quarantine'])}; other {fmt_size(u['runs'] + u['locks'] + u['other'])}; "
+          "MiB = 2^20 bytes)")
+    return 0
+
+
+def _cache_gc(store, args) -> int:
+    from .store import fmt_size
+
+    info = store.gc(_parse_size(args.max_size))
+    print(f"removed {info['removed_records']} records, {info['removed_objects']} objects and "
+          f"{info['stale_files']} stale temp, lock, quarantined and unlinked journal files "
+          f"({fmt_size(info['stale_bytes'])}); "
+          f"{fmt_size(info['bytes'])} left in {store.location}")
+    return 0
+
+
+def _cache_verify(store, args) -> int:
+    from .store import fmt_size
+
     stale = store.clean_stale(dry_run=True)
     problems = store.verify(repair=args.repair)
     for p in problems:
@@ -544,6 +568,11 @@ def cmd_cache(args) -> int:
               + (" removed" if args.repair else "; `verify --repair` or `gc` removes them"))
     print(f"{len(problems)} problems" + (" (repaired)" if args.repair and problems else "") + f" in {store.location}")
     return 0 if not problems or args.repair else 1
+
+
+_COMMANDS = {"run": cmd_run, "validate": cmd_validate, "show": cmd_show, "status": cmd_status,
+             "conform": cmd_conform, "explain": cmd_explain, "nodes": cmd_nodes, "schema": cmd_schema,
+             "cache": cmd_cache, "serve": cmd_serve}
 
 
 def show(graph, fmt: str) -> str:

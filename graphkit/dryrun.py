@@ -112,35 +112,44 @@ def status(graph, cache: str | os.PathLike | Store = ".graphkit-cache", *, regis
 
 def walk(session: Session, order: list[str]) -> dict[str, NodeStatus]:
     """The status of each node in ``order`` (a topological order) without running anything."""
-    graph, store = session.graph, session.store
-    last = store.last_run(graph_id(graph)) or {}
+    graph = session.graph
+    last = session.store.last_run(graph_id(graph)) or {}
     known: dict[str, dict | None] = {}  # node -> output digests, None when it would run
     out: dict[str, NodeStatus] = {}
     for n in order:
-        g = graph.nodes[n]
-        bname = session.backend_for(g)[0]
-        pending = [s for s in dict.fromkeys(src for _, src, _ in g.edges()) if known.get(s) is None]
-        prev = last.get(n)
-        st = NodeStatus(n, g.type, g.base or n, g.instance, g.sweep, WOULD_RUN, None, bname)
-        if not pending:
-            key, parts = session.key(g, g.map_inputs(lambda s, sp: known[s][sp]))
-            st.key, st.parts = key, session.readable_parts(g, parts)
-            rec = store.get_record(key)
-            if rec is not None:
-                st.state = CACHED
-                known[n] = {p: o["digest"] for p, o in rec["outputs"].items()}
-                out[n] = st
-                continue
-            st.reasons = reasons(st.parts, prev, graph, n)
-        else:
-            static, _ = session.static_parts(g)
-            own = session.readable_parts(g, static)
-            shown = ", ".join(pending[:3]) + (f" and {len(pending) - 3} more" if len(pending) > 3 else "")
-            st.reasons = [Reason("upstream", f"upstream {shown} would run first")]
-            if prev is not None:
-                st.reasons += [r for r in reasons(own, prev, graph, n, inputs=False) if r.part != "missing"]
-        known[n] = None
-        out[n] = st
+        out[n], known[n] = _status(session, n, known, last.get(n))
+    return out
+
+
+def _status(session: Session, n: str, known: dict, prev: dict | None) -> tuple[NodeStatus, dict | None]:
+    """(node ``n``'s status, its output digests when they are known without running it);
+    ``known``: the same for the nodes before it, ``prev``: its entry in the last run."""
+    g = session.graph.nodes[n]
+    st = NodeStatus(n, g.type, g.base or n, g.instance, g.sweep, WOULD_RUN, None, session.backend_for(g)[0])
+    pending = [s for s in dict.fromkeys(src for _, src, _ in g.edges()) if known.get(s) is None]
+    if pending:
+        st.reasons = _waiting(session, n, pending, prev)
+        return st, None
+    key, parts = session.key(g, g.map_inputs(lambda s, sp: known[s][sp]))
+    st.key, st.parts = key, session.readable_parts(g, parts)
+    rec = session.store.get_record(key)
+    if rec is None:
+        st.reasons = reasons(st.parts, prev, session.graph, n)
+        return st, None
+    st.state = CACHED
+    return st, {p: o["digest"] for p, o in rec["outputs"].items()}
+
+
+def _waiting(session: Session, n: str, pending: list[str], prev: dict | None) -> list[Reason]:
+    """Why a node whose inputs are not computed yet would run: they would run first, and
+    what changed in its own key parts (params, files, versions) since its last run."""
+    g = session.graph.nodes[n]
+    static, _ = session.static_parts(g)
+    own = session.readable_parts(g, static)
+    shown = ", ".join(pending[:3]) + (f" and {len(pending) - 3} more" if len(pending) > 3 else "")
+    out = [Reason("upstream", f"upstream {shown} would run first")]
+    if prev is not None:
+        out += [r for r in reasons(own, prev, session.graph, n, inputs=False) if r.part != "missing"]
     return out
 
 
@@ -165,46 +174,79 @@ def reasons(cur: dict, prev: dict | None, graph: Graph, node: str, inputs: bool 
     if prev is None:
         return [Reason("new", "not computed before")]
     old = prev.get("parts") or {}
-    out: list[Reason] = []
+    checks = _CHECKS + ((_inputs_changed,) if inputs else ())
+    out = [r for check in checks for r in [check(old, cur, graph, node)] if r is not None]
+    return out or [Reason("missing", "same key as the last run, but its cache entry is gone (gc or verify --repair)")]
 
-    def changed(part):
-        return cur.get(part, "<absent>") != old.get(part, "<absent>")
 
-    if changed("recipe"):
-        out.append(Reason("recipe", f"cache key recipe {old.get('recipe')} → {cur.get('recipe')}"))
-    if changed("node_type"):
-        out.append(Reason("node-type", f"node type {old.get('node_type')} → {cur.get('node_type')}"))
-    if changed("node_version"):
-        out.append(Reason("node-version", f"node version {old.get('node_version')} → {cur.get('node_version')}"))
+def _changed(old: dict, cur: dict, part: str) -> bool:
+    return cur.get(part, "<absent>") != old.get(part, "<absent>")
+
+
+def _part_changed(part: str, reason: str, label: str):
+    """A check of one key part, worded "<label> <old> → <new>"."""
+    def check(old, cur, graph, node):
+        if _changed(old, cur, part):
+            return Reason(reason, f"{label} {old.get(part)} → {cur.get(part)}")
+        return None
+    return check
+
+
+def _backend_changed(old, cur, graph, node):
     # the numpy reference is the node's own compute: its version is the node version
-    if changed("backend") or (changed("backend_version") and cur.get("backend") != "numpy"):
+    if _changed(old, cur, "backend") or (_changed(old, cur, "backend_version") and cur.get("backend") != "numpy"):
         a = f"{old.get('backend')} {old.get('backend_version')}"
         b = f"{cur.get('backend')} {cur.get('backend_version')}"
-        out.append(Reason("backend", f"backend {a} → {b}"))
+        return Reason("backend", f"backend {a} → {b}")
+    return None
+
+
+def _params_changed(old, cur, graph, node):
     a, b = _flat(old.get("params", {})), _flat(cur.get("params", {}))
     diff = [k for k in sorted(set(a) | set(b)) if a.get(k, "<absent>") != b.get(k, "<absent>")]
-    if diff:
-        shown = ", ".join(f"{k} {_short(a.get(k, '<absent>'))} → {_short(b.get(k, '<absent>'))}" for k in diff[:3])
-        out.append(Reason("params", f"param changed: {shown}" + (f" (+{len(diff) - 3} more)" if len(diff) > 3 else "")))
+    if not diff:
+        return None
+    shown = ", ".join(f"{k} {_short(a.get(k, '<absent>'))} → {_short(b.get(k, '<absent>'))}" for k in diff[:3])
+    return Reason("params", f"param changed: {shown}" + (f" (+{len(diff) - 3} more)" if len(diff) > 3 else ""))
+
+
+def _files_changed(old, cur, graph, node):
     a, b = old.get("files") or {}, cur.get("files") or {}
     fdiff = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
-    if fdiff:
-        g = graph.nodes[node]
-        shown = ", ".join(f"{k} ({os.path.relpath(g.files[k], graph.base_dir) if k in g.files else 'gone'})" for k in fdiff[:3])
-        out.append(Reason("input-file", f"input file changed: {shown}"))
-    if changed("recipe_digest"):
-        out.append(Reason("provenance", "the graph upstream of it changed (its output embeds the recipe)"))
-    if inputs:
-        a, b = old.get("inputs") or {}, cur.get("inputs") or {}
-        ports = [p for p in sorted(set(a) | set(b)) if a.get(p) != b.get(p)]
-        if ports:
-            g = graph.nodes[node]
-            srcs = {p: sorted({f"{s}.{sp}" for pp, s, sp in g.edges() if pp == p}) for p in ports}
-            shown = ", ".join(f"'{p}' (from {', '.join(srcs[p][:2]) + (' …' if len(srcs[p]) > 2 else '')})" for p in ports[:3])
-            out.append(Reason("inputs", f"input changed: {shown}"))
-    if not out:
-        out.append(Reason("missing", "same key as the last run, but its cache entry is gone (gc or verify --repair)"))
-    return out
+    if not fdiff:
+        return None
+    g = graph.nodes[node]
+    shown = ", ".join(f"{k} ({os.path.relpath(g.files[k], graph.base_dir) if k in g.files else 'gone'})" for k in fdiff[:3])
+    return Reason("input-file", f"input file changed: {shown}")
+
+
+def _provenance_changed(old, cur, graph, node):
+    if _changed(old, cur, "recipe_digest"):
+        return Reason("provenance", "the graph upstream of it changed (its output embeds the recipe)")
+    return None
+
+
+def _inputs_changed(old, cur, graph, node):
+    a, b = old.get("inputs") or {}, cur.get("inputs") or {}
+    ports = [p for p in sorted(set(a) | set(b)) if a.get(p) != b.get(p)]
+    if not ports:
+        return None
+    g = graph.nodes[node]
+    srcs = {p: sorted({f"{s}.{sp}" for pp, s, sp in g.edges() if pp == p}) for p in ports}
+    shown = ", ".join(f"'{p}' (from {', '.join(srcs[p][:2]) + (' …' if len(srcs[p]) > 2 else '')})" for p in ports[:3])
+    return Reason("inputs", f"input changed: {shown}")
+
+
+# in the order a dry run lists them
+_CHECKS = (
+    _part_changed("recipe", "recipe", "cache key recipe"),
+    _part_changed("node_type", "node-type", "node type"),
+    _part_changed("node_version", "node-version", "node version"),
+    _backend_changed,
+    _params_changed,
+    _files_changed,
+    _provenance_changed,
+)
 
 
 __all__ = ["status", "walk", "StatusReport", "NodeStatus", "Reason", "CACHED", "WOULD_RUN"]

@@ -11,39 +11,48 @@ from .errors import UsageError
 def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
     from .registry import default_registry
     from .dryrun import CACHED, walk
-    from .suggest import did_you_mean
 
-    if node not in graph.nodes:
-        inst = graph.instances(node)
-        if inst:
-            raise UsageError(f"'{node}' is swept ({len(inst)} instances): explain one of them, e.g. "
-                             f"'{inst[0]}'")
-        raise UsageError(f"no node named '{node}' in {graph.path}{did_you_mean(node, graph.nodes)}")
+    _check_node(graph, node)
     session = Session(graph, registry or default_registry(), store)
     last = store.last_run(graph_id(graph)) or {}
     state = {n: {"key": st.key, "cached": st.state == CACHED, "parts": st.parts,
                  "waits": [r.message for r in st.reasons if r.part == "upstream"]}
              for n, st in walk(session, graph.upstream([node])).items()}
-
-    lines = []
-    s = state[node]
-    g = graph.nodes[node]
+    s, typ = state[node], graph.nodes[node].type
     if s["cached"]:
-        lines.append(f"{node} ({g.type}) is cached: a run would not recompute it (key {s['key'][:16]}).")
+        lines = [f"{node} ({typ}) is cached: a run would not recompute it (key {s['key'][:16]})."]
     else:
-        lines.append(f"{node} ({g.type}) would be computed.")
+        lines = [f"{node} ({typ}) would be computed."]
     prev = last.get(node)
     if prev is None:
         lines.append("  no earlier run of this graph recorded for it in this cache.")
-        return "\n".join(lines)
-    if s["key"] == prev["key"]:
+    elif s["key"] == prev["key"]:
         lines.append("  its key is the same as at the last run.")
-        return "\n".join(lines)
-    if s["parts"] is None:
-        lines.append(f"  its inputs are not known yet: {s['waits'][0]}.")
     else:
-        lines.extend(_diff(s["parts"], prev["parts"], graph, node))
-    # the upstream nodes whose own key parts changed (the root causes)
+        if s["parts"] is None:
+            lines.append(f"  its inputs are not known yet: {s['waits'][0]}.")
+        else:
+            lines.extend(_diff(s["parts"], prev["parts"], graph, node))
+        lines.extend(_upstream_changes(graph, node, last, state))
+    return "\n".join(lines)
+
+
+def _check_node(graph: Graph, node: str) -> None:
+    """UsageError unless ``node`` is one node of the graph (a swept node's base is not)."""
+    from .suggest import did_you_mean
+
+    if node in graph.nodes:
+        return
+    inst = graph.instances(node)
+    if inst:
+        raise UsageError(f"'{node}' is swept ({len(inst)} instances): explain one of them, e.g. "
+                         f"'{inst[0]}'")
+    raise UsageError(f"no node named '{node}' in {graph.path}{did_you_mean(node, graph.nodes)}")
+
+
+def _upstream_changes(graph: Graph, node: str, last: dict, state: dict) -> list[str]:
+    """The upstream nodes whose own key parts changed since the last run (the root causes)."""
+    lines = []
     for n in graph.upstream([node])[:-1]:
         p, cur = last.get(n), state[n]
         if p is None or cur["parts"] is None:
@@ -53,7 +62,7 @@ def explain(graph: Graph, store: Store, node: str, registry=None) -> str:
         if own != own_prev:
             lines.append(f"  upstream {n} ({graph.nodes[n].type}) changed:")
             lines.extend("  " + x for x in _diff(cur["parts"], p["parts"], graph, n, inputs=False))
-    return "\n".join(lines)
+    return lines
 
 
 def _diff(cur: dict, prev: dict, graph: Graph, node: str, inputs: bool = True) -> list[str]:

@@ -42,63 +42,92 @@ def canonical(value: Any) -> bytes:
 
 
 def _enc(v: Any, out: list[bytes]) -> None:
-    t = type(v)
-    if t is str:
-        b = v.encode("utf-8")
-        out.append(b"s%d:" % len(b))
-        out.append(b)
-    elif t is float:
-        out.append(b"f" + v.hex().encode() + b";")
-    elif t is bool:
-        out.append(b"T" if v else b"F")
-    elif t is int:
-        out.append(b"i%d;" % v)
-    elif v is None:
-        out.append(b"N")
-    elif t is dict:
-        out.append(b"d%d{" % len(v))
-        try:
-            keys = sorted(v)
-        except TypeError:
-            raise CanonicalError("dict keys must be strings") from None
-        for k in keys:
-            if type(k) is not str:
-                raise CanonicalError("dict keys must be strings")
-            _enc(k, out)
-            _enc(v[k], out)
-        out.append(b"}")
-    elif t is list or t is tuple:
-        out.append(b"l%d[" % len(v))
-        for x in v:
-            _enc(x, out)
-        out.append(b"]")
-    elif isinstance(v, BaseModel):  # = _enc(class name) + _enc({field: value}), laid out once per class
-        head, fields = _model_layout(t)
-        out.append(head)
-        for name, kb in fields:
-            out.append(kb)
-            _enc(getattr(v, name), out)
-        out.append(b"}")
-    elif isinstance(v, enum.Enum):
-        _enc(v.value, out)
-    elif isinstance(v, int):  # int subclasses (bool cannot be subclassed: `t is bool` took it)
-        out.append(b"i%d;" % v)
-    elif isinstance(v, float):
-        out.append(b"f" + float(v).hex().encode() + b";")
-    elif isinstance(v, str):
-        _enc(str(v), out)
-    elif isinstance(v, bytes):
-        out.append(b"b%d:" % len(v) + bytes(v))
-    elif isinstance(v, np.ndarray):
-        out.append(b"a" + array_digest(v).encode())
-    elif isinstance(v, np.generic):
-        _enc(v.item(), out)
-    elif isinstance(v, (list, tuple)):
-        _enc(list(v), out)
-    elif isinstance(v, dict):
-        _enc(dict(v), out)
-    else:
-        raise CanonicalError(_cannot(v))
+    enc = _EXACT.get(type(v))  # the common types, by exact type (fast); then their subclasses
+    if enc is None:
+        enc = next((e for base, e in _SUBCLASSES if isinstance(v, base)), None)
+        if enc is None:
+            raise CanonicalError(_cannot(v))
+    enc(v, out)
+
+
+def _enc_str(v: str, out: list[bytes]) -> None:
+    b = str(v).encode("utf-8")
+    out.append(b"s%d:" % len(b))
+    out.append(b)
+
+
+def _enc_float(v: float, out: list[bytes]) -> None:
+    out.append(b"f" + float(v).hex().encode() + b";")
+
+
+def _enc_bool(v: bool, out: list[bytes]) -> None:
+    out.append(b"T" if v else b"F")
+
+
+def _enc_int(v: int, out: list[bytes]) -> None:
+    out.append(b"i%d;" % v)
+
+
+def _enc_none(v: None, out: list[bytes]) -> None:
+    out.append(b"N")
+
+
+def _enc_dict(v: dict, out: list[bytes]) -> None:
+    out.append(b"d%d{" % len(v))
+    try:
+        keys = sorted(v)
+    except TypeError:
+        raise CanonicalError("dict keys must be strings") from None
+    for k in keys:
+        if type(k) is not str:
+            raise CanonicalError("dict keys must be strings")
+        _enc_str(k, out)
+        x = v[k]
+        _EXACT.get(type(x), _enc)(x, out)  # = _enc(x, out), a call fewer for the common types
+    out.append(b"}")
+
+
+def _enc_list(v: list | tuple, out: list[bytes]) -> None:
+    out.append(b"l%d[" % len(v))
+    for x in v:
+        _EXACT.get(type(x), _enc)(x, out)  # = _enc(x, out), a call fewer for the common types
+    out.append(b"]")
+
+
+def _enc_model(v: BaseModel, out: list[bytes]) -> None:
+    """= _enc(class name) + _enc({field: value}), laid out once per class."""
+    head, fields = _model_layout(type(v))
+    out.append(head)
+    for name, kb in fields:
+        out.append(kb)
+        _enc(getattr(v, name), out)
+    out.append(b"}")
+
+
+def _enc_bytes(v: bytes, out: list[bytes]) -> None:
+    out.append(b"b%d:" % len(v) + bytes(v))
+
+
+def _enc_array(v: np.ndarray, out: list[bytes]) -> None:
+    out.append(b"a" + array_digest(v).encode())
+
+
+_EXACT = {str: _enc_str, float: _enc_float, bool: _enc_bool, int: _enc_int, type(None): _enc_none,
+          dict: _enc_dict, list: _enc_list, tuple: _enc_list}
+# in this order: an IntEnum is an enum before it is an int, a numpy float64 a float (bool
+# cannot be subclassed: its exact type took it); a subclass encodes as its base type
+_SUBCLASSES = (
+    (BaseModel, _enc_model),
+    (enum.Enum, lambda v, out: _enc(v.value, out)),
+    (int, _enc_int),
+    (float, _enc_float),
+    (str, _enc_str),
+    (bytes, _enc_bytes),
+    (np.ndarray, _enc_array),
+    (np.generic, lambda v, out: _enc(v.item(), out)),
+    ((list, tuple), lambda v, out: _enc_list(list(v), out)),
+    (dict, lambda v, out: _enc_dict(dict(v), out)),
+)
 
 
 @functools.lru_cache(maxsize=1024)

@@ -142,14 +142,24 @@ def _e(x: Any) -> str:
 def report_html(session, result, manifest: dict) -> bytes:
     """The report page for a finished run (``manifest`` is the run's manifest.json content)."""
     graph = session.graph
+    out = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
+           f"<title>{_e(graph.name)}: graphkit run report</title><style>{_CSS}</style></head><body>",
+           f"<h1>{_e(graph.name)}</h1><table class='meta'>"]
+    out += [f"<tr><td>{_e(k)}</td><td>{_e(v)}</td></tr>" for k, v in _meta(graph, result, manifest)]
+    out.append("</table>")
+    out += _sweeps_table(graph, result.outcomes)
+    out += _instances_table(session, graph, result.outcomes)
+    out.append(f"<p class='key'>written by graphkit; manifest.json beside this file holds the same run "
+               f"in full</p><script>{_JS}</script></body></html>\n")
+    return "".join(out).encode("utf-8")
+
+
+def _meta(graph, result, manifest: dict) -> list[tuple[str, Any]]:
+    """The run's (label, value) lines at the top of the page."""
     outcomes = result.outcomes
     n_hit = sum(o.hit for o in outcomes.values())
     n_run = len(outcomes) - n_hit
     compute_s = sum(o.seconds for o in outcomes.values() if not o.hit)
-    longest = max((o.seconds for o in outcomes.values()), default=0.0) or 1.0
-    out = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
-           f"<title>{_e(graph.name)}: graphkit run report</title><style>{_CSS}</style></head><body>",
-           f"<h1>{_e(graph.name)}</h1><table class='meta'>"]
     shown_path = graph.path
     with contextlib.suppress(ValueError):
         rel = os.path.relpath(graph.path)
@@ -161,63 +171,77 @@ def report_html(session, result, manifest: dict) -> bytes:
             ("graph digest", manifest.get("graph_digest", ""))]
     if graph.params:
         meta.append(("params", ", ".join(f"{k}={v!r}" for k, v in graph.params.items())))
-    out += [f"<tr><td>{_e(k)}</td><td>{_e(v)}</td></tr>" for k, v in meta]
-    out.append("</table>")
+    return meta
 
+
+def _sweeps_table(graph, outcomes: dict) -> list[str]:
+    """One row per swept node: its instances, how many computed and their node time."""
     bases: dict[str, list] = {}
     for n in [n for n in graph.nodes if n in outcomes]:
         g = graph.nodes[n]
         if g.sweep:
             bases.setdefault(g.base, []).append(outcomes[n])
-    if bases:
-        out.append("<h2>Sweeps</h2><table><thead><tr><th>node</th><th>type</th><th>sweep</th><th>instances</th>"
-                   "<th>computed</th><th>cached</th><th>node time</th></tr></thead><tbody>")
-        for base, os_ in bases.items():
-            g = graph.nodes[os_[0].name]
-            hits = sum(o.hit for o in os_)
-            secs = sum(o.seconds for o in os_ if not o.hit)
-            out.append(f"<tr><td>{_e(base)}</td><td>{_e(g.type)}</td><td>{_e(g.sweep)}</td>"
-                       f"<td class='num'>{len(os_)}</td><td class='num'>{len(os_) - hits}</td>"
-                       f"<td class='num'>{hits}</td><td class='num'>{secs:.2f} s</td></tr>")
-        out.append("</tbody></table>")
+    if not bases:
+        return []
+    out = ["<h2>Sweeps</h2><table><thead><tr><th>node</th><th>type</th><th>sweep</th><th>instances</th>"
+           "<th>computed</th><th>cached</th><th>node time</th></tr></thead><tbody>"]
+    for base, os_ in bases.items():
+        g = graph.nodes[os_[0].name]
+        hits = sum(o.hit for o in os_)
+        secs = sum(o.seconds for o in os_ if not o.hit)
+        out.append(f"<tr><td>{_e(base)}</td><td>{_e(g.type)}</td><td>{_e(g.sweep)}</td>"
+                   f"<td class='num'>{len(os_)}</td><td class='num'>{len(os_) - hits}</td>"
+                   f"<td class='num'>{hits}</td><td class='num'>{secs:.2f} s</td></tr>")
+    out.append("</tbody></table>")
+    return out
 
-    out.append("<h2>Node instances</h2><input id='q' placeholder='filter (node, type, backend…)'>"
-               "<table id='nodes'><thead><tr><th>node</th><th>instance</th><th>type</th><th>cache</th>"
-               "<th>time</th><th></th><th>backend</th><th>key</th><th>image outputs</th></tr></thead><tbody>")
-    thumbs = 0
-    skipped = 0
-    for n in [n for n in graph.nodes if n in outcomes]:  # graph-file order, instances in sweep order
-        o = outcomes[n]
-        g = graph.nodes[n]
-        imgs = []
-        for port, d in o.outputs.items():
-            p = g.cls.out_ports.get(port)
-            if p is None or not _is_image_output(session, p.type, d):
-                continue
-            if thumbs >= MAX_THUMBS:
-                skipped += 1
-                continue
-            try:
-                jpeg = thumbnail(session, d, p.type)
-            except Exception:  # noqa: BLE001 - a report never fails a run
-                jpeg = None
-            if jpeg:
-                thumbs += 1
-                imgs.append(f"<img alt='{_e(port)}' title='{_e(port)}' src='data:image/jpeg;base64,"
-                            f"{base64.b64encode(jpeg).decode()}'>")
+
+def _instances_table(session, graph, outcomes: dict) -> list[str]:
+    """One row per node instance, in graph-file order (instances in sweep order)."""
+    out = ["<h2>Node instances</h2><input id='q' placeholder='filter (node, type, backend…)'>"
+           "<table id='nodes'><thead><tr><th>node</th><th>instance</th><th>type</th><th>cache</th>"
+           "<th>time</th><th></th><th>backend</th><th>key</th><th>image outputs</th></tr></thead><tbody>"]
+    longest = max((o.seconds for o in outcomes.values()), default=0.0) or 1.0
+    thumbs = _Thumbnails(session)
+    for n in [n for n in graph.nodes if n in outcomes]:
+        o, g = outcomes[n], graph.nodes[n]
         bar = max(1, round(120 * o.seconds / longest))
         backend = o.backend + (f" {o.backend_version}" if o.backend != "numpy" else "")
         out.append(
             f"<tr><td>{_e(g.base or n)}</td><td>{_e(g.instance or '')}</td><td>{_e(o.type)}</td>"
             + (f"<td class='hit'>cached</td>" if o.hit else "<td class='miss'>computed</td>")
             + f"<td class='num'>{o.seconds:.3f} s</td><td><span class='bar' style='width:{bar}px'></span></td>"
-            f"<td>{_e(backend)}</td><td class='key'>{_e(o.key[:12])}</td><td>{''.join(imgs)}</td></tr>")
+            f"<td>{_e(backend)}</td><td class='key'>{_e(o.key[:12])}</td><td>{thumbs.of(g, o)}</td></tr>")
     out.append("</tbody></table>")
-    if skipped:
-        out.append(f"<p>{skipped} more image outputs have no thumbnail (at most {MAX_THUMBS} per report).</p>")
-    out.append(f"<p class='key'>written by graphkit; manifest.json beside this file holds the same run "
-               f"in full</p><script>{_JS}</script></body></html>\n")
-    return "".join(out).encode("utf-8")
+    if thumbs.skipped:
+        out.append(f"<p>{thumbs.skipped} more image outputs have no thumbnail (at most {MAX_THUMBS} per report).</p>")
+    return out
+
+
+class _Thumbnails:
+    """The image outputs' thumbnails as <img> tags, at most MAX_THUMBS per report."""
+
+    def __init__(self, session):
+        self.session, self.shown, self.skipped = session, 0, 0
+
+    def of(self, g, o) -> str:
+        imgs = []
+        for port, d in o.outputs.items():
+            p = g.cls.out_ports.get(port)
+            if p is None or not _is_image_output(self.session, p.type, d):
+                continue
+            if self.shown >= MAX_THUMBS:
+                self.skipped += 1
+                continue
+            try:
+                jpeg = thumbnail(self.session, d, p.type)
+            except Exception:  # noqa: BLE001 - a report never fails a run
+                jpeg = None
+            if jpeg:
+                self.shown += 1
+                imgs.append(f"<img alt='{_e(port)}' title='{_e(port)}' src='data:image/jpeg;base64,"
+                            f"{base64.b64encode(jpeg).decode()}'>")
+        return "".join(imgs)
 
 
 def report_file(session, result, manifest: dict) -> tuple[str, bytes]:

@@ -18,10 +18,8 @@ def _boxes(graph: Graph, instances: bool):
     if instances:
         ids = _ids(list(graph.nodes))
         boxes = [(ids[n], n, g.type, 1, None, [n]) for n, g in graph.nodes.items()]
-        edges = []
-        for n, g in graph.nodes.items():
-            for port, src, sport in g.edges():
-                edges.append((ids[src], ids[n], f"{sport}→{port}"))
+        edges = [(ids[src], ids[n], f"{sport}→{port}") for n, g in graph.nodes.items()
+                 for port, src, sport in g.edges()]
         return boxes, edges
     members: dict[str, list[str]] = {}
     for n, g in graph.nodes.items():
@@ -31,6 +29,11 @@ def _boxes(graph: Graph, instances: bool):
     for base, ms in members.items():
         g = graph.nodes[ms[0]]
         boxes.append((ids[base], base, g.type, len(ms) if g.sweep else 1, g.sweep, ms))
+    return boxes, _swept_edges(graph, members, ids)
+
+
+def _swept_edges(graph: Graph, members: dict[str, list[str]], ids: dict[str, str]) -> list[tuple]:
+    """The edges between swept nodes drawn once each (a gather of all instances: ``[*]``)."""
     edges, seen = [], set()
     for base, ms in members.items():
         dst = graph.nodes[ms[0]]
@@ -43,7 +46,7 @@ def _boxes(graph: Graph, instances: bool):
             if e not in seen:
                 seen.add(e)
                 edges.append(e)
-    return boxes, edges
+    return edges
 
 
 def _ids(names: list[str]) -> dict[str, str]:
@@ -73,27 +76,38 @@ def _state(report, members: list[str]) -> tuple[str, str] | None:
 
 def draw(graph: Graph, fmt: str = "mermaid", report=None, instances: bool = False) -> str:
     boxes, edges = _boxes(graph, instances)
-    if fmt == "dot":
-        lines = [f'digraph "{graph.name}" {{', "  rankdir=LR;", "  node [shape=box];"]
-        for bid, name, typ, count, sweep, ms in boxes:
-            title = f"{name} ×{count}" if count > 1 else name
-            sub = typ + (f" · foreach {sweep}" if sweep and count > 1 else "")
-            st = _state(report, ms)
-            label = "\\n".join(_dot(x) for x in (title, sub, st[1] if st else None) if x)
-            extra = ""
-            if st:
-                fill, line = COLOURS[st[0]]
-                extra = f' style=filled fillcolor="{fill}" color="{line}"'
-            lines.append(f'  "{bid}" [label="{label}"{extra}];')
-        for s, d, label in edges:
-            lines.append(f'  "{s}" -> "{d}" [label="{_dot(label)}"];')
-        lines.append("}")
-        return "\n".join(lines)
+    return (_draw_dot if fmt == "dot" else _draw_mermaid)(graph, boxes, edges, report)
+
+
+def _labels(name: str, typ: str, count: int, sweep) -> tuple[str, str]:
+    """A box's title and subtitle."""
+    title = f"{name} ×{count}" if count > 1 else name
+    sub = typ + (f" · foreach {sweep}" if sweep and count > 1 else "")
+    return title, sub
+
+
+def _draw_dot(graph: Graph, boxes, edges, report) -> str:
+    lines = [f'digraph "{graph.name}" {{', "  rankdir=LR;", "  node [shape=box];"]
+    for bid, name, typ, count, sweep, ms in boxes:
+        title, sub = _labels(name, typ, count, sweep)
+        st = _state(report, ms)
+        label = "\\n".join(_dot(x) for x in (title, sub, st[1] if st else None) if x)
+        extra = ""
+        if st:
+            fill, line = COLOURS[st[0]]
+            extra = f' style=filled fillcolor="{fill}" color="{line}"'
+        lines.append(f'  "{bid}" [label="{label}"{extra}];')
+    for s, d, label in edges:
+        lines.append(f'  "{s}" -> "{d}" [label="{_dot(label)}"];')
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def _draw_mermaid(graph: Graph, boxes, edges, report) -> str:
     lines = ["flowchart LR"]
     classes: dict[str, list[str]] = {}
     for bid, name, typ, count, sweep, ms in boxes:
-        title = f"{name} ×{count}" if count > 1 else name
-        sub = typ + (f" · foreach {sweep}" if sweep and count > 1 else "")
+        title, sub = _labels(name, typ, count, sweep)
         st = _state(report, ms)
         if st:
             classes.setdefault(st[0], []).append(bid)

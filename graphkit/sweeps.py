@@ -184,21 +184,9 @@ def _values(doc, path, sname, value, base_dir):
 
 
 def _matrix(doc, path, sname, value, base_dir):
-    if not isinstance(value, dict) or not value:
-        doc.at(path, f"sweep '{sname}': 'matrix' must be a mapping of axis name: list of values, got "
-               + ("an empty mapping" if value == {} else _kind(value)))
+    axes = _matrix_axes(doc, path, sname, value)
+    if axes is None:
         return None
-    axes = []
-    for ax, vals in value.items():
-        if not _FIELD_RE.match(ax) or ax in ("value", "name", "index"):
-            doc.at(path + (ax,), f"sweep '{sname}': axis name {ax!r} must be letters, digits and '_' "
-                   "(and not value, name or index)", key=True)
-            return None
-        if not isinstance(vals, list) or not vals:
-            doc.at(path + (ax,), f"sweep '{sname}': axis '{ax}' must be a non-empty list, got "
-                   + ("an empty list" if vals == [] else _kind(vals)))
-            return None
-        axes.append((ax, vals))
     total = math.prod(len(v) for _, v in axes)
     if total > MAX_INSTANCES:
         doc.at(path, f"sweep '{sname}': the matrix has {total:,} instances (at most {MAX_INSTANCES:,})")
@@ -211,24 +199,30 @@ def _matrix(doc, path, sname, value, base_dir):
     return items
 
 
-def _range(doc, path, sname, value, base_dir):
-    keys = ("start", "stop", "step")
-    if not isinstance(value, dict):
-        doc.at(path, f"sweep '{sname}': 'range' must be a mapping {{start, stop, step}}, got {_kind(value)}")
+def _matrix_axes(doc, path, sname, value) -> list[tuple[str, list]] | None:
+    """The matrix's (axis name, values), or None (reported) when it is not a mapping of
+    field name: non-empty list."""
+    if not isinstance(value, dict) or not value:
+        doc.at(path, f"sweep '{sname}': 'matrix' must be a mapping of axis name: list of values, got "
+               + ("an empty mapping" if value == {} else _kind(value)))
         return None
-    n0 = len(doc.diags)
-    unknown_keys(doc, path, value, keys, f"sweep '{sname}', range: ")
-    if len(doc.diags) > n0:
-        return None
-    nums = {}
-    for k, default in (("start", 0), ("stop", None), ("step", 1)):
-        v = value.get(k, default)
-        if v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            doc.at(path + ((k,) if k in value else ()), f"sweep '{sname}': range '{k}' must be a finite number"
-                   + ("" if k in value else " (it is missing)"))
+    for ax, vals in value.items():
+        if not _FIELD_RE.match(ax) or ax in ("value", "name", "index"):
+            doc.at(path + (ax,), f"sweep '{sname}': axis name {ax!r} must be letters, digits and '_' "
+                   "(and not value, name or index)", key=True)
             return None
-        nums[k] = v
-    start, stop, step = nums["start"], nums["stop"], nums["step"]
+        if not isinstance(vals, list) or not vals:
+            doc.at(path + (ax,), f"sweep '{sname}': axis '{ax}' must be a non-empty list, got "
+                   + ("an empty list" if vals == [] else _kind(vals)))
+            return None
+    return list(value.items())
+
+
+def _range(doc, path, sname, value, base_dir):
+    nums = _range_numbers(doc, path, sname, value)
+    if nums is None:
+        return None
+    start, stop, step = nums
     if step == 0:
         doc.at(path + ("step",), f"sweep '{sname}': range step must not be 0")
         return None
@@ -246,6 +240,27 @@ def _range(doc, path, sname, value, base_dir):
         name = _fmt(v)
         items.append(({"value": v}, name, path, name))
     return items
+
+
+def _range_numbers(doc, path, sname, value) -> tuple | None:
+    """(start, stop, step) of a range, or None (reported) when they are not finite numbers."""
+    keys = ("start", "stop", "step")
+    if not isinstance(value, dict):
+        doc.at(path, f"sweep '{sname}': 'range' must be a mapping {{start, stop, step}}, got {_kind(value)}")
+        return None
+    n0 = len(doc.diags)
+    unknown_keys(doc, path, value, keys, f"sweep '{sname}', range: ")
+    if len(doc.diags) > n0:
+        return None
+    nums = []
+    for k, default in (("start", 0), ("stop", None), ("step", 1)):
+        v = value.get(k, default)
+        if v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            doc.at(path + ((k,) if k in value else ()), f"sweep '{sname}': range '{k}' must be a finite number"
+                   + ("" if k in value else " (it is missing)"))
+            return None
+        nums.append(v)
+    return tuple(nums)
 
 
 def _glob_files(doc, path, sname, value, base_dir):
@@ -308,40 +323,42 @@ def _name_instances(doc, path, sname, spec, kind, items) -> list[Instance] | Non
     instances, seen = [], {}
     for i, (fields, default, where, label) in enumerate(items):
         fields = {**fields, "index": i}
-        if tmpl is not None:
-            missing = [f for f in used if f not in fields]
-            if missing:
-                doc.at(path + ("name",), f"sweep '{sname}': name template uses {{{missing[0]}}}, but instance {i} "
-                       f"has no such field (its fields: {', '.join(fields)})")
-                return None
-            try:
-                raw_name = tmpl.format_map({k: fields[k] for k in used})
-            except (ValueError, TypeError, KeyError) as e:
-                doc.at(path + ("name",), f"sweep '{sname}': name template {tmpl!r} does not fit instance {i} "
-                       f"({_fmt(fields['value'])!r}): {e}")
-                return None
-        else:
-            raw_name = default
-        name = safe_name(raw_name)
-        if not name:
-            name = str(i)
+        raw_name = default if tmpl is None else _format_name(doc, path + ("name",), sname, tmpl, used, fields)
+        if raw_name is None:
+            return None
+        name = safe_name(raw_name) or str(i)
+        at = path + ("name",) if tmpl is not None else where
         if len(name) > MAX_NAME:
-            doc.at(path + ("name",) if tmpl is not None else where,
-                   f"sweep '{sname}': instance {i} would be named {name[:40]!r}… ({len(name)} characters, at "
+            doc.at(at, f"sweep '{sname}': instance {i} would be named {name[:40]!r}… ({len(name)} characters, at "
                    f"most {MAX_NAME}); give the sweep a shorter 'name' template")
             return None
         if name in seen:
             j = seen[name]
             example = "{file}" if kind == "glob" else "{index}"
             hint = "" if tmpl is not None else f" (set a 'name' template, e.g. name: \"{example}\")"
-            doc.at(path + ("name",) if tmpl is not None else where,
-                   f"sweep '{sname}': instances {j} ({items[j][3]}) and {i} ({label}) are both named "
+            doc.at(at, f"sweep '{sname}': instances {j} ({items[j][3]}) and {i} ({label}) are both named "
                    f"'{name}', so their outputs would collide{hint}")
             return None
         seen[name] = i
         fields["name"] = name
         instances.append(Instance(name, i, fields))
     return instances
+
+
+def _format_name(doc, path, sname, tmpl: str, used: list[str], fields: dict) -> str | None:
+    """An instance's name from the sweep's ``name`` template, or None (reported)."""
+    i = fields["index"]
+    missing = [f for f in used if f not in fields]
+    if missing:
+        doc.at(path, f"sweep '{sname}': name template uses {{{missing[0]}}}, but instance {i} "
+               f"has no such field (its fields: {', '.join(fields)})")
+        return None
+    try:
+        return tmpl.format_map({k: fields[k] for k in used})
+    except (ValueError, TypeError, KeyError) as e:
+        doc.at(path, f"sweep '{sname}': name template {tmpl!r} does not fit instance {i} "
+               f"({_fmt(fields['value'])!r}): {e}")
+        return None
 
 
 __all__ = ["Sweep", "Instance", "parse_sweeps", "instance_node", "SUB_RE"]

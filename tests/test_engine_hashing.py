@@ -234,3 +234,65 @@ def test_a_model_is_encoded_as_its_class_name_then_its_fields_as_a_dict():
     want = (canonical(f"{Outer.__module__}.{Outer.__qualname__}") + b"d3{" + canonical("a") + plain(inner)
             + canonical("b") + canonical(0.5) + canonical("c") + canonical([1, "x"]) + b"}")
     assert canonical(o) == want
+
+
+class _Tone(str, enum.Enum):
+    WARM = "warm"
+
+
+class _Level(enum.IntEnum):
+    HIGH = 7
+
+
+class _Spot(BaseModel):
+    x: float = 0.5
+    tags: list = []
+
+
+# Canonical bytes written out by hand from the encoding's grammar (s<utf-8 length>:text,
+# f<float.hex()>;, i<int>;, T / F, N, b<length>:bytes, l<n>[...], d<n>{key value ...} with sorted
+# string keys, an enum as its value, a model as its class name then its fields as a dict), so
+# anyone can check them without graphkit.  A change here changes every cache key.
+KNOWN = [
+    ("", b"s0:"),
+    ("h\u00e9\U0001f600", b"s7:h\xc3\xa9\xf0\x9f\x98\x80"),
+    (0, b"i0;"),
+    (-12345678901234567890, b"i-12345678901234567890;"),
+    (True, b"T"),
+    (False, b"F"),
+    (None, b"N"),
+    (0.1, b"f0x1.999999999999ap-4;"),
+    (-0.0, b"f-0x0.0p+0;"),
+    (float("inf"), b"finf;"),
+    (float("nan"), b"fnan;"),
+    (b"\x00ab", b"b3:\x00ab"),
+    ([], b"l0[]"),
+    ((1, "a"), b"l2[i1;s1:a]"),
+    ({"b": 1, "a": [None]}, b"d2{s1:al1[N]s1:bi1;}"),
+    (_Tone.WARM, b"s4:warm"),
+    (_Level.HIGH, b"i7;"),
+    (np.float32(1.5), b"f0x1.8000000000000p+0;"),
+    (np.int64(-3), b"i-3;"),
+    (_Spot(tags=[1]),
+     b"s%d:%s.%sd2{s4:tagsl1[i1;]s1:xf0x1.0000000000000p-1;}"
+     % (len(f"{__name__}._Spot"), __name__.encode(), b"_Spot")),
+]
+
+
+def test_canonical_bytes_are_the_written_grammar():
+    for value, want in KNOWN:
+        assert canonical(value) == want, value
+
+
+def test_known_key_digests():
+    """key_digest is BLAKE2b-128 of the canonical bytes: these digests were recorded before
+    the encoder was restructured (issue 25) and stay as they are."""
+    import hashlib
+
+    parts = {"node": "Blur", "version": "3", "params": {"sigma": 1.5, "mode": "reflect", "taps": [1, 2, 1]},
+             "inputs": {"image": "0" * 32}, "flags": [True, False, None]}
+    want = (b"d5{s5:flagsl3[TFN]s6:inputsd1{s5:images32:" + b"0" * 32 + b"}s4:nodes4:Blur"
+            b"s6:paramsd3{s4:modes7:reflects5:sigmaf0x1.8000000000000p+0;s4:tapsl3[i1;i2;i1;]}"
+            b"s7:versions1:3}")
+    assert canonical(parts) == want
+    assert key_digest(parts) == hashlib.blake2b(want, digest_size=16).hexdigest() == "b5f2359db09744fa0cb6e064d30f7a94"

@@ -79,14 +79,8 @@ def _set(text: str, node: str | None, name: str, value: Any) -> str:
     if not isinstance(root, yaml.MappingNode):
         raise ValueError("the graph file is not a mapping")
     new = flow(value)
-    if node is None:
-        owner = root
-    else:
-        _, nodes = _get(root, "nodes")
-        _, owner = _get(nodes, node)
-        if owner is None:
-            raise KeyError(f"no node '{node}' in the graph file")
-    pk, params = _get(owner, "params")
+    owner = _owner(root, node)
+    _, params = _get(owner, "params")
     if params is not None and not isinstance(params, yaml.MappingNode):
         if isinstance(params, yaml.ScalarNode) and params.value in ("", "~", "null"):
             s, e = params.start_mark.index, params.end_mark.index
@@ -95,22 +89,38 @@ def _set(text: str, node: str | None, name: str, value: Any) -> str:
     if params is None:
         return _add_key(text, owner, "params", "{" + f"{flow(name)}: {new}" + "}")
     _, old = _get(params, name)
-    if old is not None:
-        s, e = old.start_mark.index, old.end_mark.index
-        span = text[s:e]
-        tail = span[len(span.rstrip()):]  # block values end at the next key: keep the break
-        if isinstance(old, (yaml.MappingNode, yaml.SequenceNode)) and not old.flow_style:
-            head = text[:s]
-            cut = head.rstrip(" ")
-            if cut.endswith("\n"):  # a block value starts on its own line: put the flow value after the key
-                head = cut[:-1] + " "
-            return head + new + tail + text[e:]
-        rest = text[e:]
-        pad = len(rest) - len(rest.lstrip(" "))
-        if tail == "" and pad and rest[pad:pad + 1] == "#":  # keep a trailing comment's column
-            rest = " " * max(1, pad - (len(new) - len(span))) + rest[pad:]
-        return text[:s] + new + tail + rest
-    return _add_key(text, params, name, new)
+    if old is None:
+        return _add_key(text, params, name, new)
+    return _replace_value(text, old, new)
+
+
+def _owner(root: yaml.MappingNode, node: str | None):
+    """The mapping whose ``params`` hold the param: the graph's (``node`` None) or a node's."""
+    if node is None:
+        return root
+    _, nodes = _get(root, "nodes")
+    _, owner = _get(nodes, node)
+    if owner is None:
+        raise KeyError(f"no node '{node}' in the graph file")
+    return owner
+
+
+def _replace_value(text: str, old: yaml.Node, new: str) -> str:
+    """``text`` with the value ``old`` replaced by the flow-style ``new``."""
+    s, e = old.start_mark.index, old.end_mark.index
+    span = text[s:e]
+    tail = span[len(span.rstrip()):]  # block values end at the next key: keep the break
+    if isinstance(old, (yaml.MappingNode, yaml.SequenceNode)) and not old.flow_style:
+        head = text[:s]
+        cut = head.rstrip(" ")
+        if cut.endswith("\n"):  # a block value starts on its own line: put the flow value after the key
+            head = cut[:-1] + " "
+        return head + new + tail + text[e:]
+    rest = text[e:]
+    pad = len(rest) - len(rest.lstrip(" "))
+    if tail == "" and pad and rest[pad:pad + 1] == "#":  # keep a trailing comment's column
+        rest = " " * max(1, pad - (len(new) - len(span))) + rest[pad:]
+    return text[:s] + new + tail + rest
 
 
 def _add_key(text: str, mapping: yaml.MappingNode, key: str, value: str) -> str:
