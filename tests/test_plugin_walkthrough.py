@@ -100,3 +100,14 @@ def test_run_gives_the_documented_outputs_and_refuses_a_grey_photo(plugin, tmp_p
     assert refusal == ["graphkit: bad input: node 'brighter' (Gain), port 'image': needs 3 channels, got 1"], r.stderr
     assert refusal[0] in shown("graphkit run gain.yaml --set photo=grey.exr").splitlines()
     assert "Traceback" not in r.stderr
+
+
+def test_a_missing_plugin_kernel_makes_the_backend_unavailable(plugin, monkeypatch):
+    from graphkit_opencl.runtime import Unavailable, runtime
+
+    monkeypatch.syspath_prepend(str(plugin[0]))
+    with pytest.raises(Unavailable, match="kernel nope.cl not found in package my_plugin"):
+        runtime().program("my_plugin:nope.cl")
+    with pytest.raises(Unavailable, match="No module named 'no_such_plugin'"):
+        runtime().program("no_such_plugin:gain.cl")
+    assert runtime().program("my_plugin:gain.cl") is not None
