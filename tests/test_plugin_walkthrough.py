@@ -3,9 +3,10 @@ registered without pip (GRAPHKIT_PLUGINS=my_plugin, the folder on PYTHONPATH), a
 the page shows give the outputs it shows:
 
 * ``graphkit nodes Gain`` prints exactly the page's output;
-* ``graphkit conform my_plugin`` passes: the opencl backend agrees with the numpy reference on
-  pocl (an unavailable OpenCL fails this test with the reason, it is not skipped) and every
-  declared constraint is refused naming its port;
+* ``graphkit conform my_plugin`` passes, printing the page's output: the opencl backend agrees
+  with the numpy reference on pocl (an unavailable OpenCL fails this test with the reason, it is
+  not skipped) and every declared constraint is refused naming its port; so does the page's
+  own pytest file for the plugin;
 * ``graphkit run gain.yaml`` writes what the page says, and a one-channel photo is refused
   with exit 2 naming the port, with the page's message.
 """
@@ -13,6 +14,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -47,7 +50,7 @@ def plugin(tmp_path_factory):
     root = tmp_path_factory.mktemp("walkthrough")
     files = [(f, text) for _, f, text in blocks() if f]
     assert {"pyproject.toml", "my_plugin/__init__.py", "my_plugin/gain.py", "my_plugin/gain.cl",
-            "my_plugin/gain_opencl.py", "gain.yaml"} <= {f for f, _ in files}
+            "my_plugin/gain_opencl.py", "gain.yaml", "tests/test_gain.py"} <= {f for f, _ in files}
     for name, text in files:
         (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_text(text)
@@ -77,6 +80,13 @@ def test_conform_passes_on_opencl(plugin):
     assert r.returncode == 0, f"graphkit conform my_plugin failed (exit {r.returncode}):\n{r.stdout}{r.stderr}"
     assert r.stdout == shown("graphkit conform my_plugin")
     assert "Gain/opencl" in r.stdout and "port 'mask'" in r.stdout
+
+
+def test_the_plugins_own_test_passes(plugin):
+    root, env = plugin
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_gain.py"],
+                       cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
 
 
 def test_run_gives_the_documented_outputs_and_refuses_a_grey_photo(plugin, tmp_path):
