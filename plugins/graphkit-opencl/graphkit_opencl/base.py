@@ -8,8 +8,9 @@ A backend here is a :class:`OpenCLBackend` subclass that sets
   device, e.g. ``"1 (Portable Computing Language (OpenCL 3.0 PoCL 3.1+debian) / pthread-…)"``:
   results of different devices are not mixed in the cache, and the manifest says which device
   computed each node);
-* ``shaders``: the kernel files it builds (``available()`` builds them: a program that does not
-  build makes the backend unavailable, with the compiler's error);
+* ``shaders``: the kernel files it builds, under graphkit's ``shaders/`` (``opencl/ratio.cl``)
+  or inside a plugin's own package (``"my_plugin:gain.cl"``) (``available()`` builds them: a
+  program that does not build makes the backend unavailable, with the compiler's error);
 * ``needs_fp64``: True when a kernel uses ``double`` (a device without it is unavailable);
 * ``cpu_note``: None when the backend is at least as fast as numpy on a CPU device (pocl),
   else the measured reason it is not: on a CPU device it then *declines preference*

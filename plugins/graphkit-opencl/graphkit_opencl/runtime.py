@@ -98,17 +98,15 @@ class Runtime:
         return describe_device(self.device)
 
     def program(self, shader: str, options: tuple[str, ...] = ()) -> Any:
-        """The built program of ``shaders/<shader>`` with extra build ``options`` (built once
-        per process and device)."""
+        """The built program of ``shader`` (see :func:`kernel_source`) with extra build
+        ``options`` (built once per process and device)."""
         key = (shader, tuple(options))
         with self.lock:
             prg = self.programs.get(key)
             if prg is None:
-                from graphkit.resources import shader_source
-
                 try:
-                    src = shader_source(shader)
-                except FileNotFoundError as e:
+                    src = kernel_source(shader)
+                except (FileNotFoundError, ModuleNotFoundError) as e:
                     raise Unavailable(str(e)) from None
                 try:
                     prg = self.cl.Program(self.context, src).build(options=BUILD_OPTIONS + list(options))
@@ -116,6 +114,23 @@ class Runtime:
                     raise Unavailable(f"{shader} does not build on {self.describe()}: {build_error(e)}") from None
                 self.programs[key] = prg
             return prg
+
+
+def kernel_source(shader: str) -> str:
+    """The OpenCL C of ``shader``: ``"package:file.cl"`` is a file shipped inside a (plugin's)
+    package, found with importlib.resources; a plain path is one under graphkit's ``shaders/``
+    (e.g. ``opencl/ratio.cl``)."""
+    package, sep, name = shader.rpartition(":")
+    if not sep:
+        from graphkit.resources import shader_source
+
+        return shader_source(shader)
+    from importlib.resources import files
+
+    path = files(package).joinpath(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"kernel {name} not found in package {package}")
+    return path.read_text()
 
 
 _lock = threading.Lock()
