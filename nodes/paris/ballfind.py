@@ -496,47 +496,13 @@ def _subpixel(lum, g, noise, c, fov_deg):
     robust circle (or cone) fit; iterated from the candidate circle."""
     h, w = lum.shape
     cx, cy, r = _xyr(c)
-    n_sec = N_RAYS // RAYS_PER_SECTOR
     for it in range(8):
-        ts = np.arange(r - 4, r + 4 + 1e-9, 0.25)
-        prof, ang, valid = _polar(lum, cx, cy, ts)
-        prof, valid = _sectors(prof, valid)
-        ang = ang.reshape(n_sec, RAYS_PER_SECTOR).mean(1)
-        d = np.gradient(prof, ts, axis=1)
-        band = np.abs(ts - r) <= (2.5 if it == 0 else 1.5)
-        inside = valid[:, np.abs(ts - r) <= (3.0 if it == 0 else 2.0)].all(1)
-        # in each sector: the significant step (in noise σ, on the stabilised image) nearest to
-        # the circle, not the strongest one in the band (the rim often holds a stronger edge of
-        # the reflection a few pixels inside)
-        gp_, _, _ = _polar(g, cx, cy, ts)
-        gp_, _ = _sectors(gp_, valid.repeat(RAYS_PER_SECTOR, 0))
-        snr = _edge_snr(gp_, np.ones_like(gp_, bool), ts[1] - ts[0], noise, taps=3 * RAYS_PER_SECTOR)
-        a_ = np.abs(d)
-        lmax = np.zeros_like(band[None] & inside[:, None])
-        lmax[:, 1:-1] = (a_[:, 1:-1] >= a_[:, :-2]) & (a_[:, 1:-1] >= a_[:, 2:])
-        cand = lmax & band[None] & (snr >= EDGE_SNR)
-        dist = np.where(cand, np.abs(ts - r)[None], np.inf)
-        k = np.where(cand.any(1), np.argmin(dist, axis=1), np.argmax(np.where(band[None], a_, -1), axis=1))
-        kk = np.clip(k, 1, len(ts) - 2)
-        rows = np.arange(n_sec)
-        a = np.abs(d)
-        gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
-        den = gm - 2 * g0 + gp
-        off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
-        te = np.where(inside, ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0]), np.nan)
+        te, ang, inside = _sector_edges(lum, g, noise, cx, cy, r, it)
         good = np.isfinite(te)
         if good.sum() < 8:
             break
         ex, ey = cx + te * np.cos(ang), cy + te * np.sin(ang)
-        keep = good.copy()
-        for _ in range(5):
-            nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
-            res = _residual(ex, ey, nc, w, h, fov_deg)
-            mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
-            new = good & (np.abs(res) < max(3 * mad, 0.3))
-            if new.sum() < 8 or np.array_equal(new, keep):
-                break
-            keep = new
+        nc, res, keep = _robust_fit(ex, ey, good, w, h, fov_deg)
         moved = np.hypot(nc[0] - cx, nc[1] - cy) + abs(nc[2] - r)
         cx, cy, r = nc
         if moved < 0.01 and it > 0:
@@ -547,7 +513,61 @@ def _subpixel(lum, g, noise, c, fov_deg):
     # support: sectors (inside the frame) whose edge is on the fitted outline and significant
     _, _, on = _support(g, noise, cx, cy, r)
     res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
-    ok = on & good & (np.abs(res) <= SNAP_PX)
+    return _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+
+
+def _sector_edges(lum, g, noise, cx, cy, r, it):
+    """(edge radius, angle, inside the frame) per sector of rays around the circle (cx, cy, r):
+    in each sector the significant step (in noise σ, on the stabilised image ``g``) nearest to
+    the circle, not the strongest one in the band (the rim often holds a stronger edge of the
+    reflection a few pixels inside), at the parabolic peak of the linear luminance gradient;
+    NaN outside the frame.  The band is wider on the first iteration (``it`` 0)."""
+    n_sec = N_RAYS // RAYS_PER_SECTOR
+    ts = np.arange(r - 4, r + 4 + 1e-9, 0.25)
+    prof, ang, valid = _polar(lum, cx, cy, ts)
+    prof, valid = _sectors(prof, valid)
+    ang = ang.reshape(n_sec, RAYS_PER_SECTOR).mean(1)
+    d = np.gradient(prof, ts, axis=1)
+    band = np.abs(ts - r) <= (2.5 if it == 0 else 1.5)
+    inside = valid[:, np.abs(ts - r) <= (3.0 if it == 0 else 2.0)].all(1)
+    gp_, _, _ = _polar(g, cx, cy, ts)
+    gp_, _ = _sectors(gp_, valid.repeat(RAYS_PER_SECTOR, 0))
+    snr = _edge_snr(gp_, np.ones_like(gp_, bool), ts[1] - ts[0], noise, taps=3 * RAYS_PER_SECTOR)
+    a_ = np.abs(d)
+    lmax = np.zeros_like(band[None] & inside[:, None])
+    lmax[:, 1:-1] = (a_[:, 1:-1] >= a_[:, :-2]) & (a_[:, 1:-1] >= a_[:, 2:])
+    cand = lmax & band[None] & (snr >= EDGE_SNR)
+    dist = np.where(cand, np.abs(ts - r)[None], np.inf)
+    k = np.where(cand.any(1), np.argmin(dist, axis=1), np.argmax(np.where(band[None], a_, -1), axis=1))
+    kk = np.clip(k, 1, len(ts) - 2)
+    rows = np.arange(n_sec)
+    a = np.abs(d)
+    gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
+    den = gm - 2 * g0 + gp
+    off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
+    te = np.where(inside, ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0]), np.nan)
+    return te, ang, inside
+
+
+def _robust_fit(ex, ey, good, w, h, fov_deg):
+    """Circle (or cone) through the ``good`` edge points, refitted without the outliers
+    (over 3 MAD, at least 0.3 px) up to 5 times → (circle, residuals, points kept)."""
+    keep = good.copy()
+    for _ in range(5):
+        nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
+        res = _residual(ex, ey, nc, w, h, fov_deg)
+        mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
+        new = good & (np.abs(res) < max(3 * mad, 0.3))
+        if new.sum() < 8 or np.array_equal(new, keep):
+            break
+        keep = new
+    return nc, res, keep
+
+
+def _verdict(cx, cy, r, ok, inside, rms, w, h) -> BallFit:
+    """The fitted circle with its support (``ok``: sectors with an edge on it, of those
+    ``inside`` the frame), largest gap and residual ``rms``, and whether it is confident."""
+    n_sec = N_RAYS // RAYS_PER_SECTOR
     n_ok = int(inside.sum())
     sup = ok.sum() / max(n_ok, 1) if n_ok >= MIN_IN_FRAME * n_sec else 0.0
     gap = _longest_run(inside & ~ok) * 360.0 / n_sec
