@@ -6,9 +6,9 @@ kernels).
 
 By default the graphs run in one cache, room_relight cut to the outputs before its two §4.5
 re-solves (``CHEAP_OUTPUTS`` there: 38 s + 50 s of compute, most of the graph's 72 s cold on 2
-cores): the nodes that ran are checked for their key,
-their output digests and the files written; the nodes that did not run for their key where
-``graphkit status`` can tell it (every input computed).  ``GRAPHKIT_SAME_BYTES_FULL=1`` runs
+cores): the nodes that ran are checked for their key, their output digests and the files
+written; the nodes that did not run for their key where ``graphkit status`` can tell it (every
+input computed).  ``GRAPHKIT_SAME_BYTES_FULL=1`` runs
 every graph whole and checks every node and file.
 """
 from __future__ import annotations
