@@ -60,6 +60,7 @@ EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
 PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
 MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
+_NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
 
 @dataclass
@@ -121,18 +122,29 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     seeds = _seeds(g, spots)
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
-    noise = 1.0          # g has unit noise
+    fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
+    return _choose(fits, clipped, " around the highlight" if spots else "")
+
+
+def _candidates(g, seeds, spots) -> list[dict]:
+    """Steps 1–2: the distinct circles near the seeds with loose support (holding one of the
+    highlight ``spots`` when there are any)."""
     circles = []
     for x0, y0, r0 in seeds:
-        for c in _circles_near(g, noise, x0, y0, r0):
+        for c in _circles_near(g, _NOISE, x0, y0, r0):
             if not any(_same(c, d) for d in circles):
                 circles.append(c)
     loose = [c for c in circles if c["support"] >= LOOSE_SUPPORT and c["r"] >= MIN_RADIUS_PX]
     if spots:
         loose = [c for c in loose if _holds(c, spots)]
-    fits = []
-    for c in loose:
-        f = _subpixel(lum, g, noise, c, fov_deg)
+    return loose
+
+
+def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
+    """Steps 3–4: the circles fitted sub-pixel, the best supported of twins kept."""
+    fits: list[BallFit] = []
+    for c in circles:
+        f = _subpixel(lum, g, _NOISE, c, fov_deg)
         if not np.isfinite(f.residual_px):
             continue
         twin = [i for i, o in enumerate(fits) if _same(f, o)]
@@ -140,9 +152,14 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
             fits.append(f)
         elif f.support > fits[twin[0]].support:
             fits[twin[0]] = f
+    return fits
+
+
+def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
+    """Step 5: the ball among the fitted circles, with why it may not be (``where``: said of
+    the outlines looked for, e.g. " around the highlight")."""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
     closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
-    where = " around the highlight" if spots else ""
     if not closed:
         best = max(fits, key=lambda f: f.support, default=None)
         if best is None:
@@ -161,26 +178,32 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     balls.sort(key=lambda f: -f.support)
     best = balls[0]
     best.candidates = cand
-    if len(balls) > 1 and balls[1].support >= best.support - AMBIGUITY:
-        o = balls[1]
-        best.confident = False
-        best.reason = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
-                       f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
-        return best
-    if best.confident:
-        ring = _ring_fraction(clipped, best, 1.0, 0.25)
-        if ring > 0.2:
-            best.confident = False
-            best.reason = (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
-                           "are clipped: the ball's silhouette may be lost in them (over-exposed)")
-            return best
-    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
-    if outer and best.confident:
-        o = max(outer, key=lambda f: f.support)
-        best.confident = False
-        best.reason = (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
-                       f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+    doubt = _doubt(best, balls[1:], fits, clipped)
+    if doubt:
+        best.confident, best.reason = False, doubt
     return best
+
+
+def _doubt(best: BallFit, others: list[BallFit], fits: list[BallFit], clipped) -> str:
+    """Why ``best`` may not be the ball ('' if nothing speaks against it): another closed
+    outline about as well supported (``others``, by support), or — while its own fit is
+    confident — clipped pixels just outside it, or a fainter circle around it."""
+    if others and others[0].support >= best.support - AMBIGUITY:
+        o = others[0]
+        return (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
+                f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
+    if not best.confident:
+        return ""
+    ring = _ring_fraction(clipped, best, 1.0, 0.25)
+    if ring > 0.2:
+        return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
+                "are clipped: the ball's silhouette may be lost in them (over-exposed)")
+    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    if not outer:
+        return ""
+    o = max(outer, key=lambda f: f.support)
+    return (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
+            f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,47 +496,13 @@ def _subpixel(lum, g, noise, c, fov_deg):
     robust circle (or cone) fit; iterated from the candidate circle."""
     h, w = lum.shape
     cx, cy, r = _xyr(c)
-    n_sec = N_RAYS // RAYS_PER_SECTOR
     for it in range(8):
-        ts = np.arange(r - 4, r + 4 + 1e-9, 0.25)
-        prof, ang, valid = _polar(lum, cx, cy, ts)
-        prof, valid = _sectors(prof, valid)
-        ang = ang.reshape(n_sec, RAYS_PER_SECTOR).mean(1)
-        d = np.gradient(prof, ts, axis=1)
-        band = np.abs(ts - r) <= (2.5 if it == 0 else 1.5)
-        inside = valid[:, np.abs(ts - r) <= (3.0 if it == 0 else 2.0)].all(1)
-        # in each sector: the significant step (in noise σ, on the stabilised image) nearest to
-        # the circle, not the strongest one in the band (the rim often holds a stronger edge of
-        # the reflection a few pixels inside)
-        gp_, _, _ = _polar(g, cx, cy, ts)
-        gp_, _ = _sectors(gp_, valid.repeat(RAYS_PER_SECTOR, 0))
-        snr = _edge_snr(gp_, np.ones_like(gp_, bool), ts[1] - ts[0], noise, taps=3 * RAYS_PER_SECTOR)
-        a_ = np.abs(d)
-        lmax = np.zeros_like(band[None] & inside[:, None])
-        lmax[:, 1:-1] = (a_[:, 1:-1] >= a_[:, :-2]) & (a_[:, 1:-1] >= a_[:, 2:])
-        cand = lmax & band[None] & (snr >= EDGE_SNR)
-        dist = np.where(cand, np.abs(ts - r)[None], np.inf)
-        k = np.where(cand.any(1), np.argmin(dist, axis=1), np.argmax(np.where(band[None], a_, -1), axis=1))
-        kk = np.clip(k, 1, len(ts) - 2)
-        rows = np.arange(n_sec)
-        a = np.abs(d)
-        gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
-        den = gm - 2 * g0 + gp
-        off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
-        te = np.where(inside, ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0]), np.nan)
+        te, ang, inside = _sector_edges(lum, g, noise, cx, cy, r, it)
         good = np.isfinite(te)
         if good.sum() < 8:
             break
         ex, ey = cx + te * np.cos(ang), cy + te * np.sin(ang)
-        keep = good.copy()
-        for _ in range(5):
-            nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
-            res = _residual(ex, ey, nc, w, h, fov_deg)
-            mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
-            new = good & (np.abs(res) < max(3 * mad, 0.3))
-            if new.sum() < 8 or np.array_equal(new, keep):
-                break
-            keep = new
+        nc, res, keep = _robust_fit(ex, ey, good, w, h, fov_deg)
         moved = np.hypot(nc[0] - cx, nc[1] - cy) + abs(nc[2] - r)
         cx, cy, r = nc
         if moved < 0.01 and it > 0:
@@ -524,7 +513,61 @@ def _subpixel(lum, g, noise, c, fov_deg):
     # support: sectors (inside the frame) whose edge is on the fitted outline and significant
     _, _, on = _support(g, noise, cx, cy, r)
     res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
-    ok = on & good & (np.abs(res) <= SNAP_PX)
+    return _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+
+
+def _sector_edges(lum, g, noise, cx, cy, r, it):
+    """(edge radius, angle, inside the frame) per sector of rays around the circle (cx, cy, r):
+    in each sector the significant step (in noise σ, on the stabilised image ``g``) nearest to
+    the circle, not the strongest one in the band (the rim often holds a stronger edge of the
+    reflection a few pixels inside), at the parabolic peak of the linear luminance gradient;
+    NaN outside the frame.  The band is wider on the first iteration (``it`` 0)."""
+    n_sec = N_RAYS // RAYS_PER_SECTOR
+    ts = np.arange(r - 4, r + 4 + 1e-9, 0.25)
+    prof, ang, valid = _polar(lum, cx, cy, ts)
+    prof, valid = _sectors(prof, valid)
+    ang = ang.reshape(n_sec, RAYS_PER_SECTOR).mean(1)
+    d = np.gradient(prof, ts, axis=1)
+    band = np.abs(ts - r) <= (2.5 if it == 0 else 1.5)
+    inside = valid[:, np.abs(ts - r) <= (3.0 if it == 0 else 2.0)].all(1)
+    gp_, _, _ = _polar(g, cx, cy, ts)
+    gp_, _ = _sectors(gp_, valid.repeat(RAYS_PER_SECTOR, 0))
+    snr = _edge_snr(gp_, np.ones_like(gp_, bool), ts[1] - ts[0], noise, taps=3 * RAYS_PER_SECTOR)
+    a_ = np.abs(d)
+    lmax = np.zeros_like(band[None] & inside[:, None])
+    lmax[:, 1:-1] = (a_[:, 1:-1] >= a_[:, :-2]) & (a_[:, 1:-1] >= a_[:, 2:])
+    cand = lmax & band[None] & (snr >= EDGE_SNR)
+    dist = np.where(cand, np.abs(ts - r)[None], np.inf)
+    k = np.where(cand.any(1), np.argmin(dist, axis=1), np.argmax(np.where(band[None], a_, -1), axis=1))
+    kk = np.clip(k, 1, len(ts) - 2)
+    rows = np.arange(n_sec)
+    a = np.abs(d)
+    gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
+    den = gm - 2 * g0 + gp
+    off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
+    te = np.where(inside, ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0]), np.nan)
+    return te, ang, inside
+
+
+def _robust_fit(ex, ey, good, w, h, fov_deg):
+    """Circle (or cone) through the ``good`` edge points, refitted without the outliers
+    (over 3 MAD, at least 0.3 px) up to 5 times → (circle, residuals, points kept)."""
+    keep = good.copy()
+    for _ in range(5):
+        nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
+        res = _residual(ex, ey, nc, w, h, fov_deg)
+        mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
+        new = good & (np.abs(res) < max(3 * mad, 0.3))
+        if new.sum() < 8 or np.array_equal(new, keep):
+            break
+        keep = new
+    return nc, res, keep
+
+
+def _verdict(cx, cy, r, ok, inside, rms, w, h) -> BallFit:
+    """The fitted circle with its support (``ok``: sectors with an edge on it, of those
+    ``inside`` the frame), largest gap and residual ``rms``, and whether it is confident."""
+    n_sec = N_RAYS // RAYS_PER_SECTOR
     n_ok = int(inside.sum())
     sup = ok.sum() / max(n_ok, 1) if n_ok >= MIN_IN_FRAME * n_sec else 0.0
     gap = _longest_run(inside & ~ok) * 360.0 / n_sec
