@@ -134,6 +134,7 @@ def test_zero_area_emitter():
 
 def test_camera_sees_nothing_and_photo_size():
     from graphkit import Image
+    from graphkit.contract import compute_checked
     from nodes.loscos.scene import check_camera_sees
     from nodes.loscos.textures import ProjectTextures
 
@@ -142,10 +143,38 @@ def test_camera_sees_nothing_and_photo_size():
                                              "position": [0, 0, 3], "look_at": [0, 0, 6]}))
     with pytest.raises(BadInput, match="sees no polygon"):
         check_camera_sees(sc, cam_away, "path")
-    with pytest.raises(BadInput, match="photo is 16×16 but the camera is 32×32") as e:
-        ProjectTextures().compute(scene=sc, camera=cam, photo=Image(np.zeros((16, 16, 3))))
-    assert e.value.args[0] == "photo" or "photo" in str(e.value)
+    # declared on the port (same_size_as="camera"), checked before compute as the engine does
+    with pytest.raises(BadInput, match="sizes differ: camera is 32×32, photo is 16×16×3") as e:
+        compute_checked(ProjectTextures(), scene=sc, camera=cam, photo=Image(np.zeros((16, 16, 3))))
+    assert e.value.port == "photo"
+    with pytest.raises(BadInput, match="needs 3 or 4 channels, got 1") as e:
+        compute_checked(ProjectTextures(), scene=sc, camera=cam, photo=Image(np.zeros((32, 32, 1))))
+    assert e.value.port == "photo"
 
+
+
+def test_shared_checks():
+    """The checks several Loscos nodes share (nodes/loscos/checks.py), one wording each: the
+    photo of Unocclude and Relight against the projection's camera, an RGB reflectance (scene
+    files, Relight's fixtures and boxes), a perspective camera."""
+    from graphkit import Camera, Context, Image
+    from nodes.loscos import checks
+    from nodes.loscos.relight import Relight, Unocclude
+
+    inputs = dict(Relight.examples()[0][1])
+    inputs["photo"] = Image(np.zeros((32, 20, 3), np.float32))
+    for node, names in ((Unocclude, ("solution", "projection", "photo")), (Relight, inputs)):
+        with pytest.raises(BadInput, match="photo is 20×32 but the projection's camera is 40×32") as e:
+            node(node.Params(), Context()).compute(**{k: inputs[k] for k in names})
+        assert e.value.port == "photo"
+    for bad in ([0.5, float("nan"), 0.5], [0.5, 1.0, 0.5], [0.5, 0.5]):
+        d = doc(materials={"w": bad})
+        with pytest.raises(BadInput, match=r"'wall': reflectance must be 3 finite values in \[0, 1\)"):
+            parse_scene(d)
+    with pytest.raises(BadInput, match="needs the photograph's perspective") as e:
+        checks.pinhole(Camera(width=8, height=6, projection="orthographic", pixels_per_m=10.0,
+                              cx=4.0, cy=3.0), "camera", "this needs")
+    assert e.value.port == "camera"
 
 def test_files_named_by_an_input_file_are_in_the_key(tmp_path, write, engine_registry):
     """A scene file's photograph (Node.referenced_files) changes the key when its bytes change."""

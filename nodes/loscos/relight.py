@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict
 
 from graphkit import BadInput, Camera, Field, Image, In, Node
 
+from . import checks
 from . import hierarchy as HR
 from .display import modulate_pixels
 from .ports import (PROJECTION, RADIOSITY, UNOCCLUDED, Projection, RadiositySolution,
@@ -104,8 +105,7 @@ class Unocclude(Node):
 
     def compute(self, solution: RadiositySolution, projection: Projection, photo: Image):
         sol = solution
-        if photo.pixels.shape[:2] != projection.pix_poly.shape:
-            raise BadInput("photo", "photo size differs from the projection's camera")
+        checks.photo_fits(photo, projection)
         h = sol.hierarchy()
         lv = sol.leaves
         H = sol.H()
@@ -221,22 +221,17 @@ class Relight(Node):
     def compute(self, solution: RadiositySolution, unoccluded: Unoccluded,
                 projection: Projection, photo: Image, camera=None):
         sol = solution
-        if photo.pixels.shape[:2] != projection.pix_poly.shape:
-            raise BadInput("photo", "photo size differs from the projection's camera")
+        checks.photo_fits(photo, projection)
         if len(unoccluded.modulation) != len(sol.leaves):
             raise BadInput("unoccluded", "computed for another solution")
         p = self.params
-        rho_fix = np.asarray(p.fixture_reflectance, float)
-        if not np.all(np.isfinite(rho_fix)) or np.any(rho_fix < 0) or np.any(rho_fix >= 1):
-            raise BadInput("fixture_reflectance", "3 values in [0, 1) (diffuse albedo)")
+        rho_fix = checks.reflectance(p.fixture_reflectance, "fixture_reflectance")
         e = new_emittance(sol, p.light_scale, p.emittance)
         px = photo.pixels[:, :, :3]
         if p.virtual_lights or p.virtual_boxes:
             if camera is None:
                 raise BadInput("camera", "inserting virtual lights or boxes needs the camera")
-            if camera.orthographic:
-                raise BadInput("camera", "inserting virtual lights or boxes needs the photograph's "
-                                         "perspective (pinhole) camera; this camera is orthographic")
+            checks.pinhole(camera, "camera", "inserting virtual lights or boxes needs")
             prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays, 3, p.seed)
             img, _ = relight_virtual(sol, unoccluded, projection, px, camera, e,
                                      virtual_polygons(p.virtual_lights, p.virtual_boxes), prm,
@@ -297,11 +292,7 @@ def new_emittance(sol, scale: dict, emit: dict) -> np.ndarray:
                            f"unknown light '{name}' (lights: {', '.join(sol.lights)})")
     for k, n in enumerate(sol.lights):
         if n in emit:
-            v = np.asarray(emit[n], float)
-            if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v < 0):
-                raise BadInput("emittance", f"light '{n}': 3 finite values ≥ 0 (W/m²), "
-                                            f"got {list(emit[n])}")
-            e[k] = v
+            e[k] = checks.emittance(emit[n], "emittance", f"light '{n}'")
         if n in scale:
             if not np.isfinite(scale[n]) or scale[n] < 0:
                 raise BadInput("light_scale", f"light '{n}': factor must be finite and ≥ 0, "
@@ -400,17 +391,11 @@ def virtual_polygons(vlights, vboxes) -> VirtualPolygons:
     """VirtualLight / VirtualBox params → polygons; BadInput on bad values."""
     quads, refl, emit, light = [], [], [], []
     for L in vlights:
-        e = np.asarray(L.emittance, float)
-        if not np.all(np.isfinite(e)) or np.any(e < 0):
-            raise BadInput("virtual_lights", f"light '{L.name}': emittance must be 3 finite "
-                                             f"values ≥ 0 (W/m²), got {list(L.emittance)}")
+        e = checks.emittance(L.emittance, "virtual_lights", f"light '{L.name}'")
         quads.append(quad_from(L.center, L.size, L.normal))
         refl.append(np.zeros(3)); emit.append(e); light.append(True)
     for bx in vboxes:
-        r = np.asarray(bx.reflectance, float)
-        if not np.all(np.isfinite(r)) or np.any(r < 0) or np.any(r >= 1):
-            raise BadInput("virtual_boxes", f"box '{bx.name}': reflectance must be 3 values "
-                                            "in [0, 1)")
+        r = checks.reflectance(bx.reflectance, "virtual_boxes", f"box '{bx.name}'")
         for q in box_quads(bx.center, bx.size, bx.rotation_deg):
             quads.append(q); refl.append(r); emit.append(np.zeros(3)); light.append(False)
     Q = np.array(quads)

@@ -28,6 +28,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, InputFile, Node
 
+from . import checks
 from .ports import ROOM_SCENE, RoomScene
 
 BUILTIN = {"cornell2": "cornell2.yaml", "room": "room.yaml", "cornell3": "cornell3.yaml"}
@@ -115,10 +116,7 @@ def _parse_scene(doc: dict, port: str):
                 raise BadInput(port, f"'{item.get('name')}' uses unknown material '{m}' "
                                      f"(known: {', '.join(mats)})")
             m = mats[m]
-        m = np.asarray(m, float).reshape(-1)
-        if m.shape != (3,) or np.any(m < 0) or np.any(m >= 1):
-            raise BadInput(port, f"'{item.get('name')}': reflectance must be 3 values in [0, 1)")
-        return m
+        return checks.reflectance(m, port, f"'{item.get('name')}'")
 
     names, verts, refl, emit, light = [], [], [], [], []
     for item in doc.get("polygons", []) or []:
@@ -161,15 +159,7 @@ def light_emittance_of(item: dict, port: str) -> tuple[np.ndarray, bool]:
     v = item.get("emittance")
     if v is None or (isinstance(v, str) and v == "estimate"):
         return np.zeros(3), False
-    try:
-        e = np.asarray(v, float).reshape(-1)
-    except (TypeError, ValueError):
-        raise BadInput(port, f"light '{name}': emittance must be 3 numbers (W/m²) or "
-                             f"'estimate', got {v!r}") from None
-    if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
-        raise BadInput(port, f"light '{name}': emittance must be 3 finite values ≥ 0 (W/m²) or "
-                             f"'estimate', got {v!r}")
-    return e, True
+    return checks.emittance(v, port, f"light '{name}'", " or 'estimate'"), True
 
 
 def check_emitters(verts, emit, names, port):

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Camera, Field, Image, Node
+from graphkit import BadInput, Camera, Field, Image, In, Node
 
+from . import checks
 from . import geometry as G
 from .ports import PROJECTION, ROOM_SCENE, Projection, RoomScene
 
@@ -315,21 +316,16 @@ class ProjectTextures(Node):
     """
 
     version = "2"
-    inputs = {"scene": ROOM_SCENE, "camera": Camera, "photo": Image}
+    inputs = {"scene": ROOM_SCENE, "camera": Camera,
+              "photo": In(Image, "the photograph (linear RGB; an alpha channel is ignored)",
+                          channels=(3, 4), same_size_as="camera")}
     outputs = {"projection": PROJECTION}
 
     class Params(Node.Params):
         resolution: int = Field(128, ge=4, le=1024, description="texels per polygon side")
 
     def compute(self, scene: RoomScene, camera: Camera, photo: Image):
-        if camera.orthographic:
-            raise BadInput("camera", "the Loscos pipeline needs a perspective (pinhole) camera, the "
-                                     "photograph's; this camera is orthographic")
-        if photo.pixels.shape[:2] != (camera.height, camera.width):
-            raise BadInput("photo", f"photo is {photo.width}×{photo.height} but the camera is "
-                                    f"{camera.width}×{camera.height}")
-        if photo.channels < 3:
-            raise BadInput("photo", f"photo needs 3 channels (RGB), has {photo.channels}")
+        checks.pinhole(camera, "camera", "the Loscos pipeline needs")
         pr = project(scene, camera, photo.pixels[:, :, :3].astype(np.float64),
                      self.params.resolution)
         if not (pr.pix_poly >= 0).any():
