@@ -91,3 +91,15 @@ def test_graph_param_takes_the_schema_of_the_node_param_it_feeds():
         assert not s["errors"] and s["graph"]["valid"]
     finally:
         st.close()
+
+
+def test_layout_of_a_graph_deeper_than_the_recursion_limit():
+    """The layered layout walks the graph with an explicit stack: a 5000-node chain listed last
+    node first (each node's source not laid out yet) opens; a cycle is broken as before."""
+    from graphkit.studio.state import _layout
+
+    n = 5000
+    deps = {f"n{i}": [f"n{i - 1}"] if i else [] for i in reversed(range(n))}
+    pos = _layout(deps)
+    assert pos["n0"] == (0, 0) and pos[f"n{n - 1}"] == (n - 1, 0)
+    assert _layout({"a": ["b"], "b": ["a"], "c": ["c", "x"]}) == {"a": (2, 0), "b": (1, 0), "c": (1, 1)}
