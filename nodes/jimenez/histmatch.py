@@ -429,19 +429,9 @@ def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
     return max(1, round(H * s)), max(1, round(W * s))
 
 
-def _map(img: Image, port: str, what: str = "concentration", check_values: bool = True) -> np.ndarray:
-    """The one-channel map of ``img``, checked (``check_values``): no NaN, Inf or negative
-    values.  Without ``check_values`` the caller checks them with :func:`_check_values`."""
-    if img.channels != 1:
-        raise BadInput(port, f"{port} must be a one-channel {what} map, got {img.channels} channels")
-    a = img.pixels[:, :, 0]
-    if check_values:
-        _check_values(port, float(a.min()), np.isfinite(float(a.max())))
-    return a
-
-
 def _check_values(port: str, lo: float, finite: bool) -> None:
-    """``lo``: the map's minimum (NaN if it holds NaN); ``finite``: no +Inf seen."""
+    """LocalHistMatch's maps: no NaN, Inf or negative values.  ``lo``: the map's minimum (NaN
+    if it holds NaN), taken in the moments pass; ``finite``: no +Inf seen (see the node)."""
     if not (np.isfinite(lo) and finite):
         raise BadInput(port, f"{port} holds NaN or Inf values")
     if lo < 0:
@@ -449,12 +439,10 @@ def _check_values(port: str, lo: float, finite: bool) -> None:
                              "volume fractions must be ≥ 0")
 
 
-def _mask(mask: Mask | None, shape, port="mask") -> np.ndarray | None:
+def _mask(mask: Mask | None, port="mask") -> np.ndarray | None:
+    """The mask's weights in [0, 1] (its size is declared on the port); BadInput if all zero."""
     if mask is None:
         return None
-    if mask.alpha.shape != tuple(shape):
-        raise BadInput(port, f"mask is {mask.alpha.shape[1]}×{mask.alpha.shape[0]}, "
-                             f"the maps are {shape[1]}×{shape[0]}")
     m = np.clip(mask.alpha.astype(np.float64), 0, 1)
     if m.sum() <= 0:
         raise BadInput(port, "the mask is empty: no skin to take statistics from")
@@ -483,9 +471,11 @@ class LocalHistMatch(Node):
     """
 
     version = "5"
-    inputs = {"neutral": In(Image, "neutral map H_n (one channel, volume fraction)"),
-              "target": In(Image, "target map H of the same size"),
-              "mask": In(Mask, "where statistics are taken (skin)", optional=True)}
+    # finite and ≥ 0 are checked in compute, on the minimum the moments pass takes anyway (the
+    # OpenCL kernel too): declared here they would cost two more passes over both maps
+    inputs = {"neutral": In(Image, "neutral map H_n (volume fraction)", channels=1),
+              "target": In(Image, "target map H", channels=1, same_size_as="neutral"),
+              "mask": In(Mask, "where statistics are taken (skin)", optional=True, same_size_as="neutral")}
     outputs = {"matched": Out(Image, "H_n matched to the target's local statistics (eq. 3)"),
                "scale": Out(Image, "σ/σ_n (eq. 5), at stats_size"),
                "bias": Out(Image, "μ (eq. 5), at stats_size"),
@@ -509,12 +499,8 @@ class LocalHistMatch(Node):
         p = self.params
         if not p.radius > 0:
             raise BadInput("radius", f"radius must be > 0 pixels, got {p.radius}")
-        if neutral.pixels.shape[:2] != target.pixels.shape[:2]:
-            raise BadInput("target", f"map sizes differ: neutral is {neutral.width}×{neutral.height}, "
-                                     f"target is {target.width}×{target.height}")
-        hn = _map(neutral, "neutral", check_values=False)
-        ht = _map(target, "target", check_values=False)
-        m = _mask(mask, hn.shape)
+        hn, ht = neutral.pixels[:, :, 0], target.pixels[:, :, 0]
+        m = _mask(mask)
         mins = []
         H, W = hn.shape
         with np.errstate(invalid="ignore", over="ignore"):  # +Inf input: rejected just below
@@ -584,10 +570,10 @@ class AppearanceRig(Node):
 
     version = "1"
     studio_view = "nodes.jimenez.studio_view:BlushView"  # graphkit serve: weight sliders
-    inputs = {"neutral": In(Image, "neutral map H_n (one channel)"),
-              "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)"),
-              "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True),
-              "biases": In(Image, "bias_i = μ_i, i = 1…k", variadic=True)}
+    inputs = {"neutral": In(Image, "neutral map H_n", channels=1, finite=True, ge=0),
+              "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)", channels=1, finite=True, ge=0),
+              "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True, channels=1, ge=0),
+              "biases": In(Image, "bias_i = μ_i, i = 1…k", variadic=True, channels=1, finite=True, ge=0)}
     outputs = {"hemoglobin": Out(Image, "rigged hemoglobin map H (eq. 6)")}
 
     class Params(Node.Params):
@@ -604,20 +590,15 @@ class AppearanceRig(Node):
                                       f"give {len(scales) + 1} ([w_0 for the neutral, then one per basis entry])")
         if abs(sum(p.weights) - 1.0) > 1e-6:
             raise BadInput("weights", f"weights must sum to one (eq. 6), they sum to {sum(p.weights):.6g}")
-        hn = _map(neutral, "neutral")
+        hn = neutral.pixels[:, :, 0]
         shp = hn.shape
-        mu_n = resize_to(_map(neutral_mean, "neutral_mean"), shp)
+        mu_n = resize_to(neutral_mean.pixels[:, :, 0], shp)
         w0 = p.weights[0]
         bias = w0 * mu_n
         scale = np.full(shp, w0)
         for i, (s, b) in enumerate(zip(scales, biases), start=1):
-            if s.channels != 1 or b.channels != 1:
-                raise BadInput("scales", f"basis entry {i}: scale and bias must be one-channel maps")
-            sa = s.pixels[:, :, 0].astype(np.float64)
-            if (sa < 0).any():
-                raise BadInput("scales", f"basis entry {i}: negative scale (σ ratios are ≥ 0)")
-            bias += p.weights[i] * resize_to(_map(b, "biases"), shp)
-            scale += p.weights[i] * resize_to(sa, shp)
+            bias += p.weights[i] * resize_to(b.pixels[:, :, 0], shp)
+            scale += p.weights[i] * resize_to(s.pixels[:, :, 0].astype(np.float64), shp)
         h = (bias + (hn - mu_n) * scale) * p.hemoglobin_scale
         return Image(np.maximum(h, 0.0).astype(np.float32))
 
@@ -643,9 +624,10 @@ class FlushTarget(Node):
     """
 
     version = "1"
-    inputs = {"hemoglobin": In(Image, "neutral hemoglobin map H_n"),
-              "regions": In(Mask, "where the flush goes (e.g. cheeks)"),
-              "extra": In(Mask, "a second region with half the gain (e.g. lips, nose)", optional=True)}
+    inputs = {"hemoglobin": In(Image, "neutral hemoglobin map H_n", channels=1, finite=True, ge=0),
+              "regions": In(Mask, "where the flush goes (e.g. cheeks)", same_size_as="hemoglobin"),
+              "extra": In(Mask, "a second region with half the gain (e.g. lips, nose)", optional=True,
+                          same_size_as="hemoglobin")}
     outputs = {"hemoglobin": Out(Image, "example flushed map")}
 
     class Params(Node.Params):
@@ -655,10 +637,10 @@ class FlushTarget(Node):
     def compute(self, hemoglobin: Image, regions: Mask, extra: Mask | None = None):
         from scipy.ndimage import gaussian_filter
 
-        hn = _map(hemoglobin, "hemoglobin")
-        g = _mask(regions, hn.shape, "regions")
+        hn = hemoglobin.pixels[:, :, 0]
+        g = _mask(regions, "regions")
         if extra is not None:
-            g = g + 0.5 * _mask(extra, hn.shape, "extra")
+            g = g + 0.5 * _mask(extra, "extra")
         g = gaussian_filter(g, self.params.soften) if self.params.soften > 0 else g
         g = g / max(g.max(), 1e-12)
         return Image((hn * (1.0 + self.params.gain * g)).astype(np.float32))
