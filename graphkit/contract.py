@@ -69,6 +69,13 @@ def _with_array(value: Any, arr: np.ndarray) -> Any:
     return spoilt
 
 
+def _where(value: Any, index: tuple[int, ...]) -> str:
+    """Where the element ``index`` of ``value``'s numbers is: a Spectrum's wavelength, else the index."""
+    if isinstance(value, Spectrum):
+        return f"{value.wavelengths[index[0]]:g} nm"
+    return f"index {index}"
+
+
 def _size(value: Any) -> tuple[int, int] | None:
     """(width, height) of an Image, Mask or Camera, else None."""
     if isinstance(value, (Image, Mask, Camera)):
@@ -184,8 +191,9 @@ class Bound:
         worst = np.min(arr[bad]) if low else np.max(arr[bad])
         n = int(bad.sum())
         side = "negative" if (self.op, self.limit) == ("ge", 0) else f"{_SIDE[self.op]} {self.limit:g}"
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
         return (f"values must {rule}; {n} of {arr.size} {'is' if n == 1 else 'are'} {side} "
-                f"({'min' if low else 'max'} {float(worst):.6g})")
+                f"({'min' if low else 'max'} {float(worst):.6g}), the first at {_where(value, first)}")
 
     def describe(self) -> str:
         return f"values {_OPS[self.op][0]} {self.limit:g}"

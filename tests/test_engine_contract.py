@@ -113,8 +113,8 @@ def test_good_inputs_run(tmp_path, env):
 CASES = [
     ("channels", {"p": {"c": 1}}, "port 'img': needs 3 channels, got 1"),
     ("finite", {"p": {"nan": "true"}}, "port 'img': holds 1 NaN and 0 Inf values (first at index (1, 1, 0))"),
-    ("ge", {"p": {"value": -0.25}}, "port 'img': values must lie in [0, 1]; 36 of 36 are negative (min -0.25)"),
-    ("le", {"p": {"value": 1.5}}, "port 'img': values must lie in [0, 1]; 36 of 36 are above 1 (max 1.5)"),
+    ("ge", {"p": {"value": -0.25}}, "port 'img': values must lie in [0, 1]; 36 of 36 are negative (min -0.25), the first at index (0, 0, 0)"),
+    ("le", {"p": {"value": 1.5}}, "port 'img': values must lie in [0, 1]; 36 of 36 are above 1 (max 1.5), the first at index (0, 0, 0)"),
     ("same_size_as", {"pm": {"w": 5}}, "port 'mask': sizes differ: img is 4×3×3, mask is 5×3"),
     ("gt", {"g": {"x": 0.0}}, "port 'gain': must be > 0, got 0"),
     ("variadic item", {"p1": {"c": 2}}, "port 'extra': item 0: needs 1 or 3 channels, got 2"),
