@@ -96,10 +96,11 @@ def test_kmlayer_from_spectra_and_bad_coefficients():
     assert e.value.port == "S" and "≥ 0" in e.value.message and "550" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S, "K": Spectrum(wl, -K.values)})
-    assert e.value.port == "K" and "K must be ≥ 0" in e.value.message
+    # the port's declared constraint (graphkit.contract) words it: the port is K
+    assert e.value.port == "K" and "must be ≥ 0" in e.value.message and "(min -2), the first at 400 nm" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S})
-    assert e.value.port == "K"
+    assert e.value.port == "K" and e.value.message == "connect both S and K (or neither, to use 'cosmetic')"
     with pytest.raises(BadInput) as e:
         run(KMLayer, cosmetic="lipstick_red", illuminant="D66")
     assert e.value.port == "illuminant"
@@ -142,6 +143,12 @@ def test_kminvert_bad_measurements(tmp_path):
     with pytest.raises(BadInput) as e:
         run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl, Ri)})
     assert e.value.port == "R" and "R < R∞" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rinf": Spectrum(wl, Ri)})
+    assert e.value.port == "Rg" and e.value.message == "connect all of R, Rg and Rinf (or none, and give 'path')"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl + 1, Ri)})
+    assert e.value.port == "Rinf" and e.value.message == "R, Rg and Rinf must be sampled at the same wavelengths"
     # reflectance outside [0, 1], from a CSV: the path param is named
     R2 = R.copy()
     R2[3] = 1.3

@@ -8,7 +8,7 @@ from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node
 from nodes.common.sss import sss_blur
 
 from . import km
-from .layer import _thickness_map
+from .layer import layer_thicknesses
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
 from .stack import pixel_stack
 
@@ -40,7 +40,8 @@ class CosmeticShade(Node):
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
                      channels=3, finite=True, ge=0, le=1),
-        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
+        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first",
+                        same_size_as="albedo", finite=True, ge=0),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
         "irradiance": In(Image, "diffuse irradiance, linear RGB (or 1 channel)", optional=True),
         "normals": In(Image, "unit surface normals H×W×3 (same frame as light and view)", optional=True),
@@ -83,7 +84,7 @@ class CosmeticShade(Node):
         wl, S, K = layer_arrays(specs)
         rho = albedo.pixels.astype(np.float32)
         h, w = rho.shape[:2]
-        t = _thickness_map(thickness, "thickness", (h, w), len(specs))
+        t = layer_thicknesses(thickness, len(specs))
         n = None
         view = None  # per-pixel directions to the viewer, from the camera
         mpp = p.mm_per_pixel
