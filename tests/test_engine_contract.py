@@ -66,6 +66,20 @@ class Needs(Node):
         img = Image(np.full((3, 4, 3), 0.5, np.float32))
         return [({}, {"img": img, "mask": Mask(np.ones((3, 4), np.float32)), "gain": 2.0,
                       "extra": [Image(np.zeros((3, 4, 1), np.float32))]})]
+
+
+class Sized(Node):
+    """same_size_as an optional port, which only the second example connects."""
+    inputs = {"img": In(Image, "image", same_size_as="mask"), "mask": In(Mask, "weights", optional=True)}
+    outputs = {"out": Image}
+
+    def compute(self, img, mask=None):
+        return img
+
+    @classmethod
+    def examples(cls):
+        img = Image(np.zeros((3, 4, 1), np.float32))
+        return [({}, {"img": img}), ({}, {"img": img, "mask": Mask(np.ones((3, 4), np.float32))})]
 '''
 
 GOOD = {"img": "p.out", "mask": "m.out", "gain": "g.out", "extra": ["p1.out"]}
@@ -197,6 +211,8 @@ def test_conform_breaks_every_declared_constraint(tmp_path, env):
                    "port 'mask': same width and height as 'img': refused", "port 'gain': values > 0: refused",
                    "port 'extra': at least 1 connection: refused", "port 'extra': 1 or 3 channels: refused"]:
         assert any(ln.endswith(needle) for ln in lines), (needle, r.stdout)
+    # same_size_as is broken in an example that connects the port it names (it applies only there)
+    assert "ok    Sized/contract example 1: port 'img': same width and height as 'mask': refused" in r.stdout
 
 
 def test_conform_fails_when_a_constraint_is_not_enforced(tmp_path, env, monkeypatch):
