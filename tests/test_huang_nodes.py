@@ -260,9 +260,12 @@ def test_kmstack_bad_input():
 def test_cosmetic_shade_uses_the_shared_sss_and_microfacet():
     from nodes.common import sss
 
-    src = inspect.getsource(CosmeticShade.compute)
+    from nodes.huang import shade
+
+    # compute's diffuse part (CosmeticShade._diffuse) and specular part (shade._specular)
+    src = inspect.getsource(CosmeticShade._diffuse)
     assert CosmeticShade.sss_blur is sss.sss_blur and "self.sss_blur(" in src  # the hook backends replace
-    assert "from nodes.common.microfacet import kelemen_specular" in src
+    assert "from nodes.common.microfacet import kelemen_specular" in inspect.getsource(shade._specular)
 
 
 def test_cosmetic_shade_uniform_light_equals_kmstack():
@@ -339,10 +342,21 @@ def test_cosmetic_shade_bad_input():
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1))), "light": Light(kind="point")},
             cosmetics=["lipstick_red"])
-    assert e.value.port == "light"
+    assert e.value.port == "light" and "CosmeticShade needs a directional light" in e.value.message
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1)))}, cosmetics=["lipstick"])
     assert e.value.port == "cosmetics"
+    # each optional map has the albedo's size and its channels (declared on the port)
+    t = Image(np.zeros((4, 5, 1)))
+    for port, bad, needle in [("irradiance", Image(np.ones((4, 5, 2))), "needs 1 or 3 channels, got 2"),
+                              ("irradiance", Image(np.ones((3, 5, 3))), "sizes differ: albedo is 5×4×3, irradiance is 5×3×3"),
+                              ("irradiance", Image(-np.ones((4, 5, 1))), "must be ≥ 0"),
+                              ("normals", Image(np.ones((4, 5, 1))), "needs 3 channels, got 1"),
+                              ("depth", Image(np.ones((4, 6, 1))), "sizes differ: albedo is 5×4×3, depth is 6×4×1"),
+                              ("skin", Mask(np.ones((4, 6), np.float32)), "sizes differ: albedo is 5×4×3, skin is 6×4")]:
+        with pytest.raises(BadInput) as e:
+            run(CosmeticShade, {"albedo": rho, "thickness": t, port: bad}, cosmetics=["lipstick_red"])
+        assert e.value.port == port and needle in e.value.message, (port, e.value)
 
 
 # --------------------------------------------------------------------------------------------
@@ -398,4 +412,12 @@ def test_cosmetic_shade_with_mesh_and_camera():
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh},
             cosmetics=["foundation_light"])
-    assert e.value.port == "camera"
+    assert e.value.port == "camera" and e.value.message == "connect both mesh and camera (or neither)"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh,
+                            "camera": cam.model_copy(update={"width": w + 1})}, cosmetics=["foundation_light"])
+    assert e.value.port == "camera" and f"sizes differ: albedo is {w}×{h}×3, camera is {w + 1}×{h}" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh, "camera": cam,
+                            "normals": Image(np.ones((h, w, 3)))}, cosmetics=["foundation_light"])
+    assert e.value.port == "mesh" and "leave 'normals' and 'depth' unconnected" in e.value.message
