@@ -181,13 +181,17 @@ class Bound:
     def check(self, value, inputs) -> str | None:
         sym, ok, _ = _OPS[self.op]
         arr = _array(value)
+        low = self.op in ("ge", "gt")
+        # one pass when nothing is wrong: the extreme on the bound's side keeps it (a NaN makes
+        # the extreme NaN, which does not: the full check below then leaves the NaN out)
+        if arr.size == 0 or ok(arr.min() if low else arr.max(), self.limit):
+            return None
         bad = ~ok(arr, self.limit) & ~np.isnan(arr) if arr.dtype.kind == "f" else ~ok(arr, self.limit)
         if not bad.any():
             return None
         rule = f"lie in {self.interval}" if self.interval else f"be {sym} {self.limit:g}"
         if arr.ndim == 0:
             return f"must {rule}, got {float(arr):g}"
-        low = self.op in ("ge", "gt")
         worst = np.min(arr[bad]) if low else np.max(arr[bad])
         n = int(bad.sum())
         side = "negative" if (self.op, self.limit) == ("ge", 0) else f"{_SIDE[self.op]} {self.limit:g}"

@@ -200,6 +200,12 @@ def test_bounds_ignore_nan_unless_finite_is_declared():
     a = np.array([np.nan, 0.5])
     assert Bound("ge", 0.0).check(a, {}) is None
     assert Finite().check(a, {}) is not None
+    # a NaN does not hide a value past the bound (nor one at a strict bound, on either side)
+    assert "1 of 3 is negative (min -1)" in Bound("ge", 0.0).check(np.array([np.nan, -1.0, 0.5]), {})
+    assert "1 of 3 is above 1 (max 2)" in Bound("le", 1.0).check(np.array([0.5, np.nan, 2.0], np.float32), {})
+    assert Bound("gt", 0.0).check(np.zeros((2, 2, 1), np.float32), {}) is not None
+    assert Bound("lt", 1.0).check(np.ones(3, np.int64), {}) is not None
+    assert Bound("ge", 0.0).check(np.zeros((0, 3)), {}) is None
 
 
 def test_conform_breaks_every_declared_constraint(tmp_path, env):
