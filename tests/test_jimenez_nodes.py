@@ -70,6 +70,10 @@ def test_bad_inputs_have_clear_messages():
     small = Image(np.zeros((10, 10, 1), np.float32))
     _refused(LocalHistMatch(), "target", "sizes differ", neutral=hn, target=small)
     _refused(LocalHistMatch(), "neutral", "negative", neutral=Image(hn.pixels - 1), target=ht)
+    for port, bad, what in (("target", np.nan, "1 NaN and 0 Inf"), ("neutral", np.inf, "0 NaN and 1 Inf")):
+        px = (ht if port == "target" else hn).pixels.copy()
+        px[3, 4, 0] = bad
+        _refused(LocalHistMatch(), port, f"holds {what} values", **{"neutral": hn, "target": ht, port: Image(px)})
     for r in (0.0, -3.0):
         _refused(LocalHistMatch(LocalHistMatch.Params(radius=r)), "radius", "radius must be > 0", neutral=hn, target=ht)
     lhm = LocalHistMatch(LocalHistMatch.Params(radius=4.0)).compute(neutral=hn, target=ht)

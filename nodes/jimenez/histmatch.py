@@ -237,9 +237,9 @@ def cell_fraction(H: int, W: int, c: int) -> np.ndarray:
     return np.outer(fy, fx).astype(np.float32)
 
 
-def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`cell_means` of h·m and h²·m, and min(h) (NaN if h holds NaN), in one pass over
-    bands of ≥ 256 rows on the cores (the band's h·m and h²·m stay in the cache)."""
+def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cell_means` of h·m and h²·m, in one pass over bands of ≥ 256 rows on the cores
+    (the band's h·m and h²·m stay in the cache)."""
     import cv2
 
     from nodes.common.parallel import run_bands
@@ -254,14 +254,13 @@ def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarr
         x = hb if m is None else cv2.multiply(hb, m[y0:y0 + rows])
         a1[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(x, c)
         a2[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(cv2.multiply(x, hb), c)
-        return float(hb.min())
 
-    lows = run_bands(band, H, rows)
-    return a1, a2, float(np.min(lows))
+    run_bands(band, H, rows)
+    return a1, a2
 
 
 def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CELLS_PER_RADIUS,
-                  mins: list | None = None, moments=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  moments=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fast eq. (1): local mean and standard deviation of each (H, W) map in ``hs`` (a sequence
     or an (n, H, W) array) on the grid of c × c-pixel cells, c = :func:`stats_cell`, returned
     as (μ, σ, weight), each (n, ⌈H/c⌉, ⌈W/c⌉), values at the cell centres (see
@@ -275,8 +274,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     blurred over about one cell (r/cells px).  Border and mask handling as in
     :func:`local_mean_std` (statistics of the in-image, in-mask part of the disc).  float32 on
     data centred on its global mean.  Where c = 1 this is :func:`local_mean_std` (exact).
-    ``mins``: a list to which the minimum of each map is appended (taken in the same pass;
-    nothing is appended where c = 1).  ``moments``: the function that takes the per-cell
+    ``moments``: the function that takes the per-cell
     moments (default :func:`_cell_moments`; a backend passes its own).
     """
     import cv2
@@ -299,9 +297,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     mom = []  # centred (E[h·m], E[h²·m]) per map
     g = np.empty(n)
     for i in range(n):
-        a1, a2, lo = (moments or _cell_moments)(np.ascontiguousarray(hs[i], np.float32), m, c)
-        if mins is not None:
-            mins.append(lo)
+        a1, a2 = (moments or _cell_moments)(np.ascontiguousarray(hs[i], np.float32), m, c)
         # centre on the (masked) global mean g: E[(h−g)²m] = E[h²m] − 2g·E[hm] + g²·E[m]
         g[i] = gi = float(a1.sum(dtype=np.float64)) / max(msum, 1e-300)
         if full:
@@ -429,16 +425,6 @@ def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
     return max(1, round(H * s)), max(1, round(W * s))
 
 
-def _check_values(port: str, lo: float, finite: bool) -> None:
-    """LocalHistMatch's maps: no NaN, Inf or negative values.  ``lo``: the map's minimum (NaN
-    if it holds NaN), taken in the moments pass; ``finite``: no +Inf seen (see the node)."""
-    if not (np.isfinite(lo) and finite):
-        raise BadInput(port, f"{port} holds NaN or Inf values")
-    if lo < 0:
-        raise BadInput(port, f"{port} holds negative concentrations (min {lo:.4g}); "
-                             "volume fractions must be ≥ 0")
-
-
 def _mask(mask: Mask | None, port="mask") -> np.ndarray | None:
     """The mask's weights in [0, 1] (its size is declared on the port); BadInput if all zero."""
     if mask is None:
@@ -471,10 +457,8 @@ class LocalHistMatch(Node):
     """
 
     version = "5"
-    # finite and ≥ 0 are checked in compute, on the minimum the moments pass takes anyway (the
-    # OpenCL kernel too): declared here they would cost two more passes over both maps
-    inputs = {"neutral": In(Image, "neutral map H_n (volume fraction)", channels=1),
-              "target": In(Image, "target map H", channels=1, same_size_as="neutral"),
+    inputs = {"neutral": In(Image, "neutral map H_n (volume fraction)", channels=1, finite=True, ge=0),
+              "target": In(Image, "target map H", channels=1, same_size_as="neutral", finite=True, ge=0),
               "mask": In(Mask, "where statistics are taken (skin)", optional=True, same_size_as="neutral")}
     outputs = {"matched": Out(Image, "H_n matched to the target's local statistics (eq. 3)"),
                "scale": Out(Image, "σ/σ_n (eq. 5), at stats_size"),
@@ -501,20 +485,14 @@ class LocalHistMatch(Node):
             raise BadInput("radius", f"radius must be > 0 pixels, got {p.radius}")
         hn, ht = neutral.pixels[:, :, 0], target.pixels[:, :, 0]
         m = _mask(mask)
-        mins = []
         H, W = hn.shape
-        with np.errstate(invalid="ignore", over="ignore"):  # +Inf input: rejected just below
+        with np.errstate(invalid="ignore", over="ignore"):  # huge values overflow the float32 moments
             if p.mode == "exact":
                 c = 1
                 (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
             else:
                 c = stats_cell(H, W, p.radius)
-                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, mins=mins,
-                                                          moments=self.cell_moments)
-        if not mins:
-            mins = [float(hn.min()), float(ht.min())]
-        for port, lo, a in (("neutral", mins[0], mu_n), ("target", mins[1], mu)):
-            _check_values(port, lo, np.isfinite(a).all())  # +Inf anywhere makes every μ NaN
+                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, moments=self.cell_moments)
         self.ctx.progress(0.8, "statistics done")
         # σ_n below the floor (a flat neighbourhood, or a one-pixel disc; without a mask 1e-3 of
         # the largest σ_n): H_n − μ_n is ~0 there, so the scale is 1 rather than a ratio of
