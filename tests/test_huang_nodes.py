@@ -102,6 +102,12 @@ def test_kmlayer_from_spectra_and_bad_coefficients():
         run(KMLayer, {"S": S})
     assert e.value.port == "K" and e.value.message == "connect both S and K (or neither, to use 'cosmetic')"
     with pytest.raises(BadInput) as e:
+        run(KMLayer, {"S": S, "K": K}, cosmetic="lipstick_red")
+    assert e.value.port == "cosmetic" and e.value.message == "S and K are connected: leave 'cosmetic' empty"
+    with pytest.raises(BadInput) as e:
+        run(KMLayer)
+    assert e.value.port == "cosmetic" and e.value.message == "connect S and K, or name a library cosmetic"
+    with pytest.raises(BadInput) as e:
         run(KMLayer, cosmetic="lipstick_red", illuminant="D66")
     assert e.value.port == "illuminant"
 
@@ -145,7 +151,13 @@ def test_kminvert_bad_measurements(tmp_path):
     assert e.value.port == "R" and "R < R∞" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMInvert, {"R": Spectrum(wl, R), "Rinf": Spectrum(wl, Ri)})
-    assert e.value.port == "Rg" and e.value.message == "connect all of R, Rg and Rinf (or none, and give 'path')"
+    assert e.value.port == "Rg" and e.value.message == "connect all of R, Rg and Rinf (or none, to use 'path')"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl, Ri)}, path="m.csv")
+    assert e.value.port == "path" and e.value.message == "R, Rg and Rinf are connected: leave 'path' empty"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert)
+    assert e.value.port == "path" and e.value.message == "connect R, Rg and Rinf, or give a CSV path"
     with pytest.raises(BadInput) as e:
         run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl + 1, Ri)})
     assert e.value.port == "Rinf" and e.value.message == "R, Rg and Rinf must be sampled at the same wavelengths"

@@ -22,6 +22,18 @@ def connected_together(inputs: dict, otherwise: str = "") -> bool:
     return not missing
 
 
+def inputs_or_param(inputs: dict, param: str, value, otherwise: str) -> bool:
+    """Either every input of ``inputs`` is connected (True) or the param ``param`` is set
+    (False), not both and not neither (BadInput; ``otherwise``: how to set it, "give a CSV path")."""
+    if connected_together(inputs, f"to use '{param}'"):
+        if value:
+            raise BadInput(param, f"{_listed(list(inputs))} are connected: leave '{param}' empty")
+        return True
+    if not value:
+        raise BadInput(param, f"connect {_listed(list(inputs))}, or {otherwise}")
+    return False
+
+
 def same_wavelengths(spectra: dict) -> None:
     """BadInput for the first Spectrum of ``spectra`` (port → Spectrum) sampled at other
     wavelengths than the first one."""

@@ -5,7 +5,7 @@ import numpy as np
 
 from graphkit import BadInput, Field, Image, In, InputFile, Mask, Node, Out, Spectrum
 
-from nodes.common.checks import connected_together, same_wavelengths
+from nodes.common.checks import inputs_or_param, same_wavelengths
 
 from . import km
 from .library import KMLayerSpec, check_illuminant, check_wavelengths, get_cosmetic, layer_arrays
@@ -59,16 +59,12 @@ class KMLayer(Node):
     def compute(self, S: Spectrum | None = None, K: Spectrum | None = None, thickness: Image | None = None):
         p = self.params
         check_illuminant(p.illuminant)
-        if connected_together({"S": S, "K": K}, "to use 'cosmetic'"):
-            if p.cosmetic:
-                raise BadInput("cosmetic", "S and K are connected: leave 'cosmetic' empty")
+        if inputs_or_param({"S": S, "K": K}, "cosmetic", p.cosmetic, "name a library cosmetic"):
             same_wavelengths({"S": S, "K": K})
             spec = KMLayerSpec(name=p.name or "layer", wavelengths=S.wavelengths.tolist(), S=S.values.tolist(),
                                K=K.values.tolist(), thickness_mm=p.thickness_mm, m=p.m, rho_s=p.rho_s, f0=p.f0)
             wl, Sa, Ka = layer_arrays([spec], "S")
         else:
-            if not p.cosmetic:
-                raise BadInput("cosmetic", "connect S and K, or name a library cosmetic")
             lib = get_cosmetic(p.cosmetic, "cosmetic")
             spec = lib.model_copy(update={"thickness_mm": p.thickness_mm, "name": p.name or lib.name})
             wl, Sa, Ka = layer_arrays([spec], "cosmetic")
@@ -142,15 +138,11 @@ class KMInvert(Node):
 
     def compute(self, R: Spectrum | None = None, Rg: Spectrum | None = None, Rinf: Spectrum | None = None):
         p = self.params
-        connected = connected_together({"R": R, "Rg": Rg, "Rinf": Rinf}, "and give 'path'")
+        connected = inputs_or_param({"R": R, "Rg": Rg, "Rinf": Rinf}, "path", p.path, "give a CSV path")
         if connected:
-            if p.path:
-                raise BadInput("path", "the R, Rg, Rinf inputs are connected: leave 'path' empty")
             same_wavelengths({"R": R, "Rg": Rg, "Rinf": Rinf})
             wl, r, rg, ri = R.wavelengths, R.values, Rg.values, Rinf.values
         else:
-            if not p.path:
-                raise BadInput("path", "give a CSV path or connect R, Rg and Rinf")
             wl, r, rg, ri = read_invert_csv(self.resolve_file("path", p.path, self.ctx.base_dir))
         check_wavelengths(wl, "R" if connected else "path")
         bad = km.check_invert_inputs(r, rg, ri)
