@@ -24,9 +24,10 @@ under ``qemu-x86_64 -cpu Haswell`` (an AVX2 CPU; blush and makeup, every node an
 a second pinned run (every graph).  mediapipe's FaceMesh (TFLite) gave the same landmarks there
 too.
 
-A node whose key depends on where the checkout lives (a glob sweep passes the absolute path
-of each file it matches as a param: makeup_batch's LoadImage) is recorded with ``key: null``
-and ``key_depends_on_location: true``; its outputs are still recorded and compared.
+A glob sweep passes the absolute path of each file it matches as a param (makeup_batch's
+LoadImage), so its keys, and the provenance in its saved files, depend on where graphs/ lies.
+The graphs are therefore always run from a copy at one fixed place, ``FIXED`` (under a lock, so
+two checkouts on one machine take turns): the same keys and bytes from any checkout.
 """
 from __future__ import annotations
 
@@ -50,6 +51,7 @@ os.environ.update(PINNED_ENV)  # before numpy is imported (graphkit is imported 
 ROOT = Path(__file__).resolve().parents[2]
 GRAPHS = ROOT / "graphs"
 DATA = Path(__file__).resolve().parent / "main_digests.json"
+FIXED = Path("/tmp/graphkit-same-bytes")  # where the graphs run from (see the module docstring)
 # graph -> the outputs its cheap check runs (the others run whole): room_relight's two §4.5
 # re-solves (virtual light 38 s, virtual box 50 s of compute, measured on 2 cores) are left out;
 # their keys are still checked
@@ -90,24 +92,24 @@ def digests(graph: Path, cache: Path, out: Path, outputs: list[str] | None = Non
 
 
 def collect(names: list[str], cheap: bool, work: Path) -> dict:
-    """The digests of the graphs ``names``, run with one cache (shared nodes run once)."""
-    return {g: digests(GRAPHS / f"{g}.yaml", work / "cache", work / "out" / g,
-                       CHEAP_OUTPUTS.get(g) if cheap else None) for g in names}
+    """The digests of the graphs ``names``, run from the copy of graphs/ at ``FIXED`` with one
+    cache (shared nodes run once)."""
+    import fcntl
 
-
-def _mark_location_keys(data: dict, work: Path) -> None:
-    """Null the keys that change when graphs/ is copied elsewhere (see the module docstring)."""
-    moved = shutil.copytree(GRAPHS, work / "moved" / "graphs")
-    for g, rec in data.items():
-        for n, key in _keys(moved / f"{g}.yaml", work / "cache").items():
-            if key is not None and key != rec["nodes"][n]["key"]:
-                rec["nodes"][n].update(key=None, key_depends_on_location=True)
+    with open(f"{FIXED}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        shutil.rmtree(FIXED, ignore_errors=True)
+        graphs = shutil.copytree(GRAPHS, FIXED / "graphs")
+        try:
+            return {g: digests(graphs / f"{g}.yaml", work / "cache", work / "out" / g,
+                               CHEAP_OUTPUTS.get(g) if cheap else None) for g in names}
+        finally:
+            shutil.rmtree(FIXED, ignore_errors=True)
 
 
 def record() -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         data = collect(sorted(p.stem for p in GRAPHS.glob("*.yaml")), cheap=False, work=Path(tmp))
-        _mark_location_keys(data, Path(tmp))
     return {"commit": _commit(), "pinned_env": PINNED_ENV, "graphs": data}
 
 
