@@ -44,9 +44,9 @@ class FitSkinPhong(Node):
 
     version = "3"
     inputs = {"image": In(Image, "the flash photo (linear RGB)"),
-              "skin": In(Mask, "skin pixels"),
-              "mesh": In(Mesh, "face mesh registered to the photo"),
-              "camera": In(Camera, "the photo camera"),
+              "skin": In(Mask, "skin pixels", same_size_as="image"),
+              "mesh": In(Mesh, "face mesh registered to the photo", finite=True),
+              "camera": In(Camera, "the photo camera", same_size_as="image"),
               "light": In(Light, "the flash (ProbeLight.light)"),
               "shininess": In(Scalar, "Phong exponent s (ShininessFromSaturation); "
                                       "default: the `shininess` param", optional=True)}
@@ -76,7 +76,7 @@ class FitSkinPhong(Node):
         p = self.params
         if shininess is None:
             shininess = p.shininess
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
+        sk = skin_pixels(skin, p.skin_threshold)
         if not (np.isfinite(shininess) and shininess > 0):
             raise BadInput("shininess", f"the Phong exponent must be > 0, got {shininess}")
         s = surface(mesh, camera, min_pixels=1)

@@ -57,9 +57,9 @@ class ReflectanceMap(Node):
 
     version = "2"
     inputs = {"image": In(Image, "the photo (linear RGB)"),
-              "mesh": In(Mesh, "face mesh registered to the photo"),
-              "camera": In(Camera, "the photo camera"),
-              "skin": In(Mask, "skin pixels"),
+              "mesh": In(Mesh, "face mesh registered to the photo", finite=True),
+              "camera": In(Camera, "the photo camera", same_size_as="image"),
+              "skin": In(Mask, "skin pixels", same_size_as="image"),
               "light": In(Light, "the flash (world frame): samples are divided by its irradiance "
                                  "(a point flash's 1/d² fall-off), ShadeFace multiplies it back; "
                                  "it also sets the mirror plane", optional=True)}
@@ -87,7 +87,7 @@ class ReflectanceMap(Node):
         from .render import irradiance, skin_pixels, surface, world_lights
 
         p = self.params
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
+        sk = skin_pixels(skin, p.skin_threshold)
         s = surface(mesh, camera, min_pixels=1)
         use = sk[s.coverage]
         if use.sum() < 10 * p.min_samples:

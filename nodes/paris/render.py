@@ -45,29 +45,16 @@ class Surface:
 
 
 def check_mesh(mesh, port: str = "mesh") -> None:
+    """BadInput unless the mesh has triangles (finite vertices are declared on the mesh port:
+    ``In(Mesh, ..., finite=True)``, checked by the engine)."""
     if mesh is None or len(mesh.faces) == 0:
         raise BadInput(port, "the mesh has no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise BadInput(port, "the mesh has NaN or infinite vertex coordinates")
 
 
-def check_camera_matches(camera: Camera, image: Image | Mask, port: str = "camera",
-                         what: str = "image") -> None:
-    """BadInput unless the camera's image size is the photo's."""
-    h, w = (image.pixels.shape[:2] if isinstance(image, Image) else image.alpha.shape)
-    if (camera.width, camera.height) != (w, h):
-        raise BadInput(port, f"camera is {camera.width}×{camera.height} but the {what} is "
-                             f"{w}×{h}: the camera must be the one that took the photo")
-
-
-def skin_pixels(camera: Camera, image: Image, skin: Mask, threshold: float) -> np.ndarray:
-    """The photo's skin pixels (alpha ≥ ``threshold``, H×W bool), after the checks every node
-    fitting to a photo makes: the camera took the photo, the mask is the photo's size and not
-    empty (BadInput at the camera / skin port otherwise)."""
-    check_camera_matches(camera, image)
-    if skin.alpha.shape != image.pixels.shape[:2]:
-        raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
-                               f"{image.width}×{image.height}")
+def skin_pixels(skin: Mask, threshold: float) -> np.ndarray:
+    """The photo's skin pixels (alpha ≥ ``threshold``, H×W bool); BadInput at the skin port
+    when there are none.  (That the camera and the mask are the photo's size is declared on
+    the ports: ``same_size_as="image"``.)"""
     sk = skin.alpha >= threshold
     if not sk.any():
         raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
@@ -354,7 +341,7 @@ class ShadeFace(Node):
     """
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "face mesh in world coordinates"),
+    inputs = {"mesh": In(Mesh, "face mesh in world coordinates", finite=True),
               "camera": In(Camera, "the photo camera"),
               "map": In(Image, "reflectance map (ReflectanceMap.map)"),
               "light": In(Light, "the flash (world frame), as given to ReflectanceMap", optional=True)}
@@ -402,14 +389,12 @@ class ShadeFace(Node):
 
 
 def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None) -> list:
-    """Render's input checks, shared by its backends: the lights as a list."""
+    """Render's input checks that relate its inputs beyond the declared constraints (at least
+    one light; the texture camera's size is the detail texture's), shared by its backends: the
+    lights as a list."""
     lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
-    if not lights:
-        raise BadInput("lights", "no light connected")
     if detail is not None and texture_camera is None:
         raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
-    if detail is not None:
-        check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
     if camera is not None and texture_camera is not None and \
             texture_camera.metres_per_unit != camera.metres_per_unit:
         raise BadInput("texture_camera", f"the texture camera's world unit ({texture_camera.metres_per_unit} m) "
@@ -452,13 +437,14 @@ class Render(Node):
 
     version = "2"
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
-    inputs = {"mesh": In(Mesh, "face mesh (world coordinates)"),
+    inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
               "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),
-              "lights": In(Light, "light sources, world frame (any number)", variadic=True),
+              "lights": In(Light, "light sources, world frame (any number)", variadic=True,
+                           min_items=1),
               "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
               "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
-                                   optional=True),
+                                   optional=True, same_size_as="detail"),
               "ambient": In(Light, "a light whose ambient term is added (e.g. FitSkinPhong.light); "
                                    "its direct part is ignored", optional=True)}
     outputs = {"image": Out(Image, "rendered image (linear RGB)"),
@@ -680,9 +666,10 @@ class FrameFace(Node):
     """
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "the mesh to frame"),
+    inputs = {"mesh": In(Mesh, "the mesh to frame", finite=True),
               "camera": In(Camera, "the original camera"),
-              "image": In(Image, "an image taken by `camera`, to resample", optional=True)}
+              "image": In(Image, "an image taken by `camera`, to resample", optional=True,
+                          same_size_as="camera")}
     outputs = {"camera": Out(Camera, "the framing camera"),
                "image": Out(Image, "the image in the framing camera (black if no image)")}
 
@@ -693,8 +680,6 @@ class FrameFace(Node):
 
     def compute(self, mesh, camera: Camera, image: Image | None = None):
         check_mesh(mesh)
-        if image is not None:
-            check_camera_matches(camera, image, "image", "image")
         check_in_view(mesh, camera)
         xy, z = camera.project(np.asarray(mesh.vertices, np.float64))
         lo, hi = xy.min(0), xy.max(0)
@@ -727,7 +712,7 @@ class MeshMask(Node):
     pixel, is refused here (BadInput on ``mesh``), not passed on as an empty mask."""
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "the mesh"), "camera": In(Camera, "the camera")}
+    inputs = {"mesh": In(Mesh, "the mesh", finite=True), "camera": In(Camera, "the camera")}
     outputs = {"mask": Out(Mask, "1 where the mesh is seen")}
 
     class Params(Node.Params):

@@ -81,10 +81,10 @@ class ShininessFromSaturation(Node):
                                  "ProbeLight.light)"),
               "image": In(Image, "the photo (linear RGB): with mesh, camera and skin, the profile is read "
                                  "from its pixels instead of the map", optional=True),
-              "mesh": In(Mesh, "face mesh registered to the photo (with image)", optional=True),
+              "mesh": In(Mesh, "face mesh registered to the photo (with image)", optional=True, finite=True),
               "camera": In(Camera, "the photo camera: brings the world-frame light into the map's / photo's "
-                                   "camera frame (needed with image)", optional=True),
-              "skin": In(Mask, "skin pixels of the photo (with image)", optional=True)}
+                                   "camera frame (needed with image)", optional=True, same_size_as="image"),
+              "skin": In(Mask, "skin pixels of the photo (with image)", optional=True, same_size_as="image")}
     outputs = {"shininess": Out(Scalar, "Phong exponent s (unitless)")}
 
     class Params(Node.Params):
@@ -175,7 +175,7 @@ class ShininessFromSaturation(Node):
         from .render import skin_pixels, surface
 
         p = self.params
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
+        sk = skin_pixels(skin, p.skin_threshold)
         px = np.asarray(image.pixels, np.float64)
         if px.ndim != 3 or px.shape[2] < 3:
             raise BadInput("image", f"needs an RGB photo, got {image.channels} channel(s)")
