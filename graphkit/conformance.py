@@ -254,11 +254,12 @@ def _spoil(rule, port, value, inputs):
 
 def _refusal(cls, params: dict, inputs: dict, port: str) -> str | None:
     """None when the engine refuses ``inputs`` with exit 2 naming ``port``, else what happened."""
-    from .contract import compute_checked
+    from .contract import check_inputs
     from .errors import BadInput
 
-    try:
-        compute_checked(cls(cls.Params.model_validate(params), Context()), **inputs)
+    try:  # in the engine's order: the declared constraints (before params: a made-up case has none)
+        check_inputs(cls, inputs)
+        cls(cls.Params.model_validate(params), Context()).compute(**inputs)
     except BadInput as e:
         if e.port == port and e.exit_code == 2:
             return None
@@ -285,7 +286,7 @@ def _base_case(cls, port: str) -> tuple[int, dict, dict | None]:
 def _make(port) -> object | None:
     """A small value of ``port``'s type that its constraints allow (None: none can be made)."""
     from .contract import Bound
-    from .types import ARRAY, IMAGE, MASK, SCALAR, VECTOR, Camera, Image, Mask, port_type
+    from .types import ARRAY, IMAGE, MASK, MESH, SCALAR, SPECTRUM, VECTOR, Camera, Image, Mask, Spectrum, port_type
 
     c = port.constraints
     x = 0.5
@@ -295,8 +296,16 @@ def _make(port) -> object | None:
     makers = {IMAGE: lambda: Image(np.full((4, 4, (c.channels or (3,))[0]), x, np.float32)),
               MASK: lambda: Mask(np.full((4, 4), x, np.float32)), SCALAR: lambda: x,
               VECTOR: lambda: np.full(4, x), ARRAY: lambda: np.full((4, 4), x),
+              SPECTRUM: lambda: Spectrum(np.linspace(400.0, 700.0, 4), np.full(4, x)),
+              MESH: _unit_box,
               port_type(Camera): lambda: Camera(width=4, height=4, fx=4.0, fy=4.0, cx=2.0, cy=2.0)}
     make = makers.get(port.type)
     if make is None:
         return None
     return [make()] * max(1, c.min_items or 1) if port.variadic else make()
+
+
+def _unit_box():
+    import trimesh
+
+    return trimesh.creation.box()

@@ -82,3 +82,121 @@ def test_show_formats(tmp_path, write):
     assert r.returncode == 0 and "flowchart LR" in r.stdout and "c -->|out→a| d" in r.stdout
     r = graphkit("show", g, "--format", "dot")
     assert '"c" -> "d"' in r.stdout
+
+
+# --------------------------------------------------------------------------------------------
+# declared contract: port types by qualified name, type_name = key, hooks and studio views
+
+
+TWO_IMAGES = {
+    "pluga.py": '''
+        from pydantic import BaseModel
+        from graphkit import Node
+        class Image(BaseModel):
+            """pluga's image"""
+            w: int = 1
+        class MakeA(Node):
+            outputs = {"out": Image}
+            def compute(self):
+                return Image()
+        class TakeA(Node):
+            inputs = {"x": Image}
+            outputs = {"out": Image}
+            def compute(self, x):
+                return x
+    ''',
+    "plugb.py": '''
+        from pydantic import BaseModel
+        from graphkit import Node
+        class Image(BaseModel):
+            """plugb's image"""
+            h: int = 1
+        class TakeB(Node):
+            inputs = {"x": Image}
+            outputs = {"out": Image}
+            def compute(self, x):
+                return x
+    ''',
+}
+
+
+def test_two_plugins_port_types_of_the_same_name_do_not_collide(tmp_path, write):
+    for name, src in TWO_IMAGES.items():
+        (tmp_path / name).write_text(textwrap.dedent(src))
+    env = plugin_env(tmp_path, "pluga", "plugb")
+    ok = write("ok.yaml", "graphkit: 1\nnodes:\n  m: {type: MakeA}\n  t: {type: TakeA, inputs: {x: m.out}}\n")
+    r = graphkit("validate", ok, env=env)
+    assert r.returncode == 0, r.stderr
+    bad = write("bad.yaml", "graphkit: 1\nnodes:\n  m: {type: MakeA}\n  t: {type: TakeB, inputs: {x: m.out}}\n")
+    r = graphkit("validate", bad, env=env)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "node 't', input 'x' takes plugb.Image but m.out gives pluga.Image" in r.stderr, r.stderr
+    # a builtin Image is neither (the short name stays what users see where it is unambiguous)
+    r = graphkit("nodes", "TakeA", env=env)
+    assert "  x: Image  " in r.stdout
+
+
+def test_registry_refuses_a_type_name_that_differs_from_its_key(tmp_path, write):
+    (tmp_path / "misnamed.py").write_text(textwrap.dedent('''
+        from graphkit import Array, Node
+        NODES = {"Shiny": "misnamed:Dull"}
+        class Dull(Node):
+            outputs = {"out": Array}
+            def compute(self):
+                return 0
+    '''))
+    g = write("g.yaml", "graphkit: 1\nnodes:\n  c: {type: Shiny}\n")
+    r = graphkit("run", g, "--cache", tmp_path / "c", "--out", tmp_path / "o", env=plugin_env(tmp_path, "misnamed"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert ("plugin 'GRAPHKIT_PLUGINS:misnamed' (misnamed:Dull) registers node type 'Shiny', but the class's "
+            "type_name is 'Dull'") in r.stderr, r.stderr
+
+
+def test_hooks_and_studio_view_are_declared_and_listed():
+    from graphkit import Image, Node
+
+    def make(**attrs):
+        return type("N", (Node,), {"outputs": {"o": Image}, "compute": lambda self: None, **attrs})
+
+    make(hooks=("blur",), blur=staticmethod(lambda x: x), studio_view="pkg.views:View")
+    with pytest.raises(TypeError, match="N.hooks names 'blur', which is not a staticmethod of N"):
+        make(hooks=("blur",), blur=lambda self, x: x)
+    with pytest.raises(TypeError, match="N.hooks must be a tuple of names"):
+        make(hooks="blur", blur=staticmethod(lambda x: x))
+    with pytest.raises(TypeError, match='N.studio_view must be a "module:Class" string'):
+        make(studio_view="pkg.views.View")
+    r = graphkit("nodes", "KMStack")
+    assert "hooks (a backend may replace): pixel_stack, stack_over_rgb" in r.stdout
+    assert "studio view: nodes.huang.studio_view:MakeupView" in r.stdout
+    rows = json.loads(graphkit("nodes", "--json").stdout)
+    by = {r["type"]: r for r in rows}
+    assert by["Relight"]["hooks"] == ["modulate_pixels"] and by["RatioImage"]["hooks"] == []
+    assert by["Relight"]["studio_view"] == "nodes.loscos.studio_view:RoomView"
+    assert by["RatioImage"]["inputs"]["b"]["constraints"] == {"same_size_as": "a"}
+
+
+def test_nodes_and_schema_show_port_constraints(tmp_path):
+    r = graphkit("nodes", "KMStack")
+    assert ("  background: Image (optional)  linear-RGB reflectance under the layers (e.g. skin albedo)  "
+            "[needs: 3 channels; finite (no NaN or Inf); values ≥ 0; values ≤ 1]") in r.stdout, r.stdout
+    r = graphkit("schema", "-o", tmp_path / "schema.json")
+    schema = json.loads((tmp_path / "schema.json").read_text())
+    ratio = next(v["then"] for v in schema["properties"]["nodes"]["additionalProperties"]["allOf"]
+                 if v["if"]["properties"]["type"]["const"] == "RatioImage")
+    b = ratio["properties"]["inputs"]["properties"]["b"]
+    assert b["x-constraints"] == {"same_size_as": "a"} and "(needs: same width and height as 'a')" in b["description"]
+
+
+def test_an_opencl_backend_may_replace_only_declared_hooks():
+    from graphkit_opencl.base import OpenCLBackend
+
+    class Sneaky(OpenCLBackend):
+        node = "KMStack"
+
+        @classmethod
+        def hooks(cls):
+            return {"pixel_stack": lambda *a: None, "resolve_layers": lambda *a: None}
+
+    with pytest.raises(TypeError, match="Sneaky: node type KMStack declares no hook 'resolve_layers' "
+                                        r"\(its hooks: pixel_stack, stack_over_rgb\)"):
+        Sneaky.accelerated()
