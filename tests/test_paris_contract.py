@@ -1,0 +1,56 @@
+"""The Paris nodes' (and the mediapipe plugin's) declared port constraints (issue 25): every one
+is refused by the engine naming its port (graphkit conform), and the ports that the hand-written
+checks guarded before keep declaring them."""
+import pytest
+
+from conftest import graphkit
+from graphkit.conformance import check_contracts
+from graphkit.registry import default_registry
+
+#: what each node declares (port: the constraints, as ``graphkit nodes`` shows them)
+DECLARED = {
+    "FaceMesh": {"image": ["1 or 3 or 4 channels"]},
+    "FitSkinPhong": {"skin": ["same width and height as 'image'"], "mesh": ["finite (no NaN or Inf)"],
+                     "camera": ["same width and height as 'image'"]},
+    "FrameFace": {"mesh": ["finite (no NaN or Inf)"], "image": ["same width and height as 'camera'"]},
+    "MeshMask": {"mesh": ["finite (no NaN or Inf)"]},
+    "ProbeLight": {"camera": ["same width and height as 'probe'"]},
+    "RatioImage": {"b": ["same width and height as 'a'"]},
+    "ReflectanceMap": {"mesh": ["finite (no NaN or Inf)"], "camera": ["same width and height as 'image'"],
+                       "skin": ["same width and height as 'image'"]},
+    "Render": {"mesh": ["finite (no NaN or Inf)"], "lights": ["at least 1 connection"],
+               "texture_camera": ["same width and height as 'detail'"]},
+    "ShadeFace": {"mesh": ["finite (no NaN or Inf)"]},
+    "ShininessFromSaturation": {"mesh": ["finite (no NaN or Inf)"], "camera": ["same width and height as 'image'"],
+                                "skin": ["same width and height as 'image'"]},
+    "SkinSegment": {"painted": ["same width and height as 'image'"], "face": ["same width and height as 'image'"],
+                    "exclude": ["same width and height as 'image'"]},
+    "SmoothMesh": {"mesh": ["finite (no NaN or Inf)"]},
+}
+
+
+def _nodes() -> list[str]:
+    reg = default_registry()
+    return [n for n in reg.node_names()
+            if reg.node_class(n).__module__.startswith(("nodes.paris.", "graphkit_mediapipe."))]
+
+
+def test_declarations():
+    reg = default_registry()
+    found = {n: {p: reg.node_class(n).in_ports[p].constraints.describe()
+                 for p in reg.node_class(n).constrained_ports} for n in _nodes()}
+    assert {n: d for n, d in found.items() if d} == DECLARED
+
+
+def test_every_declared_constraint_is_refused_naming_its_port():
+    findings = check_contracts(default_registry(), nodes=_nodes())
+    assert len(findings) == sum(len(c) for d in DECLARED.values() for c in d.values())
+    bad = [f"{f.node}: {f.message}" for f in findings if not (f.ok and f.checked)]
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("args", [["graphkit-mediapipe"], ["--node", "SkinSegment", "--node", "SmoothMesh"]])
+def test_graphkit_conform_passes(args):
+    r = graphkit("conform", *args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert " 0 failed, 0 not checked" in r.stdout, r.stdout
