@@ -54,3 +54,30 @@ def test_graphkit_conform_passes(args):
     r = graphkit("conform", *args)
     assert r.returncode == 0, r.stdout + r.stderr
     assert " 0 failed, 0 not checked" in r.stdout, r.stdout
+
+
+def test_shared_rgb_checks():
+    """nodes.paris.checks: the colour rule that no ``channels=`` declaration says (3 or more,
+    or grey too) and the finite RGB pixels, one place for ProbeLight, ShininessFromSaturation,
+    SkinSegment and Render's detail texture."""
+    import numpy as np
+
+    from graphkit import BadInput, Image
+    from nodes.paris.checks import check_rgb, rgb_pixels
+
+    for n in (3, 4, 5):
+        check_rgb(Image(np.ones((2, 2, n))), "image")
+    check_rgb(Image(np.ones((2, 2, 1))), "image", grey=True)
+    for n, grey in ((1, False), (2, False), (2, True)):
+        with pytest.raises(BadInput) as e:
+            check_rgb(Image(np.ones((2, 2, n))), "image", grey=grey)
+        assert e.value.port == "image" and e.value.message.endswith(f"channels), got {n}")
+    grey = rgb_pixels(Image(np.full((2, 3, 1), 0.25)), "probe", grey=True)
+    assert grey.shape == (2, 3, 3) and grey.dtype == np.float64 and (grey == 0.25).all()
+    rgba = np.ones((2, 3, 4))
+    rgba[0, 0, 3] = np.nan  # alpha is not looked at
+    assert rgb_pixels(Image(rgba), "image").shape == (2, 3, 3)
+    rgba[1, 2, 1] = np.inf
+    with pytest.raises(BadInput) as e:
+        rgb_pixels(Image(rgba), "white")
+    assert e.value.port == "white" and e.value.message == "the image holds 0 NaN and 1 Inf values (first at index (1, 2, 1))"

@@ -279,6 +279,10 @@ def test_bad_inputs():
         with pytest.raises(BadInput) as e:
             compute_checked(node, mesh=bad, camera=CAM, **more)
         assert e.value.port == "mesh" and e.value.message.startswith("holds 3 NaN and 0 Inf values"), node
+    with pytest.raises(BadInput) as e:  # it multiplies RGB (numpy raised a ValueError before)
+        Render().compute(mesh=_sphere(4), camera=CAM, material=MAT, lights=[light],
+                         detail=Image(np.ones((CAM.height, CAM.width, 2))), texture_camera=CAM)
+    assert e.value.port == "detail" and e.value.message == "needs an RGB image (1 or at least 3 channels), got 2"
     with pytest.raises(BadInput) as e:  # an image not taken by the camera (same_size_as)
         compute_checked(FrameFace(), mesh=_sphere(4), camera=CAM, image=Image(np.ones((50, 40, 3))))
     assert e.value.port == "image"

@@ -70,19 +70,15 @@ class FitSkinPhong(Node):
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
-        from .render import light_vectors, skin_pixels, surface, world_lights
+        from .render import light_vectors, skin_surface, world_lights
         from . import phong
 
         p = self.params
         if shininess is None:
             shininess = p.shininess
-        sk = skin_pixels(skin, p.skin_threshold)
         if not (np.isfinite(shininess) and shininess > 0):
             raise BadInput("shininess", f"the Phong exponent must be > 0, got {shininess}")
-        s = surface(mesh, camera, min_pixels=1)
-        use = sk[s.coverage]
-        if use.sum() < 20:
-            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
+        s, use = skin_surface(mesh, camera, skin, p.skin_threshold, fewest=20)
         (lw,) = world_lights([light], camera, mesh, "light")
         ldir, L = light_vectors(lw, s.points)
         diff, rv = phong.lobes(s.normals, ldir, s.view, 1.0)  # rv: max(r·v, 0) where lit

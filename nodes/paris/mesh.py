@@ -36,7 +36,7 @@ class SmoothMesh(Node):
     def compute(self, mesh):
         import trimesh
 
-        from .render import check_mesh
+        from .checks import check_mesh
 
         check_mesh(mesh)
         V = np.asarray(mesh.vertices, np.float64)

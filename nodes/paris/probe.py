@@ -7,6 +7,8 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Node, Out
 
+from .checks import rgb_pixels
+
 #: linear sRGB → luminance Y (Rec. 709 / sRGB primaries, D65)
 _Y = np.array([0.2126, 0.7152, 0.0722])
 #: colours of the classification image (linear RGB)
@@ -101,7 +103,7 @@ class ProbeLight(Node):
 
     def compute(self, probe: Image, white: Image | None = None, camera: Camera | None = None):
         p = self.params
-        px = _rgb(probe, "probe")
+        px = rgb_pixels(probe, "probe", grey=True)
         h, w = px.shape[:2]
         fov_deg = self._probe_fov(camera)
         cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg)
@@ -255,7 +257,7 @@ class ProbeLight(Node):
 
     def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None, fov_deg=None) -> float:
         p = self.params
-        px = _rgb(white, "white")
+        px = rgb_pixels(white, "white", grey=True)
         h, w = px.shape[:2]
         found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
@@ -273,18 +275,6 @@ class ProbeLight(Node):
         if k <= 0:
             raise BadInput("white", "the white ball is not lit by the flash found on the probe")
         return float(k / p.white_albedo)
-
-
-def _rgb(img: Image, port: str) -> np.ndarray:
-    px = np.asarray(img.pixels, np.float64)
-    if px.shape[2] == 1:
-        px = np.repeat(px, 3, 2)
-    if px.shape[2] < 3:
-        raise BadInput(port, f"needs an RGB image, got {img.channels} channels")
-    px = px[..., :3]
-    if not np.isfinite(px).all():
-        raise BadInput(port, "the image holds NaN or Inf values")
-    return px
 
 
 def robust_mean(x: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
+from .checks import check_mesh, check_rgb
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -42,23 +43,6 @@ class Surface:
     points: np.ndarray  # M×3 world positions of covered pixels (row-major order)
     normals: np.ndarray  # M×3 unit world normals, turned towards the camera
     view: np.ndarray  # M×3 unit directions towards the camera centre
-
-
-def check_mesh(mesh, port: str = "mesh") -> None:
-    """BadInput unless the mesh has triangles (finite vertices are declared on the mesh port:
-    ``In(Mesh, ..., finite=True)``, checked by the engine)."""
-    if mesh is None or len(mesh.faces) == 0:
-        raise BadInput(port, "the mesh has no triangles")
-
-
-def skin_pixels(skin: Mask, threshold: float) -> np.ndarray:
-    """The photo's skin pixels (alpha ≥ ``threshold``, H×W bool); BadInput at the skin port
-    when there are none.  (That the camera and the mask are the photo's size is declared on
-    the ports: ``same_size_as="image"``.)"""
-    sk = skin.alpha >= threshold
-    if not sk.any():
-        raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
-    return sk
 
 
 def _in_front_and_frame(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, bool]:
@@ -103,6 +87,23 @@ def check_in_view(mesh, camera: Camera, port: str = "mesh", camera_port: str = "
                              "not clip")
     raise BadInput(port, f"the mesh is beside the camera: its projection misses the "
                          f"{camera.width}×{camera.height} image{hint or ' (wrong pose, units or image size?)'}")
+
+
+def skin_surface(mesh, camera: Camera, skin: Mask, threshold: float, fewest: int) -> tuple[Surface, np.ndarray]:
+    """(the mesh's :func:`surface` in the photo, which of its pixels are skin: alpha ≥
+    ``threshold``), after the checks every node fitting to a photo makes: the skin mask is not
+    empty and at least ``fewest`` skin pixels lie on the mesh (BadInput at the skin port).
+    That the camera and the mask are the photo's size is declared on the ports
+    (``same_size_as="image"``)."""
+    sk = skin.alpha >= threshold
+    if not sk.any():
+        raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+    s = surface(mesh, camera, min_pixels=1)
+    use = sk[s.coverage]
+    if use.sum() < fewest:
+        raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh (at least {fewest} are "
+                               "needed): the skin mask and the mesh hardly overlap")
+    return s, use
 
 
 def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Surface:
@@ -389,10 +390,12 @@ class ShadeFace(Node):
 
 
 def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None) -> list:
-    """Render's input checks that relate its inputs beyond the declared constraints (at least
-    one light; the texture camera's size is the detail texture's), shared by its backends: the
+    """Render's input checks that no port constraint expresses (the declared ones: at least
+    one light, the texture camera's size is the detail texture's), shared by its backends: the
     lights as a list."""
     lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
+    if detail is not None:
+        check_rgb(detail, "detail", grey=True)  # it multiplies RGB
     if detail is not None and texture_camera is None:
         raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
     if camera is not None and texture_camera is not None and \

@@ -172,20 +172,12 @@ class ShininessFromSaturation(Node):
 
     # -- the photo's own pixels ---------------------------------------------------------------
     def _from_photo(self, image, mesh, camera, skin, ldir, white):
-        from .render import skin_pixels, surface
+        from .checks import rgb_pixels
+        from .render import skin_surface
 
         p = self.params
-        sk = skin_pixels(skin, p.skin_threshold)
-        px = np.asarray(image.pixels, np.float64)
-        if px.ndim != 3 or px.shape[2] < 3:
-            raise BadInput("image", f"needs an RGB photo, got {image.channels} channel(s)")
-        px = px[..., :3]
-        if not np.isfinite(px).all():
-            raise BadInput("image", "the photo holds NaN or Inf values")
-        s = surface(mesh, camera, min_pixels=1)
-        use = sk[s.coverage]
-        if use.sum() < 50:
-            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
+        px = rgb_pixels(image, "image")
+        s, use = skin_surface(mesh, camera, skin, p.skin_threshold, fewest=50)
         R = camera.pose[:3, :3]
         normals = s.normals[use] @ R.T
         view = s.view[use] @ R.T

@@ -10,6 +10,8 @@ import numpy as np
 
 from graphkit import BadInput, Field, Image, In, Mask, Node
 
+from .checks import check_rgb
+
 #: chromaticity (u', v') of the D65 white point (CIE 1976 UCS)
 _WHITE_UV = (0.19784, 0.46832)
 
@@ -63,8 +65,7 @@ class SkinSegment(Node):
             if not (a > 0).any():
                 raise BadInput("painted", "the painted skin mask is empty")
             return Mask(a)
-        if image.channels < 3:
-            raise BadInput("image", f"skin segmentation needs an RGB photo, got {image.channels} channel(s)")
+        check_rgb(image, "image")
         if face is None:
             raise BadInput("face", "connect a face region (e.g. FaceMesh.face) or a painted skin mask")
         region = face.alpha > 0.5
