@@ -81,3 +81,33 @@ def test_shared_rgb_checks():
     with pytest.raises(BadInput) as e:
         rgb_pixels(Image(rgba), "white")
     assert e.value.port == "white" and e.value.message == "the image holds 0 NaN and 1 Inf values (first at index (1, 2, 1))"
+
+
+def test_shared_direction_check():
+    """nodes.paris.checks.unit_direction: a zero or non-finite light direction, refused naming
+    the port by MakeLight (param), Render (a light input) and ShininessFromSaturation."""
+    import numpy as np
+    import trimesh
+
+    from graphkit import BadInput, Camera, Image, Light
+    from nodes.paris.checks import unit_direction
+    from nodes.paris.models import PhongMaterial
+    from nodes.paris.render import MakeLight, Render
+    from nodes.paris.shininess import ShininessFromSaturation
+
+    assert unit_direction((0.0, 3.0, -4.0), "light").tolist() == [0.0, 0.6, -0.8]
+    with pytest.raises(BadInput) as e:
+        MakeLight(MakeLight.Params(direction=(0.0, 0.0, 0.0))).compute()
+    assert e.value.port == "direction" and e.value.message == "the light direction (0.0, 0.0, 0.0) is zero or not finite"
+    m = trimesh.creation.icosphere(subdivisions=2)
+    m.apply_translation([0, 0, 4.0])
+    cam = Camera(width=40, height=32, fx=60, fy=60, cx=20, cy=16)
+    good = Light(direction=(0.0, 0.0, -1.0))
+    with pytest.raises(BadInput) as e:
+        Render().compute(mesh=m, camera=cam, material=PhongMaterial(diffuse=(0.5, 0.5, 0.5), specular=0.1, shininess=9.0),
+                         lights=[good, Light(direction=(np.nan, 0.0, -1.0))])
+    assert e.value.port == "lights" and e.value.message == "light 1: the direction (nan, 0.0, -1.0) is zero or not finite"
+    with pytest.raises(BadInput) as e:
+        ShininessFromSaturation().compute(light=Light(direction=(0.0, 0.0, 0.0)),
+                                          reflectance=Image(np.ones((180, 360, 3), np.float32)))
+    assert e.value.port == "light" and e.value.message == "the light direction (0.0, 0.0, 0.0) is zero or not finite"

@@ -34,3 +34,13 @@ def rgb_pixels(image: Image, port: str, grey: bool = False) -> np.ndarray:
     if problem:
         raise BadInput(port, f"the image holds {problem}")
     return px
+
+
+def unit_direction(d, port: str, what: str = "the light direction") -> np.ndarray:
+    """The 3-vector ``d`` divided by its length (float64); BadInput when it is zero or not
+    finite (a Light's direction is not checked by its type)."""
+    d = np.asarray(d, np.float64)
+    n = np.linalg.norm(d)
+    if not (np.isfinite(d).all() and n > 0):
+        raise BadInput(port, f"{what} {tuple(float(x) for x in d)} is zero or not finite")
+    return d / n

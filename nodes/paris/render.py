@@ -19,7 +19,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
-from .checks import check_mesh, check_rgb
+from .checks import check_mesh, check_rgb, unit_direction
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -198,9 +198,7 @@ def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> lis
                                      "is inside the mesh: it must be outside the face (positions are "
                                      "in metres, world frame)")
         elif lw.kind == "directional":
-            d = np.asarray(lw.direction, np.float64)
-            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
-                raise BadInput(port, f"light {i}: the direction {tuple(d)} is zero or not finite")
+            unit_direction(lw.direction, port, f"light {i}: the direction")
         out.append(lw)
     return out
 
@@ -628,10 +626,7 @@ class MakeLight(Node):
     def compute(self, camera: Camera | None = None):
         p = self.params
         if p.direction is not None:
-            d = np.asarray(p.direction, np.float64)
-            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
-                raise BadInput("direction", "the light direction is the zero vector")
-            d = d / np.linalg.norm(d)
+            d = unit_direction(p.direction, "direction")
         else:
             a, e = np.radians(p.azimuth_deg), np.radians(p.elevation_deg)
             d = np.array([np.sin(a) * np.cos(e), -np.sin(e), -np.cos(a) * np.cos(e)])

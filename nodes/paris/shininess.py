@@ -8,6 +8,7 @@ import numpy as np
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
 
 from . import sphere
+from .checks import rgb_pixels, unit_direction
 
 
 def _light_dir_camera(light: Light, camera: Camera | None = None) -> np.ndarray:
@@ -172,7 +173,6 @@ class ShininessFromSaturation(Node):
 
     # -- the photo's own pixels ---------------------------------------------------------------
     def _from_photo(self, image, mesh, camera, skin, ldir, white):
-        from .checks import rgb_pixels
         from .render import skin_surface
 
         p = self.params
@@ -346,11 +346,7 @@ def shininess_from_angle(alpha: float | np.ndarray) -> float | np.ndarray:
 
 def highlight_normal(direction) -> np.ndarray:
     """Normal of the highlight: halfway between the light and the camera (−z), unit."""
-    l = np.asarray(direction, np.float64)
-    nl = np.linalg.norm(l)
-    if not np.isfinite(nl) or nl == 0:
-        raise BadInput("light", "the light direction is zero or not finite")
-    hv = l / nl + np.array([0.0, 0.0, -1.0])
+    hv = unit_direction(direction, "light") + np.array([0.0, 0.0, -1.0])
     nh = np.linalg.norm(hv)
     if nh < 1e-6:
         raise BadInput("light", "the light is exactly behind the face")
