@@ -36,6 +36,13 @@ def rgb_pixels(image: Image, port: str, grey: bool = False) -> np.ndarray:
     return px
 
 
+def check_lit(diffuse: np.ndarray, port: str, light: str, pixels: str) -> None:
+    """BadInput unless the light (described by ``light``) lights one of the pixels (its
+    diffuse term ``diffuse`` > 0 at one of them, described by ``pixels``)."""
+    if not (diffuse > 0).any():
+        raise BadInput(port, f"{light} is behind the face: it lights none of the {pixels}")
+
+
 def unit_direction(d, port: str, what: str = "the light direction") -> np.ndarray:
     """The 3-vector ``d`` divided by its length (float64); BadInput when it is zero or not
     finite (a Light's direction is not checked by its type)."""

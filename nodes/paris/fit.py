@@ -7,6 +7,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
 
+from .checks import check_lit
 from .models import PhongMaterial
 
 
@@ -84,9 +85,7 @@ class FitSkinPhong(Node):
         diff, rv = phong.lobes(s.normals, ldir, s.view, 1.0)  # rv: max(r·v, 0) where lit
         with np.errstate(under="ignore"):
             spec = rv ** float(shininess)
-        if not (diff[use] > 0).any():
-            raise BadInput("light", f"the light (direction {light.direction}) is behind the "
-                                    "face: it lights none of the skin pixels")
+        check_lit(diff[use], "light", f"the light (direction {light.direction})", "skin pixels")
         photo = image.pixels[s.coverage][:, :3].astype(np.float64)
         idx = np.nonzero(use)[0]
         if len(idx) > p.max_pixels:  # deterministic even subsample

@@ -19,7 +19,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
-from .checks import check_mesh, check_rgb, unit_direction
+from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -489,10 +489,8 @@ class Render(Node):
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
-            if not (diff > 0).any():
-                raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
-                                         f"position {light.position}) is behind the face: it "
-                                         f"lights none of the {M} visible pixels")
+            check_lit(diff, "lights", f"light {i} ({light.kind}, direction {light.direction}, "
+                                      f"position {light.position})", f"{M} visible pixels")
             if p.shadows:
                 try:
                     sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
