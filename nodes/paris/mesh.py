@@ -5,6 +5,8 @@ import numpy as np
 
 from graphkit import Field, In, Mesh, Node, Out
 
+from .checks import check_mesh
+
 
 class SmoothMesh(Node):
     """Loop subdivision (trimesh ``remesh.subdivide_loop``) of a coarse face mesh, with smooth
@@ -35,8 +37,6 @@ class SmoothMesh(Node):
 
     def compute(self, mesh):
         import trimesh
-
-        from .checks import check_mesh
 
         check_mesh(mesh)
         V = np.asarray(mesh.vertices, np.float64)
