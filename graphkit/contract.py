@@ -21,13 +21,15 @@ refuse NaN and infinities.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
 
 from .errors import BadInput
-from .types import ARRAY, IMAGE, MASK, MESH, SCALAR, SPECTRUM, VECTOR, Camera, Image, Mask, Spectrum, port_type
+from .types import (ARRAY, IMAGE, MASK, MESH, SCALAR, SPECTRUM, VECTOR, Camera, Image, Mask, Spectrum,
+                    finite_or_message, port_type)
 
 CAMERA = port_type(Camera)
 
@@ -138,17 +140,15 @@ class Finite:
     types: ClassVar[tuple] = (IMAGE, MASK, SPECTRUM, SCALAR, VECTOR, ARRAY, MESH)
 
     def check(self, value, inputs) -> str | None:
-        from .types import finite_or_message
-
-        arr = _array(value)
-        problem = finite_or_message(np.asarray(arr, dtype=np.float64) if arr.dtype.kind in "iub" else arr)
+        problem = finite_or_message(_array(value))  # None for integers
         return f"holds {problem}" if problem else None
 
     def describe(self) -> str:
         return "finite (no NaN or Inf)"
 
     def spoil(self, value, inputs):
-        arr = np.array(_array(value), dtype=np.float64 if _array(value).dtype.kind != "f" else None)
+        arr = _array(value)
+        arr = arr.astype(arr.dtype if arr.dtype.kind == "f" else np.float64)  # a copy
         arr.flat[0] = np.nan
         return _with_array(value, arr)
 
@@ -242,6 +242,9 @@ class Constraints:
 
     def rules(self) -> tuple[Rule, ...]:
         """The rules in the order they are checked."""
+        return _rules(self)
+
+    def _make_rules(self) -> tuple[Rule, ...]:
         out: list = []
         if self.min_items is not None:
             out.append(MinItems(self.min_items))
@@ -285,6 +288,11 @@ class Constraints:
             if v != f.default:
                 out[f.name] = list(v) if isinstance(v, tuple) else v
         return out
+
+
+@functools.lru_cache(maxsize=None)
+def _rules(c: Constraints) -> tuple[Rule, ...]:
+    return c._make_rules()
 
 
 # --------------------------------------------------------------------------------------------
