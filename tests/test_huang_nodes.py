@@ -253,9 +253,12 @@ def test_kmstack_bad_input():
 def test_cosmetic_shade_uses_the_shared_sss_and_microfacet():
     from nodes.common import sss
 
-    src = inspect.getsource(CosmeticShade.compute)
+    from nodes.huang import shade
+
+    # compute's diffuse part (CosmeticShade._diffuse) and specular part (shade._specular)
+    src = inspect.getsource(CosmeticShade._diffuse)
     assert CosmeticShade.sss_blur is sss.sss_blur and "self.sss_blur(" in src  # the hook backends replace
-    assert "from nodes.common.microfacet import kelemen_specular" in src
+    assert "from nodes.common.microfacet import kelemen_specular" in inspect.getsource(shade._specular)
 
 
 def test_cosmetic_shade_uniform_light_equals_kmstack():

@@ -1,6 +1,8 @@
 """CosmeticShade — made-up skin: KM layers + skin SSS + per-layer specular (Huang et al. 2013 §3)."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
@@ -75,8 +77,6 @@ class CosmeticShade(Node):
     def compute(self, albedo: Image, thickness: Image, layers=None, irradiance=None, normals=None,
                 light: Light | None = None, depth=None, skin: Mask | None = None, mesh=None,
                 camera: Camera | None = None):
-        from nodes.common.microfacet import kelemen_specular
-
         p = self.params
         check_illuminant(p.illuminant)
         specs = resolve_layers(layers, p.cosmetics)
@@ -84,89 +84,32 @@ class CosmeticShade(Node):
         rho = albedo.pixels.astype(np.float32)
         h, w = rho.shape[:2]
         t = _thickness_map(thickness, "thickness", (h, w), len(specs))
-        n = None
-        view = None  # per-pixel directions to the viewer, from the camera
-        mpp = p.mm_per_pixel
-        dmap = None
-        if (mesh is None) != (camera is None):
-            raise BadInput("camera" if camera is None else "mesh", "connect both mesh and camera (or neither)")
-        if mesh is not None:
-            if normals is not None or depth is not None:
-                raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
-            if (camera.width, camera.height) != (w, h):
-                raise BadInput("camera", f"camera is {camera.width}×{camera.height}, the albedo is {w}×{h}")
-            n, dmap, mpp_map, view, cov = _mesh_geometry(mesh, camera)
-            mpp = np.where(cov, mpp_map, p.mm_per_pixel)
-            skin_cov = cov.astype(np.float32)
-            skin = Mask(skin_cov if skin is None else np.minimum(skin.alpha, skin_cov)) \
-                if (skin is None or skin.alpha.shape == (h, w)) else skin
-        if normals is not None:
-            n = np.asarray(normals.pixels, np.float64)
-            if n.shape != (h, w, 3):
-                raise BadInput("normals", f"normals must be {w}×{h}×3, got {normals.size_str()}")
-            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-        if light is not None and light.kind != "directional":
-            raise BadInput("light", "CosmeticShade takes a directional light (no surface positions here)")
-        lcol = None if light is None else np.asarray(light.color, np.float32) * np.float32(light.intensity)
-        if light is not None and camera is not None:
-            light = camera.light_to_camera(light)  # lights are world-frame; normals here are camera-frame
-        ldir = None if light is None else np.asarray(light.direction, np.float64)
-        if ldir is not None:
-            ldir = ldir / max(np.linalg.norm(ldir), 1e-12)
-        if irradiance is not None:
-            E = np.asarray(irradiance.pixels, np.float32)
-            if E.shape[:2] != (h, w) or E.shape[2] not in (1, 3):
-                raise BadInput("irradiance", f"irradiance must be {w}×{h} with 1 or 3 channels, got {irradiance.size_str()}")
-            if not np.isfinite(E).all() or (E < 0).any():
-                raise BadInput("irradiance", "irradiance must be finite and ≥ 0")
-            E = np.broadcast_to(E, (h, w, 3))
-        elif light is not None and p.relight:
-            cos = 1.0 if n is None else np.maximum(n @ ldir, 0.0)[..., None]
-            E = (np.asarray(cos, np.float32) * lcol + np.asarray(light.ambient, np.float32)).astype(np.float32)
-            E = np.broadcast_to(E, (h, w, 3))
-        else:
-            E = np.ones((h, w, 3), np.float32)
-        if depth is not None:
-            dmap = np.asarray(depth.pixels, np.float64)
-            if dmap.shape[:2] != (h, w) or dmap.shape[2] != 1:
-                raise BadInput("depth", f"depth must be {w}×{h}×1 (mm), got {depth.size_str()}")
-            dmap = dmap[..., 0]
-        smask = None
-        if skin is not None:
-            if skin.alpha.shape != (h, w):
-                raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the albedo is {w}×{h}")
-            smask = skin.alpha
+        _check_geometry_inputs((h, w), normals, depth, mesh, camera)
+        _check_light_inputs((h, w), irradiance, light)
+        _check_map_inputs((h, w), depth, skin)
+        surf = _surface(p.mm_per_pixel, normals, depth, skin, mesh, camera)
+        lcol, ldir, light = _camera_frame_light(light, camera)
+        E = _irradiance((h, w), irradiance, light, lcol, ldir, surf.normals, p.relight)
+        diffuse = self._diffuse(wl, S, K, t, rho, E, surf)
+        spec = np.zeros((h, w, 3), np.float32)
+        if surf.normals is not None and ldir is not None:
+            spec = _specular(p, specs, wl, S, K, t, surf, ldir, lcol)
+        return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
 
-        # §3.1: the stack's reflectance and transmittance per pixel (spectral, through the table)
+    def _diffuse(self, wl, S, K, t, rho, E, surf: _Surface) -> np.ndarray:
+        """§3.1: the stack's reflectance and transmittance per pixel (spectral, through the
+        table); §3.2: the light entering the skin (with the skin ↔ layer inter-reflections),
+        scattered in it, and leaving through the layers.  Through the backend hooks
+        ``pixel_stack`` and ``sss_blur``."""
+        p = self.params
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        # §3.2: light entering the skin (with skin ↔ layer inter-reflections), scattered, leaving
         pre = T * E / (1.0 - Rb * rho)
         if p.sss:
-            pre = self.sss_blur(pre, mpp, dmap, mask=smask)
+            pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_exit = np.where(T > 1e-12, T2 / T, 0.0)
-        diffuse = (Rt * E + t_exit * rho * pre).astype(np.float32)
-
-        # §3.3: specular, bottom to top
-        spec = np.zeros((h, w, 3), np.float32)
-        if n is not None and ldir is not None:
-            if view is not None:
-                v = view
-            else:
-                v = np.asarray(p.view, np.float64)
-                v = v / max(np.linalg.norm(v), 1e-12)
-            s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
-            Wf = km.rgb_weights(wl, p.illuminant)
-            Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
-            for i, L in enumerate(specs):
-                grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
-                _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
-                Ti = km.lookup(Tg @ Wf, grid, t[..., i:i + 1]).astype(np.float64)
-                cover = np.clip(t[..., i] / p.cover_mm, 0.0, 1.0)[..., None]
-                s = s * Ti + cover * kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None]
-            spec = (s * lcol).astype(np.float32)
-        return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
+        return (Rt * E + t_exit * rho * pre).astype(np.float32)
 
     @classmethod
     def examples(cls):
@@ -186,6 +129,117 @@ class CosmeticShade(Node):
                 ({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 0.3},
                  {"albedo": Image(rho), "thickness": Image(soft), "normals": Image(nrm), "light": light,
                   "depth": depth, "skin": skin})]
+
+
+def _check_geometry_inputs(hw, normals, depth, mesh, camera) -> None:
+    """mesh and camera come together, and then instead of normals and depth; sizes match."""
+    h, w = hw
+    if (mesh is None) != (camera is None):
+        raise BadInput("camera" if camera is None else "mesh", "connect both mesh and camera (or neither)")
+    if mesh is not None:
+        if normals is not None or depth is not None:
+            raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
+        if (camera.width, camera.height) != (w, h):
+            raise BadInput("camera", f"camera is {camera.width}×{camera.height}, the albedo is {w}×{h}")
+    if normals is not None and np.shape(normals.pixels) != (h, w, 3):
+        raise BadInput("normals", f"normals must be {w}×{h}×3, got {normals.size_str()}")
+
+
+def _check_light_inputs(hw, irradiance, light) -> None:
+    """A directional light; an irradiance of the albedo's size, 1 or 3 channels, finite, ≥ 0."""
+    h, w = hw
+    if light is not None and light.kind != "directional":
+        raise BadInput("light", "CosmeticShade takes a directional light (no surface positions here)")
+    if irradiance is None:
+        return
+    E = np.asarray(irradiance.pixels, np.float32)
+    if E.shape[:2] != (h, w) or E.shape[2] not in (1, 3):
+        raise BadInput("irradiance", f"irradiance must be {w}×{h} with 1 or 3 channels, got {irradiance.size_str()}")
+    if not np.isfinite(E).all() or (E < 0).any():
+        raise BadInput("irradiance", "irradiance must be finite and ≥ 0")
+
+
+def _check_map_inputs(hw, depth, skin) -> None:
+    """The depth (mm, one channel) and skin mask have the albedo's size."""
+    h, w = hw
+    if depth is not None:
+        shape = np.shape(depth.pixels)
+        if shape[:2] != (h, w) or shape[2] != 1:
+            raise BadInput("depth", f"depth must be {w}×{h}×1 (mm), got {depth.size_str()}")
+    if skin is not None and skin.alpha.shape != (h, w):
+        raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the albedo is {w}×{h}")
+
+
+class _Surface(NamedTuple):
+    """What CosmeticShade knows of the surface per pixel (None: not given)."""
+    normals: np.ndarray | None  # unit, camera frame
+    view: np.ndarray | None     # unit directions to the viewer (None: the 'view' param)
+    mm_per_pixel: np.ndarray | float
+    depth: np.ndarray | None    # mm
+    mask: np.ndarray | None     # where the SSS stays
+
+
+def _surface(mm_per_pixel: float, normals, depth, skin, mesh, camera) -> _Surface:
+    """The surface from mesh + camera (the skin mask cut to the mesh's coverage), else from the
+    normals, depth and skin inputs."""
+    smask = None if skin is None else skin.alpha
+    if mesh is not None:
+        n, dmap, mpp_map, view, cov = _mesh_geometry(mesh, camera)
+        cover = cov.astype(np.float32)
+        return _Surface(n, view, np.where(cov, mpp_map, mm_per_pixel), dmap,
+                        cover if smask is None else np.minimum(smask, cover))
+    n = None
+    if normals is not None:
+        n = np.asarray(normals.pixels, np.float64)
+        n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    dmap = None if depth is None else np.asarray(depth.pixels, np.float64)[..., 0]
+    return _Surface(n, None, mm_per_pixel, dmap, smask)
+
+
+def _camera_frame_light(light: Light | None, camera: Camera | None):
+    """(colour × intensity, unit direction, the light) in the camera frame of the normals
+    (lights are world-frame); Nones without a light."""
+    if light is None:
+        return None, None, None
+    lcol = np.asarray(light.color, np.float32) * np.float32(light.intensity)
+    if camera is not None:
+        light = camera.light_to_camera(light)
+    ldir = np.asarray(light.direction, np.float64)
+    return lcol, ldir / max(np.linalg.norm(ldir), 1e-12), light
+
+
+def _irradiance(hw, irradiance, light, lcol, ldir, n, relight: bool) -> np.ndarray:
+    """E (H×W×3): the irradiance input; else colour·intensity·max(N·L, 0) + ambient from a
+    light (when ``relight``); else 1."""
+    h, w = hw
+    if irradiance is not None:
+        return np.broadcast_to(np.asarray(irradiance.pixels, np.float32), (h, w, 3))
+    if light is not None and relight:
+        cos = 1.0 if n is None else np.maximum(n @ ldir, 0.0)[..., None]
+        E = (np.asarray(cos, np.float32) * lcol + np.asarray(light.ambient, np.float32)).astype(np.float32)
+        return np.broadcast_to(E, (h, w, 3))
+    return np.ones((h, w, 3), np.float32)
+
+
+def _specular(p, specs, wl, S, K, t, surf: _Surface, ldir, lcol) -> np.ndarray:
+    """§3.3, eq. 5: the skin's Kelemen specular, then for each layer bottom to top attenuated by
+    the layer's transmittance and the layer's own specular added, weighted by its coverage."""
+    from nodes.common.microfacet import kelemen_specular
+
+    n, v = surf.normals, surf.view
+    if v is None:
+        v = np.asarray(p.view, np.float64)
+        v = v / max(np.linalg.norm(v), 1e-12)
+    s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
+    Wf = km.rgb_weights(wl, p.illuminant)
+    Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
+    for i, L in enumerate(specs):
+        grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
+        _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
+        Ti = km.lookup(Tg @ Wf, grid, t[..., i:i + 1]).astype(np.float64)
+        cover = np.clip(t[..., i] / p.cover_mm, 0.0, 1.0)[..., None]
+        s = s * Ti + cover * kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None]
+    return (s * lcol).astype(np.float32)
 
 
 def _mesh_geometry(mesh, camera: Camera):

@@ -60,6 +60,7 @@ EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
 PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
 MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
+_NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
 
 @dataclass
@@ -121,18 +122,29 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     seeds = _seeds(g, spots)
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
-    noise = 1.0          # g has unit noise
+    fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
+    return _choose(fits, clipped, " around the highlight" if spots else "")
+
+
+def _candidates(g, seeds, spots) -> list[dict]:
+    """Steps 1–2: the distinct circles near the seeds with loose support (holding one of the
+    highlight ``spots`` when there are any)."""
     circles = []
     for x0, y0, r0 in seeds:
-        for c in _circles_near(g, noise, x0, y0, r0):
+        for c in _circles_near(g, _NOISE, x0, y0, r0):
             if not any(_same(c, d) for d in circles):
                 circles.append(c)
     loose = [c for c in circles if c["support"] >= LOOSE_SUPPORT and c["r"] >= MIN_RADIUS_PX]
     if spots:
         loose = [c for c in loose if _holds(c, spots)]
-    fits = []
-    for c in loose:
-        f = _subpixel(lum, g, noise, c, fov_deg)
+    return loose
+
+
+def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
+    """Steps 3–4: the circles fitted sub-pixel, the best supported of twins kept."""
+    fits: list[BallFit] = []
+    for c in circles:
+        f = _subpixel(lum, g, _NOISE, c, fov_deg)
         if not np.isfinite(f.residual_px):
             continue
         twin = [i for i, o in enumerate(fits) if _same(f, o)]
@@ -140,9 +152,14 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
             fits.append(f)
         elif f.support > fits[twin[0]].support:
             fits[twin[0]] = f
+    return fits
+
+
+def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
+    """Step 5: the ball among the fitted circles, with why it may not be (``where``: said of
+    the outlines looked for, e.g. " around the highlight")."""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
     closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
-    where = " around the highlight" if spots else ""
     if not closed:
         best = max(fits, key=lambda f: f.support, default=None)
         if best is None:
@@ -161,26 +178,32 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     balls.sort(key=lambda f: -f.support)
     best = balls[0]
     best.candidates = cand
-    if len(balls) > 1 and balls[1].support >= best.support - AMBIGUITY:
-        o = balls[1]
-        best.confident = False
-        best.reason = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
-                       f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
-        return best
-    if best.confident:
-        ring = _ring_fraction(clipped, best, 1.0, 0.25)
-        if ring > 0.2:
-            best.confident = False
-            best.reason = (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
-                           "are clipped: the ball's silhouette may be lost in them (over-exposed)")
-            return best
-    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
-    if outer and best.confident:
-        o = max(outer, key=lambda f: f.support)
-        best.confident = False
-        best.reason = (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
-                       f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+    doubt = _doubt(best, balls[1:], fits, clipped)
+    if doubt:
+        best.confident, best.reason = False, doubt
     return best
+
+
+def _doubt(best: BallFit, others: list[BallFit], fits: list[BallFit], clipped) -> str:
+    """Why ``best`` may not be the ball ('' if nothing speaks against it): another closed
+    outline about as well supported (``others``, by support), or — while its own fit is
+    confident — clipped pixels just outside it, or a fainter circle around it."""
+    if others and others[0].support >= best.support - AMBIGUITY:
+        o = others[0]
+        return (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
+                f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
+    if not best.confident:
+        return ""
+    ring = _ring_fraction(clipped, best, 1.0, 0.25)
+    if ring > 0.2:
+        return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
+                "are clipped: the ball's silhouette may be lost in them (over-exposed)")
+    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    if not outer:
+        return ""
+    o = max(outer, key=lambda f: f.support)
+    return (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
+            f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
 
 
 # ---------------------------------------------------------------------------------------------
