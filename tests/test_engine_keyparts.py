@@ -22,8 +22,10 @@ KEY_PARTS = {"recipe", "node_type", "node_version", "backend", "backend_version"
 
 
 class ConstV2(enginenodes.Const):
-    """enginenodes.Const with another version."""
+    """enginenodes.Const with another version (registered as type Const: the registry refuses a
+    class whose type_name is not its key)."""
 
+    type_name = "Const"
     version = "2"
 
 
