@@ -13,4 +13,5 @@ NODES = {
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
     "SmoothMesh": "nodes.paris.mesh:SmoothMesh",
+    "CompositeFace": "nodes.paris.composite:CompositeFace",
 }
