@@ -47,7 +47,14 @@ def smooth_fill(values: np.ndarray, weight: np.ndarray, scale_px: float) -> np.n
     s = max(float(scale_px), 0.5)
 
     def blur(x, sigma):
-        return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
+        """Gaussian blur; a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
+        f = max(1, int(sigma // 4))
+        if f == 1:
+            return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
+        h, w = x.shape[:2]
+        small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+        small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT)
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(x.shape)
 
     den = blur(w, s)
     num = blur(v * w[:, :, None], s)

@@ -54,8 +54,10 @@ class CompositeFace(Node):
       ``scale`` and extended outward smoothly (push-pull normalized convolution of its log);
       outside the face the photo is multiplied by it, so a neck is not left lit by the old flash.
     * The relit face is blended in over a ``feather`` band inside the mesh border: multi-band
-      (Laplacian pyramid, the default: measured best on benchmarks/bench_composite.py's seam
-      figure), OpenCV's Poisson ``seamless`` clone (through 8 bits), or a plain ``alpha`` feather.
+      (Laplacian pyramid, the default: the lowest seam figure of the three on every light of
+      benchmarks/bench_composite.py, 0.90–0.99× the photo's own log gradient on the border),
+      OpenCV's Poisson ``seamless`` clone (1.01–1.02×, but through 8-bit sRGB: the whole photo
+      quantised), or a plain ``alpha`` feather (0.98–1.03×).
 
     ``feather`` and ``scale`` default to 6 % of the face's size (the square root of
     its pixel area).  Outputs the image and the ratio applied outside the face.
