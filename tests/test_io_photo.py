@@ -45,7 +45,7 @@ def test_codes_are_linearised_by_the_srgb_eotf(tmp_path, codes):
     want = colour.models.eotf_sRGB(codes / 255.0)
     np.testing.assert_allclose(out["image"].pixels, want, atol=1e-6)
     assert out["clipped"].alpha.sum() == 1 and out["clipped"].alpha[1, 2] == 1
-    assert len(told) == 1 and "1 pixels" in told[0] and "SkinSegment.exclude" in told[0]
+    assert len(told) == 1 and "1 pixels" in told[0] and "left out of the skin" in told[0]
 
 
 def test_a_response_curve_replaces_the_eotf(tmp_path, codes):

@@ -107,6 +107,7 @@ class LoadPhoto(BuiltinFiles, Node):
         n = int(clipped.sum())
         if n:
             self.ctx.notice(f"{n} pixels ({100.0 * n / clipped.size:.2f} %) are clipped (code 255 in a channel): "
-                            "output 'clipped'; connect it to SkinSegment.exclude to leave them out of the fits")
+                            "output 'clipped' (in SkinSegment's exclude, as graphs/phone_relight.yaml has it, "
+                            "they are left out of the skin and so of the fits)")
         return {"image": Image(np.ascontiguousarray(lin, np.float32), "lin_srgb"),
                 "clipped": Mask(clipped.astype(np.float32))}

@@ -14,4 +14,5 @@ NODES = {
     "MeshMask": "nodes.paris.render:MeshMask",
     "SmoothMesh": "nodes.paris.mesh:SmoothMesh",
     "CompositeFace": "nodes.paris.composite:CompositeFace",
+    "FlashAtLens": "nodes.paris.flash:FlashAtLens",
 }
