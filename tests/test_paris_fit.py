@@ -1,10 +1,13 @@
 """FitSkinPhong (Paris 2003 §4.2): recovery of known parameters, the paper's robustness check
 (random starts → parameter std < 2.5 %), bad inputs."""
+import functools
+
 import numpy as np
 import pytest
 import trimesh
 
 from graphkit import BadInput, Camera, Image, Light, Mask
+from graphkit.contract import compute_checked
 from nodes.paris.fit import FitSkinPhong
 from nodes.paris.models import PhongMaterial
 from nodes.paris.render import Render
@@ -74,22 +77,21 @@ def test_fifty_random_starts_agree_within_2_5_percent(mitsuba_capture):
 def test_bad_inputs(mitsuba_capture):
     m, cam, photo, skin, flash, s = mitsuba_capture
     node = FitSkinPhong()
+    run = functools.partial(compute_checked, node)  # as the engine runs it: declared constraints first
     with pytest.raises(BadInput, match="empty") as e:
-        node.compute(image=photo, skin=Mask(np.zeros_like(skin.alpha)), mesh=m, camera=cam,
-                     light=flash, shininess=s)
+        run(image=photo, skin=Mask(np.zeros_like(skin.alpha)), mesh=m, camera=cam,
+            light=flash, shininess=s)
     assert e.value.port == "skin"
     with pytest.raises(BadInput, match="behind the face") as e:
-        node.compute(image=photo, skin=skin, mesh=m, camera=cam,
-                     light=Light(direction=(0, 0, 1)), shininess=s)
+        run(image=photo, skin=skin, mesh=m, camera=cam, light=Light(direction=(0, 0, 1)), shininess=s)
     assert e.value.port == "light"
     big = cam.model_copy(update={"width": 128, "cx": 64.0})
-    with pytest.raises(BadInput, match="camera is 128×96 but the image is 96×96") as e:
-        node.compute(image=photo, skin=skin, mesh=m, camera=big, light=flash, shininess=s)
-    assert e.value.port == "camera"
+    with pytest.raises(BadInput) as e:  # declared: same_size_as="image"
+        run(image=photo, skin=skin, mesh=m, camera=big, light=flash, shininess=s)
+    assert e.value.port == "camera" and e.value.message == "sizes differ: image is 96×96×3, camera is 128×96"
     with pytest.raises(BadInput) as e:
-        node.compute(image=photo, skin=Mask(np.ones((10, 10))), mesh=m, camera=cam, light=flash,
-                     shininess=s)
-    assert e.value.port == "skin"
+        run(image=photo, skin=Mask(np.ones((10, 10))), mesh=m, camera=cam, light=flash, shininess=s)
+    assert e.value.port == "skin" and e.value.message == "sizes differ: image is 96×96×3, skin is 10×10"
 
 
 def test_exponent_search_recovers_from_a_wrong_estimate():

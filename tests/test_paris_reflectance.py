@@ -1,9 +1,12 @@
 """ReflectanceMap (Paris 2003 §3) on photos whose reflectance is a known function of the normal."""
+import functools
+
 import numpy as np
 import pytest
 import trimesh
 
 from graphkit import BadInput, Camera, Image, Mask
+from graphkit.contract import compute_checked
 from nodes.paris import sphere
 from nodes.paris.reflectance import ReflectanceMap, robust_clusters
 
@@ -86,17 +89,23 @@ def test_robust_mean_discards_outliers():
 def test_bad_inputs():
     m, photo, skin = _photo()
     node = ReflectanceMap()
+    run = functools.partial(compute_checked, node)  # as the engine runs it: declared constraints first
     with pytest.raises(BadInput, match="empty") as e:
-        node.compute(image=photo, mesh=m, camera=CAM, skin=Mask(np.zeros((160, 160))))
+        run(image=photo, mesh=m, camera=CAM, skin=Mask(np.zeros((160, 160))))
     assert e.value.port == "skin"
-    with pytest.raises(BadInput, match="camera is 200×160 but the image is 160×160") as e:
-        node.compute(image=photo, mesh=m, camera=CAM.model_copy(update={"width": 200}), skin=skin)
-    assert e.value.port == "camera"
+    with pytest.raises(BadInput) as e:  # declared: same_size_as="image"
+        run(image=photo, mesh=m, camera=CAM.model_copy(update={"width": 200}), skin=skin)
+    assert e.value.port == "camera" and e.value.message == "sizes differ: image is 160×160×3, camera is 200×160"
     far = m.copy()
     far.apply_translation([50, 0, 0])  # the mesh misses the photo entirely
     with pytest.raises(BadInput, match="beside the camera") as e:
-        node.compute(image=photo, mesh=far, camera=CAM, skin=skin)
+        run(image=photo, mesh=far, camera=CAM, skin=skin)
     assert e.value.port == "mesh"
     with pytest.raises(BadInput) as e:
-        node.compute(image=photo, mesh=m, camera=CAM, skin=Mask(np.ones((10, 10))))
-    assert e.value.port == "skin"
+        run(image=photo, mesh=m, camera=CAM, skin=Mask(np.ones((10, 10))))
+    assert e.value.port == "skin" and e.value.message == "sizes differ: image is 160×160×3, skin is 10×10"
+    bad = m.copy()
+    bad.vertices[0, 0] = np.nan
+    with pytest.raises(BadInput, match="holds 1 NaN") as e:  # declared: finite=True
+        run(image=photo, mesh=bad, camera=CAM, skin=skin)
+    assert e.value.port == "mesh"

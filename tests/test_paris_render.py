@@ -4,6 +4,7 @@ import pytest
 import trimesh
 
 from graphkit import BadInput, Camera, Image, Light
+from graphkit.contract import compute_checked
 from nodes.paris.models import PhongMaterial
 from nodes.io.cameras import LoadCameraJson
 from nodes.paris.render import (FrameFace, MakeLight, MeshMask, Render, ShadeFace,
@@ -261,11 +262,31 @@ def test_bad_inputs():
     with pytest.raises(BadInput, match="behind the face") as e:
         _render(_sphere(4), [Light(direction=(0, 0, 1))], shadows=False)
     assert e.value.port == "lights"
-    # detail texture of another size than its camera
+    # declared on the ports, refused by the engine before compute: a detail texture of another
+    # size than its camera (same_size_as), no light (min_items), NaN vertices (finite)
     with pytest.raises(BadInput) as e:
-        Render().compute(mesh=_sphere(4), camera=CAM, material=MAT, lights=[light],
-                         detail=Image(np.ones((50, 40, 3))), texture_camera=CAM)
+        compute_checked(Render(), mesh=_sphere(4), camera=CAM, material=MAT, lights=[light],
+                        detail=Image(np.ones((50, 40, 3))), texture_camera=CAM)
     assert e.value.port == "texture_camera"
+    assert e.value.message == f"sizes differ: detail is 40×50×3, texture_camera is {CAM.width}×{CAM.height}"
+    with pytest.raises(BadInput) as e:
+        compute_checked(Render(), mesh=_sphere(4), camera=CAM, material=MAT, lights=[])
+    assert e.value.port == "lights" and e.value.message == "needs at least 1 connection, got 0"
+    bad = _sphere(4)
+    bad.vertices[0] = np.nan
+    for node, more in ((Render(), dict(material=MAT, lights=[light])), (MeshMask(), {}),
+                       (FrameFace(), {}), (ShadeFace(), dict(map=Image(np.ones((180, 360, 3)))))):
+        with pytest.raises(BadInput) as e:
+            compute_checked(node, mesh=bad, camera=CAM, **more)
+        assert e.value.port == "mesh" and e.value.message.startswith("holds 3 NaN and 0 Inf values"), node
+    with pytest.raises(BadInput) as e:  # it multiplies RGB (numpy raised a ValueError before)
+        Render().compute(mesh=_sphere(4), camera=CAM, material=MAT, lights=[light],
+                         detail=Image(np.ones((CAM.height, CAM.width, 2))), texture_camera=CAM)
+    assert e.value.port == "detail" and e.value.message == "needs an RGB image (1 or at least 3 channels), got 2"
+    with pytest.raises(BadInput) as e:  # an image not taken by the camera (same_size_as)
+        compute_checked(FrameFace(), mesh=_sphere(4), camera=CAM, image=Image(np.ones((50, 40, 3))))
+    assert e.value.port == "image"
+    assert e.value.message == f"sizes differ: camera is {CAM.width}×{CAM.height}, image is 40×50×3"
     # mesh not in front of the camera
     with pytest.raises(BadInput, match="behind the camera") as e:
         ShadeFace().compute(mesh=_sphere(4, centre=(0, 0, -4)), camera=CAM,

@@ -103,14 +103,14 @@ outputs: {light: probe.light}"""
         cam = json.loads((tmp_path / "camera.json").read_text())
         cam.update(width=64, height=64, cx=32.0, cy=32.0)
         (tmp_path / "small.json").write_text(json.dumps(cam))
-        expect = ("'probe' (ProbeLight), port 'camera'", "camera is 64×64 but the probe photo is 128×128")
+        expect = ("'probe' (ProbeLight), port 'camera'", "sizes differ: probe is 128×128×3, camera is 64×64")
     elif case == "camera_size":
         cam = json.loads((tmp_path / "camera.json").read_text())
         cam.update(width=200, cx=100.0)
         (tmp_path / "camera.json").write_text(json.dumps(cam))
         body = """rmap: {type: ReflectanceMap, inputs: {image: photo.image, mesh: mesh.mesh, camera: camera.camera, skin: face.mask}}
 outputs: {map: rmap.map}"""
-        expect = ("'rmap' (ReflectanceMap), port 'camera'", "camera is 200×128 but the image is 128×128")
+        expect = ("'rmap' (ReflectanceMap), port 'camera'", "sizes differ: image is 128×128×3, camera is 200×128")
     elif case == "light_behind":
         body = """flash: {type: MakeLight, params: {azimuth_deg: 180.0}}
   fit: {type: FitSkinPhong, inputs: {image: photo.image, skin: face.mask, mesh: mesh.mesh, camera: camera.camera, light: flash.light}}

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from graphkit import BadInput, Image, Mask
+from graphkit.contract import compute_checked
 from nodes.paris.skin import SkinSegment
 
 
@@ -69,22 +70,28 @@ def test_painted_overrides(scene):
 
 
 def test_bad_inputs(scene):
-    node = SkinSegment()
+    def run(**inputs):  # as the engine runs it: declared constraints first
+        return compute_checked(SkinSegment(), **inputs)
+
+    size = scene["image"].size_str()
     with pytest.raises(BadInput) as e:
-        node.compute(image=scene["image"], painted=Mask(np.zeros((160, 128))))
+        run(image=scene["image"], painted=Mask(np.zeros((160, 128))))
     assert e.value.port == "painted"
+    with pytest.raises(BadInput) as e:  # declared: same_size_as="image"
+        run(image=scene["image"], painted=Mask(np.ones((10, 10))))
+    assert e.value.port == "painted" and e.value.message == f"sizes differ: image is {size}, painted is 10×10"
     with pytest.raises(BadInput) as e:
-        node.compute(image=scene["image"], face=Mask(np.ones((10, 10))))
-    assert e.value.port == "face"
+        run(image=scene["image"], face=Mask(np.ones((10, 10))))
+    assert e.value.port == "face" and e.value.message == f"sizes differ: image is {size}, face is 10×10"
     with pytest.raises(BadInput) as e:
-        node.compute(image=scene["image"])
+        run(image=scene["image"])
     assert e.value.port == "face"
     with pytest.raises(BadInput) as e:  # nothing left to learn skin from
-        node.compute(image=scene["image"], face=scene["face"], exclude=[scene["face"]])
+        run(image=scene["image"], face=scene["face"], exclude=[scene["face"]])
     assert e.value.port == "exclude"
     with pytest.raises(BadInput) as e:
-        node.compute(image=scene["image"], face=scene["face"], exclude=[Mask(np.zeros((5, 5)))])
-    assert e.value.port == "exclude"
+        run(image=scene["image"], face=scene["face"], exclude=[scene["face"], Mask(np.zeros((5, 5)))])
+    assert e.value.port == "exclude" and e.value.message == f"item 1: sizes differ: image is {size}, exclude is 5×5"
 
 
 def test_astronaut_with_facemesh():

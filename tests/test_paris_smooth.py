@@ -108,3 +108,20 @@ def test_source_vertex_keeps_the_mediapipe_ids():
 
     back = MESH.from_parts(*MESH.to_parts(s))
     assert np.array_equal(_mediapipe_ids(back), np.arange(468))
+
+
+def test_bad_meshes_are_refused_naming_the_port():
+    """No triangles: the shared render.check_mesh; NaN vertices: declared (finite=True), so the
+    engine refuses them before compute."""
+    from graphkit import BadInput
+    from graphkit.contract import compute_checked
+
+    m = trimesh.creation.icosphere(subdivisions=1)
+    with pytest.raises(BadInput) as e:
+        compute_checked(SmoothMesh(), mesh=trimesh.Trimesh(m.vertices, np.zeros((0, 3), np.int64), process=False))
+    assert e.value.port == "mesh" and e.value.message == "the mesh has no triangles"
+    bad = m.copy()
+    bad.vertices[3] = [np.inf, 0, np.nan]
+    with pytest.raises(BadInput) as e:
+        compute_checked(SmoothMesh(), mesh=bad)
+    assert e.value.port == "mesh" and e.value.message.startswith("holds 1 NaN and 1 Inf values"), e.value.message

@@ -7,6 +7,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
 
+from .checks import check_lit
 from .models import PhongMaterial
 
 
@@ -44,9 +45,9 @@ class FitSkinPhong(Node):
 
     version = "3"
     inputs = {"image": In(Image, "the flash photo (linear RGB)"),
-              "skin": In(Mask, "skin pixels"),
-              "mesh": In(Mesh, "face mesh registered to the photo"),
-              "camera": In(Camera, "the photo camera"),
+              "skin": In(Mask, "skin pixels", same_size_as="image"),
+              "mesh": In(Mesh, "face mesh registered to the photo", finite=True),
+              "camera": In(Camera, "the photo camera", same_size_as="image"),
               "light": In(Light, "the flash (ProbeLight.light)"),
               "shininess": In(Scalar, "Phong exponent s (ShininessFromSaturation); "
                                       "default: the `shininess` param", optional=True)}
@@ -70,27 +71,21 @@ class FitSkinPhong(Node):
 
     def compute(self, image: Image, skin: Mask, mesh, camera: Camera, light: Light,
                 shininess=None):
-        from .render import light_vectors, skin_pixels, surface, world_lights
+        from .render import light_vectors, skin_surface, world_lights
         from . import phong
 
         p = self.params
         if shininess is None:
             shininess = p.shininess
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
         if not (np.isfinite(shininess) and shininess > 0):
             raise BadInput("shininess", f"the Phong exponent must be > 0, got {shininess}")
-        s = surface(mesh, camera, min_pixels=1)
-        use = sk[s.coverage]
-        if use.sum() < 20:
-            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
+        s, use = skin_surface(mesh, camera, skin, p.skin_threshold, fewest=20)
         (lw,) = world_lights([light], camera, mesh, "light")
         ldir, L = light_vectors(lw, s.points)
         diff, rv = phong.lobes(s.normals, ldir, s.view, 1.0)  # rv: max(r·v, 0) where lit
         with np.errstate(under="ignore"):
             spec = rv ** float(shininess)
-        if not (diff[use] > 0).any():
-            raise BadInput("light", f"the light (direction {light.direction}) is behind the "
-                                    "face: it lights none of the skin pixels")
+        check_lit(diff[use], "light", f"the light (direction {light.direction})", "skin pixels")
         photo = image.pixels[s.coverage][:, :3].astype(np.float64)
         idx = np.nonzero(use)[0]
         if len(idx) > p.max_pixels:  # deterministic even subsample

@@ -122,10 +122,8 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera):
         px = np.asarray(detail.pixels, np.float32)
         if px.ndim == 2:
             px = px[..., None]
-        if px.shape[2] == 1:
+        if px.shape[2] == 1:  # (check_render_inputs refuses 2 channels)
             px = np.repeat(px, 3, axis=2)
-        elif px.shape[2] == 2:
-            raise BadInput("detail", "a 2-channel detail texture cannot multiply RGB")
         px = np.ascontiguousarray(px[..., :3])
         tc = texture_camera
         qt = tc.to_camera(V)

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Field, In, Mesh, Node, Out
+from graphkit import Field, In, Mesh, Node, Out
+
+from .checks import check_mesh
 
 
 class SmoothMesh(Node):
@@ -27,7 +29,7 @@ class SmoothMesh(Node):
     """
 
     version = "1"
-    inputs = {"mesh": In(Mesh, "coarse triangle mesh")}
+    inputs = {"mesh": In(Mesh, "coarse triangle mesh", finite=True)}
     outputs = {"mesh": Out(Mesh, "subdivided mesh, smooth normals")}
 
     class Params(Node.Params):
@@ -36,12 +38,9 @@ class SmoothMesh(Node):
     def compute(self, mesh):
         import trimesh
 
+        check_mesh(mesh)
         V = np.asarray(mesh.vertices, np.float64)
         F = np.asarray(mesh.faces, np.int64)
-        if len(F) == 0:
-            raise BadInput("mesh", "the mesh has no triangles")
-        if not np.isfinite(V).all():
-            raise BadInput("mesh", "the mesh has NaN or infinite vertex coordinates")
         src = np.asarray(mesh.vertex_attributes.get("source_vertex", np.arange(len(V))), np.int64)
         if self.params.iterations:
             V2, F2 = trimesh.remesh.subdivide_loop(V, F, iterations=self.params.iterations)

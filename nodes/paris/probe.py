@@ -7,6 +7,8 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Node, Out
 
+from .checks import rgb_pixels
+
 #: linear sRGB → luminance Y (Rec. 709 / sRGB primaries, D65)
 _Y = np.array([0.2126, 0.7152, 0.0722])
 #: colours of the classification image (linear RGB)
@@ -71,7 +73,7 @@ class ProbeLight(Node):
                           optional=True),
               "camera": In(Camera, "the camera that took the probe photo (its pose maps the light "
                                    "to the world frame; its field of view is the default fov_deg)",
-                           optional=True)}
+                           optional=True, same_size_as="probe")}
     outputs = {"light": Out(Light, "the flash in the world frame: directional, or a point light at "
                                    "flash_offset_m; hue, intensity, ambient in flash units"),
                "classes": Out(Image, "saturated / halo / ambient classification of the probe pixels (Fig. 7)")}
@@ -101,9 +103,9 @@ class ProbeLight(Node):
 
     def compute(self, probe: Image, white: Image | None = None, camera: Camera | None = None):
         p = self.params
-        px = _rgb(probe, "probe")
+        px = rgb_pixels(probe, "probe", grey=True)
         h, w = px.shape[:2]
-        fov_deg = self._probe_fov(camera, w, h)
+        fov_deg = self._probe_fov(camera)
         cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg)
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
@@ -182,20 +184,18 @@ class ProbeLight(Node):
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
         return _find_ball_or_refuse(px, port, fov_deg, highlight=True)
 
-    def _probe_fov(self, camera: Camera | None, w: int, h: int) -> float | None:
+    def _probe_fov(self, camera: Camera | None) -> float | None:
         """The probe photo's vertical field of view: ``fov_deg``, else the camera's (None:
-        orthographic); checks the camera against the probe photo."""
+        orthographic); checks ``fov_deg`` against the camera (whose size is the probe photo's:
+        declared)."""
         p = self.params
         if camera is None:
             return p.fov_deg
-        if (camera.width, camera.height) != (w, h):
-            raise BadInput("camera", f"camera is {camera.width}×{camera.height} but the probe photo is "
-                                     f"{w}×{h}: give the camera that took the probe")
         if camera.orthographic:
             if p.fov_deg is not None:
                 raise BadInput("fov_deg", "the probe camera is orthographic: leave fov_deg unset")
             return None
-        cam_fov = float(np.degrees(2 * np.arctan(0.5 * h / camera.fy)))
+        cam_fov = float(np.degrees(2 * np.arctan(0.5 * camera.height / camera.fy)))
         if p.fov_deg is not None and abs(p.fov_deg - cam_fov) > 0.05 * cam_fov:
             raise BadInput("fov_deg", f"fov_deg = {p.fov_deg}° but the probe camera's vertical field of "
                                       f"view is {cam_fov:.3f}°")
@@ -257,7 +257,7 @@ class ProbeLight(Node):
 
     def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None, fov_deg=None) -> float:
         p = self.params
-        px = _rgb(white, "white")
+        px = rgb_pixels(white, "white", grey=True)
         h, w = px.shape[:2]
         found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
@@ -275,18 +275,6 @@ class ProbeLight(Node):
         if k <= 0:
             raise BadInput("white", "the white ball is not lit by the flash found on the probe")
         return float(k / p.white_albedo)
-
-
-def _rgb(img: Image, port: str) -> np.ndarray:
-    px = np.asarray(img.pixels, np.float64)
-    if px.shape[2] == 1:
-        px = np.repeat(px, 3, 2)
-    if px.shape[2] < 3:
-        raise BadInput(port, f"needs an RGB image, got {img.channels} channels")
-    px = px[..., :3]
-    if not np.isfinite(px).all():
-        raise BadInput(port, "the image holds NaN or Inf values")
-    return px
 
 
 def robust_mean(x: np.ndarray) -> np.ndarray:

@@ -57,9 +57,9 @@ class ReflectanceMap(Node):
 
     version = "2"
     inputs = {"image": In(Image, "the photo (linear RGB)"),
-              "mesh": In(Mesh, "face mesh registered to the photo"),
-              "camera": In(Camera, "the photo camera"),
-              "skin": In(Mask, "skin pixels"),
+              "mesh": In(Mesh, "face mesh registered to the photo", finite=True),
+              "camera": In(Camera, "the photo camera", same_size_as="image"),
+              "skin": In(Mask, "skin pixels", same_size_as="image"),
               "light": In(Light, "the flash (world frame): samples are divided by its irradiance "
                                  "(a point flash's 1/d² fall-off), ShadeFace multiplies it back; "
                                  "it also sets the mirror plane", optional=True)}
@@ -84,15 +84,10 @@ class ReflectanceMap(Node):
         seed: int = Field(0, description="seed of the block → fold assignment")
 
     def compute(self, image: Image, mesh, camera: Camera, skin: Mask, light: Light | None = None):
-        from .render import irradiance, skin_pixels, surface, world_lights
+        from .render import irradiance, skin_surface, world_lights
 
         p = self.params
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
-        s = surface(mesh, camera, min_pixels=1)
-        use = sk[s.coverage]
-        if use.sum() < 10 * p.min_samples:
-            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh: the skin "
-                                   "mask and the mesh do not overlap")
+        s, use = skin_surface(mesh, camera, skin, p.skin_threshold, fewest=10 * p.min_samples)
         cols = image.pixels[s.coverage][use][:, :3].astype(np.float64)
         mirror = None
         if light is not None:

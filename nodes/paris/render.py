@@ -19,6 +19,7 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
+from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -42,36 +43,6 @@ class Surface:
     points: np.ndarray  # M×3 world positions of covered pixels (row-major order)
     normals: np.ndarray  # M×3 unit world normals, turned towards the camera
     view: np.ndarray  # M×3 unit directions towards the camera centre
-
-
-def check_mesh(mesh, port: str = "mesh") -> None:
-    if mesh is None or len(mesh.faces) == 0:
-        raise BadInput(port, "the mesh has no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise BadInput(port, "the mesh has NaN or infinite vertex coordinates")
-
-
-def check_camera_matches(camera: Camera, image: Image | Mask, port: str = "camera",
-                         what: str = "image") -> None:
-    """BadInput unless the camera's image size is the photo's."""
-    h, w = (image.pixels.shape[:2] if isinstance(image, Image) else image.alpha.shape)
-    if (camera.width, camera.height) != (w, h):
-        raise BadInput(port, f"camera is {camera.width}×{camera.height} but the {what} is "
-                             f"{w}×{h}: the camera must be the one that took the photo")
-
-
-def skin_pixels(camera: Camera, image: Image, skin: Mask, threshold: float) -> np.ndarray:
-    """The photo's skin pixels (alpha ≥ ``threshold``, H×W bool), after the checks every node
-    fitting to a photo makes: the camera took the photo, the mask is the photo's size and not
-    empty (BadInput at the camera / skin port otherwise)."""
-    check_camera_matches(camera, image)
-    if skin.alpha.shape != image.pixels.shape[:2]:
-        raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the photo is "
-                               f"{image.width}×{image.height}")
-    sk = skin.alpha >= threshold
-    if not sk.any():
-        raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
-    return sk
 
 
 def _in_front_and_frame(V: np.ndarray, camera: Camera) -> tuple[np.ndarray, bool]:
@@ -116,6 +87,23 @@ def check_in_view(mesh, camera: Camera, port: str = "mesh", camera_port: str = "
                              "not clip")
     raise BadInput(port, f"the mesh is beside the camera: its projection misses the "
                          f"{camera.width}×{camera.height} image{hint or ' (wrong pose, units or image size?)'}")
+
+
+def skin_surface(mesh, camera: Camera, skin: Mask, threshold: float, fewest: int) -> tuple[Surface, np.ndarray]:
+    """(the mesh's :func:`surface` in the photo, which of its pixels are skin: alpha ≥
+    ``threshold``), after the checks every node fitting to a photo makes: the skin mask is not
+    empty and at least ``fewest`` skin pixels lie on the mesh (BadInput at the skin port).
+    That the camera and the mask are the photo's size is declared on the ports
+    (``same_size_as="image"``)."""
+    sk = skin.alpha >= threshold
+    if not sk.any():
+        raise BadInput("skin", "the skin mask is empty (no pixel ≥ skin_threshold)")
+    s = surface(mesh, camera, min_pixels=1)
+    use = sk[s.coverage]
+    if use.sum() < fewest:
+        raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh (at least {fewest} are "
+                               "needed): the skin mask and the mesh hardly overlap")
+    return s, use
 
 
 def surface(mesh, camera: Camera, min_pixels: int = 1, port: str = "mesh") -> Surface:
@@ -210,9 +198,7 @@ def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> lis
                                      "is inside the mesh: it must be outside the face (positions are "
                                      "in metres, world frame)")
         elif lw.kind == "directional":
-            d = np.asarray(lw.direction, np.float64)
-            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
-                raise BadInput(port, f"light {i}: the direction {tuple(d)} is zero or not finite")
+            unit_direction(lw.direction, port, f"light {i}: the direction")
         out.append(lw)
     return out
 
@@ -354,7 +340,7 @@ class ShadeFace(Node):
     """
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "face mesh in world coordinates"),
+    inputs = {"mesh": In(Mesh, "face mesh in world coordinates", finite=True),
               "camera": In(Camera, "the photo camera"),
               "map": In(Image, "reflectance map (ReflectanceMap.map)"),
               "light": In(Light, "the flash (world frame), as given to ReflectanceMap", optional=True)}
@@ -402,14 +388,14 @@ class ShadeFace(Node):
 
 
 def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None) -> list:
-    """Render's input checks, shared by its backends: the lights as a list."""
+    """Render's input checks that no port constraint expresses (the declared ones: at least
+    one light, the texture camera's size is the detail texture's), shared by its backends: the
+    lights as a list."""
     lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
-    if not lights:
-        raise BadInput("lights", "no light connected")
+    if detail is not None:
+        check_rgb(detail, "detail", grey=True)  # it multiplies RGB
     if detail is not None and texture_camera is None:
         raise BadInput("texture_camera", "a detail texture needs the photo camera that maps it")
-    if detail is not None:
-        check_camera_matches(texture_camera, detail, "texture_camera", "detail texture")
     if camera is not None and texture_camera is not None and \
             texture_camera.metres_per_unit != camera.metres_per_unit:
         raise BadInput("texture_camera", f"the texture camera's world unit ({texture_camera.metres_per_unit} m) "
@@ -452,13 +438,14 @@ class Render(Node):
 
     version = "2"
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
-    inputs = {"mesh": In(Mesh, "face mesh (world coordinates)"),
+    inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
               "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),
-              "lights": In(Light, "light sources, world frame (any number)", variadic=True),
+              "lights": In(Light, "light sources, world frame (any number)", variadic=True,
+                           min_items=1),
               "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
               "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
-                                   optional=True),
+                                   optional=True, same_size_as="detail"),
               "ambient": In(Light, "a light whose ambient term is added (e.g. FitSkinPhong.light); "
                                    "its direct part is ignored", optional=True)}
     outputs = {"image": Out(Image, "rendered image (linear RGB)"),
@@ -502,10 +489,8 @@ class Render(Node):
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
-            if not (diff > 0).any():
-                raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
-                                         f"position {light.position}) is behind the face: it "
-                                         f"lights none of the {M} visible pixels")
+            check_lit(diff, "lights", f"light {i} ({light.kind}, direction {light.direction}, "
+                                      f"position {light.position})", f"{M} visible pixels")
             if p.shadows:
                 try:
                     sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
@@ -639,10 +624,7 @@ class MakeLight(Node):
     def compute(self, camera: Camera | None = None):
         p = self.params
         if p.direction is not None:
-            d = np.asarray(p.direction, np.float64)
-            if not (np.isfinite(d).all() and np.linalg.norm(d) > 0):
-                raise BadInput("direction", "the light direction is the zero vector")
-            d = d / np.linalg.norm(d)
+            d = unit_direction(p.direction, "direction")
         else:
             a, e = np.radians(p.azimuth_deg), np.radians(p.elevation_deg)
             d = np.array([np.sin(a) * np.cos(e), -np.sin(e), -np.cos(a) * np.cos(e)])
@@ -680,9 +662,10 @@ class FrameFace(Node):
     """
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "the mesh to frame"),
+    inputs = {"mesh": In(Mesh, "the mesh to frame", finite=True),
               "camera": In(Camera, "the original camera"),
-              "image": In(Image, "an image taken by `camera`, to resample", optional=True)}
+              "image": In(Image, "an image taken by `camera`, to resample", optional=True,
+                          same_size_as="camera")}
     outputs = {"camera": Out(Camera, "the framing camera"),
                "image": Out(Image, "the image in the framing camera (black if no image)")}
 
@@ -693,8 +676,6 @@ class FrameFace(Node):
 
     def compute(self, mesh, camera: Camera, image: Image | None = None):
         check_mesh(mesh)
-        if image is not None:
-            check_camera_matches(camera, image, "image", "image")
         check_in_view(mesh, camera)
         xy, z = camera.project(np.asarray(mesh.vertices, np.float64))
         lo, hi = xy.min(0), xy.max(0)
@@ -727,7 +708,7 @@ class MeshMask(Node):
     pixel, is refused here (BadInput on ``mesh``), not passed on as an empty mask."""
 
     version = "2"
-    inputs = {"mesh": In(Mesh, "the mesh"), "camera": In(Camera, "the camera")}
+    inputs = {"mesh": In(Mesh, "the mesh", finite=True), "camera": In(Camera, "the camera")}
     outputs = {"mask": Out(Mask, "1 where the mesh is seen")}
 
     class Params(Node.Params):

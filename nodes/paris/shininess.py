@@ -8,6 +8,7 @@ import numpy as np
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out, Scalar
 
 from . import sphere
+from .checks import rgb_pixels, unit_direction
 
 
 def _light_dir_camera(light: Light, camera: Camera | None = None) -> np.ndarray:
@@ -81,10 +82,10 @@ class ShininessFromSaturation(Node):
                                  "ProbeLight.light)"),
               "image": In(Image, "the photo (linear RGB): with mesh, camera and skin, the profile is read "
                                  "from its pixels instead of the map", optional=True),
-              "mesh": In(Mesh, "face mesh registered to the photo (with image)", optional=True),
+              "mesh": In(Mesh, "face mesh registered to the photo (with image)", optional=True, finite=True),
               "camera": In(Camera, "the photo camera: brings the world-frame light into the map's / photo's "
-                                   "camera frame (needed with image)", optional=True),
-              "skin": In(Mask, "skin pixels of the photo (with image)", optional=True)}
+                                   "camera frame (needed with image)", optional=True, same_size_as="image"),
+              "skin": In(Mask, "skin pixels of the photo (with image)", optional=True, same_size_as="image")}
     outputs = {"shininess": Out(Scalar, "Phong exponent s (unitless)")}
 
     class Params(Node.Params):
@@ -172,20 +173,11 @@ class ShininessFromSaturation(Node):
 
     # -- the photo's own pixels ---------------------------------------------------------------
     def _from_photo(self, image, mesh, camera, skin, ldir, white):
-        from .render import skin_pixels, surface
+        from .render import skin_surface
 
         p = self.params
-        sk = skin_pixels(camera, image, skin, p.skin_threshold)
-        px = np.asarray(image.pixels, np.float64)
-        if px.ndim != 3 or px.shape[2] < 3:
-            raise BadInput("image", f"needs an RGB photo, got {image.channels} channel(s)")
-        px = px[..., :3]
-        if not np.isfinite(px).all():
-            raise BadInput("image", "the photo holds NaN or Inf values")
-        s = surface(mesh, camera, min_pixels=1)
-        use = sk[s.coverage]
-        if use.sum() < 50:
-            raise BadInput("skin", f"only {int(use.sum())} skin pixels lie on the mesh")
+        px = rgb_pixels(image, "image")
+        s, use = skin_surface(mesh, camera, skin, p.skin_threshold, fewest=50)
         R = camera.pose[:3, :3]
         normals = s.normals[use] @ R.T
         view = s.view[use] @ R.T
@@ -354,11 +346,7 @@ def shininess_from_angle(alpha: float | np.ndarray) -> float | np.ndarray:
 
 def highlight_normal(direction) -> np.ndarray:
     """Normal of the highlight: halfway between the light and the camera (−z), unit."""
-    l = np.asarray(direction, np.float64)
-    nl = np.linalg.norm(l)
-    if not np.isfinite(nl) or nl == 0:
-        raise BadInput("light", "the light direction is zero or not finite")
-    hv = l / nl + np.array([0.0, 0.0, -1.0])
+    hv = unit_direction(direction, "light") + np.array([0.0, 0.0, -1.0])
     nh = np.linalg.norm(hv)
     if nh < 1e-6:
         raise BadInput("light", "the light is exactly behind the face")

@@ -10,6 +10,8 @@ import numpy as np
 
 from graphkit import BadInput, Field, Image, In, Mask, Node
 
+from .checks import check_rgb
+
 #: chromaticity (u', v') of the D65 white point (CIE 1976 UCS)
 _WHITE_UV = (0.19784, 0.46832)
 
@@ -37,10 +39,12 @@ class SkinSegment(Node):
     version = "1"
     inputs = {
         "image": In(Image, "the photo, linear RGB"),
-        "painted": In(Mask, "user-painted skin mask; overrides the colour model", optional=True),
-        "face": In(Mask, "region to learn skin from and to segment in (e.g. FaceMesh.face)", optional=True),
+        "painted": In(Mask, "user-painted skin mask; overrides the colour model", optional=True,
+                      same_size_as="image"),
+        "face": In(Mask, "region to learn skin from and to segment in (e.g. FaceMesh.face)", optional=True,
+                   same_size_as="image"),
         "exclude": In(Mask, "regions that are never skin (eyes, brows, lips, nostrils, …)",
-                      optional=True, variadic=True),
+                      optional=True, variadic=True, same_size_as="image"),
     }
     outputs = {"mask": Mask}
 
@@ -53,20 +57,15 @@ class SkinSegment(Node):
     def compute(self, image: Image, painted: Mask | None = None, face: Mask | None = None,
                 exclude: list[Mask] | Mask | None = None):
         h, w = image.pixels.shape[:2]
-        for port, m in (("painted", painted), ("face", face)):
-            _check_size(port, m, h, w)
         if isinstance(exclude, Mask):
             exclude = [exclude]
         exclude = list(exclude or [])
-        for m in exclude:
-            _check_size("exclude", m, h, w)
         if painted is not None:
             a = np.clip(np.nan_to_num(painted.alpha), 0, 1).astype(np.float32)
             if not (a > 0).any():
                 raise BadInput("painted", "the painted skin mask is empty")
             return Mask(a)
-        if image.channels < 3:
-            raise BadInput("image", f"skin segmentation needs an RGB photo, got {image.channels} channel(s)")
+        check_rgb(image, "image")
         if face is None:
             raise BadInput("face", "connect a face region (e.g. FaceMesh.face) or a painted skin mask")
         region = face.alpha > 0.5
@@ -83,11 +82,6 @@ class SkinSegment(Node):
         if mask is None or not mask.any():
             raise BadInput("image", "no skin found in the face region (the colour model accepted no pixel)")
         return Mask(mask.astype(np.float32))
-
-
-def _check_size(port, m, h, w):
-    if m is not None and m.alpha.shape != (h, w):
-        raise BadInput(port, f"mask is {m.alpha.shape[1]}×{m.alpha.shape[0]}, the image is {w}×{h}")
 
 
 def excluded_region(masks: list[Mask], face: np.ndarray, h: int, w: int, margin: float) -> np.ndarray:

@@ -65,7 +65,8 @@ class FaceMesh(Node):
     """
 
     version = "2"  # 2: the camera says its world is in mm (metres_per_unit 0.001)
-    inputs = {"image": In(Image, "the photograph, linear RGB")}
+    inputs = {"image": In(Image, "the photograph, linear RGB (grey and RGBA are taken as RGB)",
+                          channels=(1, 3, 4))}
     outputs = {
         "mesh": Out(Mesh, "468 vertices in the photo camera's frame (mm), 852 triangles facing the camera"),
         "camera": Out(Camera, "the photo camera: projects the vertices onto the landmarks"),
@@ -90,8 +91,6 @@ class FaceMesh(Node):
             px = np.repeat(px, 3, axis=2)
         elif px.shape[2] == 4:
             px = px[:, :, :3]
-        elif px.shape[2] != 3:
-            raise BadInput("image", f"FaceMesh needs an RGB photo, got {image.channels} channels")
         h, w = px.shape[:2]
         if min(h, w) < 32:
             raise BadInput("image", f"photo is only {w}×{h} pixels; no face can be found in it")
