@@ -81,3 +81,45 @@ def test_cmyk_and_16_bit_files_are_refused_naming_the_port(tmp_path, codes):
     with pytest.raises(BadInput) as e:
         _load(deep)
     assert e.value.port == "path" and "uint16" in e.value.message and "LoadImage" in e.value.message
+
+
+GRAPH = """graphkit: 1
+name: photo_io
+nodes:
+  photo: {type: LoadPhoto, params: {path: PHOTO}}
+  jpg: {type: SaveImage, inputs: {image: photo.image}, params: {path: back.jpg, bits: 8}}
+  png: {type: SaveImage, inputs: {image: photo.image}, params: {path: back.png, bits: 8}}
+  exr: {type: SaveImage, inputs: {image: photo.image}, params: {path: linear.exr, bits: 32}}
+outputs: {jpg: jpg.file, png: png.file, exr: exr.file}
+"""
+
+
+def test_a_run_says_it_once_writes_srgb_and_linear_back_and_refuses_cmyk(tmp_path, codes):
+    """Through the CLI: the clipped count is a notice of the run (once: a cached run does not
+    repeat it); the photo comes back as the same 8-bit codes (PNG) and as linear EXR; a CMYK
+    JPEG exits 2 naming node and port, leaving no output folder."""
+    from conftest import graphkit, read_exr
+    from PIL import Image as PILImage
+
+    import colour
+
+    _write(tmp_path / "p.png", codes)
+    (tmp_path / "g.yaml").write_text(GRAPH.replace("PHOTO", "p.png"))
+    cache, out = tmp_path / "cache", tmp_path / "out"
+    r = graphkit("run", tmp_path / "g.yaml", "--cache", cache, "--out", out, "-q")
+    assert r.returncode == 0, r.stderr
+    said = (r.stdout + r.stderr).count("notice: photo (LoadPhoto): 1 pixels (")
+    assert said == 1, r.stdout + r.stderr
+    again = graphkit("run", tmp_path / "g.yaml", "--cache", cache, "--out", tmp_path / "out2", "-q")
+    assert again.returncode == 0 and "notice: photo" not in again.stdout + again.stderr
+    back = np.asarray(PILImage.open(out / "back.png"))
+    np.testing.assert_array_equal(back, codes)
+    np.testing.assert_allclose(read_exr(out / "linear.exr"), colour.models.eotf_sRGB(codes / 255.0), atol=1e-6)
+    assert (out / "back.jpg").stat().st_size > 0
+
+    PILImage.new("CMYK", (8, 8), (10, 20, 30, 40)).save(tmp_path / "c.jpg")
+    (tmp_path / "c.yaml").write_text(GRAPH.replace("PHOTO", "c.jpg"))
+    bad = graphkit("run", tmp_path / "c.yaml", "--cache", cache, "--out", tmp_path / "out3")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert "node 'photo' (LoadPhoto), port 'path'" in bad.stderr and "CMYK" in bad.stderr
+    assert not (tmp_path / "out3").exists()
