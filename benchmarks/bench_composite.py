@@ -3,8 +3,9 @@
 graphs/face_relight.yaml's faces relit through the photo camera (`full_*` Render nodes: left
 60, front, right 30, top 45, warm+cool) are put back into the astronaut photo four ways: a
 naive paste (relit face where the mesh covers, the photo elsewhere), a plain alpha feather,
-OpenCV's Poisson ``seamlessClone`` (through 8-bit sRGB), and the Laplacian pyramid (the
-node's default); the last three all carry the change of light outward the same way.
+OpenCV's Poisson ``seamlessClone`` (through 8-bit sRGB), OpenCV's stitching blender
+``cv2.detail.MultiBandBlender`` (5 bands, 16-bit integer images), and the Laplacian pyramid
+(the node's default); all but the paste carry the change of light outward the same way.
 
 Seam figure: the mean gradient magnitude of log luminance on the ring of pixels within 1.5 px
 of the mesh border, composite over the photo's own (log: a smooth change of light does not
@@ -30,7 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 LIGHTS = ["left60", "front", "right30", "top", "two_lights"]
-METHODS = ["paste", "alpha", "seamless", "pyramid"]
+METHODS = ["paste", "alpha", "seamless", "cv_multiband", "pyramid"]
+INT16_SCALE = 8000.0  # cv2.detail blends CV_16S images: linear [0, 1] × this keeps 13 bits
 
 
 def luminance(img):
@@ -61,12 +63,32 @@ def seam_figures(photo, comp, covered):
     return float(log_ratio), float(lin_ratio), float(step(yc) / step(yp))
 
 
+def cv_multiband(face, around, inside, bands=5):
+    """OpenCV's stitching blender (cv2.detail.MultiBandBlender) of ``face`` where ``inside``
+    and ``around`` elsewhere (binary masks: its pyramids smooth them)."""
+    import cv2
+
+    h, w = inside.shape
+    blender = cv2.detail_MultiBandBlender(0, bands)
+    blender.prepare((0, 0, w, h))
+    for img, m in ((face, inside), (around, ~inside)):
+        blender.feed(np.round(np.clip(img, 0, 4) * INT16_SCALE).astype(np.int16), m.astype(np.uint8) * 255, (0, 0))
+    out, _ = blender.blend(None, None)
+    return out.astype(np.float32) / INT16_SCALE
+
+
 def composite_by(method, photo, relit, covered):
+    from nodes.common.blend import feather
     from nodes.paris.composite import composite
 
     if method == "paste":
         return np.where(covered[..., None], relit, photo)
     size = np.sqrt(covered.sum())
+    if method == "cv_multiband":  # the node's change of light outside, OpenCV's blender across
+        _, ratio = composite(photo, relit, covered, 0.06 * size, 0.06 * size, "alpha")
+        around = photo * ratio
+        face = np.where(covered[..., None], relit, around)
+        return cv_multiband(face, around, feather(covered, 0.06 * size) > 0.5)
     return composite(photo, relit, covered, 0.06 * size, 0.06 * size, method)[0]
 
 
@@ -104,7 +126,7 @@ def main(argv=None) -> int:
     Path(args.out).mkdir(parents=True, exist_ok=True)
     print("seam figure: mean |grad log Y| on the mesh border's ring, composite / photo (goal <= 1.5); "
           "[linear |grad Y| ratio; border step ratio]")
-    print(f"{'light':<11}" + "".join(f"{m:>30}" for m in METHODS))
+    print(f"{'light':<11}" + "".join(f"{m:>31}" for m in METHODS))
     for name in LIGHTS:
         relit = run.value(f"full_{name}.image").pixels[..., :3]
         covered = run.value(f"full_{name}.coverage").alpha > 0.5
@@ -118,7 +140,7 @@ def main(argv=None) -> int:
             if name == args.picture and m == "pyramid":
                 picture(photo, composite_by("paste", photo, relit, covered), comp, covered,
                         Path(args.out) / "seam_before_after.png")
-        print(f"{name:<11}" + "".join(f"{c:>30}" for c in row))
+        print(f"{name:<11}" + "".join(f"{c:>31}" for c in row))
     print(f"picture: {Path(args.out) / 'seam_before_after.png'} (photo | naive paste | composite; "
           f"below: |grad log Y|), light {args.picture}")
     return 0
