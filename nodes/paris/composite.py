@@ -17,7 +17,7 @@ def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px
     """(the composited image, the change of light applied outside the face as a ratio image).
 
     Outside the face the photo is multiplied by the change of light relit/photo measured on
-    the face, smoothed to ``scale_px`` and extended outward by push-pull (``smooth_fill``);
+    the face, smoothed to ``scale_px`` and carried outward (``smooth_fill``);
     the relit face is blended into that over a ``band_px`` feather inside the mesh border
     (``method``: Laplacian pyramid, OpenCV seamlessClone, or a plain alpha feather)."""
     from nodes.common.blend import feather, laplacian_blend, seamless_clone, smooth_fill
@@ -51,7 +51,7 @@ class CompositeFace(Node):
     * The change of light is the ratio relit / photo on the face (smooth: the relit face is the
       new Phong shading × the detail texture, the photo the old shading × the same texture),
       taken on the face's lit, unclipped pixels away from the mesh border, smoothed to
-      ``scale`` and extended outward smoothly (push-pull normalized convolution of its log);
+      ``scale`` (normalized convolution of its log) and carried outward smoothly (``smooth_fill``);
       outside the face the photo is multiplied by it, so a neck is not left lit by the old flash.
     * The relit face is blended in over a ``feather`` band inside the mesh border: multi-band
       (Laplacian pyramid, the default), OpenCV's Poisson ``seamless`` clone, or a plain
