@@ -16,7 +16,7 @@ APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl
 .PHONY: demo test bench complexity sysdeps clean lock wheel-check mutate mutate-nodes
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
-	@echo "results in out/ (open out/contact_sheet.png)"
+	@echo "results in out/ (open out/portraits.png: the photo relit; out/contact_sheet.png: the close-ups)"
 
 test: $(STAMP) sysdeps
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q tests

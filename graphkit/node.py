@@ -109,10 +109,18 @@ class Context:
     # between calls (its output must not depend on whether it did)
     inputs: dict = field(default_factory=dict)
     report: Callable[[float, str], None] = field(default=lambda frac, msg: None)
+    # one line the run shows its user (an assumption made, data left out); computed once, so
+    # a cached result does not repeat it
+    tell: Callable[[str], None] = field(default=lambda msg: None)
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Report progress of a long compute (0…1); shown by the CLI."""
         self.report(fraction, message)
+
+    def notice(self, message: str) -> None:
+        """Tell the user something about this computation (shown as a ``notice:`` line, also
+        with ``-q``): what was assumed, what was left out and how much."""
+        self.tell(message)
 
 
 class _Computable:

@@ -307,7 +307,8 @@ class Session:
         ctx = Context(node=g.name, node_type=g.type, key=key, graph_name=self.graph.name,
                       recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
                       inputs=dict(input_digests),
-                      report=lambda frac, msg: self.report(g.name, frac, msg))
+                      report=lambda frac, msg: self.report(g.name, frac, msg),
+                      tell=lambda msg: self.notice(f"notice: {g.name} ({g.type}): {msg}"))
         t0 = time.perf_counter()
         result = _call_compute(g, bcls, ctx, inputs)
         seconds = time.perf_counter() - t0

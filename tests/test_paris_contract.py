@@ -9,6 +9,8 @@ from graphkit.registry import default_registry
 
 #: what each node declares (port: the constraints, as ``graphkit nodes`` shows them)
 DECLARED = {
+    "CompositeFace": {"photo": ["3 channels"], "relit": ["3 channels", "same width and height as 'photo'"],
+                      "coverage": ["same width and height as 'photo'"]},
     "FaceMesh": {"image": ["1 or 3 or 4 channels"]},
     "FitSkinPhong": {"skin": ["same width and height as 'image'"], "mesh": ["finite (no NaN or Inf)"],
                      "camera": ["same width and height as 'image'"]},

@@ -169,3 +169,17 @@ def test_face_relight_demo_runs(tmp_path):
     assert r_ > 1.15 * l
     assert imgs["overexposed"].max() == pytest.approx(1.0, abs=1e-3)
     assert (tmp_path / "out" / "contact_sheet.png").stat().st_size > 50_000
+    # the whole photograph relit (issue 26): the photo's size; outside the face (the neck below
+    # the chin, the hair above the brow) the light changed with the face, not left as it was
+    import skimage.data
+
+    from nodes.common.color import srgb_to_linear
+
+    photo = srgb_to_linear(skimage.data.astronaut() / 255.0)
+    for n in ("left60", "front", "right30", "top", "two_lights"):
+        px, _ = read_image(str(tmp_path / "out" / "relit" / f"portrait_{n}.exr"))
+        assert px.shape == photo.shape and np.isfinite(px).all()
+        assert abs(np.log(px[176:184, 200:235].mean() / photo[176:184, 200:235].mean())) > 0.1, n  # the neck
+    jpg, integer = read_image(str(tmp_path / "out" / "relit" / "portrait_right30.jpg"))
+    assert integer and jpg.shape == photo.shape
+    assert (tmp_path / "out" / "portraits.png").stat().st_size > 200_000

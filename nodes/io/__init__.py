@@ -1,9 +1,10 @@
-"""Image and mesh files: LoadImage / SaveImage (OpenImageIO), LoadMesh / SaveMesh (trimesh);
+"""Image and mesh files: LoadImage / SaveImage (OpenImageIO), LoadPhoto (8-bit sRGB photos), LoadMesh / SaveMesh (trimesh);
 ContactSheet lays images out for a person to look at, AnimatedPreview plays them (GIF); Blur
 smooths an image."""
 
 NODES = {
     "LoadImage": "nodes.io.images:LoadImage",
+    "LoadPhoto": "nodes.io.photo:LoadPhoto",
     "SaveImage": "nodes.io.images:SaveImage",
     "LoadMesh": "nodes.io.meshes:LoadMesh",
     "SaveMesh": "nodes.io.meshes:SaveMesh",

@@ -13,4 +13,6 @@ NODES = {
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
     "SmoothMesh": "nodes.paris.mesh:SmoothMesh",
+    "CompositeFace": "nodes.paris.composite:CompositeFace",
+    "FlashAtLens": "nodes.paris.flash:FlashAtLens",
 }

@@ -1,0 +1,121 @@
+"""Image blending for compositing: a feathered alpha, a smooth fill of a field known on part of
+the image (normalized convolution, extended outward), Laplacian-pyramid (multi-band) blending, and
+OpenCV's Poisson ``seamlessClone`` for comparison.  All float32/float64 H×W(×C) arrays.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def feather(mask: np.ndarray, width: float) -> np.ndarray:
+    """Alpha rising from 0 at ``mask``'s border to 1 at ``width`` pixels inside it (smoothstep
+    of the Euclidean distance to the nearest pixel outside), 0 outside."""
+    from scipy.ndimage import distance_transform_edt
+
+    t = np.clip(distance_transform_edt(mask) / max(width, 1e-6), 0.0, 1.0)
+    return (t * t * (3.0 - 2.0 * t)).astype(np.float32)
+
+
+def _pyramid_sizes(h: int, w: int) -> list[tuple[int, int]]:
+    """The sizes of a Gaussian pyramid's levels (OpenCV's pyrDown rounding), down to 1 px."""
+    sizes = [(h, w)]
+    while min(sizes[-1]) > 1:
+        sh, sw = sizes[-1]
+        sizes.append(((sh + 1) // 2, (sw + 1) // 2))
+    return sizes
+
+
+def smooth_fill(values: np.ndarray, weight: np.ndarray, scale_px: float) -> np.ndarray:
+    """A smooth field that follows ``values`` where ``weight`` (in [0, 1]) is high, at the
+    resolution of ``scale_px`` pixels, and extends them outward everywhere else.
+
+    Normalized convolution (Knutsson & Westin 1993) at σ = ``scale_px`` gives the field where
+    the weights support it (their blurred sum ≥ ½); every other pixel takes the value of the
+    nearest supported pixel, blurred more the farther it is from them (σ doubling with the
+    distance, so the ridges between regions that extend different values stay smooth): the
+    field keeps its value at the border and carries it outward, it does not relax towards the
+    mean of the whole region nor extrapolate a slope."""
+    import cv2
+    from scipy.ndimage import distance_transform_edt
+
+    v = np.asarray(values, np.float32)
+    squeeze = v.ndim == 2
+    v = v[:, :, None] if squeeze else v
+    w = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)
+    if not (w > 0).any():
+        raise ValueError("smooth_fill: no pixel has weight")
+    s = max(float(scale_px), 0.5)
+
+    def blur(x, sigma):
+        """Gaussian blur; a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
+        f = max(1, int(sigma // 4))
+        if f == 1:
+            return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
+        h, w = x.shape[:2]
+        small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+        small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT)
+        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(x.shape)
+
+    den = blur(w, s)
+    num = blur(v * w[:, :, None], s)
+    known = den >= 0.5 * den.max()
+    est = num / np.maximum(den, 1e-12)[:, :, None]
+    dist, (iy, ix) = distance_transform_edt(~known, return_indices=True)
+    ext = est[iy, ix]
+    out = ext
+    level = np.log2(1.0 + dist / s)  # 0 at the supported region, +1 each time the distance doubles
+    for k in range(int(np.ceil(level.max())) + 1):
+        a = np.clip(level - (k - 1), 0.0, 1.0)[:, :, None]  # σ = s·2^k takes over from σ/2 along level k−1…k
+        out = out * (1.0 - a) + blur(ext, s * 2.0 ** k) * a
+    return out[:, :, 0] if squeeze else out
+
+
+def laplacian_blend(a: np.ndarray, b: np.ndarray, alpha: np.ndarray, levels: int | None = None) -> np.ndarray:
+    """Multi-band blend (Burt & Adelson 1983): ``alpha``·a + (1 − alpha)·b band by band, each
+    band's alpha the Gaussian pyramid of ``alpha`` at that level, so low frequencies mix over
+    wide regions and fine detail over a narrow one.  ``levels`` default: down to ~16 px."""
+    import cv2
+
+    a = np.asarray(a, np.float32)
+    b = np.asarray(b, np.float32)
+    al = np.asarray(alpha, np.float32)
+    sizes = _pyramid_sizes(*al.shape)
+    n = levels if levels is not None else max(1, sum(1 for s in sizes if min(s) >= 16))
+    sizes = sizes[:n]
+    ga, gb, gm = [a], [b], [al]
+    for h, w in sizes[1:]:
+        ga.append(cv2.pyrDown(ga[-1], dstsize=(w, h)).reshape(h, w, -1))
+        gb.append(cv2.pyrDown(gb[-1], dstsize=(w, h)).reshape(h, w, -1))
+        gm.append(cv2.pyrDown(gm[-1], dstsize=(w, h)))
+    out = ga[-1] * gm[-1][:, :, None] + gb[-1] * (1.0 - gm[-1][:, :, None])
+    for k in range(len(sizes) - 2, -1, -1):
+        h, w = sizes[k]
+
+        def band(g):
+            return g[k] - cv2.pyrUp(g[k + 1], dstsize=(w, h)).reshape(h, w, -1)
+
+        m = gm[k][:, :, None]
+        out = cv2.pyrUp(out, dstsize=(w, h)).reshape(h, w, -1) + band(ga) * m + band(gb) * (1.0 - m)
+    return out.reshape(a.shape)
+
+
+def seamless_clone(src: np.ndarray, dst: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """OpenCV's Poisson cloning (``cv2.seamlessClone``, NORMAL_CLONE) of ``src`` into ``dst``
+    where ``mask``; linear RGB in [0, 1] in and out, through 8-bit sRGB (the only depth
+    OpenCV clones), so the result carries 8-bit quantisation everywhere."""
+    import cv2
+
+    from .color import linear_to_srgb, srgb_to_linear
+
+    def enc(x):
+        return np.round(np.clip(linear_to_srgb(np.clip(x, 0, 1)), 0, 1) * 255).astype(np.uint8)
+
+    m = (np.asarray(mask) > 0).astype(np.uint8) * 255
+    m[0, :] = m[-1, :] = m[:, 0] = m[:, -1] = 0  # OpenCV needs a border around the mask
+    ys, xs = np.nonzero(m)
+    if len(ys) == 0:
+        return np.asarray(dst, np.float32)
+    y0, y1, x0, x1 = ys.min(), ys.max(), xs.min(), xs.max()
+    centre = (int(x0 + (x1 - x0 + 1) // 2), int(y0 + (y1 - y0 + 1) // 2))  # OpenCV's rect centre
+    out = cv2.seamlessClone(enc(src), enc(dst), m, centre, cv2.NORMAL_CLONE)
+    return srgb_to_linear(out.astype(np.float32) / 255.0)
