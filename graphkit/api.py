@@ -9,7 +9,7 @@ from .executor import Progress, RunResult, check_output_plan, export_outputs, re
 from .graphfile import Graph, load
 from .registry import Registry, default_registry
 from .runner import Session
-from .store import Store
+from .store import Store, check_out_folder
 
 
 @dataclass
@@ -50,6 +50,7 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
         graph.select_outputs(outputs)  # an output name, or a swept output's group name
     if out is not None:
         check_output_plan(graph)
+        check_out_folder(out, cache)
     store = Store(cache).open()
     progress = progress or Progress()
     session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)

@@ -54,11 +54,14 @@ class Lease:
 
     def _read(self) -> dict | None:
         try:
-            return json.loads(self.fs.cat_file(self.path))
+            cur = json.loads(self.fs.cat_file(self.path))
         except FileNotFoundError:
             return None
         except (ValueError, TypeError, OSError):
             return {}  # half-written or unreadable: treated as expired below once old enough
+        if not isinstance(cur, dict) or not isinstance(cur.get("expires", 0), (int, float)):
+            return {}  # not a lease this module wrote: as unreadable
+        return cur
 
     def _try_create(self) -> bool | None:
         """True: acquired; False: held by someone; None: no exclusive create on this fs."""

@@ -281,7 +281,7 @@ class Session:
         rp = rec.get("parts") or {}
         if (rp.get("inputs") != parts["inputs"] or any(rp.get(k) != parts.get(k) for k in self._BOUND)
                 or not self._same_params(rp.get("params"), g)):
-            self.store.quarantine(self.store._krel(key), f"cache record {key[:16]} describes another computation")
+            self.store.quarantine_record(key, f"cache record {key[:16]} describes another computation")
             return None
         return rec
 

@@ -73,10 +73,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import hashlib
+import hmac
 import itertools
 import json
 import os
 import re
+import stat
 import struct
 import threading
 import time
@@ -87,7 +90,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import xxhash
 
-from .errors import CacheError
+from .errors import CacheError, UsageError
 from .hashing import parts_digest
 from .types import BUILTIN_PORT_TYPES, PortType
 
@@ -95,6 +98,10 @@ MAGIC = b"GKOBJ1\n\0"
 RECORD_MAGIC = b"GKREC1 "
 _counter = itertools.count()
 _CLOEXEC = getattr(os, "O_CLOEXEC", 0)
+#: how entries are opened for reading: never through a symbolic link (an entry is a file the
+#: store wrote, not a name for another file) and never blocking (a FIFO planted as an entry)
+_READ_FLAGS = os.O_RDONLY | _CLOEXEC | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+NOT_A_FILE = "is not a plain file (a link or a special file: damaged or forged)"
 _TOKEN = uuid.uuid4().hex[:12]  # with the pid, thread and counter: unique temp names on a shared folder
 _PID = [os.getpid()]  # os.getpid() is a system call on each use; a forked child learns its own
 if hasattr(os, "register_at_fork"):
@@ -218,31 +225,59 @@ class CorruptObject(DamagedEntry):
     pass
 
 
-def encode_record(record: dict) -> bytes:
+#: the one form of a value digest (xxh3-128, lowercase hex): a record's output digest names a
+#: file below objects/, so anything else in a record is damage, never a path
+DIGEST = re.compile(r"[0-9a-f]{32}")
+#: GRAPHKIT_CACHE_KEY: a secret shared by the runs allowed to write records (see ``record_mac``)
+KEY_ENV = "GRAPHKIT_CACHE_KEY"
+
+
+def cache_key() -> bytes | None:
+    """The keyed check's secret (GRAPHKIT_CACHE_KEY), or None when records carry no MAC."""
+    k = os.environ.get(KEY_ENV)
+    return k.encode() if k else None
+
+
+def record_mac(body: bytes, secret: bytes) -> bytes:
+    """The keyed check of a record body: HMAC-SHA256 with the cache key, in hex."""
+    return hmac.new(secret, body, hashlib.sha256).hexdigest().encode()
+
+
+def encode_record(record: dict, secret: bytes | None = None) -> bytes:
+    """``GKREC1 <xxh3-128 of the body>[ <HMAC of the body>]\n<body>``: the MAC only with a key."""
     body = _json_encode(record).encode()
-    return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body
+    mac = b" " + record_mac(body, secret) if secret else b""
+    return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + mac + b"\n" + body
 
 
 LEGACY_RECORD = "was written by an older graphkit (no integrity line): it is recomputed when next used"
 
 
-def decode_record(raw: bytes, key: str) -> tuple[dict | None, str | None]:
-    """(record, None) or (None, why it cannot be trusted)."""
+UNSIGNED = f"is not signed with this run's {KEY_ENV} (written by a run without the key, or forged)"
+
+
+def decode_record(raw: bytes, key: str, secret: bytes | None = None) -> tuple[dict | None, str | None]:
+    """(record, None) or (None, why it cannot be trusted).  With ``secret`` (the cache key) a
+    record must also carry the MAC only a run holding that key can make."""
     if not raw.startswith(RECORD_MAGIC):
         if raw.startswith(b"{"):
             return None, LEGACY_RECORD
         return None, "has no integrity line (damaged)"
     nl = raw.find(b"\n")
     check, body = raw[len(RECORD_MAGIC):nl], raw[nl + 1:]
+    check, _, mac = check.partition(b" ")
     if nl < 0 or xxhash.xxh3_128_hexdigest(body).encode() != check:
         return None, "does not match its check line (damaged or edited)"
+    if secret and not hmac.compare_digest(mac, record_mac(body, secret)):
+        return None, UNSIGNED
     try:
         rec = json.loads(body)
         outs = rec["outputs"]
         if rec["key"] != key:
             return None, f"belongs to key {str(rec['key'])[:16]} (a record moved or copied)"
         for o in outs.values():
-            o["digest"]
+            if type(o["digest"]) is not str or not DIGEST.fullmatch(o["digest"]):
+                return None, f"names an output digest that is not one ({str(o['digest'])[:40]!r}: damaged or forged)"
     except (ValueError, KeyError, TypeError, AttributeError):
         return None, "is not a valid record"
     return rec, None
@@ -433,17 +468,29 @@ class LocalFS:
 
     # -- reads and writes -----------------------------------------------------------------
     def read(self, rel: str) -> bytes | None:
+        """The bytes of the file at ``rel``; None if there is none; b"" (which no entry is) for
+        what is not a plain file: a symbolic link is never followed."""
         try:
-            fd = os.open(self._s(rel), os.O_RDONLY | _CLOEXEC)
+            fd = os.open(self._s(rel), _READ_FLAGS)
         except (FileNotFoundError, NotADirectoryError):
             return None
+        except OSError as e:
+            if e.errno != errno.ELOOP:
+                raise
+            return b""
         try:
-            return _read_fd(fd, os.fstat(fd).st_size)
+            st = os.fstat(fd)
+            return _read_fd(fd, st.st_size) if stat.S_ISREG(st.st_mode) else b""
         finally:
             os.close(fd)
 
     def exists(self, rel: str) -> bool:
-        return os.path.exists(self._s(rel))
+        return os.path.lexists(self._s(rel))
+
+    def inside(self, rel: str) -> bool:
+        """Whether the folder holding ``rel`` is the cache's own (no symbolic link leads out)."""
+        real = os.path.realpath(os.path.dirname(self._s(rel)))
+        return (real + os.sep).startswith(os.path.realpath(self.root) + os.sep)
 
     def _create(self, path: str) -> int:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _CLOEXEC, self.file_mode)
@@ -495,7 +542,10 @@ class LocalFS:
             return False
 
     def stats(self, rel: str) -> Iterator[tuple[str, os.stat_result]]:
-        """(path below the root, lstat) of every file below ``rel``."""
+        """(path below the root, lstat) of every file below ``rel`` (nothing when ``rel`` is a
+        symbolic link: what it points to is not the cache's)."""
+        if os.path.islink(self._s(rel)):
+            return
         for dirpath, _, files in os.walk(self._s(rel)):
             for fn in files:
                 p = os.path.join(dirpath, fn)
@@ -660,6 +710,9 @@ class FsspecFS:
     def exists(self, rel: str) -> bool:
         return self.fs.exists(self._p(rel))
 
+    def inside(self, rel: str) -> bool:  # (object stores have no links: every key is the store's)
+        return True
+
     def write_atomic(self, rel: str, chunks, sync: bool = False) -> None:
         tmp = self._p(f"tmp/{uuid.uuid4().hex}")
         data = b"".join(bytes(c) for c in chunks)
@@ -726,6 +779,21 @@ class FsspecFS:
                     yield
 
 
+def check_out_folder(out: str | os.PathLike, cache: str | os.PathLike) -> None:
+    """Refuse an output folder that is the cache folder or lies inside it (exported files there
+    would be taken for cache entries): one message naming both, and the fix."""
+    loc = str(cache)
+    if "://" in loc:
+        if not loc.startswith("file://"):
+            return
+        loc = loc[len("file://"):]
+    c, o = os.path.realpath(loc), os.path.realpath(out)
+    if o == c or o.startswith(c.rstrip(os.sep) + os.sep):
+        where = "is the cache folder" if o == c else f"lies inside the cache folder {c}"
+        raise UsageError(f"--out {out} {where}: the cache holds only its own entries; "
+                         "choose an output folder outside it (e.g. --out out)")
+
+
 # ---------------------------------------------------------------------------------------------
 # the store
 
@@ -762,6 +830,8 @@ class Store:
         self._jlock = threading.Lock()
         self._jviews: dict[tuple[int, int], _JournalView] = {}
         self._jview_bytes = 0
+        #: the keyed check's secret (GRAPHKIT_CACHE_KEY; None: records carry no MAC)
+        self.secret = cache_key()
         #: called with one line for each damaged entry found (Session sets it to its notice)
         self.on_notice: Callable[[str], None] | None = None
 
@@ -837,7 +907,7 @@ class Store:
             if why is not None:
                 self.quarantine(rel, f"cache record {key[:16]} {why}")
             return None
-        rec, why = decode_record(raw, key)
+        rec, why = decode_record(raw, key, self.secret)
         if rec is None:
             if why is not LEGACY_RECORD:  # a legacy record is a plain miss
                 self.quarantine(rel, f"cache record {key[:16]} {why}")
@@ -859,11 +929,17 @@ class Store:
                 return raw, (NOT_IN_JOURNAL if raw is None else None), False
             return raw, None, False
         try:
-            fd = os.open(self.fs._s(rel), os.O_RDONLY | _CLOEXEC)
+            fd = os.open(self.fs._s(rel), _READ_FLAGS)
         except (FileNotFoundError, NotADirectoryError):
             return None, None, False
+        except OSError as e:
+            if e.errno != errno.ELOOP:
+                raise
+            return None, NOT_A_FILE, False
         try:
             st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                return None, NOT_A_FILE, False
             if st.st_nlink == 1 and st.st_size <= MiB:  # a record file (or a journal linked once)
                 raw = _read_fd(fd, st.st_size)
                 linked = is_journal(raw[:JOURNAL_HEAD])
@@ -916,7 +992,7 @@ class Store:
     def put_record(self, key: str, record: dict) -> None:
         if self.read_only:
             return self._read_only_notice()
-        raw = encode_record(record)
+        raw = encode_record(record, self.secret)
         try:  # (not `with self._errors(...)` around it: a generator context per cold node)
             if not (self._journal_here() and self._journal_put(key, raw)):
                 self.fs.write_atomic(self._krel(key), [raw])
@@ -1014,12 +1090,18 @@ class Store:
             return  # another thread or run has moved it already (and said so)
         name = rel.replace("/", "_")
         to = f"quarantine/{name}.{time.strftime('%Y%m%dT%H%M%S')}.{uuid.uuid4().hex[:6]}"
-        moved = (not self.read_only) and (self._quarantine_link(rel, to) or self.fs.move_aside(rel, to))
-        where = "moved to quarantine/" if moved else "left in place (the cache cannot be written)"
+        inside = self.fs.inside(rel)  # (a shard folder replaced by a link out: nothing there is moved)
+        moved = inside and not self.read_only and (self._quarantine_link(rel, to) or self.fs.move_aside(rel, to))
+        where = "moved to quarantine/" if moved else (
+            "left in place (the cache cannot be written)" if inside else "left in place (it lies outside the cache)")
         msg = f"notice: {what}: {where}; recomputing it"
         if msg not in self._noticed:
             self._noticed.add(msg)
             self.notice(msg)
+
+    def quarantine_record(self, key: str, what: str) -> None:
+        """Quarantine the record of ``key`` (see :meth:`quarantine`)."""
+        self.quarantine(self._krel(key), what)
 
     def _quarantine_link(self, rel: str, to: str) -> bool:
         """A record file with other names (a link to the journal other records share): its record
@@ -1027,7 +1109,7 @@ class Store:
         if not (self._local and rel.startswith("keys/")):
             return False
         try:
-            if os.stat(self.fs._s(rel)).st_nlink < 2:
+            if os.lstat(self.fs._s(rel)).st_nlink < 2:
                 return False
         except OSError:
             return False
@@ -1162,12 +1244,12 @@ class Store:
         for rel, _, mtime in self.fs.listdir("keys"):
             key = self._key_of(rel)
             raw = self._raw_record(rel, key)[0]
-            rec = decode_record(raw, key)[0] if raw is not None else None
+            rec = decode_record(raw, key, self.secret)[0] if raw is not None else None
             yield key, rec, mtime
 
     def _record_why(self, key: str) -> str:
         raw, why, _ = self._raw_record(self._krel(key), key)
-        return why or decode_record(raw or b"", key)[1]
+        return why or decode_record(raw or b"", key, self.secret)[1]
 
     def _record_files(self) -> tuple[dict[str, int], dict[str, tuple[int, int]], dict[tuple[int, int], list]]:
         """(key -> size of its record file; key -> the journal it links to; journal ->
