@@ -135,8 +135,11 @@ def build_parser():
 
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
-    for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
+    for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything"),
+                      ("init", "create the cache's bucket or folder (never created implicitly on object stores)")):
         cp = csub.add_parser(name, help=hlp)
+        if name == "init":
+            cp.add_argument("url", nargs="?", help="the cache's folder or URL (default: --cache)")
         _cache_arg(cp)
         if name == "gc":
             cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
@@ -488,8 +491,11 @@ def _parse_size(s: str) -> int:
 
 
 def cmd_cache(args) -> int:
-    from .store import fmt_size
+    from .store import Store, fmt_size
 
+    if args.cache_cmd == "init":
+        print(Store(args.url or args.cache).init())
+        return 0
     store = _store(args.cache)
     if args.cache_cmd == "ls":
         rows = store.ls()

@@ -492,6 +492,10 @@ class LocalFS:
         real = os.path.realpath(os.path.dirname(self._s(rel)))
         return (real + os.sep).startswith(os.path.realpath(self.root) + os.sep)
 
+    def init(self) -> str:
+        self.ensure()
+        return f"cache {self.describe()} is ready"
+
     def _create(self, path: str) -> int:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _CLOEXEC, self.file_mode)
         if self._fix_file_mode:
@@ -677,6 +681,32 @@ def _syncfs(fd: int) -> None:
         os.sync()
 
 
+#: client settings graphkit gives an fsspec file system unless told otherwise: an S3 server that
+#: cannot be reached fails within seconds (botocore's defaults retry for half a minute)
+CLIENT_DEFAULTS = {"s3": {"config_kwargs": {"connect_timeout": 3, "read_timeout": 60,
+                                            "retries": {"max_attempts": 2, "mode": "standard"}}}}
+
+
+@contextlib.contextmanager
+def fs_errors(url: str, creating: bool = False):
+    """Turn what an object store's client raises into one CacheError naming the URL and the fix."""
+    try:
+        yield
+    except CacheError:
+        raise
+    except FileNotFoundError:
+        if creating:
+            raise
+        raise CacheError(f"cache {url}: the bucket does not exist; create it with `graphkit cache init {url}` "
+                         "(it is never created implicitly)") from None
+    except PermissionError as e:
+        raise CacheError(f"cache {url}: access denied ({e}): check the credentials (AWS_PROFILE, "
+                         "AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, ~/.aws/credentials) and the bucket's policy") from None
+    except Exception as e:  # noqa: BLE001 - the client's own classes (botocore, aiohttp, …)
+        raise CacheError(f"cache {url}: cannot reach the object store ({type(e).__name__}: {e}); check the "
+                         "endpoint (FSSPEC_S3_ENDPOINT_URL or AWS_ENDPOINT_URL), the network and the credentials") from None
+
+
 class FsspecFS:
     """Any fsspec file system (memory://, file://, s3://, …)."""
 
@@ -687,9 +717,13 @@ class FsspecFS:
     def __init__(self, url: str):
         import fsspec
 
-        self.fs, self.root = fsspec.core.url_to_fs(url)
+        protocol = fsspec.core.split_protocol(url)[0]
+        self.fs, self.root = fsspec.core.url_to_fs(url, **CLIENT_DEFAULTS.get(protocol, {}))
         self.url = url
         self.root = self.root.rstrip("/")
+        #: paths are bucket/key (s3, gcs, azure): no folders to make, and a bucket is never
+        #: created by a side effect (fsspec's makedirs creates a missing one)
+        self.buckets = self.fs.root_marker == ""
 
     def describe(self) -> str:
         return self.url
@@ -698,8 +732,25 @@ class FsspecFS:
         return f"{self.root}/{rel}"
 
     def ensure(self) -> None:
+        if self.buckets:
+            with fs_errors(self.url):
+                self.fs.info(self.root.split("/", 1)[0])  # (FileNotFoundError: no such bucket)
+            return
         for d in ("objects", "keys", "runs", "tmp"):
             self.fs.makedirs(self._p(d), exist_ok=True)
+
+    def init(self) -> str:
+        """Create the bucket (or folder) on request: ``graphkit cache init URL``."""
+        if not self.buckets:
+            self.ensure()
+            return f"cache {self.url} is ready"
+        bucket = self.root.split("/", 1)[0]
+        with fs_errors(self.url, creating=True):
+            if self.fs.exists(bucket):
+                self.fs.info(bucket)  # (a bucket of someone else's reads as there: say why it fails)
+                return f"cache {self.url} is ready (bucket {bucket} exists)"
+            self.fs.mkdir(bucket)
+        return f"created bucket {bucket} for cache {self.url}"
 
     def read(self, rel: str) -> bytes | None:
         try:
@@ -716,8 +767,7 @@ class FsspecFS:
     def write_atomic(self, rel: str, chunks, sync: bool = False) -> None:
         tmp = self._p(f"tmp/{uuid.uuid4().hex}")
         data = b"".join(bytes(c) for c in chunks)
-        parent = self._p(rel).rsplit("/", 1)[0]
-        self.fs.makedirs(parent, exist_ok=True)
+        self._parent(rel)
         try:
             self.fs.pipe_file(tmp, data)
             self.fs.mv(tmp, self._p(rel))
@@ -726,13 +776,18 @@ class FsspecFS:
                 self.fs.rm_file(tmp)
             raise
 
+    def _parent(self, rel: str) -> None:
+        """Make the folder ``rel`` goes into (object stores have none)."""
+        if not self.buckets:
+            self.fs.makedirs(self._p(rel).rsplit("/", 1)[0], exist_ok=True)
+
     def remove(self, rel: str) -> None:
         with contextlib.suppress(FileNotFoundError):
             self.fs.rm_file(self._p(rel))
 
     def move_aside(self, rel: str, to_rel: str) -> bool:
         try:
-            self.fs.makedirs(self._p(to_rel).rsplit("/", 1)[0], exist_ok=True)
+            self._parent(to_rel)
             self.fs.mv(self._p(rel), self._p(to_rel))
             return True
         except Exception:  # noqa: BLE001 - best effort: the entry is skipped either way
@@ -836,6 +891,11 @@ class Store:
         self.on_notice: Callable[[str], None] | None = None
 
     # -- set-up and errors ---------------------------------------------------------------
+    def init(self) -> str:
+        """Create the cache (a bucket only on this request): what was done, in one line."""
+        with self._errors("create the cache"):
+            return self.fs.init()
+
     def open(self) -> "Store":
         if not self._ready:
             with self._errors("create the cache folder"):
