@@ -254,7 +254,7 @@ class Session:
         key, parts = self.key(g, input_digests)
         rec = self._lookup(g, key, parts, touch=True)
         if rec is None:
-            with self.store.key_lock(key) as waited:
+            with self.store.key_lock(key, name) as waited:
                 # another run held the key (it was computing it): look again.  A lock taken at
                 # once (False) means nobody computed the key since the miss just above, bar a run
                 # that did all of it within those microseconds: at worst a node is computed twice,

@@ -65,8 +65,9 @@ group-writable folder, e.g. ``chmod 2775``, gives group-writable entries whateve
 users of one group share a cache.  A cache that cannot be written (``chmod -R a-w``, a read-only
 mount) still serves hits; results computed against it are kept in memory only, with one notice.
 
-The same store works over an fsspec URL (``memory://…``, ``file://…``, ``s3://…``); there the
-per-key lock is per process only, since object stores have no locks, and ``commit`` is a no-op.
+The same store works over an fsspec URL (``memory://…``, ``file://…``, ``s3://…``): on object
+stores each entry is one PUT (atomic there), locks are leases (graphkit.leases) and ``commit`` is
+a no-op.
 """
 from __future__ import annotations
 
@@ -487,6 +488,9 @@ class LocalFS:
     def exists(self, rel: str) -> bool:
         return os.path.lexists(self._s(rel))
 
+    def live_lease(self, rel: str) -> bool:  # (locks/ holds flock files: a lock file is never live)
+        return False
+
     def inside(self, rel: str) -> bool:
         """Whether the folder holding ``rel`` is the cache's own (no symbolic link leads out)."""
         real = os.path.realpath(os.path.dirname(self._s(rel)))
@@ -612,7 +616,7 @@ class LocalFS:
         finally:
             os.close(fd)  # closing releases the flock
 
-    def key_lock(self, key: str):
+    def key_lock(self, key: str, on_wait=None):  # (a flock's holder is alive: nothing to say)
         if not self._key_lock_fd_ok:
             return self.lock(f"locks/{key[:2]}/{key}.lock")
         return self._ofd_lock(int(key[:15], 16))
@@ -688,23 +692,27 @@ CLIENT_DEFAULTS = {"s3": {"config_kwargs": {"connect_timeout": 3, "read_timeout"
 
 
 @contextlib.contextmanager
-def fs_errors(url: str, creating: bool = False):
-    """Turn what an object store's client raises into one CacheError naming the URL and the fix."""
+def fs_errors(url: str, bucket: bool = False):
+    """Turn what an object store's client raises into one CacheError naming the URL and the fix
+    (FileNotFoundError passes, unless ``bucket``: then the bucket is missing)."""
     try:
         yield
-    except CacheError:
+    except (CacheError, FileExistsError):
         raise
     except FileNotFoundError:
-        if creating:
+        if not bucket:
             raise
         raise CacheError(f"cache {url}: the bucket does not exist; create it with `graphkit cache init {url}` "
                          "(it is never created implicitly)") from None
     except PermissionError as e:
         raise CacheError(f"cache {url}: access denied ({e}): check the credentials (AWS_PROFILE, "
                          "AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, ~/.aws/credentials) and the bucket's policy") from None
+    except OSError:
+        raise  # (a file system's own error: the store says what it was doing)
     except Exception as e:  # noqa: BLE001 - the client's own classes (botocore, aiohttp, …)
         raise CacheError(f"cache {url}: cannot reach the object store ({type(e).__name__}: {e}); check the "
-                         "endpoint (FSSPEC_S3_ENDPOINT_URL or AWS_ENDPOINT_URL), the network and the credentials") from None
+                         "endpoint (FSSPEC_S3_ENDPOINT_URL or AWS_ENDPOINT_URL), the network and the credentials, "
+                         "then run again") from None
 
 
 class FsspecFS:
@@ -733,8 +741,8 @@ class FsspecFS:
 
     def ensure(self) -> None:
         if self.buckets:
-            with fs_errors(self.url):
-                self.fs.info(self.root.split("/", 1)[0])  # (FileNotFoundError: no such bucket)
+            with fs_errors(self.url, bucket=True):
+                self.fs.info(self.root.split("/", 1)[0])
             return
         for d in ("objects", "keys", "runs", "tmp"):
             self.fs.makedirs(self._p(d), exist_ok=True)
@@ -745,7 +753,7 @@ class FsspecFS:
             self.ensure()
             return f"cache {self.url} is ready"
         bucket = self.root.split("/", 1)[0]
-        with fs_errors(self.url, creating=True):
+        with fs_errors(self.url):
             if self.fs.exists(bucket):
                 self.fs.info(bucket)  # (a bucket of someone else's reads as there: say why it fails)
                 return f"cache {self.url} is ready (bucket {bucket} exists)"
@@ -754,27 +762,41 @@ class FsspecFS:
 
     def read(self, rel: str) -> bytes | None:
         try:
-            return self.fs.cat_file(self._p(rel))
+            with fs_errors(self.url):
+                return self.fs.cat_file(self._p(rel))
         except FileNotFoundError:
             return None
 
     def exists(self, rel: str) -> bool:
-        return self.fs.exists(self._p(rel))
+        with fs_errors(self.url):
+            return self.fs.exists(self._p(rel))
 
     def inside(self, rel: str) -> bool:  # (object stores have no links: every key is the store's)
         return True
 
+    def live_lease(self, rel: str) -> bool:
+        """Whether ``rel`` is a lease whose owner still renews it (gc leaves it)."""
+        from .leases import alive, read_lease
+
+        with fs_errors(self.url):
+            return alive(read_lease(self.fs, self._p(rel)))
+
     def write_atomic(self, rel: str, chunks, sync: bool = False) -> None:
-        tmp = self._p(f"tmp/{uuid.uuid4().hex}")
+        """One PUT where a PUT is atomic (object stores: a reader sees the whole object or
+        none); elsewhere a temp file moved into place."""
         data = b"".join(bytes(c) for c in chunks)
-        self._parent(rel)
-        try:
-            self.fs.pipe_file(tmp, data)
-            self.fs.mv(tmp, self._p(rel))
-        except BaseException:
-            with contextlib.suppress(Exception):
-                self.fs.rm_file(tmp)
-            raise
+        with fs_errors(self.url):
+            if self.buckets:
+                return self.fs.pipe_file(self._p(rel), data)
+            self._parent(rel)
+            tmp = self._p(f"tmp/{uuid.uuid4().hex}")
+            try:
+                self.fs.pipe_file(tmp, data)
+                self.fs.mv(tmp, self._p(rel))
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    self.fs.rm_file(tmp)
+                raise
 
     def _parent(self, rel: str) -> None:
         """Make the folder ``rel`` goes into (object stores have none)."""
@@ -782,7 +804,7 @@ class FsspecFS:
             self.fs.makedirs(self._p(rel).rsplit("/", 1)[0], exist_ok=True)
 
     def remove(self, rel: str) -> None:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(FileNotFoundError), fs_errors(self.url):
             self.fs.rm_file(self._p(rel))
 
     def move_aside(self, rel: str, to_rel: str) -> bool:
@@ -794,10 +816,12 @@ class FsspecFS:
             return False
 
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
-        base = self._p(rel)
-        if not self.fs.exists(base):
+        try:
+            with fs_errors(self.url):
+                found = self.fs.find(self._p(rel), detail=True)
+        except FileNotFoundError:
             return
-        for p, info in self.fs.find(base, detail=True).items():
+        for p, info in found.items():
             mt = info.get("mtime") or info.get("created") or 0
             if hasattr(mt, "timestamp"):
                 mt = mt.timestamp()
@@ -806,32 +830,55 @@ class FsspecFS:
     def commit(self) -> None:
         pass
 
-    def key_lock(self, key: str):
-        return self.lock(f"locks/{key[:2]}/{key}.lock")
+    def key_lock(self, key: str, on_wait: Callable[[dict, float], None] | None = None):
+        """``on_wait(holder, ttl)``: told once when another run's lease is waited for (a flock's or
+        a thread lock's holder is alive: nothing to say)."""
+        from .leases import is_in_process, local_root
+
+        leased = local_root(self.fs, self.root) is None and not is_in_process(self.fs)
+        return self.lock(f"locks/{key[:2]}/{key}.lock", on_wait=on_wait if leased else None)
 
     @contextlib.contextmanager
     def lock(self, rel: str, shared: bool = False, on_wait=None):
-        """Exclusive locks hold across processes (see graphkit.leases): flock for file://, a lease
-        file on object stores, a thread lock for memory://.  Shared (run) locks are flocks on
-        file:// and no-ops elsewhere."""
-        from .leases import Lease, is_in_process, local_root
+        """Locks that hold across processes (see graphkit.leases): flocks for file://, a thread
+        lock for memory://, leases on object stores (``store.lock``: runs shared, gc exclusive)."""
+        from . import leases
 
-        folder = local_root(self.fs, self.root)
+        folder = leases.local_root(self.fs, self.root)
         if folder is not None:  # a folder on this machine: the same flocks as a plain folder
             with LocalFS(folder).lock(rel, shared, on_wait):
                 yield
             return
-        if shared:
-            yield
-            return
-        with self._locks_guard:
-            lk = self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
-        with lk:  # threads of this process first, then other processes
-            if is_in_process(self.fs):
+        if leases.is_in_process(self.fs):
+            with self._thread_lock(rel) if not shared else contextlib.nullcontext():
                 yield
-            else:
-                with Lease(self.fs, self._p(rel)):
-                    yield
+            return
+        if rel == "store.lock":
+            cm = (leases.shared if shared else leases.exclusive)(self.fs, self.root, on_wait)
+        else:
+            cm = leases.Lease(self.fs, self._p(rel), on_wait=on_wait)
+        with self._thread_lock(rel) if not shared else contextlib.nullcontext(), self._held(cm):
+            yield
+
+    def _thread_lock(self, rel: str) -> threading.Lock:
+        """Threads of this process first, then other processes."""
+        with self._locks_guard:
+            return self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
+
+    @contextlib.contextmanager
+    def _held(self, cm):
+        """Hold ``cm`` (a lease); a store that stops answering while taking or releasing it is
+        one CacheError (what the body raises passes unchanged)."""
+        with fs_errors(self.url):
+            cm.__enter__()
+        try:
+            yield
+        except BaseException:
+            with contextlib.suppress(Exception):
+                cm.__exit__(None, None, None)
+            raise
+        with fs_errors(self.url):
+            cm.__exit__(None, None, None)
 
 
 def check_out_folder(out: str | os.PathLike, cache: str | os.PathLike) -> None:
@@ -1244,10 +1291,18 @@ class Store:
             self._last_commit = time.monotonic()
 
     # -- locks ---------------------------------------------------------------------------
-    def key_lock(self, key: str):
+    def key_lock(self, key: str, node: str | None = None):
+        """The per-key lock; a run that waits for another's lease says so once (which node, which
+        lease, for how long at most)."""
         if self.read_only:
             return contextlib.nullcontext()
-        return self.fs.key_lock(key)
+
+        def waiting(holder: dict, ttl: float) -> None:
+            who = f"{holder.get('host', '?')}:{holder.get('pid', '?')}" if holder else "an unreadable lease"
+            self.notice(f"notice: {'node ' + node if node else 'key ' + key[:16]} waits for lease "
+                        f"{self.location}/locks/{key[:2]}/{key}.lock held by {who} (computing the same key); "
+                        f"broken if not renewed within {ttl:g} s")
+        return self.fs.key_lock(key, waiting)
 
     @contextlib.contextmanager
     def run_lock(self):
@@ -1385,6 +1440,8 @@ class Store:
         n = nbytes = 0
         for part in ("tmp", "locks", "quarantine"):
             for rel, size, _ in list(self.fs.listdir(part)):
+                if part == "locks" and self.fs.live_lease(rel):
+                    continue  # (a lease held outside a run: a library call, a Dask worker)
                 n += 1
                 nbytes += size
                 if not dry_run:

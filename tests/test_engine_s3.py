@@ -163,7 +163,7 @@ sweeps:
   i: {{range: {{stop: 8}}}}
 nodes:
   c: {{type: Count, foreach: i, params: {{log: {log}, value: "${{i.value}}", seconds: 0.3}}}}
-  d: {{type: Count, foreach: i, inputs: {{x: "c[i].out"}}, params: {{log: {log}, value: 1, seconds: 0.2}}}}
+  d: {{type: Count, foreach: i, inputs: {{x: c.out}}, params: {{log: {log}, value: 1, seconds: 0.2}}}}
   s: {{type: Sum, inputs: {{xs: "d[*].out"}}}}
 outputs: {{s: s.out}}
 """
@@ -201,3 +201,93 @@ def test_concurrent_clients_and_a_looping_gc_compute_each_key_once(s3, url, tmp_
     assert all(n["hit"] for n in warm["nodes"].values())  # nothing lost
     v = gk(s3, "cache", "verify", "--cache", url)
     assert v.returncode == 0, v.stdout + v.stderr
+
+
+def s3fs_for(s3):
+    import s3fs
+
+    return s3fs.S3FileSystem(endpoint_url=s3.endpoint, key="testing", secret="testing")
+
+
+def test_a_dead_owners_lease_costs_seconds_and_the_wait_is_said_once(s3, url, tmp_path, write):
+    """A lease left by a killed run (its expiry a full ttl ahead, never renewed) is broken after
+    the ttl (10 s by default); the waiting run names the node and the lease once."""
+    g = write("g.yaml", TWO)
+    m = run_ok(s3, g, url, tmp_path / "o")["nodes"]
+    assert gk(s3, "cache", "gc", "--cache", url, "--max-size", "0").returncode == 0
+    kx = m["x"]["key"]
+    lease = f"{url.split('/', 2)[2]}/locks/{kx[:2]}/{kx}.lock"
+    s3.put(lease.split("/", 1)[1], json.dumps({"token": "dead", "host": "gone", "pid": 4242,
+                                               "expires": time.time() + 10}).encode())
+    t = time.monotonic()
+    r = gk(s3, "run", g, "--cache", url, "--out", tmp_path / "o")
+    took = time.monotonic() - t
+    assert r.returncode == 0, r.stderr
+    said = [ln for ln in r.stderr.splitlines() if "waits for lease" in ln]
+    assert len(said) == 1 and "node x" in said[0] and f"{kx}.lock" in said[0] and "gone:4242" in said[0], r.stderr
+    assert "10 s" in said[0]
+    assert 8 < took < 25, took
+
+
+def test_a_slow_owner_that_renews_is_never_broken(s3, url):
+    from graphkit.leases import Lease
+
+    fs = s3fs_for(s3)
+    path = f"{url.split('/', 2)[2]}/locks/ab/slow.lock"
+    events = []
+    with Lease(fs, path, ttl=2.0):
+        other = threading.Thread(target=lambda: (Lease(fs, path, ttl=2.0).acquire(), events.append(time.monotonic())))
+        other.start()
+        time.sleep(7)  # three and a half ttls, renewed every ttl/5
+        assert events == []
+        released = time.monotonic()
+    other.join(10)
+    assert events and events[0] >= released
+
+
+def test_gc_waits_for_runs_and_never_deletes_a_live_lease(s3, url, tmp_path, write):
+    from graphkit import leases
+
+    g = write("g.yaml", TWO)
+    run_ok(s3, g, url, tmp_path / "o")
+    fs, root = s3fs_for(s3), url.split("/", 2)[2]
+    key_lease = leases.Lease(fs, f"{root}/locks/cd/held.lock")
+    with leases.shared(fs, root), key_lease:  # a run in progress, and a lease held
+        gc = subprocess.Popen([sys.executable, "-m", "graphkit", "cache", "gc", "--cache", url, "--max-size", "0"],
+                              env=env_for(s3), stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        time.sleep(4)
+        assert gc.poll() is None  # waiting for the run
+        assert any(k.endswith("/keys/") or "/keys/" in k for k in s3.keys(root.split("/", 1)[1]))
+    out, err = gc.communicate(timeout=60)
+    assert gc.returncode == 0 and err.count("waits for the runs") == 1, err
+    with key_lease:
+        assert gk(s3, "cache", "gc", "--cache", url, "--max-size", "0").returncode == 0
+        assert f"{root.split('/', 1)[1]}/locks/cd/held.lock" in s3.keys(root.split("/", 1)[1])
+
+
+SLOW = """\
+graphkit: 1
+name: slow
+sweeps:
+  i: {range: {stop: 12}}
+nodes:
+  s: {type: Slow, foreach: i, params: {seconds: 0.5, megabytes: 0.1, seed: "${i.value}"}}
+"""
+
+
+def test_a_server_that_goes_away_mid_run_stops_it_with_one_message(tmp_path, write):
+    g = write("g.yaml", SLOW + "outputs: {s: s.out}\n")
+    with S3Server("gone") as s3:
+        url = "s3://gone/c"
+        p = subprocess.Popen([sys.executable, "-m", "graphkit", "run", str(g), "--cache", url, "--out",
+                              str(tmp_path / "o"), "--jobs", "2", "-q"], env=env_for(s3),
+                             stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        time.sleep(3)
+        assert p.poll() is None
+    t = time.monotonic()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2, err
+    assert "Traceback" not in err and "Exception in thread" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and url in lines[0] and "run again" in lines[0], err
+    assert time.monotonic() - t < 20
