@@ -29,6 +29,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from s3server import S3Server, free_port  # noqa: E402
 
+TRACE = os.environ.get("BENCH_S3_TRACE") == "1"  # print every request (method and path)
+
 
 class Counter:
     def __init__(self):
@@ -62,6 +64,8 @@ def make_proxy(upstream_port: int, counter: Counter, delay_s: float):
 
         def _forward(self):
             counter.add(kind_of(self.command, self.path))
+            if TRACE:
+                print(self.command, self.path, file=sys.stderr)
             if delay_s:
                 time.sleep(delay_s)
             n = int(self.headers.get("Content-Length") or 0)

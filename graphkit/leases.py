@@ -87,6 +87,8 @@ class Lease:
         self._stop = threading.Event()
         self._renewer: threading.Thread | None = None
         self._unreadable_since: float | None = None
+        #: whether acquire found the lease held (the key may have been computed meanwhile)
+        self.waited = False
 
     def _body(self) -> bytes:
         return json.dumps({"token": self.token, "host": socket.gethostname(), "pid": os.getpid(),
@@ -138,6 +140,7 @@ class Lease:
                 got = self._write_and_check()
             if got:
                 break
+            self.waited = True
             cur = self._read()
             if not said and self.on_wait is not None and cur is not None:
                 said = True

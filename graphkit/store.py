@@ -417,6 +417,8 @@ class LocalFS:
     """A folder on this machine: write + rename, syncfs group commits, flock / OFD locks."""
 
     locks_are_shared = True
+    #: whether a value is written without looking for it first (a look costs as much as a write)
+    blind_put = False
 
     def __init__(self, root: str):
         self.root = Path(root).absolute()
@@ -688,7 +690,8 @@ def _syncfs(fd: int) -> None:
 #: client settings graphkit gives an fsspec file system unless told otherwise: an S3 server that
 #: cannot be reached fails within seconds (botocore's defaults retry for half a minute)
 CLIENT_DEFAULTS = {"s3": {"config_kwargs": {"connect_timeout": 3, "read_timeout": 60,
-                                            "retries": {"max_attempts": 2, "mode": "standard"}}}}
+                                            "retries": {"max_attempts": 2, "mode": "standard"}},
+                          "max_concurrency": 1}}  # (a read is one GET, not a HEAD for its size first)
 
 
 @contextlib.contextmanager
@@ -730,8 +733,9 @@ class FsspecFS:
         self.url = url
         self.root = self.root.rstrip("/")
         #: paths are bucket/key (s3, gcs, azure): no folders to make, and a bucket is never
-        #: created by a side effect (fsspec's makedirs creates a missing one)
-        self.buckets = self.fs.root_marker == ""
+        #: created by a side effect (fsspec's makedirs creates a missing one); a PUT is atomic
+        #: and costs one request, as a look before it would
+        self.buckets = self.blind_put = self.fs.root_marker == ""
 
     def describe(self) -> str:
         return self.url
@@ -858,7 +862,7 @@ class FsspecFS:
         else:
             cm = leases.Lease(self.fs, self._p(rel), on_wait=on_wait)
         with self._thread_lock(rel) if not shared else contextlib.nullcontext(), self._held(cm):
-            yield
+            yield getattr(cm, "waited", None)
 
     def _thread_lock(self, rel: str) -> threading.Lock:
         """Threads of this process first, then other processes."""
@@ -1238,7 +1242,7 @@ class Store:
         if digest in self._present:
             return digest
         rel = self._orel(digest)
-        if not self.fs.exists(rel):
+        if self.fs.blind_put or not self.fs.exists(rel):
             head, offsets = encode_header(ptype.name, meta, arrays, digest)
             with self._errors("write a cache object"):
                 self.fs.write_atomic(rel, iter_chunks(head, offsets, arrays))
