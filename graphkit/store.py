@@ -718,6 +718,11 @@ def fs_errors(url: str, bucket: bool = False):
                          "then run again") from None
 
 
+#: what a cache's root holds (anything else below an object store's prefix: not a cache)
+CACHE_NAMES = {"objects", "keys", "journal", "runs", "tmp", "quarantine", "locks", "active", "store.lock",
+               "keys.lock", "filememo.json"}
+
+
 class FsspecFS:
     """Any fsspec file system (memory://, file://, s3://, …)."""
 
@@ -745,11 +750,24 @@ class FsspecFS:
 
     def ensure(self) -> None:
         if self.buckets:
+            return self._check_prefix()
+        for d in ("objects", "keys", "runs", "tmp"):
+            self.fs.makedirs(self._p(d), exist_ok=True)
+
+    def _check_prefix(self) -> None:
+        """The bucket exists and the prefix holds a graphkit cache or nothing (one listing)."""
+        try:
+            with fs_errors(self.url):
+                names = {p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self.root, detail=False)}
+        except FileNotFoundError:  # an empty prefix, or no bucket
             with fs_errors(self.url, bucket=True):
                 self.fs.info(self.root.split("/", 1)[0])
             return
-        for d in ("objects", "keys", "runs", "tmp"):
-            self.fs.makedirs(self._p(d), exist_ok=True)
+        foreign = sorted(names - CACHE_NAMES)
+        if foreign:
+            raise CacheError(f"cache {self.url} holds objects that are not a graphkit cache's ({', '.join(foreign[:3])}"
+                             f"{', …' if len(foreign) > 3 else ''}): give the cache a prefix of its own, "
+                             f"e.g. {self.url.rstrip('/')}/graphkit-cache")
 
     def init(self) -> str:
         """Create the bucket (or folder) on request: ``graphkit cache init URL``."""

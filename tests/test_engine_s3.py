@@ -291,3 +291,15 @@ def test_a_server_that_goes_away_mid_run_stops_it_with_one_message(tmp_path, wri
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and url in lines[0] and "run again" in lines[0], err
     assert time.monotonic() - t < 20
+
+
+def test_a_prefix_holding_other_objects_is_not_taken_for_a_cache(s3, tmp_path, write):
+    g = write("g.yaml", TWO)
+    s3.put("photos/holiday.jpg", b"\xff\xd8")
+    for args in (("run", g, "--out", tmp_path / "o"), ("cache", "gc", "--max-size", "0"), ("cache", "ls")):
+        r = gk(s3, *args, "--cache", "s3://gk-test/photos")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "s3://gk-test/photos" in r.stderr and "holiday.jpg" in r.stderr and "prefix of its own" in r.stderr
+    assert s3.keys("photos/") == {"photos/holiday.jpg": b"\xff\xd8"}
+    run_ok(s3, g, "s3://gk-test/photos/graphkit-cache", tmp_path / "o")
+    run_ok(s3, g, "s3://gk-test/photos/graphkit-cache", tmp_path / "o")
