@@ -21,6 +21,9 @@ DEFAULT_CACHE = ".graphkit-cache"
 def _cache_arg(p):
     p.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", DEFAULT_CACHE),
                    help="cache folder or fsspec URL (default: $GRAPHKIT_CACHE or ./.graphkit-cache)")
+    p.add_argument("--cache-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="an fsspec storage option for a cache URL (repeatable), e.g. endpoint_url=http://host:9000, "
+                        "profile=NAME, client_kwargs.region_name=eu-west-1; also $GRAPHKIT_CACHE_OPTIONS (JSON)")
 
 
 def _graph_args(p):
@@ -136,6 +139,7 @@ def build_parser():
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
     for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything"),
+                      ("info", "where the cache is and how it is reached (endpoint, region, credentials' source)"),
                       ("init", "create the cache's bucket or folder (never created implicitly on object stores)")):
         cp = csub.add_parser(name, help=hlp)
         if name == "init":
@@ -182,6 +186,7 @@ def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     try:
         _check_no_nul(args)
+        _set_cache_options(getattr(args, "cache_option", None))
         return _dispatch(args)
     except GraphkitError as e:
         from .errors import GraphError
@@ -304,6 +309,17 @@ def _dispatch(args) -> int:
                      backends=[b.strip() for b in args.backend.split(",") if b.strip()],
                      jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
     raise UsageError(f"unknown command {args.cmd}")
+
+
+def _set_cache_options(given: list[str] | None) -> None:
+    """`--cache-option KEY=VALUE`s over $GRAPHKIT_CACHE_OPTIONS, for every store this process
+    (and the Dask workers it starts) opens."""
+    if given:
+        import json
+
+        from .store import OPTIONS_ENV, cache_options, merged_options, parse_cache_option
+
+        os.environ[OPTIONS_ENV] = json.dumps(merged_options(cache_options(), dict(map(parse_cache_option, given))))
 
 
 def _store(location):
@@ -497,6 +513,10 @@ def cmd_cache(args) -> int:
         print(Store(args.url or args.cache).init())
         return 0
     store = _store(args.cache)
+    if args.cache_cmd == "info":
+        for k, v in store.fs.info().items():
+            print(f"{k}: {v}")
+        return 0
     if args.cache_cmd == "ls":
         rows = store.ls()
         for r in rows:

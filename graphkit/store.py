@@ -502,6 +502,9 @@ class LocalFS:
         self.ensure()
         return f"cache {self.describe()} is ready"
 
+    def info(self) -> dict[str, str]:
+        return {"cache": str(self.root), "file system": "a folder on this machine (flock, hard links, syncfs)"}
+
     def _create(self, path: str) -> int:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _CLOEXEC, self.file_mode)
         if self._fix_file_mode:
@@ -694,6 +697,50 @@ CLIENT_DEFAULTS = {"s3": {"config_kwargs": {"connect_timeout": 3, "read_timeout"
                           "max_concurrency": 1}}  # (a read is one GET, not a HEAD for its size first)
 
 
+#: fsspec storage options for the cache, as JSON (what `--cache-option KEY=VALUE` sets): they
+#: travel to Dask workers started from this process in their environment
+OPTIONS_ENV = "GRAPHKIT_CACHE_OPTIONS"
+
+
+def cache_options() -> dict:
+    """The storage options given for the cache (GRAPHKIT_CACHE_OPTIONS)."""
+    raw = os.environ.get(OPTIONS_ENV)
+    if not raw:
+        return {}
+    try:
+        opts = json.loads(raw)
+    except ValueError:
+        opts = None
+    if not isinstance(opts, dict):
+        raise UsageError(f"{OPTIONS_ENV} must be a JSON object of fsspec storage options, e.g. "
+                         '{"endpoint_url": "http://127.0.0.1:9000"}')
+    return opts
+
+
+def parse_cache_option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of `--cache-option`: VALUE as JSON when it is (numbers, true, {...}), else text;
+    a dotted KEY sets a nested option (``config_kwargs.connect_timeout=5``)."""
+    key, eq, value = text.partition("=")
+    if not eq or not key.strip():
+        raise UsageError(f"--cache-option {text!r}: expected KEY=VALUE, e.g. --cache-option endpoint_url=http://127.0.0.1:9000")
+    try:
+        return key.strip(), json.loads(value)
+    except ValueError:
+        return key.strip(), value
+
+
+def merged_options(base: dict, extra: dict) -> dict:
+    """``base`` with ``extra`` over it; dotted keys of ``extra`` and nested dicts merge."""
+    out = json.loads(json.dumps(base))
+    for key, value in extra.items():
+        *path, last = key.split(".")
+        at = out
+        for k in path:
+            at = at.setdefault(k, {})
+        at[last] = merged_options(at[last], value) if isinstance(value, dict) and isinstance(at.get(last), dict) else value
+    return out
+
+
 @contextlib.contextmanager
 def fs_errors(url: str, bucket: bool = False):
     """Turn what an object store's client raises into one CacheError naming the URL and the fix
@@ -714,8 +761,8 @@ def fs_errors(url: str, bucket: bool = False):
         raise  # (a file system's own error: the store says what it was doing)
     except Exception as e:  # noqa: BLE001 - the client's own classes (botocore, aiohttp, …)
         raise CacheError(f"cache {url}: cannot reach the object store ({type(e).__name__}: {e}); check the "
-                         "endpoint (FSSPEC_S3_ENDPOINT_URL or AWS_ENDPOINT_URL), the network and the credentials, "
-                         "then run again") from None
+                         "endpoint (--cache-option endpoint_url=…, AWS_ENDPOINT_URL or FSSPEC_S3_ENDPOINT_URL), "
+                         "the network and the credentials (`graphkit cache info` shows them), then run again") from None
 
 
 #: what a cache's root holds (anything else below an object store's prefix: not a cache)
@@ -734,7 +781,11 @@ class FsspecFS:
         import fsspec
 
         protocol = fsspec.core.split_protocol(url)[0]
-        self.fs, self.root = fsspec.core.url_to_fs(url, **CLIENT_DEFAULTS.get(protocol, {}))
+        self.options = merged_options(CLIENT_DEFAULTS.get(protocol, {}), cache_options())
+        try:
+            self.fs, self.root = fsspec.core.url_to_fs(url, **self.options)
+        except TypeError as e:
+            raise UsageError(f"cache {url}: a storage option is not one this file system takes ({e})") from None
         self.url = url
         self.root = self.root.rstrip("/")
         #: paths are bucket/key (s3, gcs, azure): no folders to make, and a bucket is never
@@ -753,6 +804,20 @@ class FsspecFS:
             return self._check_prefix()
         for d in ("objects", "keys", "runs", "tmp"):
             self.fs.makedirs(self._p(d), exist_ok=True)
+
+    def info(self) -> dict[str, str]:
+        """What `graphkit cache info` shows: the file system, its options, and for S3 the
+        endpoint, region and where the credentials came from (never the secret)."""
+        shown = {k: ("***" if k in ("key", "secret", "token", "password") else v) for k, v in self.options.items()}
+        out = {"cache": self.url, "file system": f"{type(self.fs).__module__}.{type(self.fs).__name__}",
+               "options": json.dumps(shown, sort_keys=True)}
+        client = getattr(self.fs, "s3", None)
+        if client is not None:
+            creds = getattr(getattr(client, "_request_signer", None), "_credentials", None)
+            out.update({"endpoint": client.meta.endpoint_url, "region": client.meta.region_name,
+                        "profile": os.environ.get("AWS_PROFILE") or self.options.get("profile") or "default",
+                        "credentials": getattr(creds, "method", None) or "none found"})
+        return out
 
     def _check_prefix(self) -> None:
         """The bucket exists and the prefix holds a graphkit cache or nothing (one listing)."""

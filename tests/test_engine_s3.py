@@ -303,3 +303,31 @@ def test_a_prefix_holding_other_objects_is_not_taken_for_a_cache(s3, tmp_path, w
     assert s3.keys("photos/") == {"photos/holiday.jpg": b"\xff\xd8"}
     run_ok(s3, g, "s3://gk-test/photos/graphkit-cache", tmp_path / "o")
     run_ok(s3, g, "s3://gk-test/photos/graphkit-cache", tmp_path / "o")
+
+
+def test_configured_as_users_configure_s3(s3, tmp_path, write):
+    """The endpoint from --cache-option, from GRAPHKIT_CACHE_OPTIONS or from botocore's own
+    AWS_ENDPOINT_URL; `cache info` shows endpoint, region and the credentials' source."""
+    g = write("g.yaml", TWO)
+    plain = {k: v for k, v in env_for(s3).items() if k != "FSSPEC_S3_ENDPOINT_URL"}
+    url = "s3://gk-test/configured"
+    r = graphkit("run", g, "--cache", url, "--out", tmp_path / "o", "--cache-option",
+                 f"endpoint_url={s3.endpoint}", "--cache-option", "config_kwargs.connect_timeout=4", env=plain)
+    assert r.returncode == 0, r.stderr
+    info = graphkit("cache", "info", "--cache", url, "--cache-option", f"endpoint_url={s3.endpoint}", env=plain)
+    assert info.returncode == 0, info.stderr
+    assert f"endpoint: {s3.endpoint}" in info.stdout and "region: us-east-1" in info.stdout
+    assert "credentials: env" in info.stdout and "testing" not in info.stdout, info.stdout
+    assert '"connect_timeout": 3' in info.stdout  # graphkit's default, shown
+    for env in ({**plain, "GRAPHKIT_CACHE_OPTIONS": json.dumps({"endpoint_url": s3.endpoint})},
+                {**plain, "AWS_ENDPOINT_URL": s3.endpoint}):
+        m = run_ok_env(g, url, tmp_path / "o", env)
+        assert all(n["hit"] for n in m["nodes"].values())
+    bad = graphkit("cache", "ls", "--cache", url, "--cache-option", "endpoint_url", env=plain)
+    assert bad.returncode == 2 and "KEY=VALUE" in bad.stderr and bad.stderr.count("\n") == 1
+
+
+def run_ok_env(g, cache, out, env):
+    r = graphkit("run", g, "--cache", cache, "--out", out, env=env)
+    assert r.returncode == 0, r.stderr
+    return json.loads((Path(out) / "manifest.json").read_text())
