@@ -71,6 +71,7 @@ a no-op.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import fcntl
@@ -361,6 +362,39 @@ class _Journal:
 
     def __init__(self, fd: int, path: str, size: int):
         self.fd, self.path, self.pid, self.frames, self.size = fd, path, _PID[0], 0, size
+
+
+def _damaged_records(records: dict[str, dict], bad: set[str], present: set[str]) -> list[tuple[str, str]]:
+    """(key, why) of every record to drop: its output is missing or corrupt, or (following the
+    chain) it was computed from a damaged value: a bad object, or one that only dropped records
+    made.  Linear: each record and each digest is visited once."""
+    consumers: dict[str, list[str]] = {}
+    makers: dict[str, int] = {}  # digest -> how many records not (yet) dropped output it
+    for key, rec in records.items():
+        for d in set(record_inputs(rec)):
+            consumers.setdefault(d, []).append(key)
+        for d in {o["digest"] for o in rec["outputs"].values()}:
+            makers[d] = makers.get(d, 0) + 1
+    tainted, queue, dropped = set(bad), collections.deque(bad), {}
+
+    def drop(key: str, why: str) -> None:
+        dropped[key] = why
+        for d in {o["digest"] for o in records[key]["outputs"].values()}:
+            makers[d] -= 1
+            if makers[d] == 0 and d not in tainted:
+                tainted.add(d)
+                queue.append(d)
+
+    for key, rec in records.items():
+        port = next((p for p, o in rec["outputs"].items() if o["digest"] in bad or o["digest"] not in present), None)
+        if port is not None:
+            drop(key, f"output '{port}' object missing or corrupt")
+    while queue:
+        for key in consumers.get(queue.popleft(), ()):
+            if key not in dropped:
+                first = next(d for d in record_inputs(records[key]) if d in tainted)
+                drop(key, f"computed from a damaged value ({first[:16]})")
+    return list(dropped.items())
 
 
 def record_inputs(rec: dict) -> list[str]:
@@ -1651,30 +1685,10 @@ class Store:
                         self.fs.remove(self._krel(key))
                     continue
                 records[key] = rec
-            dropped: set[str] = set()
-            changed = True
-            while changed:  # follow the chain: what was computed from a bad value is bad too
-                changed = False
-                kept_outs = {o["digest"] for k, r in records.items() if k not in dropped for o in r["outputs"].values()}
-                tainted = bad | ({o["digest"] for k in dropped for o in records[k]["outputs"].values()} - kept_outs)
-                for key, rec in records.items():
-                    if key in dropped:
-                        continue
-                    why = None
-                    for port, o in rec["outputs"].items():
-                        if o["digest"] in bad or o["digest"] not in present:
-                            why = f"output '{port}' object missing or corrupt"
-                            break
-                    else:
-                        ins = [d for d in record_inputs(rec) if d in tainted]
-                        if ins:
-                            why = f"computed from a damaged value ({ins[0][:16]})"
-                    if why:
-                        problems.append(f"record {key} ({rec.get('node')}): {why}")
-                        dropped.add(key)
-                        changed = True
-                        if repair:
-                            self.fs.remove(self._krel(key))
+            for key, why in _damaged_records(records, bad, present):
+                problems.append(f"record {key} ({records[key].get('node')}): {why}")
+                if repair:
+                    self.fs.remove(self._krel(key))
             if repair:
                 self.clean_stale()
         return problems
