@@ -610,3 +610,27 @@ def test_objects_are_known_present_only_inside_the_run_lock(tmp_path):
     obj.unlink()  # e.g. `cache gc` between two calls
     s.put_value(ARRAY, value, vp)
     assert obj.is_file()
+
+
+def test_verify_follows_a_chain_of_damage_in_linear_work(store, tmp_path, monkeypatch):
+    """A chain of 300 records computed one from the next, its first value damaged: every record
+    is dropped, and each is looked at a bounded number of times (not once per link)."""
+    import graphkit.store as st
+
+    prev, n = None, 300
+    for i in range(n):
+        d = store.put_value(ARRAY, np.array([float(i)]))
+        if i == 0:
+            first = d
+        k = f"{i:032x}"
+        store.put_record(k, {"key": k, "node": f"n{i}", "outputs": {"out": {"digest": d, "type": "Array"}},
+                             "parts": {"inputs": {"a": prev} if prev else {}}})
+        prev = d
+    p = tmp_path / "c" / "objects" / first[:2] / first
+    p.write_bytes(p.read_bytes()[:-1] + b"X")
+    calls = []
+    real = st.record_inputs
+    monkeypatch.setattr(st, "record_inputs", lambda rec: calls.append(1) or real(rec))
+    problems = store.verify()
+    assert len([x for x in problems if x.startswith("record")]) == n
+    assert len(calls) <= 3 * n, len(calls)
