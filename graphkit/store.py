@@ -804,6 +804,24 @@ CACHE_NAMES = {"objects", "keys", "journal", "runs", "tmp", "quarantine", "locks
                "keys.lock", "filememo.json"}
 
 
+def _quiet_client_loop(fs) -> None:
+    """An async client (s3fs's aiohttp) leaves a task behind when a server goes away mid-request:
+    its connection error, already raised to the caller (one CacheError), would be printed again
+    with a traceback by asyncio when the task is collected.  Other errors are reported as usual."""
+    loop = getattr(fs, "loop", None)
+    if loop is None or getattr(loop, "_graphkit_quiet", False):
+        return
+
+    def handler(loop, context):
+        exc = context.get("exception")
+        if isinstance(exc, (OSError, ConnectionError)) or type(exc).__module__.startswith("aiohttp"):
+            return
+        loop.default_exception_handler(context)
+
+    loop.set_exception_handler(handler)
+    loop._graphkit_quiet = True
+
+
 class FsspecFS:
     """Any fsspec file system (memory://, file://, s3://, …)."""
 
@@ -822,6 +840,7 @@ class FsspecFS:
             raise UsageError(f"cache {url}: a storage option is not one this file system takes ({e})") from None
         self.url = url
         self.root = self.root.rstrip("/")
+        _quiet_client_loop(self.fs)
         #: paths are bucket/key (s3, gcs, azure): no folders to make, and a bucket is never
         #: created by a side effect (fsspec's makedirs creates a missing one); a PUT is atomic
         #: and costs one request, as a look before it would

@@ -331,3 +331,20 @@ def run_ok_env(g, cache, out, env):
     r = graphkit("run", g, "--cache", cache, "--out", out, env=env)
     assert r.returncode == 0, r.stderr
     return json.loads((Path(out) / "manifest.json").read_text())
+
+
+def test_a_request_orphaned_by_a_vanished_server_prints_no_traceback(s3, caplog, monkeypatch):
+    """aiohttp leaves a task behind when the server goes away mid-request; its error (already
+    raised to the caller) is not printed again by asyncio; other errors still are."""
+    from aiohttp.client_exceptions import ClientConnectionResetError
+
+    from graphkit.store import FsspecFS
+
+    monkeypatch.setenv("FSSPEC_S3_ENDPOINT_URL", s3.endpoint)
+    loop = FsspecFS("s3://gk-test/orphans").fs.loop
+    with caplog.at_level("ERROR", logger="asyncio"):
+        loop.call_exception_handler({"message": "Task exception was never retrieved",
+                                     "exception": ClientConnectionResetError("Cannot write to closing transport")})
+        assert caplog.records == []
+        loop.call_exception_handler({"message": "a bug", "exception": ValueError("a bug")})
+        assert len(caplog.records) == 1
