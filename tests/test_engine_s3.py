@@ -348,3 +348,54 @@ def test_a_request_orphaned_by_a_vanished_server_prints_no_traceback(s3, caplog,
         assert caplog.records == []
         loop.call_exception_handler({"message": "a bug", "exception": ValueError("a bug")})
         assert len(caplog.records) == 1
+
+
+DASK = """\
+graphkit: 1
+name: {name}
+sweeps:
+  i: {{range: {{stop: 6}}}}
+nodes:
+  c: {{type: Count, foreach: i, params: {{log: {log}, value: "${{i.value}}", seconds: 0.3}}}}
+  s: {{type: Sum, inputs: {{xs: "c[*].out"}}}}
+{extra}outputs: {{s: s.out{more}}}
+"""
+
+
+def test_dask_workers_one_killed_and_a_client_beside_them_compute_each_key_once(s3, url, tmp_path):
+    """A LocalCluster of 2 worker processes (one SIGKILLed mid-run, its lease left behind), a
+    local-executor client on the same keys and `cache gc` looping: no run fails, each Count key
+    is computed once, the same bytes as a local folder."""
+    log = tmp_path / "count.log"
+    kill = f"  k: {{type: KillWorker, params: {{marker: {tmp_path / 'killed'}, value: 2}}}}\n"
+    gd, gl = tmp_path / "dask.yaml", tmp_path / "local.yaml"
+    gd.write_text(DASK.format(name="dask", log=log, extra=kill, more=", k: k.out"))
+    gl.write_text(DASK.format(name="local", log=log, extra="", more=""))
+    env = env_for(s3)
+    stop, gcs = threading.Event(), []
+
+    def gc_loop():
+        while not stop.is_set():
+            gcs.append(graphkit("cache", "gc", "--cache", url, "--max-size", "10G", env=env))
+
+    looper = threading.Thread(target=gc_loop)
+    looper.start()
+    try:
+        procs = [subprocess.Popen([sys.executable, "-m", "graphkit", "run", str(g), "--cache", url, "--out",
+                                   str(tmp_path / name), *extra, "-q"], env=env, stderr=subprocess.PIPE, text=True)
+                 for g, name, extra in ((gd, "od", ["--executor", "dask", "--jobs", "2"]), (gl, "ol", ["--jobs", "2"]))]
+        errs = [p.communicate(timeout=300)[1] for p in procs]
+    finally:
+        stop.set()
+        looper.join()
+    assert [p.returncode for p in procs] == [0, 0], errs
+    assert all("Traceback" not in e for e in errs), errs
+    assert (tmp_path / "killed").exists()  # a worker died computing k
+    keys = [line.split()[0] for line in log.read_text().splitlines()]
+    assert len(keys) == 6 and len(set(keys)) == 6, keys
+    assert (tmp_path / "od" / "s.npy").read_bytes() == (tmp_path / "ol" / "s.npy").read_bytes()
+    assert gcs and all(r.returncode == 0 for r in gcs), [r.stderr for r in gcs if r.returncode]
+    folder = run_ok(s3, gl, tmp_path / "folder-cache", tmp_path / "of")
+    assert (tmp_path / "of" / "s.npy").read_bytes() == (tmp_path / "ol" / "s.npy").read_bytes()
+    assert gk(s3, "cache", "verify", "--cache", url).returncode == 0
+    assert folder["nodes"]
