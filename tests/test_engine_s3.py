@@ -399,3 +399,70 @@ def test_dask_workers_one_killed_and_a_client_beside_them_compute_each_key_once(
     assert (tmp_path / "of" / "s.npy").read_bytes() == (tmp_path / "ol" / "s.npy").read_bytes()
     assert gk(s3, "cache", "verify", "--cache", url).returncode == 0
     assert folder["nodes"]
+
+
+def test_the_readmes_scale_out_section_runs_as_written(tmp_path):
+    """The README's scale-out lines, exactly (ports made free ones, --out a temp folder): an S3
+    server, a bucket, a scheduler, two workers, a cold and an all-cached run."""
+    import os
+    import re
+    import shlex
+    import socket
+
+    from s3server import free_port
+
+    text = (ROOT / "README.md").read_text()
+    block = text.split("<!-- scale-out: begin -->", 1)[1].split("<!-- scale-out: end -->", 1)[0]
+    lines = [ln for ln in block.splitlines() if ln and not ln.startswith("```")]
+    ports = {"9000": str(free_port()), "8786": str(free_port())}
+    env = {**engine_env(), "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
+           "AWS_CONFIG_FILE": os.devnull, "AWS_SHARED_CREDENTIALS_FILE": os.devnull}
+    env.pop("FSSPEC_S3_ENDPOINT_URL", None)
+    background, manifests = [], []
+    try:
+        for line in lines:
+            line = re.sub(r"\b(9000|8786)\b", lambda m: ports[m.group(1)], line).replace("--out out", f"--out {tmp_path / 'out'}")
+            if line.startswith("export "):
+                env.update(dict(kv.split("=", 1) for kv in shlex.split(line)[1:]))
+            elif line.endswith(" &"):
+                background.append(subprocess.Popen(line[:-2], shell=True, env=env, cwd=ROOT, start_new_session=True,
+                                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                if "worker" in line:
+                    _wait_for_workers(f"tcp://127.0.0.1:{ports['8786']}", 2)
+                else:
+                    port = int(re.search(r"(?:-p|--port) (\d+)", line).group(1))
+                    _wait_for_port(port, socket)
+            else:
+                r = subprocess.run(line, shell=True, env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+                assert r.returncode == 0, (line, r.stderr)
+                if " run " in line:
+                    manifests.append(json.loads((tmp_path / "out" / "manifest.json").read_text()))
+    finally:
+        import signal
+
+        for p in reversed(background):
+            os.killpg(p.pid, signal.SIGTERM)
+            p.wait(30)
+    assert len(manifests) == 2
+    assert not any(n["hit"] for n in manifests[0]["nodes"].values())
+    assert all(n["hit"] for n in manifests[1]["nodes"].values())
+
+
+def _wait_for_port(port, socket, timeout=30):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise AssertionError(f"nothing listens on port {port}")
+
+
+def _wait_for_workers(address, n, timeout=60):
+    from distributed import Client
+
+    end = time.monotonic() + timeout
+    with Client(address, timeout=30) as c:
+        while len(c.scheduler_info()["workers"]) < n:
+            assert time.monotonic() < end, "the workers did not start"
+            time.sleep(0.3)
