@@ -30,6 +30,7 @@ import contextlib
 import json
 import os
 import socket
+import sys
 import threading
 import time
 import uuid
@@ -40,6 +41,7 @@ DEFAULT_TTL = 10.0
 #: renewals per ttl: a slow owner that still renews is never broken (it renews 5 times per ttl)
 RENEWALS_PER_TTL = 5
 _POLL_MAX = 0.5
+_WARNED: set[str] = set()  # file systems whose weaker lease mode was announced
 ACTIVE = "active"
 
 
@@ -124,7 +126,12 @@ class Lease:
                 self.fs.rm_file(self.path)
 
     def _write_and_check(self) -> bool:
-        """The weaker mode (no exclusive create): write, wait, read back."""
+        """The weaker mode (no exclusive create): write, wait, read back; said once per process."""
+        if type(self.fs).__name__ not in _WARNED:
+            _WARNED.add(type(self.fs).__name__)
+            print(f"graphkit: warning: {type(self.fs).__name__} has no exclusive create (a conditional PUT): "
+                  "per-key leases fall back to write-and-read-back, so two runs may compute a key twice "
+                  "(never a wrong result)", file=sys.stderr, flush=True)
         cur = self._read()
         if alive(cur):
             return False
