@@ -12,7 +12,7 @@ from .plan import make_plan
 from .publish import export_outputs
 from .registry import Registry, default_registry
 from .runner import Session
-from .store import Store
+from .store import Store, check_out_folder
 
 
 @dataclass
@@ -50,6 +50,8 @@ def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLik
     registry = registry or default_registry()
     graph = load(path, registry, overrides or {})  # a graph file, a dict (load_dict) or a Graph
     plan = make_plan(graph, outputs, out)  # outputs: an output name, or a swept output's group name
+    if out is not None:
+        check_out_folder(out, cache)
     store = Store(cache).open()
     progress = progress or Progress()
     session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)

@@ -21,6 +21,9 @@ DEFAULT_CACHE = ".graphkit-cache"
 def _cache_arg(p):
     p.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", DEFAULT_CACHE),
                    help="cache folder or fsspec URL (default: $GRAPHKIT_CACHE or ./.graphkit-cache)")
+    p.add_argument("--cache-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="an fsspec storage option for a cache URL (repeatable), e.g. endpoint_url=http://host:9000, "
+                        "profile=NAME, client_kwargs.region_name=eu-west-1; also $GRAPHKIT_CACHE_OPTIONS (JSON)")
 
 
 def _graph_args(p):
@@ -151,8 +154,12 @@ def _serve_parser(sub) -> None:
 def _cache_parser(sub) -> None:
     p = sub.add_parser("cache", help="inspect or trim the cache")
     csub = p.add_subparsers(dest="cache_cmd", required=True, metavar="ACTION")
-    for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything")):
+    for name, hlp in (("ls", "list entries"), ("gc", "trim to a size"), ("verify", "re-hash everything"),
+                      ("info", "where the cache is and how it is reached (endpoint, region, credentials' source)"),
+                      ("init", "create the cache's bucket or folder (never created implicitly on object stores)")):
         cp = csub.add_parser(name, help=hlp)
+        if name == "init":
+            cp.add_argument("url", nargs="?", help="the cache's folder or URL (default: --cache)")
         _cache_arg(cp)
         if name == "gc":
             cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
@@ -194,6 +201,7 @@ def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     try:
         _check_no_nul(args)
+        _set_cache_options(getattr(args, "cache_option", None))
         return _dispatch(args)
     except GraphkitError as e:
         from .errors import GraphError
@@ -315,6 +323,17 @@ def cmd_serve(args) -> int:
     return serve(args.graph, host=args.host, port=args.port, cache=args.cache, out=args.out,
                  backends=[b.strip() for b in args.backend.split(",") if b.strip()],
                  jobs=args.jobs, autorun=not args.no_run, registry=_registry(), open_browser=args.open)
+
+
+def _set_cache_options(given: list[str] | None) -> None:
+    """`--cache-option KEY=VALUE`s over $GRAPHKIT_CACHE_OPTIONS, for every store this process
+    (and the Dask workers it starts) opens."""
+    if given:
+        import json
+
+        from .store import OPTIONS_ENV, cache_options, merged_options, parse_cache_option
+
+        os.environ[OPTIONS_ENV] = json.dumps(merged_options(cache_options(), dict(map(parse_cache_option, given))))
 
 
 def _store(location):
@@ -526,7 +545,19 @@ def _parse_size(s: str) -> int:
 
 
 def cmd_cache(args) -> int:
-    return {"ls": _cache_ls, "gc": _cache_gc}.get(args.cache_cmd, _cache_verify)(_store(args.cache), args)
+    if args.cache_cmd == "init":
+        from .store import Store
+
+        print(Store(args.url or args.cache).init())
+        return 0
+    actions = {"ls": _cache_ls, "gc": _cache_gc, "info": _cache_info}
+    return actions.get(args.cache_cmd, _cache_verify)(_store(args.cache), args)
+
+
+def _cache_info(store, args) -> int:
+    for k, v in store.fs.info().items():
+        print(f"{k}: {v}")
+    return 0
 
 
 def _cache_ls(store, args) -> int:

@@ -253,7 +253,7 @@ class Session:
         key, parts = self.key(g, input_digests)
         rec = self._lookup(g, key, parts, touch=True)
         if rec is None:
-            with self.store.key_lock(key) as waited:
+            with self.store.key_lock(key, name) as waited:
                 # another run held the key (it was computing it): look again.  A lock taken at
                 # once (False) means nobody computed the key since the miss just above, bar a run
                 # that did all of it within those microseconds: at worst a node is computed twice,
@@ -280,7 +280,7 @@ class Session:
         rp = rec.get("parts") or {}
         if (rp.get("inputs") != parts["inputs"] or any(rp.get(k) != parts.get(k) for k in self._BOUND)
                 or not self._same_params(rp.get("params"), g)):
-            self.store.quarantine(self.store._krel(key), f"cache record {key[:16]} describes another computation")
+            self.store.quarantine_record(key, f"cache record {key[:16]} describes another computation")
             return None
         return rec
 

@@ -65,18 +65,23 @@ group-writable folder, e.g. ``chmod 2775``, gives group-writable entries whateve
 users of one group share a cache.  A cache that cannot be written (``chmod -R a-w``, a read-only
 mount) still serves hits; results computed against it are kept in memory only, with one notice.
 
-The same store works over an fsspec URL (``memory://…``, ``file://…``, ``s3://…``); there the
-per-key lock is per process only, since object stores have no locks, and ``commit`` is a no-op.
+The same store works over an fsspec URL (``memory://…``, ``file://…``, ``s3://…``): on object
+stores each entry is one PUT (atomic there), locks are leases (graphkit.leases) and ``commit`` is
+a no-op.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import fcntl
+import hashlib
+import hmac
 import itertools
 import json
 import os
 import re
+import stat
 import struct
 import threading
 import time
@@ -87,7 +92,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import xxhash
 
-from .errors import CacheError
+from .errors import CacheError, UsageError
 from .hashing import parts_digest
 from .types import BUILTIN_PORT_TYPES, PortType
 
@@ -95,6 +100,10 @@ MAGIC = b"GKOBJ1\n\0"
 RECORD_MAGIC = b"GKREC1 "
 _counter = itertools.count()
 _CLOEXEC = getattr(os, "O_CLOEXEC", 0)
+#: how entries are opened for reading: never through a symbolic link (an entry is a file the
+#: store wrote, not a name for another file) and never blocking (a FIFO planted as an entry)
+_READ_FLAGS = os.O_RDONLY | _CLOEXEC | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+NOT_A_FILE = "is not a plain file (a link or a special file: damaged or forged)"
 _TOKEN = uuid.uuid4().hex[:12]  # with the pid, thread and counter: unique temp names on a shared folder
 _PID = [os.getpid()]  # os.getpid() is a system call on each use; a forked child learns its own
 if hasattr(os, "register_at_fork"):
@@ -218,31 +227,59 @@ class CorruptObject(DamagedEntry):
     pass
 
 
-def encode_record(record: dict) -> bytes:
+#: the one form of a value digest (xxh3-128, lowercase hex): a record's output digest names a
+#: file below objects/, so anything else in a record is damage, never a path
+DIGEST = re.compile(r"[0-9a-f]{32}")
+#: GRAPHKIT_CACHE_KEY: a secret shared by the runs allowed to write records (see ``record_mac``)
+KEY_ENV = "GRAPHKIT_CACHE_KEY"
+
+
+def cache_key() -> bytes | None:
+    """The keyed check's secret (GRAPHKIT_CACHE_KEY), or None when records carry no MAC."""
+    k = os.environ.get(KEY_ENV)
+    return k.encode() if k else None
+
+
+def record_mac(body: bytes, secret: bytes) -> bytes:
+    """The keyed check of a record body: HMAC-SHA256 with the cache key, in hex."""
+    return hmac.new(secret, body, hashlib.sha256).hexdigest().encode()
+
+
+def encode_record(record: dict, secret: bytes | None = None) -> bytes:
+    """``GKREC1 <xxh3-128 of the body>[ <HMAC of the body>]\n<body>``: the MAC only with a key."""
     body = _json_encode(record).encode()
-    return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body
+    mac = b" " + record_mac(body, secret) if secret else b""
+    return RECORD_MAGIC + xxhash.xxh3_128_hexdigest(body).encode() + mac + b"\n" + body
 
 
 LEGACY_RECORD = "was written by an older graphkit (no integrity line): it is recomputed when next used"
 
 
-def decode_record(raw: bytes, key: str) -> tuple[dict | None, str | None]:
-    """(record, None) or (None, why it cannot be trusted)."""
+UNSIGNED = f"is not signed with this run's {KEY_ENV} (written by a run without the key, or forged)"
+
+
+def decode_record(raw: bytes, key: str, secret: bytes | None = None) -> tuple[dict | None, str | None]:
+    """(record, None) or (None, why it cannot be trusted).  With ``secret`` (the cache key) a
+    record must also carry the MAC only a run holding that key can make."""
     if not raw.startswith(RECORD_MAGIC):
         if raw.startswith(b"{"):
             return None, LEGACY_RECORD
         return None, "has no integrity line (damaged)"
     nl = raw.find(b"\n")
     check, body = raw[len(RECORD_MAGIC):nl], raw[nl + 1:]
+    check, _, mac = check.partition(b" ")
     if nl < 0 or xxhash.xxh3_128_hexdigest(body).encode() != check:
         return None, "does not match its check line (damaged or edited)"
+    if secret and not hmac.compare_digest(mac, record_mac(body, secret)):
+        return None, UNSIGNED
     try:
         rec = json.loads(body)
         outs = rec["outputs"]
         if rec["key"] != key:
             return None, f"belongs to key {str(rec['key'])[:16]} (a record moved or copied)"
         for o in outs.values():
-            o["digest"]
+            if type(o["digest"]) is not str or not DIGEST.fullmatch(o["digest"]):
+                return None, f"names an output digest that is not one ({str(o['digest'])[:40]!r}: damaged or forged)"
     except (ValueError, KeyError, TypeError, AttributeError):
         return None, "is not a valid record"
     return rec, None
@@ -327,6 +364,39 @@ class _Journal:
         self.fd, self.path, self.pid, self.frames, self.size = fd, path, _PID[0], 0, size
 
 
+def _damaged_records(records: dict[str, dict], bad: set[str], present: set[str]) -> list[tuple[str, str]]:
+    """(key, why) of every record to drop: its output is missing or corrupt, or (following the
+    chain) it was computed from a damaged value: a bad object, or one that only dropped records
+    made.  Linear: each record and each digest is visited once."""
+    consumers: dict[str, list[str]] = {}
+    makers: dict[str, int] = {}  # digest -> how many records not (yet) dropped output it
+    for key, rec in records.items():
+        for d in set(record_inputs(rec)):
+            consumers.setdefault(d, []).append(key)
+        for d in {o["digest"] for o in rec["outputs"].values()}:
+            makers[d] = makers.get(d, 0) + 1
+    tainted, queue, dropped = set(bad), collections.deque(bad), {}
+
+    def drop(key: str, why: str) -> None:
+        dropped[key] = why
+        for d in {o["digest"] for o in records[key]["outputs"].values()}:
+            makers[d] -= 1
+            if makers[d] == 0 and d not in tainted:
+                tainted.add(d)
+                queue.append(d)
+
+    for key, rec in records.items():
+        port = next((p for p, o in rec["outputs"].items() if o["digest"] in bad or o["digest"] not in present), None)
+        if port is not None:
+            drop(key, f"output '{port}' object missing or corrupt")
+    while queue:
+        for key in consumers.get(queue.popleft(), ()):
+            if key not in dropped:
+                first = next(d for d in record_inputs(records[key]) if d in tainted)
+                drop(key, f"computed from a damaged value ({first[:16]})")
+    return list(dropped.items())
+
+
 def record_inputs(rec: dict) -> list[str]:
     """The input value digests a record was computed from."""
     out = []
@@ -381,6 +451,8 @@ class LocalFS:
     """A folder on this machine: write + rename, syncfs group commits, flock / OFD locks."""
 
     locks_are_shared = True
+    #: whether a value is written without looking for it first (a look costs as much as a write)
+    blind_put = False
 
     def __init__(self, root: str):
         self.root = Path(root).absolute()
@@ -433,17 +505,39 @@ class LocalFS:
 
     # -- reads and writes -----------------------------------------------------------------
     def read(self, rel: str) -> bytes | None:
+        """The bytes of the file at ``rel``; None if there is none; b"" (which no entry is) for
+        what is not a plain file: a symbolic link is never followed."""
         try:
-            fd = os.open(self._s(rel), os.O_RDONLY | _CLOEXEC)
+            fd = os.open(self._s(rel), _READ_FLAGS)
         except (FileNotFoundError, NotADirectoryError):
             return None
+        except OSError as e:
+            if e.errno != errno.ELOOP:
+                raise
+            return b""
         try:
-            return _read_fd(fd, os.fstat(fd).st_size)
+            st = os.fstat(fd)
+            return _read_fd(fd, st.st_size) if stat.S_ISREG(st.st_mode) else b""
         finally:
             os.close(fd)
 
     def exists(self, rel: str) -> bool:
-        return os.path.exists(self._s(rel))
+        return os.path.lexists(self._s(rel))
+
+    def live_lease(self, rel: str) -> bool:  # (locks/ holds flock files: a lock file is never live)
+        return False
+
+    def inside(self, rel: str) -> bool:
+        """Whether the folder holding ``rel`` is the cache's own (no symbolic link leads out)."""
+        real = os.path.realpath(os.path.dirname(self._s(rel)))
+        return (real + os.sep).startswith(os.path.realpath(self.root) + os.sep)
+
+    def init(self) -> str:
+        self.ensure()
+        return f"cache {self.describe()} is ready"
+
+    def info(self) -> dict[str, str]:
+        return {"cache": str(self.root), "file system": "a folder on this machine (flock, hard links, syncfs)"}
 
     def _create(self, path: str) -> int:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _CLOEXEC, self.file_mode)
@@ -495,7 +589,10 @@ class LocalFS:
             return False
 
     def stats(self, rel: str) -> Iterator[tuple[str, os.stat_result]]:
-        """(path below the root, lstat) of every file below ``rel``."""
+        """(path below the root, lstat) of every file below ``rel`` (nothing when ``rel`` is a
+        symbolic link: what it points to is not the cache's)."""
+        if os.path.islink(self._s(rel)):
+            return
         for dirpath, _, files in os.walk(self._s(rel)):
             for fn in files:
                 p = os.path.join(dirpath, fn)
@@ -558,7 +655,7 @@ class LocalFS:
         finally:
             os.close(fd)  # closing releases the flock
 
-    def key_lock(self, key: str):
+    def key_lock(self, key: str, on_wait=None):  # (a flock's holder is alive: nothing to say)
         if not self._key_lock_fd_ok:
             return self.lock(f"locks/{key[:2]}/{key}.lock")
         return self._ofd_lock(int(key[:15], 16))
@@ -627,6 +724,104 @@ def _syncfs(fd: int) -> None:
         os.sync()
 
 
+#: client settings graphkit gives an fsspec file system unless told otherwise: an S3 server that
+#: cannot be reached fails within seconds (botocore's defaults retry for half a minute)
+CLIENT_DEFAULTS = {"s3": {"config_kwargs": {"connect_timeout": 3, "read_timeout": 60,
+                                            "retries": {"max_attempts": 2, "mode": "standard"}},
+                          "max_concurrency": 1}}  # (a read is one GET, not a HEAD for its size first)
+
+
+#: fsspec storage options for the cache, as JSON (what `--cache-option KEY=VALUE` sets): they
+#: travel to Dask workers started from this process in their environment
+OPTIONS_ENV = "GRAPHKIT_CACHE_OPTIONS"
+
+
+def cache_options() -> dict:
+    """The storage options given for the cache (GRAPHKIT_CACHE_OPTIONS)."""
+    raw = os.environ.get(OPTIONS_ENV)
+    if not raw:
+        return {}
+    try:
+        opts = json.loads(raw)
+    except ValueError:
+        opts = None
+    if not isinstance(opts, dict):
+        raise UsageError(f"{OPTIONS_ENV} must be a JSON object of fsspec storage options, e.g. "
+                         '{"endpoint_url": "http://127.0.0.1:9000"}')
+    return opts
+
+
+def parse_cache_option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of `--cache-option`: VALUE as JSON when it is (numbers, true, {...}), else text;
+    a dotted KEY sets a nested option (``config_kwargs.connect_timeout=5``)."""
+    key, eq, value = text.partition("=")
+    if not eq or not key.strip():
+        raise UsageError(f"--cache-option {text!r}: expected KEY=VALUE, e.g. --cache-option endpoint_url=http://127.0.0.1:9000")
+    try:
+        return key.strip(), json.loads(value)
+    except ValueError:
+        return key.strip(), value
+
+
+def merged_options(base: dict, extra: dict) -> dict:
+    """``base`` with ``extra`` over it; dotted keys of ``extra`` and nested dicts merge."""
+    out = json.loads(json.dumps(base))
+    for key, value in extra.items():
+        *path, last = key.split(".")
+        at = out
+        for k in path:
+            at = at.setdefault(k, {})
+        at[last] = merged_options(at[last], value) if isinstance(value, dict) and isinstance(at.get(last), dict) else value
+    return out
+
+
+@contextlib.contextmanager
+def fs_errors(url: str, bucket: bool = False):
+    """Turn what an object store's client raises into one CacheError naming the URL and the fix
+    (FileNotFoundError passes, unless ``bucket``: then the bucket is missing)."""
+    try:
+        yield
+    except (CacheError, FileExistsError):
+        raise
+    except FileNotFoundError:
+        if not bucket:
+            raise
+        raise CacheError(f"cache {url}: the bucket does not exist; create it with `graphkit cache init {url}` "
+                         "(it is never created implicitly)") from None
+    except PermissionError as e:
+        raise CacheError(f"cache {url}: access denied ({e}): check the credentials (AWS_PROFILE, "
+                         "AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, ~/.aws/credentials) and the bucket's policy") from None
+    except OSError:
+        raise  # (a file system's own error: the store says what it was doing)
+    except Exception as e:  # noqa: BLE001 - the client's own classes (botocore, aiohttp, …)
+        raise CacheError(f"cache {url}: cannot reach the object store ({type(e).__name__}: {e}); check the "
+                         "endpoint (--cache-option endpoint_url=…, AWS_ENDPOINT_URL or FSSPEC_S3_ENDPOINT_URL), "
+                         "the network and the credentials (`graphkit cache info` shows them), then run again") from None
+
+
+#: what a cache's root holds (anything else below an object store's prefix: not a cache)
+CACHE_NAMES = {"objects", "keys", "journal", "runs", "tmp", "quarantine", "locks", "active", "store.lock",
+               "keys.lock", "filememo.json"}
+
+
+def _quiet_client_loop(fs) -> None:
+    """An async client (s3fs's aiohttp) leaves a task behind when a server goes away mid-request:
+    its connection error, already raised to the caller (one CacheError), would be printed again
+    with a traceback by asyncio when the task is collected.  Other errors are reported as usual."""
+    loop = getattr(fs, "loop", None)
+    if loop is None or getattr(loop, "_graphkit_quiet", False):
+        return
+
+    def handler(loop, context):
+        exc = context.get("exception")
+        if isinstance(exc, (OSError, ConnectionError)) or type(exc).__module__.startswith("aiohttp"):
+            return
+        loop.default_exception_handler(context)
+
+    loop.set_exception_handler(handler)
+    loop._graphkit_quiet = True
+
+
 class FsspecFS:
     """Any fsspec file system (memory://, file://, s3://, …)."""
 
@@ -637,9 +832,19 @@ class FsspecFS:
     def __init__(self, url: str):
         import fsspec
 
-        self.fs, self.root = fsspec.core.url_to_fs(url)
+        protocol = fsspec.core.split_protocol(url)[0]
+        self.options = merged_options(CLIENT_DEFAULTS.get(protocol, {}), cache_options())
+        try:
+            self.fs, self.root = fsspec.core.url_to_fs(url, **self.options)
+        except TypeError as e:
+            raise UsageError(f"cache {url}: a storage option is not one this file system takes ({e})") from None
         self.url = url
         self.root = self.root.rstrip("/")
+        _quiet_client_loop(self.fs)
+        #: paths are bucket/key (s3, gcs, azure): no folders to make, and a bucket is never
+        #: created by a side effect (fsspec's makedirs creates a missing one); a PUT is atomic
+        #: and costs one request, as a look before it would
+        self.buckets = self.blind_put = self.fs.root_marker == ""
 
     def describe(self) -> str:
         return self.url
@@ -648,48 +853,115 @@ class FsspecFS:
         return f"{self.root}/{rel}"
 
     def ensure(self) -> None:
+        if self.buckets:
+            return self._check_prefix()
         for d in ("objects", "keys", "runs", "tmp"):
             self.fs.makedirs(self._p(d), exist_ok=True)
 
+    def info(self) -> dict[str, str]:
+        """What `graphkit cache info` shows: the file system, its options, and for S3 the
+        endpoint, region and where the credentials came from (never the secret)."""
+        shown = {k: ("***" if k in ("key", "secret", "token", "password") else v) for k, v in self.options.items()}
+        out = {"cache": self.url, "file system": f"{type(self.fs).__module__}.{type(self.fs).__name__}",
+               "options": json.dumps(shown, sort_keys=True)}
+        client = getattr(self.fs, "s3", None)
+        if client is not None:
+            creds = getattr(getattr(client, "_request_signer", None), "_credentials", None)
+            out.update({"endpoint": client.meta.endpoint_url, "region": client.meta.region_name,
+                        "profile": os.environ.get("AWS_PROFILE") or self.options.get("profile") or "default",
+                        "credentials": getattr(creds, "method", None) or "none found"})
+        return out
+
+    def _check_prefix(self) -> None:
+        """The bucket exists and the prefix holds a graphkit cache or nothing (one listing)."""
+        try:
+            with fs_errors(self.url):
+                names = {p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self.root, detail=False)}
+        except FileNotFoundError:  # an empty prefix, or no bucket
+            with fs_errors(self.url, bucket=True):
+                self.fs.info(self.root.split("/", 1)[0])
+            return
+        foreign = sorted(names - CACHE_NAMES)
+        if foreign:
+            raise CacheError(f"cache {self.url} holds objects that are not a graphkit cache's ({', '.join(foreign[:3])}"
+                             f"{', …' if len(foreign) > 3 else ''}): give the cache a prefix of its own, "
+                             f"e.g. {self.url.rstrip('/')}/graphkit-cache")
+
+    def init(self) -> str:
+        """Create the bucket (or folder) on request: ``graphkit cache init URL``."""
+        if not self.buckets:
+            self.ensure()
+            return f"cache {self.url} is ready"
+        bucket = self.root.split("/", 1)[0]
+        with fs_errors(self.url):
+            if self.fs.exists(bucket):
+                self.fs.info(bucket)  # (a bucket of someone else's reads as there: say why it fails)
+                return f"cache {self.url} is ready (bucket {bucket} exists)"
+            self.fs.mkdir(bucket)
+        return f"created bucket {bucket} for cache {self.url}"
+
     def read(self, rel: str) -> bytes | None:
         try:
-            return self.fs.cat_file(self._p(rel))
+            with fs_errors(self.url):
+                return self.fs.cat_file(self._p(rel))
         except FileNotFoundError:
             return None
 
     def exists(self, rel: str) -> bool:
-        return self.fs.exists(self._p(rel))
+        with fs_errors(self.url):
+            return self.fs.exists(self._p(rel))
+
+    def inside(self, rel: str) -> bool:  # (object stores have no links: every key is the store's)
+        return True
+
+    def live_lease(self, rel: str) -> bool:
+        """Whether ``rel`` is a lease whose owner still renews it (gc leaves it)."""
+        from .leases import alive, read_lease
+
+        with fs_errors(self.url):
+            return alive(read_lease(self.fs, self._p(rel)))
 
     def write_atomic(self, rel: str, chunks, sync: bool = False) -> None:
-        tmp = self._p(f"tmp/{uuid.uuid4().hex}")
+        """One PUT where a PUT is atomic (object stores: a reader sees the whole object or
+        none); elsewhere a temp file moved into place."""
         data = b"".join(bytes(c) for c in chunks)
-        parent = self._p(rel).rsplit("/", 1)[0]
-        self.fs.makedirs(parent, exist_ok=True)
-        try:
-            self.fs.pipe_file(tmp, data)
-            self.fs.mv(tmp, self._p(rel))
-        except BaseException:
-            with contextlib.suppress(Exception):
-                self.fs.rm_file(tmp)
-            raise
+        with fs_errors(self.url):
+            if self.buckets:
+                return self.fs.pipe_file(self._p(rel), data)
+            self._parent(rel)
+            tmp = self._p(f"tmp/{uuid.uuid4().hex}")
+            try:
+                self.fs.pipe_file(tmp, data)
+                self.fs.mv(tmp, self._p(rel))
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    self.fs.rm_file(tmp)
+                raise
+
+    def _parent(self, rel: str) -> None:
+        """Make the folder ``rel`` goes into (object stores have none)."""
+        if not self.buckets:
+            self.fs.makedirs(self._p(rel).rsplit("/", 1)[0], exist_ok=True)
 
     def remove(self, rel: str) -> None:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(FileNotFoundError), fs_errors(self.url):
             self.fs.rm_file(self._p(rel))
 
     def move_aside(self, rel: str, to_rel: str) -> bool:
         try:
-            self.fs.makedirs(self._p(to_rel).rsplit("/", 1)[0], exist_ok=True)
+            self._parent(to_rel)
             self.fs.mv(self._p(rel), self._p(to_rel))
             return True
         except Exception:  # noqa: BLE001 - best effort: the entry is skipped either way
             return False
 
     def listdir(self, rel: str) -> Iterator[tuple[str, int, float]]:
-        base = self._p(rel)
-        if not self.fs.exists(base):
+        try:
+            with fs_errors(self.url):
+                found = self.fs.find(self._p(rel), detail=True)
+        except FileNotFoundError:
             return
-        for p, info in self.fs.find(base, detail=True).items():
+        for p, info in found.items():
             mt = info.get("mtime") or info.get("created") or 0
             if hasattr(mt, "timestamp"):
                 mt = mt.timestamp()
@@ -698,32 +970,70 @@ class FsspecFS:
     def commit(self) -> None:
         pass
 
-    def key_lock(self, key: str):
-        return self.lock(f"locks/{key[:2]}/{key}.lock")
+    def key_lock(self, key: str, on_wait: Callable[[dict, float], None] | None = None):
+        """``on_wait(holder, ttl)``: told once when another run's lease is waited for (a flock's or
+        a thread lock's holder is alive: nothing to say)."""
+        from .leases import is_in_process, local_root
+
+        leased = local_root(self.fs, self.root) is None and not is_in_process(self.fs)
+        return self.lock(f"locks/{key[:2]}/{key}.lock", on_wait=on_wait if leased else None)
 
     @contextlib.contextmanager
     def lock(self, rel: str, shared: bool = False, on_wait=None):
-        """Exclusive locks hold across processes (see graphkit.leases): flock for file://, a lease
-        file on object stores, a thread lock for memory://.  Shared (run) locks are flocks on
-        file:// and no-ops elsewhere."""
-        from .leases import Lease, is_in_process, local_root
+        """Locks that hold across processes (see graphkit.leases): flocks for file://, a thread
+        lock for memory://, leases on object stores (``store.lock``: runs shared, gc exclusive)."""
+        from . import leases
 
-        folder = local_root(self.fs, self.root)
+        folder = leases.local_root(self.fs, self.root)
         if folder is not None:  # a folder on this machine: the same flocks as a plain folder
             with LocalFS(folder).lock(rel, shared, on_wait):
                 yield
             return
-        if shared:
-            yield
-            return
-        with self._locks_guard:
-            lk = self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
-        with lk:  # threads of this process first, then other processes
-            if is_in_process(self.fs):
+        if leases.is_in_process(self.fs):
+            with self._thread_lock(rel) if not shared else contextlib.nullcontext():
                 yield
-            else:
-                with Lease(self.fs, self._p(rel)):
-                    yield
+            return
+        if rel == "store.lock":
+            cm = (leases.shared if shared else leases.exclusive)(self.fs, self.root, on_wait)
+        else:
+            cm = leases.Lease(self.fs, self._p(rel), on_wait=on_wait)
+        with self._thread_lock(rel) if not shared else contextlib.nullcontext(), self._held(cm):
+            yield getattr(cm, "waited", None)
+
+    def _thread_lock(self, rel: str) -> threading.Lock:
+        """Threads of this process first, then other processes."""
+        with self._locks_guard:
+            return self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
+
+    @contextlib.contextmanager
+    def _held(self, cm):
+        """Hold ``cm`` (a lease); a store that stops answering while taking or releasing it is
+        one CacheError (what the body raises passes unchanged)."""
+        with fs_errors(self.url):
+            cm.__enter__()
+        try:
+            yield
+        except BaseException:
+            with contextlib.suppress(Exception):
+                cm.__exit__(None, None, None)
+            raise
+        with fs_errors(self.url):
+            cm.__exit__(None, None, None)
+
+
+def check_out_folder(out: str | os.PathLike, cache: str | os.PathLike) -> None:
+    """Refuse an output folder that is the cache folder or lies inside it (exported files there
+    would be taken for cache entries): one message naming both, and the fix."""
+    loc = str(cache)
+    if "://" in loc:
+        if not loc.startswith("file://"):
+            return
+        loc = loc[len("file://"):]
+    c, o = os.path.realpath(loc), os.path.realpath(out)
+    if o == c or o.startswith(c.rstrip(os.sep) + os.sep):
+        where = "is the cache folder" if o == c else f"lies inside the cache folder {c}"
+        raise UsageError(f"--out {out} {where}: the cache holds only its own entries; "
+                         "choose an output folder outside it (e.g. --out out)")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -762,10 +1072,17 @@ class Store:
         self._jlock = threading.Lock()
         self._jviews: dict[tuple[int, int], _JournalView] = {}
         self._jview_bytes = 0
+        #: the keyed check's secret (GRAPHKIT_CACHE_KEY; None: records carry no MAC)
+        self.secret = cache_key()
         #: called with one line for each damaged entry found (Session sets it to its notice)
         self.on_notice: Callable[[str], None] | None = None
 
     # -- set-up and errors ---------------------------------------------------------------
+    def init(self) -> str:
+        """Create the cache (a bucket only on this request): what was done, in one line."""
+        with self._errors("create the cache"):
+            return self.fs.init()
+
     def open(self) -> "Store":
         if not self._ready:
             with self._errors("create the cache folder"):
@@ -837,7 +1154,7 @@ class Store:
             if why is not None:
                 self.quarantine(rel, f"cache record {key[:16]} {why}")
             return None
-        rec, why = decode_record(raw, key)
+        rec, why = decode_record(raw, key, self.secret)
         if rec is None:
             if why is not LEGACY_RECORD:  # a legacy record is a plain miss
                 self.quarantine(rel, f"cache record {key[:16]} {why}")
@@ -859,11 +1176,17 @@ class Store:
                 return raw, (NOT_IN_JOURNAL if raw is None else None), False
             return raw, None, False
         try:
-            fd = os.open(self.fs._s(rel), os.O_RDONLY | _CLOEXEC)
+            fd = os.open(self.fs._s(rel), _READ_FLAGS)
         except (FileNotFoundError, NotADirectoryError):
             return None, None, False
+        except OSError as e:
+            if e.errno != errno.ELOOP:
+                raise
+            return None, NOT_A_FILE, False
         try:
             st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                return None, NOT_A_FILE, False
             if st.st_nlink == 1 and st.st_size <= MiB:  # a record file (or a journal linked once)
                 raw = _read_fd(fd, st.st_size)
                 linked = is_journal(raw[:JOURNAL_HEAD])
@@ -916,7 +1239,7 @@ class Store:
     def put_record(self, key: str, record: dict) -> None:
         if self.read_only:
             return self._read_only_notice()
-        raw = encode_record(record)
+        raw = encode_record(record, self.secret)
         try:  # (not `with self._errors(...)` around it: a generator context per cold node)
             if not (self._journal_here() and self._journal_put(key, raw)):
                 self.fs.write_atomic(self._krel(key), [raw])
@@ -1014,12 +1337,18 @@ class Store:
             return  # another thread or run has moved it already (and said so)
         name = rel.replace("/", "_")
         to = f"quarantine/{name}.{time.strftime('%Y%m%dT%H%M%S')}.{uuid.uuid4().hex[:6]}"
-        moved = (not self.read_only) and (self._quarantine_link(rel, to) or self.fs.move_aside(rel, to))
-        where = "moved to quarantine/" if moved else "left in place (the cache cannot be written)"
+        inside = self.fs.inside(rel)  # (a shard folder replaced by a link out: nothing there is moved)
+        moved = inside and not self.read_only and (self._quarantine_link(rel, to) or self.fs.move_aside(rel, to))
+        where = "moved to quarantine/" if moved else (
+            "left in place (the cache cannot be written)" if inside else "left in place (it lies outside the cache)")
         msg = f"notice: {what}: {where}; recomputing it"
         if msg not in self._noticed:
             self._noticed.add(msg)
             self.notice(msg)
+
+    def quarantine_record(self, key: str, what: str) -> None:
+        """Quarantine the record of ``key`` (see :meth:`quarantine`)."""
+        self.quarantine(self._krel(key), what)
 
     def _quarantine_link(self, rel: str, to: str) -> bool:
         """A record file with other names (a link to the journal other records share): its record
@@ -1027,7 +1356,7 @@ class Store:
         if not (self._local and rel.startswith("keys/")):
             return False
         try:
-            if os.stat(self.fs._s(rel)).st_nlink < 2:
+            if os.lstat(self.fs._s(rel)).st_nlink < 2:
                 return False
         except OSError:
             return False
@@ -1049,7 +1378,7 @@ class Store:
         if digest in self._present:
             return digest
         rel = self._orel(digest)
-        if not self.fs.exists(rel):
+        if self.fs.blind_put or not self.fs.exists(rel):
             head, offsets = encode_header(ptype.name, meta, arrays, digest)
             with self._errors("write a cache object"):
                 self.fs.write_atomic(rel, iter_chunks(head, offsets, arrays))
@@ -1102,10 +1431,18 @@ class Store:
             self._last_commit = time.monotonic()
 
     # -- locks ---------------------------------------------------------------------------
-    def key_lock(self, key: str):
+    def key_lock(self, key: str, node: str | None = None):
+        """The per-key lock; a run that waits for another's lease says so once (which node, which
+        lease, for how long at most)."""
         if self.read_only:
             return contextlib.nullcontext()
-        return self.fs.key_lock(key)
+
+        def waiting(holder: dict, ttl: float) -> None:
+            who = f"{holder.get('host', '?')}:{holder.get('pid', '?')}" if holder else "an unreadable lease"
+            self.notice(f"notice: {'node ' + node if node else 'key ' + key[:16]} waits for lease "
+                        f"{self.location}/locks/{key[:2]}/{key}.lock held by {who} (computing the same key); "
+                        f"broken if not renewed within {ttl:g} s")
+        return self.fs.key_lock(key, waiting)
 
     @contextlib.contextmanager
     def run_lock(self):
@@ -1162,12 +1499,12 @@ class Store:
         for rel, _, mtime in self.fs.listdir("keys"):
             key = self._key_of(rel)
             raw = self._raw_record(rel, key)[0]
-            rec = decode_record(raw, key)[0] if raw is not None else None
+            rec = decode_record(raw, key, self.secret)[0] if raw is not None else None
             yield key, rec, mtime
 
     def _record_why(self, key: str) -> str:
         raw, why, _ = self._raw_record(self._krel(key), key)
-        return why or decode_record(raw or b"", key)[1]
+        return why or decode_record(raw or b"", key, self.secret)[1]
 
     def _record_files(self) -> tuple[dict[str, int], dict[str, tuple[int, int]], dict[tuple[int, int], list]]:
         """(key -> size of its record file; key -> the journal it links to; journal ->
@@ -1243,6 +1580,8 @@ class Store:
         n = nbytes = 0
         for part in ("tmp", "locks", "quarantine"):
             for rel, size, _ in list(self.fs.listdir(part)):
+                if part == "locks" and self.fs.live_lease(rel):
+                    continue  # (a lease held outside a run: a library call, a Dask worker)
                 n += 1
                 nbytes += size
                 if not dry_run:
@@ -1365,30 +1704,10 @@ class Store:
                         self.fs.remove(self._krel(key))
                     continue
                 records[key] = rec
-            dropped: set[str] = set()
-            changed = True
-            while changed:  # follow the chain: what was computed from a bad value is bad too
-                changed = False
-                kept_outs = {o["digest"] for k, r in records.items() if k not in dropped for o in r["outputs"].values()}
-                tainted = bad | ({o["digest"] for k in dropped for o in records[k]["outputs"].values()} - kept_outs)
-                for key, rec in records.items():
-                    if key in dropped:
-                        continue
-                    why = None
-                    for port, o in rec["outputs"].items():
-                        if o["digest"] in bad or o["digest"] not in present:
-                            why = f"output '{port}' object missing or corrupt"
-                            break
-                    else:
-                        ins = [d for d in record_inputs(rec) if d in tainted]
-                        if ins:
-                            why = f"computed from a damaged value ({ins[0][:16]})"
-                    if why:
-                        problems.append(f"record {key} ({rec.get('node')}): {why}")
-                        dropped.add(key)
-                        changed = True
-                        if repair:
-                            self.fs.remove(self._krel(key))
+            for key, why in _damaged_records(records, bad, present):
+                problems.append(f"record {key} ({records[key].get('node')}): {why}")
+                if repair:
+                    self.fs.remove(self._krel(key))
             if repair:
                 self.clean_stale()
         return problems

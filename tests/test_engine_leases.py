@@ -82,3 +82,24 @@ def test_concurrent_runs_on_a_file_url_cache_compute_each_key_once(tmp_path):
     assert len(keys) == 6 and len(set(keys)) == 6, keys
     outs = {(tmp_path / f"o{i}" / "s.npy").read_bytes() for i in range(3)}
     assert len(outs) == 1
+
+
+def test_a_file_system_without_exclusive_create_falls_back_with_one_warning(capsys):
+    """The weaker mode (write, wait, read back) is announced once per process."""
+    from fsspec.implementations.memory import MemoryFileSystem
+
+    from graphkit import leases
+
+    class NoExclusive(MemoryFileSystem):
+        def open(self, path, mode="rb", **kw):
+            if "x" in mode:
+                raise ValueError("no exclusive create here")
+            return super().open(path, mode, **kw)
+
+    fs = NoExclusive()
+    leases._WARNED.discard("NoExclusive")
+    for _ in range(2):
+        with leases.Lease(fs, "/weak/k.lock", ttl=5) as lease:
+            assert json.loads(fs.cat_file("/weak/k.lock"))["token"] == lease.token
+    err = capsys.readouterr().err
+    assert err.count("no exclusive create") == 1 and "compute a key twice" in err, err

@@ -1,6 +1,8 @@
 """The store's parts one at a time, in process (fast enough for `make mutate`): object and record
 encodings and their checks, quarantine, group commit, locks, modes, read-only mode, sizes,
 gc order and verify's chain."""
+import hashlib
+import hmac
 import json
 import os
 import stat
@@ -15,7 +17,7 @@ from graphkit.errors import CacheError
 from graphkit.hashing import parts_digest
 from graphkit.store import (ALIGN, LEGACY_RECORD, MAGIC, CorruptObject, MissingObject, Store, check_object,
                             decode_object, decode_record, encode_header, encode_record, fmt_size, iter_chunks,
-                            record_inputs, value_parts)
+                            UNSIGNED, record_inputs, value_parts)
 from graphkit.types import ARRAY, IMAGE, SCALAR, Image
 
 
@@ -66,7 +68,7 @@ def test_check_object_refuses_damage():
 
 
 def test_records_carry_a_check_line_and_their_key():
-    rec = {"key": "k1", "node": "n", "outputs": {"out": {"digest": "d1", "type": "Array"}}, "parts": {}}
+    rec = {"key": "k1", "node": "n", "outputs": {"out": {"digest": "d1" * 16, "type": "Array"}}, "parts": {}}
     raw = encode_record(rec)
     line, body = raw.split(b"\n", 1)
     assert line == b"GKREC1 " + xxhash.xxh3_128_hexdigest(body).encode()
@@ -80,6 +82,21 @@ def test_records_carry_a_check_line_and_their_key():
     assert decode_record(no_outputs, "k1")[0] is None
     no_digest = encode_record({"key": "k1", "outputs": {"out": {}}})
     assert decode_record(no_digest, "k1")[0] is None
+    for bad in ("d1", "D1" * 16, "../x", "", 7):  # not the exact hex form: damage, never a path
+        forged = encode_record({**rec, "outputs": {"out": {"digest": bad}}})
+        assert "not one" in decode_record(forged, "k1")[1]
+
+
+def test_keyed_records_carry_a_mac_that_only_the_key_makes():
+    rec = {"key": "k1", "outputs": {"out": {"digest": "d1" * 16}}}
+    raw = encode_record(rec, b"s1")
+    line, body = raw.split(b"\n", 1)
+    assert line.split(b" ")[2] == hmac.new(b"s1", body, hashlib.sha256).hexdigest().encode()
+    assert decode_record(raw, "k1", b"s1") == (rec, None)
+    assert decode_record(raw, "k1") == (rec, None)  # a run without the key checks the check line only
+    assert decode_record(raw, "k1", b"s2")[1] == UNSIGNED
+    assert decode_record(encode_record(rec), "k1", b"s1")[1] == UNSIGNED
+    assert decode_record(raw.replace(b"d1", b"d2"), "k1", b"s1")[0] is None
 
 
 def test_record_inputs():
@@ -129,7 +146,7 @@ def test_damaged_object_is_quarantined_once_with_a_notice(store, tmp_path):
 
 
 def test_records_round_trip_touch_and_quarantine(store, tmp_path):
-    rec = {"key": "ab" * 16, "outputs": {"out": {"digest": "d", "type": "Array"}}}
+    rec = {"key": "ab" * 16, "outputs": {"out": {"digest": "d0" * 16, "type": "Array"}}}
     store.put_record("ab" * 16, rec)
     p = tmp_path / "c" / store._krel("ab" * 16)
     assert store.get_record("ab" * 16) == rec and store.get_record("cd" * 16) is None
@@ -142,7 +159,7 @@ def test_records_round_trip_touch_and_quarantine(store, tmp_path):
     fresh = p.stat().st_mtime_ns
     store.get_record("ab" * 16, touch=True)
     assert p.stat().st_mtime_ns == fresh  # marked within the granularity: no write
-    p.write_bytes(p.read_bytes().replace(b'"d"', b'"e"'))
+    p.write_bytes(p.read_bytes().replace(b'"d0', b'"e0'))
     assert store.get_record("ab" * 16) is None and not p.exists()
     assert len(store.notes) == 1 and "check line" in store.notes[0]
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -593,3 +610,27 @@ def test_objects_are_known_present_only_inside_the_run_lock(tmp_path):
     obj.unlink()  # e.g. `cache gc` between two calls
     s.put_value(ARRAY, value, vp)
     assert obj.is_file()
+
+
+def test_verify_follows_a_chain_of_damage_in_linear_work(store, tmp_path, monkeypatch):
+    """A chain of 300 records computed one from the next, its first value damaged: every record
+    is dropped, and each is looked at a bounded number of times (not once per link)."""
+    import graphkit.store as st
+
+    prev, n = None, 300
+    for i in range(n):
+        d = store.put_value(ARRAY, np.array([float(i)]))
+        if i == 0:
+            first = d
+        k = f"{i:032x}"
+        store.put_record(k, {"key": k, "node": f"n{i}", "outputs": {"out": {"digest": d, "type": "Array"}},
+                             "parts": {"inputs": {"a": prev} if prev else {}}})
+        prev = d
+    p = tmp_path / "c" / "objects" / first[:2] / first
+    p.write_bytes(p.read_bytes()[:-1] + b"X")
+    calls = []
+    real = st.record_inputs
+    monkeypatch.setattr(st, "record_inputs", lambda rec: calls.append(1) or real(rec))
+    problems = store.verify()
+    assert len([x for x in problems if x.startswith("record")]) == n
+    assert len(calls) <= 3 * n, len(calls)
