@@ -18,7 +18,20 @@ noisy; the ratios move much less than the times):
   whole-number coordinates (what the on-node path does twice per frame);
 * ``memcpy`` — a copy of one 1280×720×3 float32 output image.
 
-Usage: ``.venv/bin/python benchmarks/bench_huang.py [--runs N]``
+``--reshade`` (issue 28): CosmeticShade re-shading a 1280×720 face after a cosmetic change, the
+surface, SSS plan and specular terms already prepared (CosmeticShade keeps them; the first
+frame, "cold", prepares them).  A synthetic face: an RGB photo as albedo, an ellipsoid's
+normals and depth (mm), a skin mask, a directional light for the specular, the ``feathered``
+map, numpy/cv2 reference.  Frames, interleaved with ``KMStack`` alone (the same map over the
+same photo, warm) as the base of the ratio:
+
+* ``thickness, seen`` — the blush thickness toggles between two values already shaded (the
+  spectral table of each is memoised: what a slider that comes back costs);
+* ``thickness, new``  — the blush thickness changes to a value never seen (its spectral table is
+  built: 25³ grid × 81 wavelengths);
+* ``colour, seen``    — the blush toggles between blush_rose and blush_orange.
+
+Usage: ``.venv/bin/python benchmarks/bench_huang.py [--runs N] [--reshade]``
 """
 from __future__ import annotations
 
@@ -82,7 +95,10 @@ def peers():
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
+    ap.add_argument("--reshade", action="store_true", help="CosmeticShade after a cosmetic change (issue 28)")
     args = ap.parse_args(argv)
+    if args.reshade:
+        return reshade(args.runs)
     from graphkit import Image
     from nodes.huang import km
     from nodes.huang.stack import KMStack
@@ -109,6 +125,70 @@ def main(argv=None) -> int:
             print(f"{name:10s} {bgname:14s} {frac:9.1%} {c[0] * 1e3:6.1f} /{c[1] * 1e3:5.1f} "
                   f"{wm[0] * 1e3:6.1f} /{wm[1] * 1e3:5.1f} {rm[0] * 1e3:5.2f} /{rm[1] * 1e3:5.2f} "
                   f"{wm[0] / rm[0]:5.1f} /{wm[1] / rm[1]:4.1f} {wm[0] / cm[0]:5.1f} /{wm[1] / cm[1]:4.1f}")
+    return 0
+
+
+def face():
+    """(albedo, normals, depth mm, skin mask, light) of a synthetic 1280×720 face: an ellipsoid
+    (semi-axes 110 × 150 × 90 mm at 500 mm; 0.5 mm per pixel) in front of a background without
+    a surface (zero normals: no specular there, as off a mesh)."""
+    from graphkit import Image, Light, Mask
+
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    u, v = (xx - 640) / 220, (yy - 360) / 300
+    r2 = u * u + v * v
+    inside = r2 < 1
+    z = np.sqrt(np.clip(1 - r2, 0, 1))
+    nrm = np.where(inside[..., None], np.stack([u / 110, v / 150, -z / 90], -1), 0.0)  # none off the face
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
+    depth = np.where(inside, 500 - 90 * z, 500.0)
+    rng = np.random.default_rng(1)
+    albedo = np.clip(np.array([0.62, 0.42, 0.33]) * (0.85 + 0.3 * rng.random((H, W, 1))), 0, 1)
+    return (Image(albedo.astype(np.float32)), Image(nrm.astype(np.float32)), Image(depth[..., None].astype(np.float32)),
+            Mask(inside.astype(np.float32)), Light(direction=(0.3, -0.4, -1.0), intensity=1.0))
+
+
+def reshade(runs: int) -> int:
+    from graphkit import Image
+    from nodes.huang.shade import CosmeticShade
+    from nodes.huang.stack import KMStack
+
+    albedo, nrm, depth, skin, light = face()
+    t = maps()["feathered"]
+    cos = {"cosmetics": COSMETICS, "mm_per_pixel": 0.5, "relight": False}
+    shade = CosmeticShade(CosmeticShade.Params(**cos))
+    orange = CosmeticShade(CosmeticShade.Params(**{**cos, "cosmetics": ["foundation_light", "blush_orange", "lipstick_red"]}))
+    stack = KMStack(KMStack.Params(cosmetics=COSMETICS))
+    fixed = {"albedo": albedo, "normals": nrm, "depth": depth, "skin": skin, "light": light}
+    scale = np.ones(3, np.float32)
+
+    def blush(f):
+        scale[1] = f
+        return Image(t * scale)
+
+    seen = [blush(1.0), blush(1.5)]
+    fresh = iter(1.0 + 1e-4 * k for k in range(1, 10 ** 6))
+    flip = {"i": 0}
+
+    def toggle(frames):
+        flip["i"] ^= 1
+        return frames[flip["i"]]
+
+    t0 = time.perf_counter()
+    shade.compute(thickness=seen[0], **fixed)
+    cold = time.perf_counter() - t0
+    print(f"CosmeticShade {W}×{H}, 3 layers over an RGB photo, SSS (per-pixel σ from depth, skin mask), "
+          f"specular; {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    print(f"cold (prepares the surface, SSS plan, specular terms): {cold * 1e3:.0f} ms")
+    base = seen[0]
+    r = timed({"KMStack": lambda: stack.compute(thickness=base, background=albedo),
+               "thickness, seen": lambda: shade.compute(thickness=toggle(seen), **fixed),
+               "thickness, new": lambda: shade.compute(thickness=blush(next(fresh)), **fixed),
+               "colour, seen": lambda: (shade if flip["i"] else orange).compute(thickness=base, **fixed)},
+              runs, warmup=2)
+    k = r["KMStack"]
+    for name, (med, best) in r.items():
+        print(f"{name:16s} median {med * 1e3:6.1f} ms  best {best * 1e3:6.1f} ms  × KMStack {med / k[0]:4.1f} / {best / k[1]:4.1f}")
     return 0
 
 
