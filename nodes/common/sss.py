@@ -41,6 +41,8 @@ import functools
 
 import numpy as np
 
+from .parallel import run_tasks
+
 #: d'Eon et al. 2007 six-Gaussian fit of the three-layer skin diffusion profile
 #: (GPU Gems 3, ch. 14, table 14-1): (variance in mm², RGB weight).
 SKIN_PROFILE: tuple[tuple[float, tuple[float, float, float]], ...] = (
@@ -393,16 +395,22 @@ class Scatter:
             sub = img[y0:y1, x0:x1]
         valid, axis_blur = self.valid, self.axis_blur
         planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
-        out = [np.zeros(sub.shape[:2], np.float32) for _ in planes]
-        for chans, wts, sy, sx, norms in self.passes:
+
+        def scatter(chans, wts, sy, sx, norms):
             mine = [planes[ch] for ch in chans]
             if axis_blur is not None:
-                blurred = axis_blur(axis_blur(mine, sy, 0, valid), sx, 1, valid)
-            elif valid is None and isinstance(sy, float):
-                blurred = [_blur_1d(_blur_1d(a, sy, 0), sx, 1) for a in mine]
-            else:  # y then x, each normalised by the blurred mask (light stays in the skin)
-                ny, nx = norms if norms is not None else (None, None)
-                blurred = _blur_planes_axis(_blur_planes_axis(mine, sy, 0, valid, ny), sx, 1, valid, nx)
+                return axis_blur(axis_blur(mine, sy, 0, valid), sx, 1, valid)
+            if valid is None and isinstance(sy, float):
+                return [_blur_1d(_blur_1d(a, sy, 0), sx, 1) for a in mine]
+            # y then x, each normalised by the blurred mask (light stays in the skin)
+            ny, nx = norms if norms is not None else (None, None)
+            return _blur_planes_axis(_blur_planes_axis(mine, sy, 0, valid, ny), sx, 1, valid, nx)
+
+        # the Gaussians on the cores (cv2 and numpy release the GIL), summed in profile order
+        done = [scatter(*p) for p in self.passes] if axis_blur is not None else \
+            run_tasks([functools.partial(scatter, *p) for p in self.passes])
+        out = [np.zeros(sub.shape[:2], np.float32) for _ in planes]
+        for (chans, wts, *_), blurred in zip(self.passes, done):
             for ch, wt, b in zip(chans, wts, blurred):
                 out[ch] += wt * b
         res = np.stack(out, axis=-1)

@@ -333,9 +333,16 @@ def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def _support(t: np.ndarray) -> tuple[int, int, int, int]:
-    """The box of the pixels where any layer is thicker than 0."""
+    """The box of the pixels where any layer is thicker than 0 (reductions over whole rows and
+    over the outer axis: a reduction over the last, short axis walks a strided view)."""
     h, w, n = t.shape
-    return _nonzero_box((t.reshape(h, w * n) > 0).reshape(h, w, n).any(axis=2))
+    if t.size == 0:
+        return 0, 0, 0, 0
+    rows = np.flatnonzero(t.reshape(h, w * n).max(axis=1) > 0)
+    cols = np.flatnonzero(t.max(axis=0).max(axis=1) > 0)
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 def _union(a, b) -> tuple[int, int, int, int]:
