@@ -40,7 +40,10 @@ class CosmeticShade(Node):
     Units: thickness mm, mm_per_pixel mm, depth mm, S/K mm⁻¹, wavelengths nm.
     """
 
-    version = "4"  # 4: world-frame lights (turned into the camera frame), orthographic cameras
+    # 4: world-frame lights (turned into the camera frame), orthographic cameras
+    # 5: the SSS runs on the skin's box grown by the widest kernel and the diffuse on the box of
+    #    the layers and the skin (same formula; the filters' float rounding moves ≤ 1.2e-7)
+    version = "5"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -94,7 +97,7 @@ class CosmeticShade(Node):
         diffuse = self._diffuse(wl, S, K, t, rho, fixed)
         spec = np.zeros((h, w, 3), np.float32)
         if fixed.spec is not None:
-            spec = _specular(p, specs, wl, S, K, t, fixed)
+            spec = _through_layers(p, wl, S, K, t, fixed)
         return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
 
     def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
@@ -118,7 +121,7 @@ class CosmeticShade(Node):
                 scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, mask=surf.mask, crop=True)
             spec = None
             if surf.normals is not None and ldir is not None:
-                spec = _specular_terms(p, specs, surf, ldir, lcol)
+                spec = _specular(p, specs, surf, ldir, lcol)
             got = _Fixed(surf, E, scatter, spec)
             if len(_FIXED) >= 2:
                 _FIXED.pop(next(iter(_FIXED)))
@@ -133,7 +136,9 @@ class CosmeticShade(Node):
         and the skin is shaded: elsewhere no layer (Rt = Rb = 0, T = T² = 1) and no scattering
         leave ρ·E, which is what the formula gives there."""
         p, surf, E = self.params, fixed.surf, fixed.E
-        box = None if fixed.scatter is None else _union(fixed.scatter.box, _support(t))
+        box = None  # the whole frame (no skin mask: the SSS reaches every pixel)
+        if fixed.scatter is not None and fixed.scatter.box is not None:
+            box = _union(fixed.scatter.box, _support(t))
         if box is not None:
             y0, y1, x0, x1 = box
             t, rho_b, E_b = t[y0:y1, x0:x1], rho[y0:y1, x0:x1], E[y0:y1, x0:x1]
@@ -142,7 +147,9 @@ class CosmeticShade(Node):
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
         pre = T * E_b / (1.0 - Rb * rho_b)
-        if fixed.scatter is not None:
+        if fixed.scatter is not None and box is None:
+            pre = fixed.scatter(pre)
+        elif fixed.scatter is not None:
             full = np.array(E, np.float32)
             full[y0:y1, x0:x1] = pre
             pre = fixed.scatter(full)[y0:y1, x0:x1]
@@ -287,7 +294,7 @@ def _irradiance(hw, irradiance, light, lcol, ldir, n, relight: bool) -> np.ndarr
     return np.ones((h, w, 3), np.float32)
 
 
-def _specular_terms(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
+def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     """§3.3, eq. 5: the Kelemen specular of the skin (H×W×3) and of each layer (H×W×1), and the
     box outside which they are all zero (no normals there)."""
     from nodes.common.microfacet import kelemen_specular
@@ -303,7 +310,7 @@ def _specular_terms(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol)
 
 
-def _specular(p, specs, wl, S, K, t, fixed: _Fixed) -> np.ndarray:
+def _through_layers(p, wl, S, K, t, fixed: _Fixed) -> np.ndarray:
     """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
     transmittance and the layer's own specular added, weighted by its coverage (computed in
     the box where any of them is not zero: zero elsewhere)."""
