@@ -100,6 +100,7 @@ def main(argv=None) -> int:
     if args.reshade:
         return reshade(args.runs)
     from graphkit import Image
+    from graphkit.contract import compute_checked
     from nodes.huang import km
     from nodes.huang.stack import KMStack
 
@@ -117,10 +118,10 @@ def main(argv=None) -> int:
         for bgname, kw in (("spectral TCS13", {}), ("RGB image", {"background": skin})):
             def cold():
                 km._TABLES.clear()
-                node.compute(thickness=timg, **kw)
+                compute_checked(node, thickness=timg, **kw)
 
             c = timed({"node": cold}, max(3, args.runs // 3))["node"]
-            r = timed({"node": lambda: node.compute(thickness=timg, **kw), **pe}, args.runs)
+            r = timed({"node": lambda: compute_checked(node, thickness=timg, **kw), **pe}, args.runs)
             wm, rm, cm = r["node"], r["remap"], r["memcpy"]
             print(f"{name:10s} {bgname:14s} {frac:9.1%} {c[0] * 1e3:6.1f} /{c[1] * 1e3:5.1f} "
                   f"{wm[0] * 1e3:6.1f} /{wm[1] * 1e3:5.1f} {rm[0] * 1e3:5.2f} /{rm[1] * 1e3:5.2f} "

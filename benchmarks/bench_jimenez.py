@@ -69,6 +69,7 @@ def histmatch(a):
     import cv2
 
     from graphkit import Image
+    from graphkit.contract import compute_checked
     from nodes.jimenez.histmatch import LocalHistMatch, disc_kernel, grid_mean_std, local_mean_std
 
     rng = np.random.default_rng(0)
@@ -88,7 +89,7 @@ def histmatch(a):
             ex2 = cv2.filter2D(cv2.multiply(one, one), -1, k32)
             return cv2.sqrt(cv2.max(ex2 - mu * mu, 0.0))
 
-        nodes[("node", r)] = lambda fast=fast: fast.compute(neutral=hn, target=ht)
+        nodes[("node", r)] = lambda fast=fast: compute_checked(fast, neutral=hn, target=ht)
         stats[("stats", r)] = lambda r=r: grid_mean_std([one], r)
         stats[("peer", r)] = peer
     # groups timed apart (interleaved within each): the fast node's timings are not disturbed
@@ -97,7 +98,7 @@ def histmatch(a):
     slow = {}
     for r in (16.0, 128.0):  # the exact path is ~20× slower: fewer runs
         exact = LocalHistMatch(LocalHistMatch.Params(radius=r, stats_size=256, mode="exact"))
-        slow[("node", r)] = lambda exact=exact: exact.compute(neutral=hn, target=ht)
+        slow[("node", r)] = lambda exact=exact: compute_checked(exact, neutral=hn, target=ht)
         slow[("stats", r)] = lambda r=r: local_mean_std(one, r)
     te = timeit(slow, max(3, a.runs // 5))
     for r in (16.0, 128.0):
@@ -113,6 +114,7 @@ def skinshade(a):
     import cv2
 
     from graphkit import Image, Light
+    from graphkit.contract import compute_checked
     from nodes.common.microfacet import kelemen_specular
     from nodes.common.sss import sss_blur
     from nodes.jimenez.shade import SkinShade
@@ -130,12 +132,11 @@ def skinshade(a):
     light = Light(direction=(0.4, -0.3, -1.0), ambient=(0.05, 0.05, 0.05))
     print(f"(b) SkinShade on {W}×{H}, median (min) of {a.runs} runs")
     fns = {}
+    maps = dict(melanin=mel, hemoglobin=hem, lut=lut, light=light, normals=nrm)
     for mpp in (0.5, 0.25):
         node = SkinShade(SkinShade.Params(mm_per_pixel=mpp))
-        fns[("depth", mpp)] = lambda node=node: node.compute(melanin=mel, hemoglobin=hem, lut=lut, light=light,
-                                                             normals=nrm, depth=depth)
-        fns[("flat", mpp)] = lambda node=node: node.compute(melanin=mel, hemoglobin=hem, lut=lut, light=light,
-                                                            normals=nrm)
+        fns[("depth", mpp)] = lambda node=node: compute_checked(node, **maps, depth=depth)
+        fns[("flat", mpp)] = lambda node=node: compute_checked(node, **maps)
     t = timeit(fns, a.runs)
     for mpp in (0.5, 0.25):
         print(f"  {mpp} mm/px (largest Gaussian σ = {np.sqrt(7.41) / mpp:.1f} px): with depth gradient "

@@ -271,13 +271,14 @@ def _refusal(cls, params: dict, inputs: dict, port: str) -> str | None:
 
 def _base_case(cls, port: str) -> tuple[int, dict, dict | None]:
     """(example index, params, inputs) with ``port`` connected: the node's first example that
-    connects it, else (-1, {}, inputs made from the constraints) or (-1, {}, None)."""
-    for i, (params, inputs) in enumerate(cls.examples()):
-        if inputs.get(port) is not None:
-            return i, params, inputs
+    connects it (and the port its ``same_size_as`` names, if one does: that rule applies only
+    then), else (-1, {}, inputs made from the constraints) or (-1, {}, None)."""
     p = cls.in_ports[port]
-    made = {port: _make(p)}
     other = p.constraints.same_size_as
+    cases = [(i, params, inputs) for i, (params, inputs) in enumerate(cls.examples()) if inputs.get(port) is not None]
+    if cases:
+        return next((c for c in cases if not other or c[2].get(other) is not None), cases[0])
+    made = {port: _make(p)}
     if other:
         made[other] = _make(cls.in_ports[other])
     return -1, {}, None if any(v is None for v in made.values()) else made

@@ -71,6 +71,13 @@ def _with_array(value: Any, arr: np.ndarray) -> Any:
     return spoilt
 
 
+def _where(value: Any, index: tuple[int, ...]) -> str:
+    """Where the element ``index`` of ``value``'s numbers is: a Spectrum's wavelength, else the index."""
+    if isinstance(value, Spectrum):
+        return f"{value.wavelengths[index[0]]:g} nm"
+    return f"index {index}"
+
+
 def _size(value: Any) -> tuple[int, int] | None:
     """(width, height) of an Image, Mask or Camera, else None."""
     if isinstance(value, (Image, Mask, Camera)):
@@ -174,18 +181,23 @@ class Bound:
     def check(self, value, inputs) -> str | None:
         sym, ok, _ = _OPS[self.op]
         arr = _array(value)
+        low = self.op in ("ge", "gt")
+        # one pass when nothing is wrong: the extreme on the bound's side keeps it (a NaN makes
+        # the extreme NaN, which does not: the full check below then leaves the NaN out)
+        if arr.size == 0 or ok(arr.min() if low else arr.max(), self.limit):
+            return None
         bad = ~ok(arr, self.limit) & ~np.isnan(arr) if arr.dtype.kind == "f" else ~ok(arr, self.limit)
         if not bad.any():
             return None
         rule = f"lie in {self.interval}" if self.interval else f"be {sym} {self.limit:g}"
         if arr.ndim == 0:
             return f"must {rule}, got {float(arr):g}"
-        low = self.op in ("ge", "gt")
         worst = np.min(arr[bad]) if low else np.max(arr[bad])
         n = int(bad.sum())
         side = "negative" if (self.op, self.limit) == ("ge", 0) else f"{_SIDE[self.op]} {self.limit:g}"
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
         return (f"values must {rule}; {n} of {arr.size} {'is' if n == 1 else 'are'} {side} "
-                f"({'min' if low else 'max'} {float(worst):.6g})")
+                f"({'min' if low else 'max'} {float(worst):.6g}), the first at {_where(value, first)}")
 
     def describe(self) -> str:
         return f"values {_OPS[self.op][0]} {self.limit:g}"

@@ -66,6 +66,20 @@ class Needs(Node):
         img = Image(np.full((3, 4, 3), 0.5, np.float32))
         return [({}, {"img": img, "mask": Mask(np.ones((3, 4), np.float32)), "gain": 2.0,
                       "extra": [Image(np.zeros((3, 4, 1), np.float32))]})]
+
+
+class Sized(Node):
+    """same_size_as an optional port, which only the second example connects."""
+    inputs = {"img": In(Image, "image", same_size_as="mask"), "mask": In(Mask, "weights", optional=True)}
+    outputs = {"out": Image}
+
+    def compute(self, img, mask=None):
+        return img
+
+    @classmethod
+    def examples(cls):
+        img = Image(np.zeros((3, 4, 1), np.float32))
+        return [({}, {"img": img}), ({}, {"img": img, "mask": Mask(np.ones((3, 4), np.float32))})]
 '''
 
 GOOD = {"img": "p.out", "mask": "m.out", "gain": "g.out", "extra": ["p1.out"]}
@@ -113,8 +127,8 @@ def test_good_inputs_run(tmp_path, env):
 CASES = [
     ("channels", {"p": {"c": 1}}, "port 'img': needs 3 channels, got 1"),
     ("finite", {"p": {"nan": "true"}}, "port 'img': holds 1 NaN and 0 Inf values (first at index (1, 1, 0))"),
-    ("ge", {"p": {"value": -0.25}}, "port 'img': values must lie in [0, 1]; 36 of 36 are negative (min -0.25)"),
-    ("le", {"p": {"value": 1.5}}, "port 'img': values must lie in [0, 1]; 36 of 36 are above 1 (max 1.5)"),
+    ("ge", {"p": {"value": -0.25}}, "port 'img': values must lie in [0, 1]; 36 of 36 are negative (min -0.25), the first at index (0, 0, 0)"),
+    ("le", {"p": {"value": 1.5}}, "port 'img': values must lie in [0, 1]; 36 of 36 are above 1 (max 1.5), the first at index (0, 0, 0)"),
     ("same_size_as", {"pm": {"w": 5}}, "port 'mask': sizes differ: img is 4×3×3, mask is 5×3"),
     ("gt", {"g": {"x": 0.0}}, "port 'gain': must be > 0, got 0"),
     ("variadic item", {"p1": {"c": 2}}, "port 'extra': item 0: needs 1 or 3 channels, got 2"),
@@ -186,6 +200,12 @@ def test_bounds_ignore_nan_unless_finite_is_declared():
     a = np.array([np.nan, 0.5])
     assert Bound("ge", 0.0).check(a, {}) is None
     assert Finite().check(a, {}) is not None
+    # a NaN does not hide a value past the bound (nor one at a strict bound, on either side)
+    assert "1 of 3 is negative (min -1)" in Bound("ge", 0.0).check(np.array([np.nan, -1.0, 0.5]), {})
+    assert "1 of 3 is above 1 (max 2)" in Bound("le", 1.0).check(np.array([0.5, np.nan, 2.0], np.float32), {})
+    assert Bound("gt", 0.0).check(np.zeros((2, 2, 1), np.float32), {}) is not None
+    assert Bound("lt", 1.0).check(np.ones(3, np.int64), {}) is not None
+    assert Bound("ge", 0.0).check(np.zeros((0, 3)), {}) is None
 
 
 def test_conform_breaks_every_declared_constraint(tmp_path, env):
@@ -197,6 +217,8 @@ def test_conform_breaks_every_declared_constraint(tmp_path, env):
                    "port 'mask': same width and height as 'img': refused", "port 'gain': values > 0: refused",
                    "port 'extra': at least 1 connection: refused", "port 'extra': 1 or 3 channels: refused"]:
         assert any(ln.endswith(needle) for ln in lines), (needle, r.stdout)
+    # same_size_as is broken in an example that connects the port it names (it applies only there)
+    assert "ok    Sized/contract example 1: port 'img': same width and height as 'mask': refused" in r.stdout
 
 
 def test_conform_fails_when_a_constraint_is_not_enforced(tmp_path, env, monkeypatch):

@@ -96,10 +96,17 @@ def test_kmlayer_from_spectra_and_bad_coefficients():
     assert e.value.port == "S" and "≥ 0" in e.value.message and "550" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S, "K": Spectrum(wl, -K.values)})
-    assert e.value.port == "K" and "K must be ≥ 0" in e.value.message
+    # the port's declared constraint (graphkit.contract) words it: the port is K
+    assert e.value.port == "K" and "must be ≥ 0" in e.value.message and "(min -2), the first at 400 nm" in e.value.message
     with pytest.raises(BadInput) as e:
         run(KMLayer, {"S": S})
-    assert e.value.port == "K"
+    assert e.value.port == "K" and e.value.message == "connect both S and K (or neither, to use 'cosmetic')"
+    with pytest.raises(BadInput) as e:
+        run(KMLayer, {"S": S, "K": K}, cosmetic="lipstick_red")
+    assert e.value.port == "cosmetic" and e.value.message == "S and K are connected: leave 'cosmetic' empty"
+    with pytest.raises(BadInput) as e:
+        run(KMLayer)
+    assert e.value.port == "cosmetic" and e.value.message == "connect S and K, or name a library cosmetic"
     with pytest.raises(BadInput) as e:
         run(KMLayer, cosmetic="lipstick_red", illuminant="D66")
     assert e.value.port == "illuminant"
@@ -142,6 +149,18 @@ def test_kminvert_bad_measurements(tmp_path):
     with pytest.raises(BadInput) as e:
         run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl, Ri)})
     assert e.value.port == "R" and "R < R∞" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rinf": Spectrum(wl, Ri)})
+    assert e.value.port == "Rg" and e.value.message == "connect all of R, Rg and Rinf (or none, to use 'path')"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl, Ri)}, path="m.csv")
+    assert e.value.port == "path" and e.value.message == "R, Rg and Rinf are connected: leave 'path' empty"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert)
+    assert e.value.port == "path" and e.value.message == "connect R, Rg and Rinf, or give a CSV path"
+    with pytest.raises(BadInput) as e:
+        run(KMInvert, {"R": Spectrum(wl, R), "Rg": Spectrum(wl, z), "Rinf": Spectrum(wl + 1, Ri)})
+    assert e.value.port == "Rinf" and e.value.message == "R, Rg and Rinf must be sampled at the same wavelengths"
     # reflectance outside [0, 1], from a CSV: the path param is named
     R2 = R.copy()
     R2[3] = 1.3
@@ -335,10 +354,21 @@ def test_cosmetic_shade_bad_input():
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1))), "light": Light(kind="point")},
             cosmetics=["lipstick_red"])
-    assert e.value.port == "light"
+    assert e.value.port == "light" and "CosmeticShade needs a directional light" in e.value.message
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": rho, "thickness": Image(np.zeros((4, 5, 1)))}, cosmetics=["lipstick"])
     assert e.value.port == "cosmetics"
+    # each optional map has the albedo's size and its channels (declared on the port)
+    t = Image(np.zeros((4, 5, 1)))
+    for port, bad, needle in [("irradiance", Image(np.ones((4, 5, 2))), "needs 1 or 3 channels, got 2"),
+                              ("irradiance", Image(np.ones((3, 5, 3))), "sizes differ: albedo is 5×4×3, irradiance is 5×3×3"),
+                              ("irradiance", Image(-np.ones((4, 5, 1))), "must be ≥ 0"),
+                              ("normals", Image(np.ones((4, 5, 1))), "needs 3 channels, got 1"),
+                              ("depth", Image(np.ones((4, 6, 1))), "sizes differ: albedo is 5×4×3, depth is 6×4×1"),
+                              ("skin", Mask(np.ones((4, 6), np.float32)), "sizes differ: albedo is 5×4×3, skin is 6×4")]:
+        with pytest.raises(BadInput) as e:
+            run(CosmeticShade, {"albedo": rho, "thickness": t, port: bad}, cosmetics=["lipstick_red"])
+        assert e.value.port == port and needle in e.value.message, (port, e.value)
 
 
 # --------------------------------------------------------------------------------------------
@@ -394,7 +424,16 @@ def test_cosmetic_shade_with_mesh_and_camera():
     with pytest.raises(BadInput) as e:
         run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh},
             cosmetics=["foundation_light"])
-    assert e.value.port == "camera"
+    assert e.value.port == "camera" and e.value.message == "connect both mesh and camera (or neither)"
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh,
+                            "camera": cam.model_copy(update={"width": w + 1})}, cosmetics=["foundation_light"])
+    assert e.value.port == "camera" and f"sizes differ: albedo is {w}×{h}×3, camera is {w + 1}×{h}" in e.value.message
+    with pytest.raises(BadInput) as e:
+        run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh, "camera": cam,
+                            "normals": Image(np.ones((h, w, 3)))}, cosmetics=["foundation_light"])
+    assert e.value.port == "mesh" and "leave 'normals' and 'depth' unconnected" in e.value.message
+
 
 
 def test_cosmetic_shade_boxes_and_memo_match_the_whole_frame():

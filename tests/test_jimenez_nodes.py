@@ -8,6 +8,7 @@ import pytest
 
 from conftest import ROOT, graphkit
 from graphkit import BadInput, Image, Light, Mask
+from graphkit.contract import compute_checked
 from nodes.jimenez.histmatch import AppearanceRig, FlushTarget, LocalHistMatch
 from nodes.jimenez.shade import SkinShade
 from nodes.jimenez.skinlut import SkinColorLUT, lut_axes
@@ -56,33 +57,37 @@ def test_stats_are_downsampled_and_upsampled_back():
     assert np.median(err) < 0.1 * ht.pixels.std()
 
 
+def _refused(node, port: str, match: str, **inputs):
+    """``node`` run as the engine runs it (declared constraints, then compute) refuses ``inputs``
+    naming ``port``, with a message that matches ``match``."""
+    with pytest.raises(BadInput, match=match) as e:
+        compute_checked(node, **inputs)
+    assert e.value.port == port, e.value
+
+
 def test_bad_inputs_have_clear_messages():
     hn, ht = _maps(5)
     small = Image(np.zeros((10, 10, 1), np.float32))
-    with pytest.raises(BadInput, match="sizes differ"):
-        LocalHistMatch().compute(neutral=hn, target=small)
-    with pytest.raises(BadInput, match="negative"):
-        LocalHistMatch().compute(neutral=Image(hn.pixels - 1), target=ht)
+    _refused(LocalHistMatch(), "target", "sizes differ", neutral=hn, target=small)
+    _refused(LocalHistMatch(), "neutral", "negative", neutral=Image(hn.pixels - 1), target=ht)
+    for port, bad, what in (("target", np.nan, "1 NaN and 0 Inf"), ("neutral", np.inf, "0 NaN and 1 Inf")):
+        px = (ht if port == "target" else hn).pixels.copy()
+        px[3, 4, 0] = bad
+        _refused(LocalHistMatch(), port, f"holds {what} values", **{"neutral": hn, "target": ht, port: Image(px)})
     for r in (0.0, -3.0):
-        with pytest.raises(BadInput, match="radius must be > 0"):
-            LocalHistMatch(LocalHistMatch.Params(radius=r)).compute(neutral=hn, target=ht)
+        _refused(LocalHistMatch(LocalHistMatch.Params(radius=r)), "radius", "radius must be > 0", neutral=hn, target=ht)
     lhm = LocalHistMatch(LocalHistMatch.Params(radius=4.0)).compute(neutral=hn, target=ht)
     args = dict(neutral=hn, neutral_mean=lhm["neutral_mean"], scales=[lhm["scale"]], biases=[lhm["bias"]])
-    with pytest.raises(BadInput, match="sum to one"):
-        AppearanceRig(AppearanceRig.Params(weights=[0.5, 0.6])).compute(**args)
-    with pytest.raises(BadInput, match="2 weights|give 2"):
-        AppearanceRig(AppearanceRig.Params(weights=[1.0])).compute(**args)
-    with pytest.raises(BadInput, match="negative"):
-        AppearanceRig(AppearanceRig.Params(weights=[1.0, 0.0])).compute(**{**args, "neutral": Image(hn.pixels - 1)})
+    _refused(AppearanceRig(AppearanceRig.Params(weights=[0.5, 0.6])), "weights", "sum to one", **args)
+    _refused(AppearanceRig(AppearanceRig.Params(weights=[1.0])), "weights", "2 weights|give 2", **args)
+    _refused(AppearanceRig(AppearanceRig.Params(weights=[1.0, 0.0])), "neutral", "negative",
+             **{**args, "neutral": Image(hn.pixels - 1)})
     lut = SkinColorLUT(SkinColorLUT.Params(size=8)).compute()["lut"]
-    with pytest.raises(BadInput, match="sizes differ"):
-        SkinShade().compute(melanin=hn, hemoglobin=small, lut=lut, light=Light())
-    with pytest.raises(BadInput, match="negative"):
-        SkinShade().compute(melanin=Image(-hn.pixels), hemoglobin=ht, lut=lut, light=Light())
-    with pytest.raises(BadInput, match="empty"):
-        LocalHistMatch().compute(neutral=hn, target=ht, mask=Mask(np.zeros((48, 64), np.float32)))
-    with pytest.raises(BadInput, match="mask is"):
-        FlushTarget().compute(hemoglobin=hn, regions=Mask(np.ones((5, 5), np.float32)))
+    _refused(SkinShade(), "hemoglobin", "sizes differ", melanin=hn, hemoglobin=small, lut=lut, light=Light())
+    _refused(SkinShade(), "melanin", "negative", melanin=Image(-hn.pixels), hemoglobin=ht, lut=lut, light=Light())
+    _refused(LocalHistMatch(), "mask", "empty", neutral=hn, target=ht, mask=Mask(np.zeros((48, 64), np.float32)))
+    _refused(FlushTarget(), "regions", "sizes differ: hemoglobin is 64×48×1, regions is 5×5",
+             hemoglobin=hn, regions=Mask(np.ones((5, 5), np.float32)))
 
 
 def test_skinshade_post_scatter_texturing_and_specular():

@@ -5,27 +5,19 @@ import numpy as np
 
 from graphkit import BadInput, Field, Image, In, InputFile, Mask, Node, Out, Spectrum
 
+from nodes.common.checks import inputs_or_param, same_wavelengths
+
 from . import km
 from .library import KMLayerSpec, check_illuminant, check_wavelengths, get_cosmetic, layer_arrays
 
 
-def _thickness_map(img: Image | None, port: str, shape=None, channels=None) -> np.ndarray | None:
-    """A thickness Image (mm) as float32 H×W×C, checked: finite, ≥ 0, size and channels."""
-    if img is None:
-        return None
-    t = np.asarray(img.pixels, np.float32)
-    if shape is not None and t.shape[:2] != tuple(shape):
-        raise BadInput(port, f"thickness map is {t.shape[1]}×{t.shape[0]} px but the image is "
-                       f"{shape[1]}×{shape[0]} px")
-    if channels is not None and t.shape[2] != channels:
-        raise BadInput(port, f"thickness map has {t.shape[2]} channels but there are {channels} layers "
+def layer_thicknesses(img: Image, layers: int, port: str = "thickness") -> np.ndarray:
+    """The cosmetic map's float32 H×W×n pixels (mm), one channel per layer (else BadInput; the
+    port declares the rest: finite, ≥ 0, its size)."""
+    t = img.pixels
+    if t.shape[2] != layers:
+        raise BadInput(port, f"thickness map has {t.shape[2]} channels but there are {layers} layers "
                        "(one channel per layer, bottom layer first)")
-    # one pass each: a NaN/Inf anywhere makes the sum non-finite; then the minimum
-    if not np.isfinite(t.sum(dtype=np.float64)):
-        raise BadInput(port, "thickness map holds NaN or Inf values")
-    lo = float(t.min()) if t.size else 0.0
-    if lo < 0:
-        raise BadInput(port, f"thickness must be ≥ 0 mm; minimum is {lo:.6g}")
     return t
 
 
@@ -42,9 +34,9 @@ class KMLayer(Node):
 
     version = "2"
     inputs = {
-        "S": In(Spectrum, "scattering coefficient, mm⁻¹ per wavelength (nm)", optional=True),
-        "K": In(Spectrum, "absorption coefficient, mm⁻¹ per wavelength (nm)", optional=True),
-        "thickness": In(Image, "optional one-channel thickness map, mm", optional=True),
+        "S": In(Spectrum, "scattering coefficient, mm⁻¹ per wavelength (nm)", optional=True, finite=True, ge=0),
+        "K": In(Spectrum, "absorption coefficient, mm⁻¹ per wavelength (nm)", optional=True, finite=True, ge=0),
+        "thickness": In(Image, "optional thickness map, mm", optional=True, channels=1, finite=True, ge=0),
     }
     outputs = {
         "R0": Out(Spectrum, "reflectance of the layer over black (eq. 1) at thickness_mm"),
@@ -67,35 +59,17 @@ class KMLayer(Node):
     def compute(self, S: Spectrum | None = None, K: Spectrum | None = None, thickness: Image | None = None):
         p = self.params
         check_illuminant(p.illuminant)
-        if (S is None) != (K is None):
-            raise BadInput("K" if K is None else "S", "connect both S and K (or neither, to use 'cosmetic')")
-        if S is not None:
-            if p.cosmetic:
-                raise BadInput("cosmetic", "S and K are connected: leave 'cosmetic' empty")
-            if S.wavelengths.shape != K.wavelengths.shape or not np.array_equal(S.wavelengths, K.wavelengths):
-                raise BadInput("K", "S and K must be sampled at the same wavelengths")
-            for port, sp in (("S", S), ("K", K)):
-                v = sp.values
-                if not np.isfinite(v).all():
-                    raise BadInput(port, f"{port} has non-finite values")
-                if (v < 0).any():
-                    j = int(np.argmax(v < 0))
-                    raise BadInput(port, f"{port} must be ≥ 0 mm⁻¹; {v[j]:.6g} at {sp.wavelengths[j]:g} nm")
+        if inputs_or_param({"S": S, "K": K}, "cosmetic", p.cosmetic, "name a library cosmetic"):
+            same_wavelengths({"S": S, "K": K})
             spec = KMLayerSpec(name=p.name or "layer", wavelengths=S.wavelengths.tolist(), S=S.values.tolist(),
                                K=K.values.tolist(), thickness_mm=p.thickness_mm, m=p.m, rho_s=p.rho_s, f0=p.f0)
             wl, Sa, Ka = layer_arrays([spec], "S")
         else:
-            if not p.cosmetic:
-                raise BadInput("cosmetic", "connect S and K, or name a library cosmetic")
             lib = get_cosmetic(p.cosmetic, "cosmetic")
             spec = lib.model_copy(update={"thickness_mm": p.thickness_mm, "name": p.name or lib.name})
             wl, Sa, Ka = layer_arrays([spec], "cosmetic")
         R0, T = km.layer_R0_T(Sa[0], Ka[0], p.thickness_mm)
-        tmap = _thickness_map(thickness, "thickness")
-        if tmap is not None and tmap.shape[2] != 1:
-            raise BadInput("thickness", f"thickness map must have one channel, got {tmap.shape[2]}")
-        if tmap is None:
-            tmap = np.full((1, 1, 1), p.thickness_mm)
+        tmap = np.full((1, 1, 1), p.thickness_mm) if thickness is None else thickness.pixels
         grid = km.thickness_grid([float(tmap.max())], 65)
         R0g, Tg = km.layer_R0_T(Sa[0], Ka[0], grid[0][:, None])
         W = km.rgb_weights(wl, p.illuminant)
@@ -147,9 +121,9 @@ class KMInvert(Node):
     """
 
     version = "1"
-    inputs = {"R": In(Spectrum, "thin layer over the background", optional=True),
-              "Rg": In(Spectrum, "background", optional=True),
-              "Rinf": In(Spectrum, "opaque layer", optional=True)}
+    inputs = {"R": In(Spectrum, "thin layer over the background", optional=True, finite=True, ge=0, le=1),
+              "Rg": In(Spectrum, "background", optional=True, finite=True, ge=0, le=1),
+              "Rinf": In(Spectrum, "opaque layer", optional=True, finite=True, gt=0, le=1)}
     outputs = {"S": Out(Spectrum, "scattering coefficient, mm⁻¹"), "K": Out(Spectrum, "absorption coefficient, mm⁻¹"),
                "layer": Out(KMLayerSpec, "the cosmetic as a layer")}
 
@@ -164,27 +138,17 @@ class KMInvert(Node):
 
     def compute(self, R: Spectrum | None = None, Rg: Spectrum | None = None, Rinf: Spectrum | None = None):
         p = self.params
-        given = [x is not None for x in (R, Rg, Rinf)]
-        if any(given):
-            if not all(given):
-                missing = [n for n, g in zip(("R", "Rg", "Rinf"), given) if not g]
-                raise BadInput(missing[0], "connect all of R, Rg and Rinf (or none, and give 'path')")
-            if p.path:
-                raise BadInput("path", "the R, Rg, Rinf inputs are connected: leave 'path' empty")
-            wl = R.wavelengths
-            for n, s in (("Rg", Rg), ("Rinf", Rinf)):
-                if s.wavelengths.shape != wl.shape or not np.array_equal(s.wavelengths, wl):
-                    raise BadInput(n, "R, Rg and Rinf must be sampled at the same wavelengths")
-            r, rg, ri = R.values, Rg.values, Rinf.values
+        connected = inputs_or_param({"R": R, "Rg": Rg, "Rinf": Rinf}, "path", p.path, "give a CSV path")
+        if connected:
+            same_wavelengths({"R": R, "Rg": Rg, "Rinf": Rinf})
+            wl, r, rg, ri = R.wavelengths, R.values, Rg.values, Rinf.values
         else:
-            if not p.path:
-                raise BadInput("path", "give a CSV path or connect R, Rg and Rinf")
             wl, r, rg, ri = read_invert_csv(self.resolve_file("path", p.path, self.ctx.base_dir))
-        check_wavelengths(wl, "path" if not any(given) else "R")
+        check_wavelengths(wl, "R" if connected else "path")
         bad = km.check_invert_inputs(r, rg, ri)
         if bad:
-            port = bad[0] if any(given) else "path"
-            raise BadInput(port, bad[1] if any(given) else f"column {bad[0]}: {bad[1]}")
+            port, msg = bad if connected else ("path", f"column {bad[0]}: {bad[1]}")
+            raise BadInput(port, msg)
         S, K = km.invert(r, rg, ri, p.thickness_mm)
         spec = KMLayerSpec(name=p.name, wavelengths=wl.tolist(), S=S.tolist(), K=K.tolist(),
                            thickness_mm=p.layer_thickness_mm, m=p.m, rho_s=p.rho_s, f0=p.f0)
@@ -201,7 +165,7 @@ class CosmeticMap(Node):
     """
 
     version = "1"
-    inputs = {"regions": In(Mask, "one region per layer, bottom layer first", variadic=True),
+    inputs = {"regions": In(Mask, "one region per layer, bottom layer first", variadic=True, min_items=1),
               "exclude": In(Mask, "no cosmetic here (e.g. eyes)", optional=True)}
     outputs = {"thickness": Out(Image, "H×W×n layer thicknesses, mm")}
 
@@ -211,8 +175,6 @@ class CosmeticMap(Node):
 
     def compute(self, regions: list[Mask], exclude: Mask | None = None):
         p = self.params
-        if not regions:
-            raise BadInput("regions", "no regions")
         if len(p.thickness_mm) != len(regions):
             raise BadInput("thickness_mm", f"{len(p.thickness_mm)} thicknesses for {len(regions)} regions")
         if any(t < 0 or not np.isfinite(t) for t in p.thickness_mm):

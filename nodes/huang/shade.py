@@ -10,10 +10,11 @@ from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node
 from graphkit.hashing import canonical
 from graphkit.store import value_parts
 
+from nodes.common.checks import connected_together, require_directional
 from nodes.common.sss import Scatter, sss_blur
 
 from . import km
-from .layer import _thickness_map
+from .layer import layer_thicknesses
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
 from .stack import pixel_stack
 
@@ -48,15 +49,18 @@ class CosmeticShade(Node):
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
                      channels=3, finite=True, ge=0, le=1),
-        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
+        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first",
+                        same_size_as="albedo", finite=True, ge=0),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
-        "irradiance": In(Image, "diffuse irradiance, linear RGB (or 1 channel)", optional=True),
-        "normals": In(Image, "unit surface normals H×W×3 (same frame as light and view)", optional=True),
+        "irradiance": In(Image, "diffuse irradiance, linear RGB (or 1 channel)", optional=True, channels=(1, 3),
+                         same_size_as="albedo", finite=True, ge=0),
+        "normals": In(Image, "unit surface normals (same frame as light and view)", optional=True, channels=3,
+                      same_size_as="albedo"),
         "light": In(Light, "a directional light (for E and the specular)", optional=True),
-        "depth": In(Image, "camera depth in mm (SSS kernel width)", optional=True),
-        "skin": In(Mask, "where the skin is (SSS stays inside)", optional=True),
+        "depth": In(Image, "camera depth in mm (SSS kernel width)", optional=True, channels=1, same_size_as="albedo"),
+        "skin": In(Mask, "where the skin is (SSS stays inside)", optional=True, same_size_as="albedo"),
         "mesh": In(Mesh, "face mesh (mm): normals, depth and view rays come from it with 'camera'", optional=True),
-        "camera": In(Camera, "the photo camera of the mesh (OpenCV axes)", optional=True),
+        "camera": In(Camera, "the photo camera of the mesh (OpenCV axes)", optional=True, same_size_as="albedo"),
     }
     outputs = {"image": Out(Image, "linear RGB radiance: diffuse + specular"),
                "diffuse": Out(Image, "diffuse part"), "specular": Out(Image, "specular part")}
@@ -89,10 +93,11 @@ class CosmeticShade(Node):
         wl, S, K = layer_arrays(specs)
         rho = albedo.pixels.astype(np.float32)
         h, w = rho.shape[:2]
-        t = _thickness_map(thickness, "thickness", (h, w), len(specs))
-        _check_geometry_inputs((h, w), normals, depth, mesh, camera)
-        _check_light_inputs((h, w), irradiance, light)
-        _check_map_inputs((h, w), depth, skin)
+        t = layer_thicknesses(thickness, len(specs))
+        if connected_together({"mesh": mesh, "camera": camera}) and (normals is not None or depth is not None):
+            raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
+        if light is not None:
+            require_directional(light, "CosmeticShade")
         fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed)
         spec = np.zeros((h, w, 3), np.float32)
@@ -182,45 +187,6 @@ class CosmeticShade(Node):
                 ({"cosmetics": ["foundation_light", "lipstick_red"], "mm_per_pixel": 0.3},
                  {"albedo": Image(rho), "thickness": Image(soft), "normals": Image(nrm), "light": light,
                   "depth": depth, "skin": skin})]
-
-
-def _check_geometry_inputs(hw, normals, depth, mesh, camera) -> None:
-    """mesh and camera come together, and then instead of normals and depth; sizes match."""
-    h, w = hw
-    if (mesh is None) != (camera is None):
-        raise BadInput("camera" if camera is None else "mesh", "connect both mesh and camera (or neither)")
-    if mesh is not None:
-        if normals is not None or depth is not None:
-            raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
-        if (camera.width, camera.height) != (w, h):
-            raise BadInput("camera", f"camera is {camera.width}×{camera.height}, the albedo is {w}×{h}")
-    if normals is not None and np.shape(normals.pixels) != (h, w, 3):
-        raise BadInput("normals", f"normals must be {w}×{h}×3, got {normals.size_str()}")
-
-
-def _check_light_inputs(hw, irradiance, light) -> None:
-    """A directional light; an irradiance of the albedo's size, 1 or 3 channels, finite, ≥ 0."""
-    h, w = hw
-    if light is not None and light.kind != "directional":
-        raise BadInput("light", "CosmeticShade takes a directional light (no surface positions here)")
-    if irradiance is None:
-        return
-    E = np.asarray(irradiance.pixels, np.float32)
-    if E.shape[:2] != (h, w) or E.shape[2] not in (1, 3):
-        raise BadInput("irradiance", f"irradiance must be {w}×{h} with 1 or 3 channels, got {irradiance.size_str()}")
-    if not np.isfinite(E).all() or (E < 0).any():
-        raise BadInput("irradiance", "irradiance must be finite and ≥ 0")
-
-
-def _check_map_inputs(hw, depth, skin) -> None:
-    """The depth (mm, one channel) and skin mask have the albedo's size."""
-    h, w = hw
-    if depth is not None:
-        shape = np.shape(depth.pixels)
-        if shape[:2] != (h, w) or shape[2] != 1:
-            raise BadInput("depth", f"depth must be {w}×{h}×1 (mm), got {depth.size_str()}")
-    if skin is not None and skin.alpha.shape != (h, w):
-        raise BadInput("skin", f"skin mask is {skin.width}×{skin.height}, the albedo is {w}×{h}")
 
 
 class _Surface(NamedTuple):

@@ -10,7 +10,7 @@ from graphkit import BadInput, Field, Image, In, Node, Out, Spectrum
 from nodes.common.parallel import run_bands
 
 from . import km
-from .layer import _thickness_map
+from .layer import layer_thicknesses
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers, skin_spectrum
 
 
@@ -84,7 +84,8 @@ class KMStack(Node):
     version = "2"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
-        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first"),
+        "thickness": In(Image, "cosmetic map: H×W×n layer thicknesses in mm, bottom layer first",
+                        same_size_as="background", finite=True, ge=0),
         "layers": In(KMLayerSpec, "layers, bottom first (else the 'cosmetics' param)", optional=True, variadic=True),
         "background": In(Image, "linear-RGB reflectance under the layers (e.g. skin albedo)", optional=True,
                          channels=3, finite=True, ge=0, le=1),
@@ -114,8 +115,7 @@ class KMStack(Node):
         wl, S, K = layer_arrays(specs)
         if background is not None and background_spectrum is not None:
             raise BadInput("background_spectrum", "connect background or background_spectrum, not both")
-        shape = None if background is None else background.pixels.shape[:2]
-        t = _thickness_map(thickness, "thickness", shape, len(specs))
+        t = layer_thicknesses(thickness, len(specs))
         if background is not None:
             Rg = background.pixels
             R, T = self.stack_over_rgb(S, K, wl, t, Rg, p.illuminant, p.lut_size)

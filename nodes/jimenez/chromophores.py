@@ -181,7 +181,8 @@ class SkinChromophores(Node):
 
     version = "4"
     inputs = {"image": In(Image, "photo, linear RGB"),
-              "mask": In(Mask, "skin mask (optional: detected by colour otherwise)", optional=True)}
+              "mask": In(Mask, "skin mask (optional: detected by colour otherwise)", optional=True,
+                         same_size_as="image")}
     outputs = {"melanin": Out(Image, "C_m, volume fraction"),
                "hemoglobin": Out(Image, "C_hd, volume fraction"),
                "pigments": Out(Array, "2×3 density vectors (−ln RGB per unit fraction): melanin, hemoglobin"),
@@ -200,8 +201,6 @@ class SkinChromophores(Node):
             raise BadInput("image", f"need an RGB photo, got {px.shape[2]} channel(s)")
         rgb = px[:, :, :3]
         if mask is not None:
-            if mask.alpha.shape != rgb.shape[:2]:
-                raise BadInput("mask", f"mask is {mask.width}×{mask.height}, image is {image.width}×{image.height}")
             skin = (mask.alpha > 0.5).astype(np.float32)
             if self.params.colour_check:
                 skin = skin * detect_skin(rgb)
@@ -235,25 +234,17 @@ class ApplyHemoglobin(Node):
     version = "1"
     inputs = {"image": In(Image, "photo, linear RGB"),
               "pigments": In(Array, "2×3 density vectors from SkinChromophores"),
-              "hemoglobin": In(Image, "hemoglobin map of the photo"),
-              "new_hemoglobin": In(Image, "desired hemoglobin map"),
-              "mask": In(Mask, "skin (optional)", optional=True)}
+              "hemoglobin": In(Image, "hemoglobin map of the photo", same_size_as="image", ge=0),
+              "new_hemoglobin": In(Image, "desired hemoglobin map", same_size_as="image", ge=0),
+              "mask": In(Mask, "skin (optional)", optional=True, same_size_as="image")}
     outputs = {"image": Image}
 
     def compute(self, image, pigments, hemoglobin, new_hemoglobin, mask=None):
-        shp = image.pixels.shape[:2]
-        for port, m in (("hemoglobin", hemoglobin), ("new_hemoglobin", new_hemoglobin)):
-            if m.pixels.shape[:2] != shp:
-                raise BadInput(port, f"{port} is {m.width}×{m.height}, image is {image.width}×{image.height}")
-            if (m.pixels < 0).any():
-                raise BadInput(port, f"{port} holds negative concentrations")
         q = np.asarray(pigments, np.float64)
         if q.shape != (2, 3):
             raise BadInput("pigments", f"expected a 2×3 array of density vectors, got {q.shape}")
         dh = (new_hemoglobin.pixels[:, :, 0] - hemoglobin.pixels[:, :, 0]).astype(np.float64)
         if mask is not None:
-            if mask.alpha.shape != shp:
-                raise BadInput("mask", f"mask is {mask.width}×{mask.height}, image is {image.width}×{image.height}")
             dh = dh * mask.alpha
         px = image.pixels.astype(np.float64).copy()
         px[:, :, :3] *= np.exp(-dh[..., None] * q[1])

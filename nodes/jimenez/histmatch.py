@@ -237,9 +237,9 @@ def cell_fraction(H: int, W: int, c: int) -> np.ndarray:
     return np.outer(fy, fx).astype(np.float32)
 
 
-def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`cell_means` of h·m and h²·m, and min(h) (NaN if h holds NaN), in one pass over
-    bands of ≥ 256 rows on the cores (the band's h·m and h²·m stay in the cache)."""
+def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cell_means` of h·m and h²·m, in one pass over bands of ≥ 256 rows on the cores
+    (the band's h·m and h²·m stay in the cache)."""
     import cv2
 
     from nodes.common.parallel import run_bands
@@ -254,14 +254,13 @@ def _cell_moments(h: np.ndarray, m: np.ndarray | None, c: int) -> tuple[np.ndarr
         x = hb if m is None else cv2.multiply(hb, m[y0:y0 + rows])
         a1[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(x, c)
         a2[y0 // c:y0 // c + -(-hb.shape[0] // c)] = cell_means(cv2.multiply(x, hb), c)
-        return float(hb.min())
 
-    lows = run_bands(band, H, rows)
-    return a1, a2, float(np.min(lows))
+    run_bands(band, H, rows)
+    return a1, a2
 
 
 def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CELLS_PER_RADIUS,
-                  mins: list | None = None, moments=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  moments=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fast eq. (1): local mean and standard deviation of each (H, W) map in ``hs`` (a sequence
     or an (n, H, W) array) on the grid of c × c-pixel cells, c = :func:`stats_cell`, returned
     as (μ, σ, weight), each (n, ⌈H/c⌉, ⌈W/c⌉), values at the cell centres (see
@@ -275,8 +274,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     blurred over about one cell (r/cells px).  Border and mask handling as in
     :func:`local_mean_std` (statistics of the in-image, in-mask part of the disc).  float32 on
     data centred on its global mean.  Where c = 1 this is :func:`local_mean_std` (exact).
-    ``mins``: a list to which the minimum of each map is appended (taken in the same pass;
-    nothing is appended where c = 1).  ``moments``: the function that takes the per-cell
+    ``moments``: the function that takes the per-cell
     moments (default :func:`_cell_moments`; a backend passes its own).
     """
     import cv2
@@ -299,9 +297,7 @@ def grid_mean_std(hs, r: float, mask: np.ndarray | None = None, cells: int = CEL
     mom = []  # centred (E[h·m], E[h²·m]) per map
     g = np.empty(n)
     for i in range(n):
-        a1, a2, lo = (moments or _cell_moments)(np.ascontiguousarray(hs[i], np.float32), m, c)
-        if mins is not None:
-            mins.append(lo)
+        a1, a2 = (moments or _cell_moments)(np.ascontiguousarray(hs[i], np.float32), m, c)
         # centre on the (masked) global mean g: E[(h−g)²m] = E[h²m] − 2g·E[hm] + g²·E[m]
         g[i] = gi = float(a1.sum(dtype=np.float64)) / max(msum, 1e-300)
         if full:
@@ -429,32 +425,10 @@ def stats_shape(shape: tuple[int, int], size: int) -> tuple[int, int]:
     return max(1, round(H * s)), max(1, round(W * s))
 
 
-def _map(img: Image, port: str, what: str = "concentration", check_values: bool = True) -> np.ndarray:
-    """The one-channel map of ``img``, checked (``check_values``): no NaN, Inf or negative
-    values.  Without ``check_values`` the caller checks them with :func:`_check_values`."""
-    if img.channels != 1:
-        raise BadInput(port, f"{port} must be a one-channel {what} map, got {img.channels} channels")
-    a = img.pixels[:, :, 0]
-    if check_values:
-        _check_values(port, float(a.min()), np.isfinite(float(a.max())))
-    return a
-
-
-def _check_values(port: str, lo: float, finite: bool) -> None:
-    """``lo``: the map's minimum (NaN if it holds NaN); ``finite``: no +Inf seen."""
-    if not (np.isfinite(lo) and finite):
-        raise BadInput(port, f"{port} holds NaN or Inf values")
-    if lo < 0:
-        raise BadInput(port, f"{port} holds negative concentrations (min {lo:.4g}); "
-                             "volume fractions must be ≥ 0")
-
-
-def _mask(mask: Mask | None, shape, port="mask") -> np.ndarray | None:
+def _mask(mask: Mask | None, port="mask") -> np.ndarray | None:
+    """The mask's weights in [0, 1] (its size is declared on the port); BadInput if all zero."""
     if mask is None:
         return None
-    if mask.alpha.shape != tuple(shape):
-        raise BadInput(port, f"mask is {mask.alpha.shape[1]}×{mask.alpha.shape[0]}, "
-                             f"the maps are {shape[1]}×{shape[0]}")
     m = np.clip(mask.alpha.astype(np.float64), 0, 1)
     if m.sum() <= 0:
         raise BadInput(port, "the mask is empty: no skin to take statistics from")
@@ -483,9 +457,9 @@ class LocalHistMatch(Node):
     """
 
     version = "5"
-    inputs = {"neutral": In(Image, "neutral map H_n (one channel, volume fraction)"),
-              "target": In(Image, "target map H of the same size"),
-              "mask": In(Mask, "where statistics are taken (skin)", optional=True)}
+    inputs = {"neutral": In(Image, "neutral map H_n (volume fraction)", channels=1, finite=True, ge=0),
+              "target": In(Image, "target map H", channels=1, same_size_as="neutral", finite=True, ge=0),
+              "mask": In(Mask, "where statistics are taken (skin)", optional=True, same_size_as="neutral")}
     outputs = {"matched": Out(Image, "H_n matched to the target's local statistics (eq. 3)"),
                "scale": Out(Image, "σ/σ_n (eq. 5), at stats_size"),
                "bias": Out(Image, "μ (eq. 5), at stats_size"),
@@ -509,26 +483,16 @@ class LocalHistMatch(Node):
         p = self.params
         if not p.radius > 0:
             raise BadInput("radius", f"radius must be > 0 pixels, got {p.radius}")
-        if neutral.pixels.shape[:2] != target.pixels.shape[:2]:
-            raise BadInput("target", f"map sizes differ: neutral is {neutral.width}×{neutral.height}, "
-                                     f"target is {target.width}×{target.height}")
-        hn = _map(neutral, "neutral", check_values=False)
-        ht = _map(target, "target", check_values=False)
-        m = _mask(mask, hn.shape)
-        mins = []
+        hn, ht = neutral.pixels[:, :, 0], target.pixels[:, :, 0]
+        m = _mask(mask)
         H, W = hn.shape
-        with np.errstate(invalid="ignore", over="ignore"):  # +Inf input: rejected just below
+        with np.errstate(invalid="ignore", over="ignore"):  # huge values overflow the float32 moments
             if p.mode == "exact":
                 c = 1
                 (mu_n, mu), (sd_n, sd), w = local_mean_std(np.stack([hn, ht]), p.radius, m)
             else:
                 c = stats_cell(H, W, p.radius)
-                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, mins=mins,
-                                                          moments=self.cell_moments)
-        if not mins:
-            mins = [float(hn.min()), float(ht.min())]
-        for port, lo, a in (("neutral", mins[0], mu_n), ("target", mins[1], mu)):
-            _check_values(port, lo, np.isfinite(a).all())  # +Inf anywhere makes every μ NaN
+                (mu_n, mu), (sd_n, sd), w = grid_mean_std([hn, ht], p.radius, m, moments=self.cell_moments)
         self.ctx.progress(0.8, "statistics done")
         # σ_n below the floor (a flat neighbourhood, or a one-pixel disc; without a mask 1e-3 of
         # the largest σ_n): H_n − μ_n is ~0 there, so the scale is 1 rather than a ratio of
@@ -584,10 +548,10 @@ class AppearanceRig(Node):
 
     version = "1"
     studio_view = "nodes.jimenez.studio_view:BlushView"  # graphkit serve: weight sliders
-    inputs = {"neutral": In(Image, "neutral map H_n (one channel)"),
-              "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)"),
-              "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True),
-              "biases": In(Image, "bias_i = μ_i, i = 1…k", variadic=True)}
+    inputs = {"neutral": In(Image, "neutral map H_n", channels=1, finite=True, ge=0),
+              "neutral_mean": In(Image, "μ_n, local mean of H_n (any resolution)", channels=1, finite=True, ge=0),
+              "scales": In(Image, "scale_i = σ_i/σ_n, i = 1…k", variadic=True, channels=1, ge=0),
+              "biases": In(Image, "bias_i = μ_i, i = 1…k", variadic=True, channels=1, finite=True, ge=0)}
     outputs = {"hemoglobin": Out(Image, "rigged hemoglobin map H (eq. 6)")}
 
     class Params(Node.Params):
@@ -604,20 +568,15 @@ class AppearanceRig(Node):
                                       f"give {len(scales) + 1} ([w_0 for the neutral, then one per basis entry])")
         if abs(sum(p.weights) - 1.0) > 1e-6:
             raise BadInput("weights", f"weights must sum to one (eq. 6), they sum to {sum(p.weights):.6g}")
-        hn = _map(neutral, "neutral")
+        hn = neutral.pixels[:, :, 0]
         shp = hn.shape
-        mu_n = resize_to(_map(neutral_mean, "neutral_mean"), shp)
+        mu_n = resize_to(neutral_mean.pixels[:, :, 0], shp)
         w0 = p.weights[0]
         bias = w0 * mu_n
         scale = np.full(shp, w0)
         for i, (s, b) in enumerate(zip(scales, biases), start=1):
-            if s.channels != 1 or b.channels != 1:
-                raise BadInput("scales", f"basis entry {i}: scale and bias must be one-channel maps")
-            sa = s.pixels[:, :, 0].astype(np.float64)
-            if (sa < 0).any():
-                raise BadInput("scales", f"basis entry {i}: negative scale (σ ratios are ≥ 0)")
-            bias += p.weights[i] * resize_to(_map(b, "biases"), shp)
-            scale += p.weights[i] * resize_to(sa, shp)
+            bias += p.weights[i] * resize_to(b.pixels[:, :, 0], shp)
+            scale += p.weights[i] * resize_to(s.pixels[:, :, 0].astype(np.float64), shp)
         h = (bias + (hn - mu_n) * scale) * p.hemoglobin_scale
         return Image(np.maximum(h, 0.0).astype(np.float32))
 
@@ -643,9 +602,10 @@ class FlushTarget(Node):
     """
 
     version = "1"
-    inputs = {"hemoglobin": In(Image, "neutral hemoglobin map H_n"),
-              "regions": In(Mask, "where the flush goes (e.g. cheeks)"),
-              "extra": In(Mask, "a second region with half the gain (e.g. lips, nose)", optional=True)}
+    inputs = {"hemoglobin": In(Image, "neutral hemoglobin map H_n", channels=1, finite=True, ge=0),
+              "regions": In(Mask, "where the flush goes (e.g. cheeks)", same_size_as="hemoglobin"),
+              "extra": In(Mask, "a second region with half the gain (e.g. lips, nose)", optional=True,
+                          same_size_as="hemoglobin")}
     outputs = {"hemoglobin": Out(Image, "example flushed map")}
 
     class Params(Node.Params):
@@ -655,10 +615,10 @@ class FlushTarget(Node):
     def compute(self, hemoglobin: Image, regions: Mask, extra: Mask | None = None):
         from scipy.ndimage import gaussian_filter
 
-        hn = _map(hemoglobin, "hemoglobin")
-        g = _mask(regions, hn.shape, "regions")
+        hn = hemoglobin.pixels[:, :, 0]
+        g = _mask(regions, "regions")
         if extra is not None:
-            g = g + 0.5 * _mask(extra, hn.shape, "extra")
+            g = g + 0.5 * _mask(extra, "extra")
         g = gaussian_filter(g, self.params.soften) if self.params.soften > 0 else g
         g = g / max(g.max(), 1e-12)
         return Image((hn * (1.0 + self.params.gain * g)).astype(np.float32))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
+from nodes.common.checks import require_directional
 from nodes.common.parallel import run_bands
 from nodes.common.sss import sss_blur
 
@@ -31,13 +32,14 @@ class SkinShade(Node):
     """
 
     version = "3"  # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
-    inputs = {"melanin": In(Image, "C_m map (volume fraction)"),
-              "hemoglobin": In(Image, "C_hd map (volume fraction)"),
-              "lut": In(Image, "SkinColorLUT table"),
+    inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
+              "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
+                               finite=True, ge=0),
+              "lut": In(Image, "SkinColorLUT table", channels=3),
               "light": In(Light, "directional light"),
-              "normals": In(Image, "camera-space unit normals (3 channels)", optional=True),
-              "depth": In(Image, "camera depth in mm (1 channel)", optional=True),
-              "mask": In(Mask, "skin: where light scatters", optional=True),
+              "normals": In(Image, "camera-space unit normals", optional=True, channels=3, same_size_as="melanin"),
+              "depth": In(Image, "camera depth in mm", optional=True, channels=1, same_size_as="melanin"),
+              "mask": In(Mask, "skin: where light scatters", optional=True, same_size_as="melanin"),
               "camera": In(Camera, "camera of the maps: with depth, the pixel footprint (mm); turns the world-frame light into its frame", optional=True)}
     outputs = {"image": Out(Image, "shaded skin, linear RGB"),
                "albedo": Out(Image, "LUT albedo"),
@@ -66,29 +68,10 @@ class SkinShade(Node):
 
         p = self.params
         shp = melanin.pixels.shape[:2]
-        maps = {}
-        for port, img in (("melanin", melanin), ("hemoglobin", hemoglobin)):
-            if img.pixels.shape[:2] != shp:
-                raise BadInput(port, f"map sizes differ: melanin is {melanin.width}×{melanin.height}, "
-                                     f"{port} is {img.width}×{img.height}")
-            if img.channels != 1:
-                raise BadInput(port, f"{port} must be a one-channel map, got {img.channels} channels")
-            a = img.pixels[:, :, 0]  # float32
-            lo, hi = float(a.min()), float(a.max())  # NaN propagates through min
-            if not (np.isfinite(lo) and np.isfinite(hi)):
-                raise BadInput(port, f"{port} holds NaN or Inf values")
-            if lo < 0:
-                raise BadInput(port, f"{port} holds negative concentrations (min {lo:.4g})")
-            maps[port] = a
-        if lut.channels != 3 or min(lut.height, lut.width) < 2:
+        maps = {"melanin": melanin.pixels[:, :, 0], "hemoglobin": hemoglobin.pixels[:, :, 0]}  # float32
+        if min(lut.height, lut.width) < 2:
             raise BadInput("lut", f"expected an RGB table of at least 2×2 entries, got {lut.size_str()}")
-        if light.kind != "directional":
-            raise BadInput("light", "SkinShade needs a directional light (no positions are known per pixel)")
-        for port, opt, ch in (("normals", normals, 3), ("depth", depth, 1)):
-            if opt is not None and (opt.pixels.shape[:2] != shp or opt.channels != ch):
-                raise BadInput(port, f"{port} must be {shp[1]}×{shp[0]}×{ch}, got {opt.size_str()}")
-        if mask is not None and mask.alpha.shape != shp:
-            raise BadInput("mask", f"mask is {mask.width}×{mask.height}, maps are {shp[1]}×{shp[0]}")
+        require_directional(light, "SkinShade")
         mpp = p.mm_per_pixel
         if camera is not None and depth is not None:
             if (camera.height, camera.width) != shp:

@@ -5,10 +5,9 @@
  *
  * cell_moments — `_cell_moments`: for each whole c × c-pixel cell, with x = h·m (h where
  * there is no mask) the sums Σx and Σx·h divided by c² (= cv2.resize INTER_AREA of the
- * reference), and min h over the cell (NaN when the cell holds a NaN, like numpy's min).  One
- * work item per cell; the products are rounded to float32 as cv2.multiply rounds them, the
- * sums are accumulated in double (up to c² ≥ 4096 terms), so the only difference from the
- * reference is its own float32 accumulation (~1e-7 of the mean).  The cells cut off by the
+ * reference).  One work item per cell; the products are rounded to float32 as cv2.multiply
+ * rounds them, the sums are accumulated in double (up to c² ≥ 4096 terms), so the only
+ * difference from the reference is its own float32 accumulation (~1e-7 of the mean).  The cells cut off by the
  * image's last row and column are summed on the host by the reference's `cell_means`.
  *
  * apply_scale_bias — eq. (3) as an affine map: out = max(a·h_n + b, 0), with a, b given on the
@@ -23,7 +22,6 @@ __kernel void cell_moments(__global const float *restrict h,    /* H × W */
                            __global const float *restrict m,    /* H × W mask in [0, 1] (has_mask) */
                            __global float *restrict a1,         /* gH × gW: Σ h·m / c² */
                            __global float *restrict a2,         /* gH × gW: Σ h²·m / c² */
-                           __global float *restrict lo,         /* qH × qW: min h (NaN if any) */
                            const int W, const int c, const int gW, const int qW,
                            const int has_mask)
 {
@@ -34,22 +32,17 @@ __kernel void cell_moments(__global const float *restrict h,    /* H × W */
     __global const float *restrict p0 = h + (size_t)gy * c * W + (size_t)gx * c;
     __global const float *restrict q0 = m + (has_mask ? (size_t)gy * c * W + (size_t)gx * c : 0);
     double s1 = 0.0, s2 = 0.0;
-    float mn = INFINITY;
-    int nan = 0;
     for (int y = 0; y < c; ++y) {
         for (int x = 0; x < c; ++x) {
             const float v = p0[(size_t)y * W + x];
             const float xm = has_mask ? v * q0[(size_t)y * W + x] : v;
             s1 += (double)xm;
             s2 += (double)(xm * v);
-            mn = fmin(mn, v);
-            nan |= (v != v);
         }
     }
     const double inv = 1.0 / ((double)c * (double)c);
     a1[(size_t)gy * gW + gx] = (float)(s1 * inv);
     a2[(size_t)gy * gW + gx] = (float)(s2 * inv);
-    lo[(size_t)gy * qW + gx] = nan ? NAN : mn;
 }
 
 __kernel void apply_scale_bias(__global const float *restrict hn,  /* H × W */

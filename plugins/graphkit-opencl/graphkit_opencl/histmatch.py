@@ -21,8 +21,8 @@ SHADER = "opencl/histmatch.cl"
 
 
 def cell_moments(h: np.ndarray, m: np.ndarray | None, c: int):
-    """nodes.jimenez.histmatch._cell_moments on the device: (Σh·m/c², Σh²·m/c², min h) per
-    c × c cell; the cells cut off by the last row / column by the reference's ``cell_means``."""
+    """nodes.jimenez.histmatch._cell_moments on the device: (Σh·m/c², Σh²·m/c²) per c × c
+    cell; the cells cut off by the last row / column by the reference's ``cell_means``."""
     import cv2
 
     from nodes.jimenez.histmatch import cell_means
@@ -33,20 +33,18 @@ def cell_moments(h: np.ndarray, m: np.ndarray | None, c: int):
     qH, qW = H // c, W // c
     a1 = np.zeros((gH, gW), np.float32)
     a2 = np.zeros_like(a1)
-    lo = np.full((max(qH, 1), max(qW, 1)), np.inf, np.float32)
     h = np.ascontiguousarray(h, np.float32)
     m = None if m is None else np.ascontiguousarray(m, np.float32)
     what = f"the cell moments of a {W}×{H} map"
-    check_fits(rt, what, [h.nbytes, 0 if m is None else m.nbytes, 3 * a1.nbytes])
+    check_fits(rt, what, [h.nbytes, 0 if m is None else m.nbytes, 2 * a1.nbytes])
     if qH and qW:
         prg = rt.program(SHADER)
         with cannot_run(rt, what), Buffers(rt) as B:
             args = [B.input(h), B.input(m if m is not None else np.zeros(1, np.float32)),
-                    B.output(a1), B.output(a2), B.output(lo),
+                    B.output(a1), B.output(a2),
                     np.int32(W), np.int32(c), np.int32(gW), np.int32(qW), np.int32(m is not None)]
             ev = launch(rt, prg, "cell_moments", (qW, qH), args)
             B.read([ev])
-    lows = [float(np.min(lo))]
     for ys, xs in ((slice(qH * c, H), slice(0, W)), (slice(0, qH * c), slice(qW * c, W))):
         hb = h[ys, xs]
         if hb.size == 0:
@@ -57,8 +55,7 @@ def cell_moments(h: np.ndarray, m: np.ndarray | None, c: int):
         e1, e2 = cell_means(x, c), cell_means(cv2.multiply(x, hb), c)
         a1[r0:r0 + e1.shape[0], c0:c0 + e1.shape[1]] = e1
         a2[r0:r0 + e2.shape[0], c0:c0 + e2.shape[1]] = e2
-        lows.append(float(hb.min()))
-    return a1, a2, float(np.min(lows))
+    return a1, a2
 
 
 def apply_scale_bias(hn: np.ndarray, scale: np.ndarray, mu: np.ndarray, mu_n: np.ndarray, c: int = 1):
