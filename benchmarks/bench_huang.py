@@ -151,6 +151,7 @@ def face():
 
 def reshade(runs: int) -> int:
     from graphkit import Image
+    from graphkit.contract import compute_checked
     from nodes.huang.shade import CosmeticShade
     from nodes.huang.stack import KMStack
 
@@ -169,23 +170,23 @@ def reshade(runs: int) -> int:
 
     seen = [blush(1.0), blush(1.5)]
     fresh = iter(1.0 + 1e-4 * k for k in range(1, 10 ** 6))
-    flip = {"i": 0}
+    flips = {"thickness": 0, "colour": 0}
 
-    def toggle(frames):
-        flip["i"] ^= 1
-        return frames[flip["i"]]
+    def toggle(what, choices):
+        flips[what] ^= 1
+        return choices[flips[what]]
 
     t0 = time.perf_counter()
-    shade.compute(thickness=seen[0], **fixed)
+    compute_checked(shade, thickness=seen[0], **fixed)
     cold = time.perf_counter() - t0
     print(f"CosmeticShade {W}×{H}, 3 layers over an RGB photo, SSS (per-pixel σ from depth, skin mask), "
-          f"specular; {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+          f"specular; the engine's compute_checked (declared checks, then compute); {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     print(f"cold (prepares the surface, SSS plan, specular terms): {cold * 1e3:.0f} ms")
     base = seen[0]
-    r = timed({"KMStack": lambda: stack.compute(thickness=base, background=albedo),
-               "thickness, seen": lambda: shade.compute(thickness=toggle(seen), **fixed),
-               "thickness, new": lambda: shade.compute(thickness=blush(next(fresh)), **fixed),
-               "colour, seen": lambda: (shade if flip["i"] else orange).compute(thickness=base, **fixed)},
+    r = timed({"KMStack": lambda: compute_checked(stack, thickness=base, background=albedo),
+               "thickness, seen": lambda: compute_checked(shade, thickness=toggle("thickness", seen), **fixed),
+               "thickness, new": lambda: compute_checked(shade, thickness=blush(next(fresh)), **fixed),
+               "colour, seen": lambda: compute_checked(toggle("colour", (shade, orange)), thickness=base, **fixed)},
               runs, warmup=2)
     k = r["KMStack"]
     for name, (med, best) in r.items():
