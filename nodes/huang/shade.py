@@ -16,7 +16,7 @@ from nodes.common.sss import Scatter, sss_blur
 from . import km
 from .layer import layer_thicknesses
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
-from .stack import pixel_stack
+from .stack import channel_max, pixel_stack
 
 
 class CosmeticShade(Node):
@@ -279,19 +279,24 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
 def _through_layers(p, wl, S, K, t, fixed: _Fixed) -> np.ndarray:
     """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
     transmittance and the layer's own specular added, weighted by its coverage (computed in
-    the box where any of them is not zero: zero elsewhere)."""
+    the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
+    T = 1 and the coverage 0 leave the specular as it is)."""
     sp = fixed.spec
     y0, y1, x0, x1 = sp.box
     Wf = km.rgb_weights(wl, p.illuminant)
     Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
-    s = sp.skin
-    for i, k in enumerate(sp.layers):
-        grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
+    s = sp.skin.copy()
+    for i, (k, top, box) in enumerate(zip(sp.layers, channel_max(t, t.shape[2]), _layer_boxes(t))):
+        b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
+        if b0 >= b1 or c0 >= c1:
+            continue
+        grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
-        ti = t[y0:y1, x0:x1, i:i + 1]
+        ti = t[b0:b1, c0:c1, i:i + 1]
         Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float64)
         cover = np.clip(ti[..., 0] / p.cover_mm, 0.0, 1.0)[..., None]
-        s = s * Ti + cover * k
+        here = (slice(b0 - y0, b1 - y0), slice(c0 - x0, c1 - x0))
+        s[here] = s[here] * Ti + cover * k[here]
     out = np.zeros(t.shape[:2] + (3,), np.float32)
     out[y0:y1, x0:x1] = s * sp.lcol
     return out
@@ -305,17 +310,24 @@ def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
     return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
+def _layer_boxes(t: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Per layer, the box of the pixels where it is thicker than 0 (from the maxima over rows
+    and over columns: reductions over whole rows and the outer axis, not the short last one)."""
+    boxes = []
+    rows_max, cols_max = t.max(axis=1), t.max(axis=0)  # (h, n), (w, n)
+    for i in range(t.shape[2]):
+        rows, cols = np.flatnonzero(rows_max[:, i] > 0), np.flatnonzero(cols_max[:, i] > 0)
+        boxes.append((0, 0, 0, 0) if rows.size == 0 else
+                     (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1))
+    return boxes
+
+
 def _support(t: np.ndarray) -> tuple[int, int, int, int]:
-    """The box of the pixels where any layer is thicker than 0 (reductions over whole rows and
-    over the outer axis: a reduction over the last, short axis walks a strided view)."""
-    h, w, n = t.shape
-    if t.size == 0:
-        return 0, 0, 0, 0
-    rows = np.flatnonzero(t.reshape(h, w * n).max(axis=1) > 0)
-    cols = np.flatnonzero(t.max(axis=0).max(axis=1) > 0)
-    if rows.size == 0:
-        return 0, 0, 0, 0
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    """The box of the pixels where any layer is thicker than 0."""
+    box = (0, 0, 0, 0)
+    for b in (_layer_boxes(t) if t.size else []):
+        box = _union(box, b)
+    return box
 
 
 def _union(a, b) -> tuple[int, int, int, int]:
