@@ -31,7 +31,10 @@ same photo, warm) as the base of the ratio:
   built: 25³ grid × 81 wavelengths);
 * ``colour, seen``    — the blush toggles between blush_rose and blush_orange.
 
-Usage: ``.venv/bin/python benchmarks/bench_huang.py [--runs N] [--reshade]``
+``--opencl`` adds the new-thickness frames with graphkit-opencl's hooks (KM lookup; lookup + SSS),
+timed together with the reference in a second round.
+
+Usage: ``.venv/bin/python benchmarks/bench_huang.py [--runs N] [--reshade [--opencl]]``
 """
 from __future__ import annotations
 
@@ -96,9 +99,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--reshade", action="store_true", help="CosmeticShade after a cosmetic change (issue 28)")
+    ap.add_argument("--opencl", action="store_true", help="with --reshade: also the graphkit-opencl hooks")
     args = ap.parse_args(argv)
     if args.reshade:
-        return reshade(args.runs)
+        return reshade(args.runs, args.opencl)
     from graphkit import Image
     from graphkit.contract import compute_checked
     from nodes.huang import km
@@ -149,7 +153,7 @@ def face():
             Mask(inside.astype(np.float32)), Light(direction=(0.3, -0.4, -1.0), intensity=1.0))
 
 
-def reshade(runs: int) -> int:
+def reshade(runs: int, opencl: bool = False) -> int:
     from graphkit import Image
     from graphkit.contract import compute_checked
     from nodes.huang.shade import CosmeticShade
@@ -188,6 +192,18 @@ def reshade(runs: int) -> int:
                "thickness, new": lambda: compute_checked(shade, thickness=blush(next(fresh)), **fixed),
                "colour, seen": lambda: compute_checked(toggle("colour", (shade, orange)), thickness=base, **fixed)},
               runs, warmup=2)
+    if opencl:  # the same new-thickness frames with graphkit-opencl's hooks (pocl on this CPU)
+        from graphkit_opencl.km import pixel_stack
+        from graphkit_opencl.sss import sss_blur
+
+        lookup = type("KMOnDevice", (CosmeticShade,), {"pixel_stack": staticmethod(pixel_stack)})
+        both = type("AllOnDevice", (lookup,), {"sss_blur": staticmethod(sss_blur)})
+        cases = {"new, numpy/cv2": shade, "new, KM on pocl": lookup(lookup.Params(**cos)),
+                 "new, KM+SSS pocl": both(both.Params(**cos))}
+        for node in cases.values():
+            compute_checked(node, thickness=base, **fixed)
+        r.update(timed({k: (lambda n=n: compute_checked(n, thickness=blush(next(fresh)), **fixed))
+                        for k, n in cases.items()}, max(3, runs // 3), warmup=1))
     k = r["KMStack"]
     for name, (med, best) in r.items():
         print(f"{name:16s} median {med * 1e3:6.1f} ms  best {best * 1e3:6.1f} ms  × KMStack {med / k[0]:4.1f} / {best / k[1]:4.1f}")
