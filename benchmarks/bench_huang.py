@@ -69,17 +69,23 @@ def maps() -> dict[str, np.ndarray]:
     return out
 
 
-def timed(fns: dict, runs: int, warmup: int = 1) -> dict:
-    """{name: (median s, best s)}: the callables run interleaved, ``runs`` rounds after warm-up."""
+def timed(fns: dict, runs: int, warmup: int = 1, cpu: dict | None = None) -> dict:
+    """{name: (median s, best s)}: the callables run interleaved, ``runs`` rounds after warm-up;
+    ``cpu``, when given, gets {name: median CPU seconds of this process per call} (all threads:
+    what a frame costs the cores, which other jobs on a shared machine do not inflate)."""
     for _ in range(warmup):
         for fn in fns.values():
             fn()
     ts: dict = {k: [] for k in fns}
+    cs: dict = {k: [] for k in fns}
     for _ in range(runs):
         for k, fn in fns.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
             ts[k].append(time.perf_counter() - t0)
+            cs[k].append(time.process_time() - c0)
+    if cpu is not None:
+        cpu.update({k: statistics.median(v) for k, v in cs.items()})
     return {k: (statistics.median(v), min(v)) for k, v in ts.items()}
 
 
@@ -187,11 +193,12 @@ def reshade(runs: int, opencl: bool = False) -> int:
           f"specular; the engine's compute_checked (declared checks, then compute); {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     print(f"cold (prepares the surface, SSS plan, specular terms): {cold * 1e3:.0f} ms")
     base = seen[0]
+    cpu: dict = {}
     r = timed({"KMStack": lambda: compute_checked(stack, thickness=base, background=albedo),
                "thickness, seen": lambda: compute_checked(shade, thickness=toggle("thickness", seen), **fixed),
                "thickness, new": lambda: compute_checked(shade, thickness=blush(next(fresh)), **fixed),
                "colour, seen": lambda: compute_checked(toggle("colour", (shade, orange)), thickness=base, **fixed)},
-              runs, warmup=2)
+              runs, warmup=2, cpu=cpu)
     if opencl:  # the same new-thickness frames with graphkit-opencl's hooks (pocl on this CPU)
         from graphkit_opencl.km import pixel_stack
         from graphkit_opencl.sss import sss_blur
@@ -203,10 +210,11 @@ def reshade(runs: int, opencl: bool = False) -> int:
         for node in cases.values():
             compute_checked(node, thickness=base, **fixed)
         r.update(timed({k: (lambda n=n: compute_checked(n, thickness=blush(next(fresh)), **fixed))
-                        for k, n in cases.items()}, max(3, runs // 3), warmup=1))
+                        for k, n in cases.items()}, max(3, runs // 3), warmup=1, cpu=cpu))
     k = r["KMStack"]
     for name, (med, best) in r.items():
-        print(f"{name:16s} median {med * 1e3:6.1f} ms  best {best * 1e3:6.1f} ms  × KMStack {med / k[0]:4.1f} / {best / k[1]:4.1f}")
+        print(f"{name:16s} median {med * 1e3:6.1f} ms  best {best * 1e3:6.1f} ms  × KMStack {med / k[0]:4.1f} / "
+              f"{best / k[1]:4.1f}  CPU {cpu[name] * 1e3:6.1f} ms (× KMStack {cpu[name] / cpu['KMStack']:4.1f})")
     return 0
 
 

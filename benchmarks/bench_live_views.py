@@ -10,7 +10,8 @@ masks of the photo's size bilinearly, the camera's intrinsics × 2: the same fac
 pixels).  Each move sets a slider to a value not used before (CosmeticShade builds that
 thickness's spectral table); the first ``--warmup`` moves (the view's first frame prepares the
 surface, SSS plan and specular terms) are left out.  The browser's websocket and decode are not
-included (see benchmarks/bench_studio.py for those).
+included (see benchmarks/bench_studio.py for those).  The CPU time of the process per move (all
+threads) is printed too: on a shared machine other jobs inflate the wall time, not that.
 
     .venv/bin/python benchmarks/bench_live_views.py [--n 20] [--size 1024]
 """
@@ -62,18 +63,20 @@ def resized(v, shape, size: int):
 def bench(name, view, key, values, n, warmup):
     from graphkit.studio.live import frame_bytes
 
-    times, computes, first = [], [], None
+    times, computes, cpus, first = [], [], [], None
     info = {}
     for i, x in enumerate(values[: n + warmup]):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         info, _ = frame_bytes(view, {key: x}, 0.0, level=0)
         first = first or (time.perf_counter() - t0) * 1e3
         if i >= warmup:
             times.append((time.perf_counter() - t0) * 1e3)
+            cpus.append((time.process_time() - c0) * 1e3)
             computes.append(info["compute_ms"])
     print(f"{name} ({info['width']}×{info['height']}, slider '{key}'): median {statistics.median(times):.1f} ms, "
           f"best {min(times):.1f} ms, worst {max(times):.1f} ms (n={len(times)}); of which the view's frame "
-          f"median {statistics.median(computes):.1f} ms, the PNG the rest; first frame {first:.0f} ms", flush=True)
+          f"median {statistics.median(computes):.1f} ms, the PNG the rest; first frame {first:.0f} ms; CPU time "
+          f"of this process per move median {statistics.median(cpus):.1f} ms (all threads)", flush=True)
 
 
 def main() -> int:
