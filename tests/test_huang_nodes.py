@@ -472,3 +472,36 @@ def test_cosmetic_shade_boxes_and_memo_match_the_whole_frame():
         out = ~np.isin(np.arange(h), np.arange(*mine[0].scatter.box[:2]))
         assert out.any() and np.array_equal(got["diffuse"].pixels[out], rho.pixels[out])  # ρ·E off the box
     assert prepared[0] == prepared[1]  # a new map on the same surface: prepared once
+
+
+class _Studio:
+    """What a live view reads of the studio: a loaded graph and given input values per node."""
+
+    def __init__(self, graph_file, values: dict):
+        from graphkit.graphfile import load
+        from graphkit.registry import default_registry
+
+        self.graph, self.values = load(graph_file, default_registry(), {}), values
+
+    def input_values(self, node):
+        return self.values.get(node)
+
+
+def test_makeup_view_shows_the_whole_photo():
+    """The makeup live view (studio) runs CosmeticShade on the whole photo, not a face crop,
+    and its frame is the node's own output for the scaled map."""
+    from conftest import ROOT
+    from nodes.huang.studio_view import MakeupView
+
+    h, w = 48, 64
+    yy, xx = np.mgrid[0:h, 0:w]
+    face = ((xx - 40) / 12.0) ** 2 + ((yy - 20) / 10.0) ** 2 < 1  # a small face off-centre
+    t = np.stack([0.02 * face, 0.03 * (face & (xx > 40)), np.zeros((h, w))], -1).astype(np.float32)
+    ins = {"albedo": Image(np.full((h, w, 3), 0.5, np.float32)), "thickness": Image(t), "skin": Mask(face.astype(np.float32))}
+    view = MakeupView(_Studio(ROOT / "graphs" / "makeup.yaml", {"made_up": ins}), "made_up")
+    assert f"whole {w}×{h} photo" in view.data()["note"]
+    img = view.frame({"layer0": 2.0, "layer1": 0.5})
+    p = view.params
+    ref = run(CosmeticShade, {**ins, "thickness": Image(t * np.float32([2.0, 0.5, 1.0]))}, **{
+        k: getattr(p, k) for k in ("cosmetics", "mm_per_pixel", "relight", "illuminant")})["image"].pixels
+    assert img.pixels.shape == (h, w, 3) and np.array_equal(img.pixels, ref)
