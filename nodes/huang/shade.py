@@ -1,6 +1,7 @@
 """CosmeticShade — made-up skin: KM layers + skin SSS + per-layer specular (Huang et al. 2013 §3)."""
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -129,9 +130,10 @@ class CosmeticShade(Node):
             if surf.normals is not None and ldir is not None:
                 spec = _specular(p, specs, surf, ldir, lcol)
             got = _Fixed(surf, E, scatter, spec)
-            if len(_FIXED) >= 2:
-                _FIXED.pop(next(iter(_FIXED)))
-            _FIXED[key] = got
+            with _FIXED_LOCK:  # nodes may run on several threads (graphkit run --jobs)
+                while len(_FIXED) >= 2:
+                    _FIXED.pop(next(iter(_FIXED)))
+                _FIXED[key] = got
         return got
 
     def _diffuse(self, wl, S, K, t, rho, fixed: _Fixed, support) -> np.ndarray:
@@ -215,8 +217,10 @@ class _Fixed(NamedTuple):
     spec: _Specular | None      # None: no normals or no directional light
 
 
-#: the last _Fixed values by the digest of what they come from (a live view's face, a benchmark's)
+#: the last _Fixed values by the digest of what they come from (a live view's face, a benchmark's;
+#: ~170 MB each for a 1280×720 face)
 _FIXED: dict = {}
+_FIXED_LOCK = threading.Lock()
 
 
 def _surface(mm_per_pixel: float, normals, depth, skin, mesh, camera) -> _Surface:
