@@ -433,3 +433,75 @@ def test_cosmetic_shade_with_mesh_and_camera():
         run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "mesh": mesh, "camera": cam,
                             "normals": Image(np.ones((h, w, 3)))}, cosmetics=["foundation_light"])
     assert e.value.port == "mesh" and "leave 'normals' and 'depth' unconnected" in e.value.message
+
+
+
+def test_cosmetic_shade_boxes_and_memo_match_the_whole_frame():
+    """CosmeticShade shades the box of the layers and the skin and keeps the surface, SSS plan
+    and specular terms between calls: its output equals the whole-frame formula (the sss hook
+    replaced by a plain sss_blur, which takes the whole-frame path) to float rounding, also for
+    a second map and a second cosmetic set after the first call."""
+    from nodes.common import sss
+    from nodes.huang import shade
+
+    h, w = 80, 100
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - 50) / 20.0) ** 2 + ((yy - 40) / 16.0) ** 2
+    skin = Mask((r2 < 1).astype(np.float32))
+    nrm = np.stack([(xx - 50) / 20.0, (yy - 40) / 16.0, -np.sqrt(np.clip(1 - r2, 0, 1))], -1) * (r2 < 1)[..., None]
+    depth = Image((300.0 - 20 * np.sqrt(np.clip(1 - r2, 0, 1)))[..., None])
+    rho = Image(np.clip(np.random.default_rng(2).random((h, w, 3)), 0.2, 0.9).astype(np.float32))
+    light = Light(direction=(0.3, -0.2, -1.0), intensity=1.5)
+
+    class WholeFrame(CosmeticShade):
+        sss_blur = staticmethod(lambda *a, **k: sss.sss_blur(*a, **k))
+
+    shade._FIXED.clear()
+    prepared = []
+    for cos, scale in ((["foundation_light", "blush_rose"], 1.0), (["foundation_light", "blush_rose"], 1.7),
+                       (["foundation_dark", "blush_orange"], 1.0)):
+        t = np.stack([0.02 * (r2 < 0.9), 0.03 * scale * (r2 < 0.3)], -1).astype(np.float32)
+        ins = {"albedo": rho, "thickness": Image(t), "normals": Image(nrm), "depth": depth, "skin": skin,
+               "light": light}
+        got = run(CosmeticShade, ins, cosmetics=cos, mm_per_pixel=1.0, relight=False)
+        ref = run(WholeFrame, ins, cosmetics=cos, mm_per_pixel=1.0, relight=False)
+        assert np.array_equal(got["specular"].pixels, ref["specular"].pixels)
+        np.testing.assert_allclose(got["diffuse"].pixels, ref["diffuse"].pixels, rtol=0, atol=1e-6)
+        mine = [f for f in shade._FIXED.values() if f.scatter is not None]  # (WholeFrame's has none)
+        prepared.append(id(mine[0]))
+        out = ~np.isin(np.arange(h), np.arange(*mine[0].scatter.box[:2]))
+        assert out.any() and np.array_equal(got["diffuse"].pixels[out], rho.pixels[out])  # ρ·E off the box
+    assert prepared[0] == prepared[1]  # a new map on the same surface: prepared once
+
+
+class _Studio:
+    """What a live view reads of the studio: a loaded graph and given input values per node."""
+
+    def __init__(self, graph_file, values: dict):
+        from graphkit.graphfile import load
+        from graphkit.registry import default_registry
+
+        self.graph, self.values = load(graph_file, default_registry(), {}), values
+
+    def input_values(self, node):
+        return self.values.get(node)
+
+
+def test_makeup_view_shows_the_whole_photo():
+    """The makeup live view (studio) runs CosmeticShade on the whole photo, not a face crop,
+    and its frame is the node's own output for the scaled map."""
+    from conftest import ROOT
+    from nodes.huang.studio_view import MakeupView
+
+    h, w = 48, 64
+    yy, xx = np.mgrid[0:h, 0:w]
+    face = ((xx - 40) / 12.0) ** 2 + ((yy - 20) / 10.0) ** 2 < 1  # a small face off-centre
+    t = np.stack([0.02 * face, 0.03 * (face & (xx > 40)), np.zeros((h, w))], -1).astype(np.float32)
+    ins = {"albedo": Image(np.full((h, w, 3), 0.5, np.float32)), "thickness": Image(t), "skin": Mask(face.astype(np.float32))}
+    view = MakeupView(_Studio(ROOT / "graphs" / "makeup.yaml", {"made_up": ins}), "made_up")
+    assert f"whole {w}×{h} photo" in view.data()["note"]
+    img = view.frame({"layer0": 2.0, "layer1": 0.5})
+    p = view.params
+    ref = run(CosmeticShade, {**ins, "thickness": Image(t * np.float32([2.0, 0.5, 1.0]))}, **{
+        k: getattr(p, k) for k in ("cosmetics", "mm_per_pixel", "relight", "illuminant")})["image"].pixels
+    assert img.pixels.shape == (h, w, 3) and np.array_equal(img.pixels, ref)

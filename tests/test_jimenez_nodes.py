@@ -274,3 +274,35 @@ def test_sss_depth_gradient_levels_equal_the_per_pixel_gather():
     # two pixel footprints (σ takes two values per Gaussian): exact
     mpp = np.where(xx < 60, 0.2, 0.45).astype(np.float64)
     np.testing.assert_allclose(sss_blur(img, mpp), _gather_sss(img, mpp), atol=1e-5)
+
+
+def test_blush_view_shows_the_whole_photo():
+    """The blush live view (studio) runs the rig and ApplyHemoglobin on the whole photo, not a
+    crop around the skin: its frame is ApplyHemoglobin's output for the rig at the sliders."""
+    from graphkit.graphfile import load
+    from graphkit.registry import default_registry
+    from nodes.jimenez.chromophores import ApplyHemoglobin
+    from nodes.jimenez.studio_view import BlushView
+
+    h, w = 40, 56
+    rng = np.random.default_rng(5)
+    skin = np.zeros((h, w), np.float32)
+    skin[10:25, 30:50] = 1  # a small skin patch off-centre
+    hb = Image(rng.random((h, w, 1), dtype=np.float32) * 0.05)
+    rig_in = {"neutral": hb, "neutral_mean": Image(np.full((5, 7, 1), 0.02, np.float32)),
+              "scales": [Image(np.full((5, 7, 1), 1.5, np.float32))], "biases": [Image(np.full((5, 7, 1), 0.04, np.float32))]}
+    ap_in = {"image": Image(rng.random((h, w, 3), dtype=np.float32)), "pigments": np.array([[1.0, 2.0, 3.0], [0.5, 2.0, 1.5]]),
+             "hemoglobin": hb, "new_hemoglobin": hb, "mask": Mask(skin)}
+
+    class Studio:
+        graph = load(ROOT / "graphs" / "blush.yaml", default_registry(), {})
+
+        def input_values(self, node):
+            return {"rig": rig_in, "recolor": ap_in}.get(node)
+
+    view = BlushView(Studio(), "rig")
+    assert f"whole {w}×{h} photo" in view.data()["note"]
+    img = view.frame({"w1": 0.7, "hemoglobin_scale": 1.2})
+    new_h = compute_checked(AppearanceRig(AppearanceRig.Params(weights=[0.3, 0.7], hemoglobin_scale=1.2)), **rig_in)
+    ref = compute_checked(ApplyHemoglobin(ApplyHemoglobin.Params()), **{**ap_in, "new_hemoglobin": new_h})
+    assert img.pixels.shape == (h, w, 3) and np.array_equal(img.pixels, ref.pixels)

@@ -77,3 +77,40 @@ def test_spatially_varying_scale_matches_each_region():
     got = sss_blur(img, mpp)
     np.testing.assert_allclose(got[:, 5:20], _reference(img, 0.2)[:, 5:20], atol=1e-5)
     np.testing.assert_allclose(got[:, 100:115], _reference(img, 0.5)[:, 100:115], atol=1e-5)
+
+
+def _face(h=80, w=100, seed=3):
+    """An irradiance, a depth bump (per-pixel σ) and a skin mask away from the borders."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - 50) / 20.0) ** 2 + ((yy - 40) / 16.0) ** 2
+    depth = 400.0 - 30.0 * np.sqrt(np.clip(1 - r2, 0, 1))
+    mask = (r2 < 1).astype(np.float32)
+    return rng.random((h, w, 3), dtype=np.float32), depth, mask
+
+
+def test_scatter_is_sss_blur_prepared_once():
+    """Scatter(...)(img) gives sss_blur's bytes, for several irradiances on one surface; cropped
+    to the skin's box it differs by float rounding only, and leaves the rest of the frame alone."""
+    from nodes.common.sss import Scatter
+
+    img, depth, mask = _face()
+    whole = Scatter(img.shape, 1.0, depth, mask=mask)
+    box = Scatter(img.shape, 1.0, depth, mask=mask, crop=True)
+    y0, y1, x0, x1 = box.box
+    assert 0 < y0 and y1 < img.shape[0] and 0 < x0 and x1 < img.shape[1]  # a box inside the frame
+    for k in range(3):
+        x = img * (1 + k)
+        ref = sss_blur(x, 1.0, depth, mask=mask)
+        assert np.array_equal(whole(x), ref)
+        got = box(x)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * (1 + k))
+        assert np.array_equal(got[mask == 0], x[mask == 0])
+
+
+def test_scatter_without_skin_changes_nothing():
+    from nodes.common.sss import Scatter
+
+    img, depth, _ = _face()
+    out = Scatter(img.shape, 1.0, depth, mask=np.zeros(img.shape[:2]), crop=True)(img)
+    assert np.array_equal(out, img)

@@ -33,12 +33,15 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
 
     SKIN_PROFILE: tuple[(variance_mm2, (w_r, w_g, w_b)), ...]
     sss_blur(irradiance, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None) -> ndarray
+    Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False)(irradiance)
 """
 from __future__ import annotations
 
 import functools
 
 import numpy as np
+
+from .parallel import run_tasks
 
 #: d'Eon et al. 2007 six-Gaussian fit of the three-layer skin diffusion profile
 #: (GPU Gems 3, ch. 14, table 14-1): (variance in mm², RGB weight).
@@ -139,6 +142,18 @@ class _Levels:
             return other
         return _Levels(k * self.sigma)
 
+    def crop(self, shape: tuple[int, int], box: tuple[int, int, int, int]) -> "_Levels":
+        """The plan of the pixels in ``box`` (y0, y1, x0, x1) of an image of ``shape``: the same
+        levels, each pixel's j and t kept."""
+        y0, y1, x0, x1 = box
+        other = object.__new__(_Levels)
+        other.__dict__.update(self.__dict__)
+        other.sigma = self.sigma[y0:y1, x0:x1]
+        other.j = self.j.reshape(shape)[y0:y1, x0:x1].ravel()
+        other.t = self.t.reshape(shape)[y0:y1, x0:x1].ravel()
+        other._w, other._order = {}, None
+        return other
+
     def weights(self, lv: int):
         """Pixels fed by level ``lv`` and their weights: a dense (H·W,) float32 map where
         many pixels use it, else (indices, weights)."""
@@ -169,10 +184,13 @@ class _Levels:
         return idx, w
 
 
-def _blur_planes_axis(planes: list[np.ndarray], sigma, axis: int, valid: np.ndarray | None) -> list[np.ndarray]:
+def _blur_planes_axis(planes: list[np.ndarray], sigma, axis: int, valid: np.ndarray | None,
+                      norm=None) -> list[np.ndarray]:
     """Gaussian blur of float32 (H, W) planes along ``axis`` (0 = y, 1 = x) with σ (pixels)
     a float or per pixel (a :class:`_Levels`); taps where ``valid`` is 0 are left out (weights
-    renormalised; no valid tap: unchanged), boundary mirrored (scipy ``reflect``).
+    renormalised; no valid tap: unchanged), boundary mirrored (scipy ``reflect``).  ``norm``:
+    :func:`_mask_norm` of the same σ, axis and ``valid`` when known (it does not depend on the
+    planes).
 
     A per-pixel σ is a blur whose kernel at a pixel is the Gaussian of that pixel's σ (the
     gather of :func:`_blur_axis`).  It is evaluated as uniform blurs (:func:`_blur_1d`) at
@@ -180,35 +198,42 @@ def _blur_planes_axis(planes: list[np.ndarray], sigma, axis: int, valid: np.ndar
     between theirs: exact for pixels on a level (σ maps with two values, the extremes,
     σ < 1/8 px), within ~(ratio − 1)²/4 of the kernel elsewhere.
     """
+    if valid is None:
+        return _blur_sum(planes, sigma, axis)
+    v = valid.astype(np.float32, copy=False)
+    ok, inv = _mask_norm(sigma, axis, v) if norm is None else norm
+    acc = _blur_sum([p * v for p in planes], sigma, axis)
+    return [np.where(ok, n * inv, p) for n, p in zip(acc, planes)]
+
+
+def _mask_norm(sigma, axis: int, v: np.ndarray):
+    """(where the blurred mask is > 0, 1 / the blurred mask there) for :func:`_blur_planes_axis`."""
+    den = _blur_sum([v.astype(np.float32, copy=False)], sigma, axis)[0]
+    ok = den > 1e-12
+    return ok, np.float32(1.0) / np.where(ok, den, np.float32(1.0))
+
+
+def _blur_sum(srcs: list[np.ndarray], sigma, axis: int) -> list[np.ndarray]:
+    """The planes blurred along ``axis`` with σ a float or a :class:`_Levels` (see
+    :func:`_blur_planes_axis`), without a mask."""
     import cv2
 
-    def blur(a, s):
-        return _blur_1d(a, s, axis)
-
-    v = None if valid is None else valid.astype(np.float32)
-    srcs = planes if v is None else [p * v for p in planes] + [v]
     if not isinstance(sigma, _Levels):
-        acc = [blur(a, float(sigma)) for a in srcs]
-    else:
-        shape = planes[0].shape
-        acc = [np.zeros(shape, np.float32) for _ in srcs]
-        for lv, s in enumerate(sigma.levels):
-            w = sigma.weights(lv)
-            if w is None:
-                continue
-            for a, out in zip(srcs, acc):
-                b = blur(a, float(s))
-                if isinstance(w, np.ndarray):
-                    cv2.accumulateProduct(b, w.reshape(shape), out)
-                else:
-                    idx, ww = w
-                    out.ravel()[idx] += ww * b.ravel()[idx]
-    if v is None:
-        return acc
-    den = acc.pop()
-    ok = den > 1e-12
-    inv = np.float32(1.0) / np.where(ok, den, np.float32(1.0))
-    return [np.where(ok, n * inv, p) for n, p in zip(acc, planes)]
+        return [_blur_1d(a, float(sigma), axis) for a in srcs]
+    shape = srcs[0].shape
+    acc = [np.zeros(shape, np.float32) for _ in srcs]
+    for lv, s in enumerate(sigma.levels):
+        w = sigma.weights(lv)
+        if w is None:
+            continue
+        for a, out in zip(srcs, acc):
+            b = _blur_1d(a, float(s), axis)
+            if isinstance(w, np.ndarray):
+                cv2.accumulateProduct(b, w.reshape(shape), out)
+            else:
+                idx, ww = w
+                out.ravel()[idx] += ww * b.ravel()[idx]
+    return acc
 
 
 def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray | None) -> np.ndarray:
@@ -285,61 +310,133 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
                  ``axis_blur(planes, sigma, axis, valid) -> planes`` with the semantics of
                  :func:`_blur_planes_axis` (σ in pixels: a float, or a :class:`_Levels` whose
                  ``sigma`` is the per-pixel map).
-    Returns float32 (H, W, C).
+    Returns float32 (H, W, C).  (:class:`Scatter` keeps what does not depend on the irradiance,
+    for many irradiances on one surface.)
     """
     img = np.asarray(irradiance, dtype=np.float32)
-    squeeze = img.ndim == 2
-    if squeeze:
-        img = img[:, :, None]
-    if img.ndim != 3:
+    if img.ndim not in (2, 3):
         raise ValueError(f"irradiance must be H×W×C, got shape {img.shape}")
-    h, w, c = img.shape
-    mpp = np.asarray(mm_per_pixel, dtype=np.float64)
-    if mpp.ndim not in (0, 2) or (mpp.ndim == 2 and mpp.shape != (h, w)):
-        raise ValueError(f"mm_per_pixel must be a scalar or {(h, w)}, got shape {mpp.shape}")
-    if not np.all(mpp > 0):
-        raise ValueError("mm_per_pixel must be > 0 everywhere")
-    if depth is not None and np.shape(depth) != (h, w):
-        raise ValueError(f"depth must be {(h, w)}, got {np.shape(depth)}")
-    valid = None
-    if mask is not None:
-        if np.shape(mask) != (h, w):
-            raise ValueError(f"mask must be {(h, w)}, got {np.shape(mask)}")
-        valid = (np.asarray(mask) > 0.5).astype(np.float64)
-    step_x, step_y = _pixel_step_mm(mpp, depth, (h, w))
-    if _uniform(step_x) and _uniform(step_y):  # one σ per axis and Gaussian
-        step_x, step_y = float(step_x.flat[0]), float(step_y.flat[0])
-    else:  # per-pixel σ ∝ 1/step: one level plan per axis, scaled for each Gaussian
-        inv_y, inv_x = 1.0 / step_y, 1.0 / step_x
-        plan_y, plan_x = _Levels(inv_y), _Levels(inv_x)
-    planes = [np.ascontiguousarray(img[:, :, ch]) for ch in range(c)]
-    out = [np.zeros((h, w), np.float32) for _ in range(c)]
-    for var, rgb in profile:
-        wts = np.zeros(c)
-        wts[: min(c, 3)] = np.asarray(rgb, np.float64)[: min(c, 3)]
-        if c > 3:
-            wts[3:] = rgb[-1]
-        chans = [ch for ch in range(c) if wts[ch] != 0]  # only the channels this Gaussian feeds
-        if not chans:
-            continue
-        sd = float(np.sqrt(var))
-        if isinstance(step_y, float):
-            sy, sx = sd / step_y, sd / step_x
-        else:
-            sy, sx = plan_y.scaled(sd), plan_x.scaled(sd)
-        if axis_blur is not None:
-            blurred = axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
-        elif valid is None and isinstance(sy, float):
-            blurred = [_blur_1d(_blur_1d(planes[ch], sy, 0), sx, 1) for ch in chans]
-        else:  # y then x, each normalised by the blurred mask (light stays in the skin)
-            blurred = _blur_planes_axis([planes[ch] for ch in chans], sy, 0, valid)
-            blurred = _blur_planes_axis(blurred, sx, 1, valid)
-        for ch, b in zip(chans, blurred):
-            out[ch] += np.float32(wts[ch]) * b
-    res = np.stack(out, axis=-1)
-    if valid is not None:
-        res = np.where(valid[..., None] > 0, res, img)
-    return res[:, :, 0] if squeeze else res
+    return Scatter(img.shape, mm_per_pixel, depth, profile, mask, axis_blur)(img)
+
+
+class Scatter:
+    """:func:`sss_blur` prepared for one surface: the pixel steps, the mask, the σ plans of every
+    Gaussian and the mask's own blurs (which do not depend on the irradiance) are computed once;
+    ``scatter(irradiance)`` is ``sss_blur(irradiance, …)`` (a live view re-shading one face
+    keeps it).  ``shape``: the irradiance's, (H, W) or (H, W, C).
+
+    ``crop`` (with a mask): the passes run on the mask's bounding box grown by the widest
+    kernel, not the whole frame.  Pixels outside the mask are returned unchanged and get no
+    weight, so this is the same blur; only the floating-point rounding of the filters may differ
+    in the last bits (a pixel's place in cv2's vector loops, a level's pixels gathered densely or
+    sparsely).
+    """
+
+    def __init__(self, shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, axis_blur=None,
+                 crop: bool = False):
+        self.shape = tuple(shape)
+        h, w = self.shape[:2]
+        c = 1 if len(self.shape) == 2 else self.shape[2]
+        mpp = np.asarray(mm_per_pixel, dtype=np.float64)
+        if mpp.ndim not in (0, 2) or (mpp.ndim == 2 and mpp.shape != (h, w)):
+            raise ValueError(f"mm_per_pixel must be a scalar or {(h, w)}, got shape {mpp.shape}")
+        if not np.all(mpp > 0):
+            raise ValueError("mm_per_pixel must be > 0 everywhere")
+        if depth is not None and np.shape(depth) != (h, w):
+            raise ValueError(f"depth must be {(h, w)}, got {np.shape(depth)}")
+        valid = None
+        if mask is not None:
+            if np.shape(mask) != (h, w):
+                raise ValueError(f"mask must be {(h, w)}, got {np.shape(mask)}")
+            valid = (np.asarray(mask) > 0.5).astype(np.float32)
+        step_x, step_y = _pixel_step_mm(mpp, depth, (h, w))
+        uniform = _uniform(step_x) and _uniform(step_y)
+        if uniform:  # one σ per axis and Gaussian
+            step_x, step_y = float(step_x.flat[0]), float(step_y.flat[0])
+        else:  # per-pixel σ ∝ 1/step: one level plan per axis, scaled for each Gaussian
+            plan_y, plan_x = _Levels(1.0 / step_y), _Levels(1.0 / step_x)
+        passes = []
+        for var, rgb in profile:
+            wts = np.zeros(c)
+            wts[: min(c, 3)] = np.asarray(rgb, np.float64)[: min(c, 3)]
+            if c > 3:
+                wts[3:] = rgb[-1]
+            chans = [ch for ch in range(c) if wts[ch] != 0]  # only the channels this Gaussian feeds
+            if not chans:
+                continue
+            sd = float(np.sqrt(var))
+            sy, sx = (sd / step_y, sd / step_x) if uniform else (plan_y.scaled(sd), plan_x.scaled(sd))
+            passes.append([chans, [np.float32(wts[ch]) for ch in chans], sy, sx])
+        self.box = None
+        if crop and valid is not None and axis_blur is None:
+            self.box = _grown_box(valid, 1 + max((_radius(s) for p in passes for s in p[2:]), default=0))
+            y0, y1, x0, x1 = self.box
+            if y0 == y1:  # no skin: every pixel is returned unchanged
+                passes = []
+            valid = np.ascontiguousarray(valid[y0:y1, x0:x1])
+            for p in passes:
+                p[2:] = [s if isinstance(s, float) else s.crop((h, w), self.box) for s in p[2:]]
+        self.valid, self.axis_blur = valid, axis_blur
+        for p in passes:  # the mask's blurs: the normalisation of both axes
+            p.append(None if valid is None or axis_blur is not None else
+                     (_mask_norm(p[2], 0, valid), _mask_norm(p[3], 1, valid)))
+        self.passes = passes
+
+    def __call__(self, irradiance: np.ndarray) -> np.ndarray:
+        img = np.asarray(irradiance, dtype=np.float32)
+        if img.shape != self.shape:
+            raise ValueError(f"irradiance must be {self.shape}, got shape {img.shape}")
+        squeeze = img.ndim == 2
+        if squeeze:
+            img = img[:, :, None]
+        sub = img
+        if self.box is not None:
+            y0, y1, x0, x1 = self.box
+            sub = img[y0:y1, x0:x1]
+        valid, axis_blur = self.valid, self.axis_blur
+        planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
+
+        def scatter(chans, wts, sy, sx, norms):
+            mine = [planes[ch] for ch in chans]
+            if axis_blur is not None:
+                return axis_blur(axis_blur(mine, sy, 0, valid), sx, 1, valid)
+            if valid is None and isinstance(sy, float):
+                return [_blur_1d(_blur_1d(a, sy, 0), sx, 1) for a in mine]
+            # y then x, each normalised by the blurred mask (light stays in the skin)
+            ny, nx = norms if norms is not None else (None, None)
+            return _blur_planes_axis(_blur_planes_axis(mine, sy, 0, valid, ny), sx, 1, valid, nx)
+
+        # the Gaussians on the cores (cv2 and numpy release the GIL), summed in profile order
+        done = [scatter(*p) for p in self.passes] if axis_blur is not None else \
+            run_tasks([functools.partial(scatter, *p) for p in self.passes])
+        out = [np.zeros(sub.shape[:2], np.float32) for _ in planes]
+        for (chans, wts, *_), blurred in zip(self.passes, done):
+            for ch, wt, b in zip(chans, wts, blurred):
+                out[ch] += wt * b
+        res = np.stack(out, axis=-1)
+        if valid is not None:
+            res = np.where(valid[..., None] > 0, res, sub)
+        if self.box is not None:
+            full = img.copy()
+            full[y0:y1, x0:x1] = res
+            res = full
+        return res[:, :, 0] if squeeze else res
+
+
+def _radius(sigma) -> int:
+    """The widest kernel radius (pixels) of a σ (a float or a :class:`_Levels`)."""
+    top = float(sigma) if isinstance(sigma, float) else float(np.max(sigma.levels))
+    return int(TRUNCATE * top + 0.5)
+
+
+def _grown_box(valid: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): the bounding box of ``valid`` > 0 grown by ``margin``, inside the image."""
+    h, w = valid.shape
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    return (int(max(0, rows[0] - margin)), int(min(h, rows[-1] + 1 + margin)),
+            int(max(0, cols[0] - margin)), int(min(w, cols[-1] + 1 + margin)))
 
 
 def _uniform(sigma: np.ndarray) -> bool:
@@ -347,4 +444,4 @@ def _uniform(sigma: np.ndarray) -> bool:
     return bool(flat.size) and bool(np.all(flat == flat[0]))
 
 
-__all__ = ["SKIN_PROFILE", "sss_blur"]
+__all__ = ["SKIN_PROFILE", "Scatter", "sss_blur"]

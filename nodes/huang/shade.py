@@ -1,14 +1,18 @@
 """CosmeticShade — made-up skin: KM layers + skin SSS + per-layer specular (Huang et al. 2013 §3)."""
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
+import xxhash
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
+from graphkit.hashing import canonical
+from graphkit.store import value_parts
 
 from nodes.common.checks import connected_together, require_directional
-from nodes.common.sss import sss_blur
+from nodes.common.sss import Scatter, sss_blur
 
 from . import km
 from .layer import layer_thicknesses
@@ -38,7 +42,10 @@ class CosmeticShade(Node):
     Units: thickness mm, mm_per_pixel mm, depth mm, S/K mm⁻¹, wavelengths nm.
     """
 
-    version = "4"  # 4: world-frame lights (turned into the camera frame), orthographic cameras
+    # 4: world-frame lights (turned into the camera frame), orthographic cameras
+    # 5: the SSS runs on the skin's box grown by the widest kernel and the diffuse on the box of
+    #    the layers and the skin (same formula; the filters' float rounding moves ≤ 1.2e-7)
+    version = "5"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -92,29 +99,78 @@ class CosmeticShade(Node):
             raise BadInput("mesh", "mesh + camera give the normals and depth: leave 'normals' and 'depth' unconnected")
         if light is not None:
             require_directional(light, "CosmeticShade")
-        surf = _surface(p.mm_per_pixel, normals, depth, skin, mesh, camera)
-        lcol, ldir, light = _camera_frame_light(light, camera)
-        E = _irradiance((h, w), irradiance, light, lcol, ldir, surf.normals, p.relight)
-        diffuse = self._diffuse(wl, S, K, t, rho, E, surf)
+        fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
+        layers = _layer_boxes(t)
+        diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
         spec = np.zeros((h, w, 3), np.float32)
-        if surf.normals is not None and ldir is not None:
-            spec = _specular(p, specs, wl, S, K, t, surf, ldir, lcol)
+        if fixed.spec is not None:
+            spec = _through_layers(p, wl, S, K, t, fixed, layers)
         return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
 
-    def _diffuse(self, wl, S, K, t, rho, E, surf: _Surface) -> np.ndarray:
+    def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
+        """What does not depend on the cosmetic map or the albedo (surface, irradiance, the skin's
+        SSS plan, the specular terms before the layers' transmittance): memoised on the inputs and
+        params it comes from, so that a new thickness or cosmetic re-shades without it."""
+        p = self.params
+        given = {"irradiance": irradiance, "normals": normals, "light": light, "depth": depth, "skin": skin,
+                 "mesh": mesh, "camera": camera}
+        key = xxhash.xxh3_128(canonical([
+            list(hw), {k: None if v is None else value_parts(self.in_ports[k].type, v)[2] for k, v in given.items()},
+            p.mm_per_pixel, list(p.view), p.skin_m, p.skin_rho_s, p.skin_f0, p.relight, p.sss,
+            self.sss_blur is sss_blur, [[L.m, L.rho_s, L.f0] for L in specs]])).hexdigest()
+        got = _FIXED.get(key)
+        if got is None:
+            surf = _surface(p.mm_per_pixel, normals, depth, skin, mesh, camera)
+            lcol, ldir, lt = _camera_frame_light(light, camera)
+            E = _irradiance(hw, irradiance, lt, lcol, ldir, surf.normals, p.relight)
+            scatter = None
+            if p.sss and self.sss_blur is sss_blur:  # the reference: prepared once, on the skin's box
+                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, mask=surf.mask, crop=True)
+            spec = None
+            if surf.normals is not None and ldir is not None:
+                spec = _specular(p, specs, surf, ldir, lcol)
+            got = _Fixed(surf, E, scatter, spec)
+            with _FIXED_LOCK:  # nodes may run on several threads (graphkit run --jobs)
+                while len(_FIXED) >= 2:
+                    _FIXED.pop(next(iter(_FIXED)))
+                _FIXED[key] = got
+        return got
+
+    def _diffuse(self, wl, S, K, t, rho, fixed: _Fixed, support) -> np.ndarray:
         """§3.1: the stack's reflectance and transmittance per pixel (spectral, through the
         table); §3.2: the light entering the skin (with the skin ↔ layer inter-reflections),
         scattered in it, and leaving through the layers.  Through the backend hooks
-        ``pixel_stack`` and ``sss_blur``."""
-        p = self.params
+        ``pixel_stack`` and ``sss_blur``.  With the reference SSS only the box around the layers
+        and the skin is shaded (``support``: the layers' box): elsewhere no layer (Rt = Rb = 0,
+        T = T² = 1) and no scattering leave ρ·E, which is what the formula gives there."""
+        p, surf, E = self.params, fixed.surf, fixed.E
+        box = None  # the whole frame (no skin mask: the SSS reaches every pixel)
+        if fixed.scatter is not None and fixed.scatter.box is not None:
+            box = _union(fixed.scatter.box, support)
+        if box is not None:
+            y0, y1, x0, x1 = box
+            t, rho_b, E_b = t[y0:y1, x0:x1], rho[y0:y1, x0:x1], E[y0:y1, x0:x1]
+        else:
+            rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        pre = T * E / (1.0 - Rb * rho)
-        if p.sss:
+        pre = T * E_b / (1.0 - Rb * rho_b)
+        if fixed.scatter is not None and box is None:
+            pre = fixed.scatter(pre)
+        elif fixed.scatter is not None:
+            full = np.array(E, np.float32)
+            full[y0:y1, x0:x1] = pre
+            pre = fixed.scatter(full)[y0:y1, x0:x1]
+        elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_exit = np.where(T > 1e-12, T2 / T, 0.0)
-        return (Rt * E + t_exit * rho * pre).astype(np.float32)
+        inner = (Rt * E_b + t_exit * rho_b * pre).astype(np.float32)
+        if box is None:
+            return inner
+        out = np.multiply(rho, E, dtype=np.float32)
+        out[y0:y1, x0:x1] = inner
+        return out
 
     @classmethod
     def examples(cls):
@@ -143,6 +199,28 @@ class _Surface(NamedTuple):
     mm_per_pixel: np.ndarray | float
     depth: np.ndarray | None    # mm
     mask: np.ndarray | None     # where the SSS stays
+
+
+class _Specular(NamedTuple):
+    """The specular terms before the layers' transmittance, in ``box`` (zero outside)."""
+    skin: np.ndarray    # (h, w, 3) float64
+    layers: list        # per layer (h, w, 1) float64
+    box: tuple
+    lcol: np.ndarray    # light colour × intensity
+
+
+class _Fixed(NamedTuple):
+    """CosmeticShade's work that does not depend on the cosmetic map or the albedo."""
+    surf: _Surface
+    E: np.ndarray               # irradiance (H, W, 3) float32
+    scatter: Scatter | None     # the reference SSS prepared for the surface (None: the hook, or no SSS)
+    spec: _Specular | None      # None: no normals or no directional light
+
+
+#: the last _Fixed values by the digest of what they come from (a live view's face, a benchmark's;
+#: ~170 MB each for a 1280×720 face)
+_FIXED: dict = {}
+_FIXED_LOCK = threading.Lock()
 
 
 def _surface(mm_per_pixel: float, normals, depth, skin, mesh, camera) -> _Surface:
@@ -187,25 +265,84 @@ def _irradiance(hw, irradiance, light, lcol, ldir, n, relight: bool) -> np.ndarr
     return np.ones((h, w, 3), np.float32)
 
 
-def _specular(p, specs, wl, S, K, t, surf: _Surface, ldir, lcol) -> np.ndarray:
-    """§3.3, eq. 5: the skin's Kelemen specular, then for each layer bottom to top attenuated by
-    the layer's transmittance and the layer's own specular added, weighted by its coverage."""
+def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
+    """§3.3, eq. 5: the Kelemen specular of the skin (H×W×3) and of each layer (H×W×1), and the
+    box outside which they are all zero (no normals there)."""
     from nodes.common.microfacet import kelemen_specular
 
     n, v = surf.normals, surf.view
     if v is None:
         v = np.asarray(p.view, np.float64)
         v = v / max(np.linalg.norm(v), 1e-12)
-    s = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
+    skin = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
+    layers = [kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None] for L in specs]
+    box = _nonzero_box(np.any(skin != 0, axis=2) | np.any([k[..., 0] != 0 for k in layers], axis=0))
+    y0, y1, x0, x1 = box
+    return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol)
+
+
+def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
+    """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
+    transmittance and the layer's own specular added, weighted by its coverage (computed in
+    the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
+    T = 1 and the coverage 0 leave the specular as it is).  ``layers``: :func:`_layer_boxes`."""
+    sp = fixed.spec
+    y0, y1, x0, x1 = sp.box
     Wf = km.rgb_weights(wl, p.illuminant)
     Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
-    for i, L in enumerate(specs):
-        grid = km.thickness_grid([float(t[..., i].max())], p.lut_size)
+    s = sp.skin.copy()
+    for i, (k, box, top) in enumerate(zip(sp.layers, *layers)):
+        b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
+        if b0 >= b1 or c0 >= c1:
+            continue
+        grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
-        Ti = km.lookup(Tg @ Wf, grid, t[..., i:i + 1]).astype(np.float64)
-        cover = np.clip(t[..., i] / p.cover_mm, 0.0, 1.0)[..., None]
-        s = s * Ti + cover * kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None]
-    return (s * lcol).astype(np.float32)
+        ti = t[b0:b1, c0:c1, i:i + 1]
+        Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float64)
+        cover = np.clip(ti[..., 0] / p.cover_mm, 0.0, 1.0)[..., None]
+        here = (slice(b0 - y0, b1 - y0), slice(c0 - x0, c1 - x0))
+        s[here] = s[here] * Ti + cover * k[here]
+    out = np.zeros(t.shape[:2] + (3,), np.float32)
+    out[y0:y1, x0:x1] = s * sp.lcol
+    return out
+
+
+def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1): the bounding box of the true pixels of ``a`` (empty: (0, 0, 0, 0))."""
+    rows, cols = np.flatnonzero(a.any(axis=1)), np.flatnonzero(a.any(axis=0))
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def _layer_boxes(t: np.ndarray) -> tuple[list, list[float]]:
+    """Per layer, the box of the pixels where it is thicker than 0, and its maximum (each layer
+    copied to a plane first: reductions over a strided channel are ~20× slower)."""
+    boxes, tops = [], []
+    for plane in np.ascontiguousarray(np.moveaxis(t, 2, 0)):
+        per_row = plane.max(axis=1) if plane.size else np.zeros(0, plane.dtype)
+        rows, cols = np.flatnonzero(per_row > 0), np.flatnonzero(plane.max(axis=0) > 0) if plane.size else []
+        boxes.append((0, 0, 0, 0) if rows.size == 0 else
+                     (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1))
+        tops.append(float(per_row.max()) if per_row.size else 0.0)
+    return boxes, tops
+
+
+def _support(boxes) -> tuple[int, int, int, int]:
+    """The box around the layers' boxes."""
+    box = (0, 0, 0, 0)
+    for b in boxes:
+        box = _union(box, b)
+    return box
+
+
+def _union(a, b) -> tuple[int, int, int, int]:
+    """The box around two boxes (an empty one, (0, 0, 0, 0) or y0 == y1, adds nothing)."""
+    if a[0] == a[1]:
+        return b
+    if b[0] == b[1]:
+        return a
+    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
 
 def _mesh_geometry(mesh, camera: Camera):

@@ -1,4 +1,4 @@
-// Studio live view of CosmeticShade / KMStack: a thickness slider per layer, face-cropped preview.
+// Studio live view of CosmeticShade / KMStack: a thickness slider per layer, whole-photo preview.
 import { sliderView } from '/static/viewkit.js';
 
 export function mount(el, api) {

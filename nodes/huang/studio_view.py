@@ -1,8 +1,9 @@
 """The studio's live view of CosmeticShade and KMStack (Huang 2013: real-time makeup).
 
 One slider per layer scales that layer's thickness map; each move runs the node's own
-compute on a crop around the face (the ``skin`` mask, else where any layer is), so a change
-can be seen at once.  Letting go writes the new thicknesses into the CosmeticMap that makes
+compute on the whole photo, so a change can be seen at once (CosmeticShade keeps what does not
+depend on the map — surface, SSS plan, specular terms — between moves, and shades only the box
+of the layers and the skin).  Letting go writes the new thicknesses into the CosmeticMap that makes
 the map (its ``thickness_mm``, or the graph params it is bound to) and the graph re-runs
 through the cache.
 """
@@ -15,19 +16,14 @@ from graphkit.studio import LiveView
 
 
 class MakeupView(LiveView):
-    title = "makeup layers (face crop)"
+    title = "makeup layers"
     js = "studio_view.js"
 
     def _setup(self):
-        if getattr(self, "_crop", None) is None:
-            v = {k: x for k, x in self.inputs().items() if x is not None}
-            t = v["thickness"].pixels
-            skin = v.get("skin")
-            weights = skin.alpha if skin is not None else t.sum(axis=2)
-            box = self.crop_box(weights, margin=0.08)
-            self._crop = self.crop_inputs(v, box, t.shape[:2])
-            self._t = self._crop["thickness"].pixels.astype(np.float32)
-        return self._crop
+        if getattr(self, "_inputs", None) is None:
+            self._inputs = {k: x for k, x in self.inputs().items() if x is not None}
+            self._t = self._inputs["thickness"].pixels.astype(np.float32)
+        return self._inputs
 
     def _names(self) -> list[str]:
         n = self._t.shape[2]
@@ -41,12 +37,12 @@ class MakeupView(LiveView):
                              "step": 0.01, "value": 1.0,
                              "description": f"factor on the thickness map of layer {i} ({name}), mm"}
                             for i, name in enumerate(self._names())],
-                "note": f"preview: the node on a {x}×{y} crop around the face"}
+                "note": f"preview: the node on the whole {x}×{y} photo"}
 
     def frame(self, values: dict):
-        crop = self._setup()
+        given = self._setup()
         f = np.array([float(values.get(f"layer{i}", 1.0)) for i in range(self._t.shape[2])], np.float32)
-        out = self.compute(**{**crop, "thickness": Image(self._t * f)})
+        out = self.compute(**{**given, "thickness": Image(self._t * f)})
         img = out["image"] if "image" in out else out["reflectance"]
         return img
 

@@ -1,4 +1,4 @@
-// Studio live view of AppearanceRig: rig-weight and hemoglobin-scale sliders, face-cropped preview.
+// Studio live view of AppearanceRig: rig-weight and hemoglobin-scale sliders, whole-photo preview.
 import { sliderView } from '/static/viewkit.js';
 
 export function mount(el, api) {

@@ -2,22 +2,20 @@
 
 Sliders for the rig weights w_1 … w_k (w_0 = 1 − Σ, so the weights sum to one as eq. 6
 asks) and the global hemoglobin scale.  Each move runs the rig's own compute and the
-ApplyHemoglobin that reads its output (Beer–Lambert recolouring of the photo) on a crop
-around the skin, so a change can be seen at once.  Letting go writes ``weights`` and
+ApplyHemoglobin that reads its output (Beer–Lambert recolouring of the photo) on the whole
+photo, so a change can be seen at once.  Letting go writes ``weights`` and
 ``hemoglobin_scale`` (or the graph params they are bound to) and the graph re-runs through
 the cache.
 """
 from __future__ import annotations
 
-import numpy as np
-
-from graphkit import BadInput, Image
+from graphkit import BadInput
 from graphkit.node import Context
 from graphkit.studio import LiveView
 
 
 class BlushView(LiveView):
-    title = "blush rig (face crop)"
+    title = "blush rig"
     js = "studio_view.js"
 
     def _setup(self):
@@ -32,15 +30,10 @@ class BlushView(LiveView):
             ap_in = self.studio.input_values(self._apply)
             if ap_in is None:
                 raise BadInput("hemoglobin", f"'{self._apply}' has not run yet")
-            photo = ap_in["image"].pixels
-            shape = photo.shape[:2]
-            mask = ap_in.get("mask")
-            box = self.crop_box(mask.alpha if mask is not None else np.ones(shape), margin=0.05)
-            # the rig's maps are resized to the neutral map inside compute: crop what has its size
-            self._rig = self.crop_inputs(rig_in, box, rig_in["neutral"].pixels.shape[:2])
-            self._ap = self.crop_inputs({k: v for k, v in ap_in.items() if k != "new_hemoglobin"}, box, shape)
-            if rig_in["neutral"].pixels.shape[:2] != shape:
+            if rig_in["neutral"].pixels.shape[:2] != ap_in["image"].pixels.shape[:2]:
                 raise BadInput("neutral", "the rig's maps are not the photo's size")
+            self._rig = rig_in
+            self._ap = {k: v for k, v in ap_in.items() if k != "new_hemoglobin"}
             self._ready = True
 
     def data(self) -> dict:
@@ -52,7 +45,8 @@ class BlushView(LiveView):
                "description": f"weight of basis entry {i} (w_0 = 1 − the others, eq. 6)"} for i in range(1, k + 1)]
         sl.append({"key": "hemoglobin_scale", "label": "hemoglobin scale", "min": 0.0, "max": 2.0, "step": 0.01,
                    "value": float(p.hemoglobin_scale), "description": "global factor (1.27 anger, 0.81 fear; §7)"})
-        return {"sliders": sl, "note": f"preview: '{self.node}' → '{self._apply}' on a crop around the skin"}
+        h, w = self._ap["image"].pixels.shape[:2]
+        return {"sliders": sl, "note": f"preview: '{self.node}' → '{self._apply}' on the whole {w}×{h} photo"}
 
     def _params(self, values):
         p = self.params
