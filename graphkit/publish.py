@@ -287,22 +287,28 @@ def _roll_forward(dfd: int, out: Path | None, pname: str) -> None:
             os.fsync(dfd)
         else:
             new = json.loads(_read(dfd, MANIFEST) or b"{}")
-        old_raw = _read(pfd, "old-manifest.json")
-        old = {}
-        with contextlib.suppress(ValueError):
-            old = json.loads(old_raw) if old_raw else {}
-        stale = set(old.get("files", {}) if isinstance(old, dict) else ()) - set(new.get("files", {}))
-        for name in sorted(stale):  # the previous run's files that this run does not write
-            with contextlib.suppress(ValueError, UsageError):
-                name = safe_relpath(name)
-                with _parent(dfd, name, create=False) as (dp, base):
-                    if dp is not None and _exists(dp, base) and not stat.S_ISDIR(
-                            os.stat(base, dir_fd=dp, follow_symlinks=False).st_mode):
-                        os.unlink(base, dir_fd=dp)
-                        os.fsync(dp)
+        _remove_stale(dfd, pfd, new)
     finally:
         os.close(pfd)
     _rmtree_at(dfd, pname)
+
+
+def _remove_stale(dfd: int, pfd: int, new: dict) -> None:
+    """Remove the previous run's files (listed in the stage's old-manifest.json) that the new
+    manifest does not list."""
+    old_raw = _read(pfd, "old-manifest.json")
+    old = {}
+    with contextlib.suppress(ValueError):
+        old = json.loads(old_raw) if old_raw else {}
+    stale = set(old.get("files", {}) if isinstance(old, dict) else ()) - set(new.get("files", {}))
+    for name in sorted(stale):  # the previous run's files that this run does not write
+        with contextlib.suppress(ValueError, UsageError):
+            name = safe_relpath(name)
+            with _parent(dfd, name, create=False) as (dp, base):
+                if dp is not None and _exists(dp, base) and not stat.S_ISDIR(
+                        os.stat(base, dir_fd=dp, follow_symlinks=False).st_mode):
+                    os.unlink(base, dir_fd=dp)
+                    os.fsync(dp)
 
 
 def _rmtree_at(dfd: int, name: str) -> None:
