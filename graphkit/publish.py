@@ -124,6 +124,9 @@ def _open_dir(parent_fd: int, name: str, create: bool, what: str) -> int | None:
 @contextlib.contextmanager
 def _parent(base_fd: int, relname: str, create: bool):
     """(fd of the folder holding ``relname`` below ``base_fd``, base name); fd None if absent."""
+    if "/" not in relname:  # (the usual case: base_fd itself, not a copy of it)
+        yield base_fd, relname
+        return
     comps = relname.split("/")
     fd = os.dup(base_fd)
     try:
@@ -178,19 +181,25 @@ def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
     try:
         fcntl.flock(dfd, fcntl.LOCK_EX)  # one publisher per --out; the OS drops it if we die
         recover(dfd)
-        for name, _ in files:  # refuse symlinked folders and folders in the way before committing
-            with _parent(dfd, name, create=False) as (pfd, base):
-                if pfd is not None and _exists(pfd, base):
-                    st = os.stat(base, dir_fd=pfd, follow_symlinks=False)
-                    if stat.S_ISDIR(st.st_mode):
-                        raise UsageError(f"cannot write output {name!r}: {out / name} is a folder")
-        kept = _in_place(dfd, files)
+        kept = _in_place(dfd, files)  # (regular files: no folder in their way)
+        written = [(n, d) for n, d in files if n not in kept]
+        _refuse_folders_in_the_way(dfd, out, [n for n, _ in written])
         token = uuid.uuid4().hex[:12]
-        _stage(dfd, out, token, [(n, d) for n, d in files if n not in kept] + [(MANIFEST, manifest)])
+        _stage(dfd, out, token, written + [(MANIFEST, manifest)])
         _roll_forward(dfd, out, PUBLISH_PREFIX + token)
         _clean_legacy_temps(dfd, [n for n, _ in files])
     finally:
         os.close(dfd)
+
+
+def _refuse_folders_in_the_way(dfd: int, out: Path, names: list[str]) -> None:
+    """Before committing: refuse symlinked folders on the way to ``names`` and folders in their place."""
+    for name in names:
+        with _parent(dfd, name, create=False) as (pfd, base):
+            if pfd is not None and _exists(pfd, base):
+                st = os.stat(base, dir_fd=pfd, follow_symlinks=False)
+                if stat.S_ISDIR(st.st_mode):
+                    raise UsageError(f"cannot write output {name!r}: {out / name} is a folder")
 
 
 def _stage(dfd: int, out: Path, token: str, files: list[tuple[str, bytes]]) -> None:
@@ -276,12 +285,12 @@ def _roll_forward(dfd: int, out: Path | None, pname: str) -> None:
                 os.rename(MANIFEST, "old-manifest.json", src_dir_fd=dfd, dst_dir_fd=pfd)
                 os.fsync(pfd)
                 os.fsync(dfd)
+            staged = _files_below(pfd)  # what is not published yet (a file kept in place never was staged)
             for name in new.get("files", {}):
-                with _parent(pfd, name, create=False) as (sp, base):
-                    if sp is None or not _exists(sp, base):
-                        continue  # already published
-                    with _parent(dfd, name, create=True) as (dp, _):
-                        os.rename(base, base, src_dir_fd=sp, dst_dir_fd=dp)
+                if name not in staged:
+                    continue
+                with _parent(pfd, name, create=False) as (sp, base), _parent(dfd, name, create=True) as (dp, _):
+                    os.rename(base, base, src_dir_fd=sp, dst_dir_fd=dp)
             _fsync_dirs(dfd, list(new.get("files", {})))  # the renames are durable ...
             os.rename(MANIFEST, MANIFEST, src_dir_fd=pfd, dst_dir_fd=dfd)  # ... before the manifest
             os.fsync(dfd)
@@ -291,6 +300,21 @@ def _roll_forward(dfd: int, out: Path | None, pname: str) -> None:
     finally:
         os.close(pfd)
     _rmtree_at(dfd, pname)
+
+
+def _files_below(fd: int, prefix: str = "") -> set[str]:
+    """The relative names of the files below the folder open as ``fd`` (symlinks not followed)."""
+    names = set()
+    for entry in os.listdir(fd):
+        if stat.S_ISDIR(os.stat(entry, dir_fd=fd, follow_symlinks=False).st_mode):
+            sub = os.open(entry, _DIR_FLAGS, dir_fd=fd)
+            try:
+                names |= _files_below(sub, f"{prefix}{entry}/")
+            finally:
+                os.close(sub)
+        else:
+            names.add(prefix + entry)
+    return names
 
 
 def _remove_stale(dfd: int, pfd: int, new: dict) -> None:
