@@ -29,6 +29,8 @@ run code.  :func:`load_dict` takes the same graph as a Python dict, through the 
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
 import re
 from pathlib import Path
@@ -440,12 +442,27 @@ def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | No
     ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
     it in messages and anchors its relative paths."""
     path = _graph_path(path)
-    doc = read_graph(path, text)
     try:
-        return validate(doc, doc.data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
-                        overrides or {}, check_backends)
+        with gc_paused():
+            doc = read_graph(path, text)
+            return validate(doc, doc.data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
+                            overrides or {}, check_backends)
     except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
         raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """The cyclic garbage collector paused while a graph is loaded: loading allocates a large
+    structure that lives on (no garbage cycles), which the collector would otherwise traverse
+    again and again as it grows (a third of a 10k-node graph's validation)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _graph_path(path: str | os.PathLike) -> str:
