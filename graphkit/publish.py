@@ -35,17 +35,11 @@ if TYPE_CHECKING:
 
 def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
     """How a non-File output is written: arrays as .npy, meshes as .ply, the rest as JSON."""
-    import io
-
-    import numpy as np
-
     if isinstance(value, File):
         return safe_relpath(value.name), value.data
     if ptype.export_ext == ".npy":
         meta, arrays = ptype.to_parts(value)
-        buf = io.BytesIO()
-        np.save(buf, arrays[-1] if ptype.name == "Spectrum" else arrays[0], allow_pickle=False)
-        return f"{stem}.npy", buf.getvalue()
+        return f"{stem}.npy", npy_bytes(arrays[-1] if ptype.name == "Spectrum" else arrays[0])
     if ptype.export_ext == ".ply":
         return f"{stem}.ply", value.export(file_type="ply")
     if ptype.name == "Scalar":  # a plain JSON number (its repr round-trips the float exactly)
@@ -54,6 +48,29 @@ def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
         return f"{stem}.json", json.dumps(x if finite else str(x)).encode()
     meta, _ = ptype.to_parts(value)
     return f"{stem}.json", json.dumps(meta, indent=1, sort_keys=True).encode()
+
+
+_NPY_HEADS: dict[tuple, bytes] = {}  # (dtype, shape) -> np.save's header of a C-ordered array
+
+
+def npy_bytes(a) -> bytes:
+    """What ``np.save(f, a, allow_pickle=False)`` writes.  Its header depends only on the dtype
+    and shape of a C-ordered plain array: made by np.save once per (dtype, shape), then reused."""
+    import io
+
+    import numpy as np
+
+    plain = a.dtype.fields is None and not a.dtype.hasobject and a.dtype.metadata is None
+    if not (plain and a.flags.c_contiguous):
+        buf = io.BytesIO()
+        np.save(buf, a, allow_pickle=False)
+        return buf.getvalue()
+    head = _NPY_HEADS.get((a.dtype.str, a.shape))
+    if head is None:
+        buf = io.BytesIO()
+        np.save(buf, a, allow_pickle=False)
+        head = _NPY_HEADS[(a.dtype.str, a.shape)] = buf.getvalue()[: buf.tell() - a.nbytes]
+    return head + a.tobytes()
 
 
 STAGE_PREFIX = OWN_PREFIX + "stage-"      # a run's outputs being written (removed by the next run)
@@ -181,7 +198,8 @@ def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
     try:
         fcntl.flock(dfd, fcntl.LOCK_EX)  # one publisher per --out; the OS drops it if we die
         recover(dfd)
-        kept = _in_place(dfd, files)  # (regular files: no folder in their way)
+        entries = json.loads(manifest).get("files") or {}  # (hashed once, by the caller that built it)
+        kept = _in_place(dfd, files, entries)  # (regular files: no folder in their way)
         written = [(n, d) for n, d in files if n not in kept]
         _refuse_folders_in_the_way(dfd, out, [n for n, _ in written])
         token = uuid.uuid4().hex[:12]
@@ -227,9 +245,10 @@ def file_entry(data: bytes) -> dict:
     return {"bytes": len(data), "xxh3": xxhash.xxh3_128_hexdigest(data)}
 
 
-def _in_place(dfd: int, files: list[tuple[str, bytes]]) -> set[str]:
+def _in_place(dfd: int, files: list[tuple[str, bytes]], entries: dict) -> set[str]:
     """The names of ``files`` already published in --out with exactly these bytes: the
-    manifest there records the same size and xxh3-128, and the file itself still holds them.
+    manifest there records the same size and xxh3-128 as the new one (``entries``), and the
+    file itself still holds them.
 
     The file is re-read and compared byte for byte, not trusted by a stat signature: size and
     mtime are put back by ordinary tools after an edit (``cp -p``, ``rsync -t``, ``touch -r``),
@@ -243,7 +262,8 @@ def _in_place(dfd: int, files: list[tuple[str, bytes]]) -> set[str]:
         return set()
     if not isinstance(old, dict):
         return set()
-    return {name for name, data in files if old.get(name) == file_entry(data) and _holds(dfd, name, data)}
+    return {name for name, data in files
+            if entries.get(name) is not None and old.get(name) == entries[name] and _holds(dfd, name, data)}
 
 
 def _holds(dfd: int, name: str, data: bytes) -> bool:

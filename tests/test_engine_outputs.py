@@ -258,3 +258,20 @@ def test_kill_9_while_some_files_stay_in_place(tmp_path, write, engine_registry)
     assert killed == 10
     assert os.waitpid(_run_in_child(g, cache, out, 99, engine_registry), 0)[1] == 0
     check()
+
+
+def test_npy_bytes_are_what_np_save_writes():
+    """Outputs are exported with np.save's header made once per (dtype, shape): the same bytes
+    as np.save for every kind of array, also the second time a (dtype, shape) is seen."""
+    import io
+
+    from graphkit.publish import npy_bytes
+
+    cases = [np.zeros((16, 16)), np.arange(12, dtype=np.uint8).reshape(3, 4), np.zeros((4, 5, 3), np.float32),
+             np.asfortranarray(np.ones((3, 4))), np.ones((3, 4))[:, ::2], np.zeros(0), np.array(3.5),
+             np.zeros((2, 2), dtype=[("a", "<f4"), ("b", "<i2")]), np.array(["ab", "c"]), np.zeros((2, 3), ">f8"),
+             np.zeros((1, 5)), np.zeros((5, 1)), np.array([1 + 2j]), np.zeros((2, 2), bool), np.arange(6.0).reshape(2, 3)]
+    for a in cases:
+        want = io.BytesIO()
+        np.save(want, a, allow_pickle=False)
+        assert npy_bytes(a) == want.getvalue() == npy_bytes(a), a
