@@ -369,8 +369,10 @@ def cmd_status(args) -> int:
 
 
 def cmd_run(args) -> int:
+    import gc
+
     from .api import run_graph
-    from .graphfile import parse_set
+    from .graphfile import load_graph, parse_set
     from .progress import make_progress
 
     if args.jobs < 1:
@@ -379,7 +381,9 @@ def cmd_run(args) -> int:
         return cmd_status(args)
     progress = make_progress(args.quiet, args.verbose)
     reg = _registry()
-    run = run_graph(args.graph, cache=args.cache, out=args.out, overrides=parse_set(args.set),
+    graph = load_graph(args.graph, reg, parse_set(args.set))
+    gc.freeze()  # what is loaded lives until this process ends: the collector need not traverse it again
+    run = run_graph(graph, cache=args.cache, out=args.out,
                     backends=_backends(args),
                     jobs=args.jobs, outputs=args.output or None, executor=args.executor,
                     scheduler=args.scheduler, registry=reg, progress=progress,

@@ -94,33 +94,53 @@ def _run_serial(session: Session, plan: Plan, progress: Progress, result: RunRes
 
 class _Pool:
     """The nodes of a plan run ``jobs`` at a time, each as soon as every node it needs is done;
-    after a failure nothing new starts, what runs finishes, and the first error is raised."""
+    after a failure nothing new starts, what runs finishes, and the first error is raised.
+
+    A ready node is first looked up in this (the scheduling) thread: a hit is done at once and
+    readies its dependants with no round trip through the pool, so only the nodes that compute
+    wake a worker (a warm run starts none)."""
 
     def __init__(self, session: Session, plan: Plan, jobs: int, progress: Progress, result: RunResult):
         self.session, self.jobs, self.progress, self.result = session, jobs, progress, result
         self.waiting, self.dependants = plan.dependencies()
         self.ready = deque(n for n in plan.order if not self.waiting[n])
+        self.misses: deque[str] = deque()  # ready, looked up, not in the store: to compute
         self.running: dict[Any, str] = {}
         self.error: BaseException | None = None
 
     def run(self) -> None:
         with ThreadPoolExecutor(max_workers=self.jobs, thread_name_prefix="graphkit") as pool:
-            while self.ready or self.running:
+            while self.ready or self.misses or self.running:
+                self._resolve_hits()
                 self._start(pool)
                 if not self.running:
                     break
                 finished, _ = wait(self.running, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     self._finished(fut)
-                if self.error is not None:
-                    self.ready.clear()
         if self.error is not None:
             raise self.error
 
+    def _resolve_hits(self) -> None:
+        """Look up every ready node: the hits are done (readying more), the misses queue."""
+        session, outcomes = self.session, self.result.outcomes
+        while self.ready and self.error is None:
+            n = self.ready.popleft()
+            try:
+                o = session.cached(n, input_digests(session, n, outcomes))
+            except Exception as e:  # noqa: BLE001 - as a worker's error: nothing new starts
+                self.error = e
+            else:
+                if o is None:
+                    self.misses.append(n)
+                else:
+                    self.progress.running(n, session.graph.nodes[n].type)
+                    self._done(o)
+
     def _start(self, pool: ThreadPoolExecutor) -> None:
         session, outcomes = self.session, self.result.outcomes
-        while self.ready and self.error is None and len(self.running) < self.jobs:
-            n = self.ready.popleft()
+        while self.misses and self.error is None and len(self.running) < self.jobs:
+            n = self.misses.popleft()
             self.progress.running(n, session.graph.nodes[n].type)
             self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes))] = n
 
@@ -129,12 +149,14 @@ class _Pool:
         exc = fut.exception()
         if exc is not None:
             self.error = self.error or exc
-            return
-        o = fut.result()
-        self.result.outcomes[n] = o
+        else:
+            self._done(fut.result())
+
+    def _done(self, o: NodeOutcome) -> None:
+        self.result.outcomes[o.name] = o
         self.progress.done(o)
-        for d in self.dependants[n]:
-            self.waiting[d].discard(n)
+        for d in self.dependants[o.name]:
+            self.waiting[d].discard(o.name)
             if not self.waiting[d]:
                 self.ready.append(d)
 

@@ -29,6 +29,8 @@ run code.  :func:`load_dict` takes the same graph as a Python dict, through the 
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
 import re
 from pathlib import Path
@@ -157,6 +159,14 @@ class _Doc:
                 return self.locs[p]
             p = p[:-1]
         return self.locs.get((), (1, 1))
+
+    def for_file(self, file: str) -> "_Doc":
+        """This parse read as the graph file ``file``: its places and data shared, its problems
+        placed in ``file``; what a check adds goes to the copy only."""
+        doc = _Doc(file)
+        doc.locs, doc.key_locs, doc.count, doc.data = self.locs, self.key_locs, self.count, self.data
+        doc.diags = [Diagnostic(file, d.line, d.col, d.message) for d in self.diags]
+        return doc
 
 
 def _mark(n) -> tuple[int, int]:
@@ -434,18 +444,34 @@ def parse_set(items: list[str]) -> dict[str, Any]:
 
 
 def load_graph(path: str | os.PathLike, registry: Registry, overrides: dict | None = None,
-               check_backends: bool = True, text: str | bytes | None = None) -> Graph:
+               check_backends: bool = True, text: str | bytes | None = None, parsed: _Doc | None = None) -> Graph:
     """Load, resolve and validate a graph file; raise GraphError listing every problem.
 
     ``text``: the file's content as edited but not saved (the studio); ``path`` then only names
-    it in messages and anchors its relative paths."""
+    it in messages and anchors its relative paths.  ``parsed``: ``text`` as :func:`parse_yaml`
+    read it already (the studio's document), used instead of parsing it again."""
     path = _graph_path(path)
-    doc = read_graph(path, text)
     try:
-        return validate(doc, doc.data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
-                        overrides or {}, check_backends)
+        with gc_paused():
+            doc = read_graph(path, text, parsed)
+            return validate(doc, doc.data, os.path.abspath(path), os.path.dirname(os.path.abspath(path)), registry,
+                            overrides or {}, check_backends)
     except RecursionError:  # e.g. a --set value or a validator: exit 2, never a crash
         raise GraphError(Diagnostic(path, 1, 1, "nested too deeply to load")) from None
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """The cyclic garbage collector paused while a graph is loaded: loading allocates a large
+    structure that lives on (no garbage cycles), which the collector would otherwise traverse
+    again and again as it grows (a third of a 10k-node graph's validation)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _graph_path(path: str | os.PathLike) -> str:
@@ -457,15 +483,15 @@ def _graph_path(path: str | os.PathLike) -> str:
     return path
 
 
-def read_graph(path: str, text: str | bytes | None = None) -> _Doc:
-    """The graph file ``path`` (or its unsaved ``text``) as plain data with places: a mapping,
-    not yet checked (:func:`graphkit.validate.validate` does that)."""
+def read_graph(path: str, text: str | bytes | None = None, parsed: _Doc | None = None) -> _Doc:
+    """The graph file ``path`` (or its unsaved ``text``, or that text's ``parsed`` document) as
+    plain data with places: a mapping, not yet checked (:func:`graphkit.validate.validate` does that)."""
     raw = _read_bytes(path) if text is None else (text.encode() if isinstance(text, str) else text)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         raise GraphError(Diagnostic(path, 1, 1, f"graph file is not UTF-8 text: {e.reason} at byte {e.start}")) from None
-    doc = parse_yaml(text, path)
+    doc = parse_yaml(text, path) if parsed is None else parsed.for_file(path)
     if doc.diags:
         raise GraphError(doc.diags)
     if not isinstance(doc.data, dict):

@@ -35,17 +35,11 @@ if TYPE_CHECKING:
 
 def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
     """How a non-File output is written: arrays as .npy, meshes as .ply, the rest as JSON."""
-    import io
-
-    import numpy as np
-
     if isinstance(value, File):
         return safe_relpath(value.name), value.data
     if ptype.export_ext == ".npy":
         meta, arrays = ptype.to_parts(value)
-        buf = io.BytesIO()
-        np.save(buf, arrays[-1] if ptype.name == "Spectrum" else arrays[0], allow_pickle=False)
-        return f"{stem}.npy", buf.getvalue()
+        return f"{stem}.npy", npy_bytes(arrays[-1] if ptype.name == "Spectrum" else arrays[0])
     if ptype.export_ext == ".ply":
         return f"{stem}.ply", value.export(file_type="ply")
     if ptype.name == "Scalar":  # a plain JSON number (its repr round-trips the float exactly)
@@ -54,6 +48,29 @@ def export_value(ptype, value: Any, stem: str) -> tuple[str, bytes]:
         return f"{stem}.json", json.dumps(x if finite else str(x)).encode()
     meta, _ = ptype.to_parts(value)
     return f"{stem}.json", json.dumps(meta, indent=1, sort_keys=True).encode()
+
+
+_NPY_HEADS: dict[tuple, bytes] = {}  # (dtype, shape) -> np.save's header of a C-ordered array
+
+
+def npy_bytes(a) -> bytes:
+    """What ``np.save(f, a, allow_pickle=False)`` writes.  Its header depends only on the dtype
+    and shape of a C-ordered plain array: made by np.save once per (dtype, shape), then reused."""
+    import io
+
+    import numpy as np
+
+    plain = a.dtype.fields is None and not a.dtype.hasobject and a.dtype.metadata is None
+    if not (plain and a.flags.c_contiguous):
+        buf = io.BytesIO()
+        np.save(buf, a, allow_pickle=False)
+        return buf.getvalue()
+    head = _NPY_HEADS.get((a.dtype.str, a.shape))
+    if head is None:
+        buf = io.BytesIO()
+        np.save(buf, a, allow_pickle=False)
+        head = _NPY_HEADS[(a.dtype.str, a.shape)] = buf.getvalue()[: buf.tell() - a.nbytes]
+    return head + a.tobytes()
 
 
 STAGE_PREFIX = OWN_PREFIX + "stage-"      # a run's outputs being written (removed by the next run)
@@ -124,6 +141,9 @@ def _open_dir(parent_fd: int, name: str, create: bool, what: str) -> int | None:
 @contextlib.contextmanager
 def _parent(base_fd: int, relname: str, create: bool):
     """(fd of the folder holding ``relname`` below ``base_fd``, base name); fd None if absent."""
+    if "/" not in relname:  # (the usual case: base_fd itself, not a copy of it)
+        yield base_fd, relname
+        return
     comps = relname.split("/")
     fd = os.dup(base_fd)
     try:
@@ -178,19 +198,26 @@ def publish(out: Path, files: list[tuple[str, bytes]], manifest: bytes) -> None:
     try:
         fcntl.flock(dfd, fcntl.LOCK_EX)  # one publisher per --out; the OS drops it if we die
         recover(dfd)
-        for name, _ in files:  # refuse symlinked folders and folders in the way before committing
-            with _parent(dfd, name, create=False) as (pfd, base):
-                if pfd is not None and _exists(pfd, base):
-                    st = os.stat(base, dir_fd=pfd, follow_symlinks=False)
-                    if stat.S_ISDIR(st.st_mode):
-                        raise UsageError(f"cannot write output {name!r}: {out / name} is a folder")
-        kept = _in_place(dfd, files)
+        entries = json.loads(manifest).get("files") or {}  # (hashed once, by the caller that built it)
+        kept = _in_place(dfd, files, entries)  # (regular files: no folder in their way)
+        written = [(n, d) for n, d in files if n not in kept]
+        _refuse_folders_in_the_way(dfd, out, [n for n, _ in written])
         token = uuid.uuid4().hex[:12]
-        _stage(dfd, out, token, [(n, d) for n, d in files if n not in kept] + [(MANIFEST, manifest)])
+        _stage(dfd, out, token, written + [(MANIFEST, manifest)])
         _roll_forward(dfd, out, PUBLISH_PREFIX + token)
         _clean_legacy_temps(dfd, [n for n, _ in files])
     finally:
         os.close(dfd)
+
+
+def _refuse_folders_in_the_way(dfd: int, out: Path, names: list[str]) -> None:
+    """Before committing: refuse symlinked folders on the way to ``names`` and folders in their place."""
+    for name in names:
+        with _parent(dfd, name, create=False) as (pfd, base):
+            if pfd is not None and _exists(pfd, base):
+                st = os.stat(base, dir_fd=pfd, follow_symlinks=False)
+                if stat.S_ISDIR(st.st_mode):
+                    raise UsageError(f"cannot write output {name!r}: {out / name} is a folder")
 
 
 def _stage(dfd: int, out: Path, token: str, files: list[tuple[str, bytes]]) -> None:
@@ -218,9 +245,10 @@ def file_entry(data: bytes) -> dict:
     return {"bytes": len(data), "xxh3": xxhash.xxh3_128_hexdigest(data)}
 
 
-def _in_place(dfd: int, files: list[tuple[str, bytes]]) -> set[str]:
+def _in_place(dfd: int, files: list[tuple[str, bytes]], entries: dict) -> set[str]:
     """The names of ``files`` already published in --out with exactly these bytes: the
-    manifest there records the same size and xxh3-128, and the file itself still holds them.
+    manifest there records the same size and xxh3-128 as the new one (``entries``), and the
+    file itself still holds them.
 
     The file is re-read and compared byte for byte, not trusted by a stat signature: size and
     mtime are put back by ordinary tools after an edit (``cp -p``, ``rsync -t``, ``touch -r``),
@@ -234,7 +262,8 @@ def _in_place(dfd: int, files: list[tuple[str, bytes]]) -> set[str]:
         return set()
     if not isinstance(old, dict):
         return set()
-    return {name for name, data in files if old.get(name) == file_entry(data) and _holds(dfd, name, data)}
+    return {name for name, data in files
+            if entries.get(name) is not None and old.get(name) == entries[name] and _holds(dfd, name, data)}
 
 
 def _holds(dfd: int, name: str, data: bytes) -> bool:
@@ -276,33 +305,54 @@ def _roll_forward(dfd: int, out: Path | None, pname: str) -> None:
                 os.rename(MANIFEST, "old-manifest.json", src_dir_fd=dfd, dst_dir_fd=pfd)
                 os.fsync(pfd)
                 os.fsync(dfd)
+            staged = _files_below(pfd)  # what is not published yet (a file kept in place never was staged)
             for name in new.get("files", {}):
-                with _parent(pfd, name, create=False) as (sp, base):
-                    if sp is None or not _exists(sp, base):
-                        continue  # already published
-                    with _parent(dfd, name, create=True) as (dp, _):
-                        os.rename(base, base, src_dir_fd=sp, dst_dir_fd=dp)
+                if name not in staged:
+                    continue
+                with _parent(pfd, name, create=False) as (sp, base), _parent(dfd, name, create=True) as (dp, _):
+                    os.rename(base, base, src_dir_fd=sp, dst_dir_fd=dp)
             _fsync_dirs(dfd, list(new.get("files", {})))  # the renames are durable ...
             os.rename(MANIFEST, MANIFEST, src_dir_fd=pfd, dst_dir_fd=dfd)  # ... before the manifest
             os.fsync(dfd)
         else:
             new = json.loads(_read(dfd, MANIFEST) or b"{}")
-        old_raw = _read(pfd, "old-manifest.json")
-        old = {}
-        with contextlib.suppress(ValueError):
-            old = json.loads(old_raw) if old_raw else {}
-        stale = set(old.get("files", {}) if isinstance(old, dict) else ()) - set(new.get("files", {}))
-        for name in sorted(stale):  # the previous run's files that this run does not write
-            with contextlib.suppress(ValueError, UsageError):
-                name = safe_relpath(name)
-                with _parent(dfd, name, create=False) as (dp, base):
-                    if dp is not None and _exists(dp, base) and not stat.S_ISDIR(
-                            os.stat(base, dir_fd=dp, follow_symlinks=False).st_mode):
-                        os.unlink(base, dir_fd=dp)
-                        os.fsync(dp)
+        _remove_stale(dfd, pfd, new)
     finally:
         os.close(pfd)
     _rmtree_at(dfd, pname)
+
+
+def _files_below(fd: int, prefix: str = "") -> set[str]:
+    """The relative names of the files below the folder open as ``fd`` (symlinks not followed)."""
+    names = set()
+    for entry in os.listdir(fd):
+        if stat.S_ISDIR(os.stat(entry, dir_fd=fd, follow_symlinks=False).st_mode):
+            sub = os.open(entry, _DIR_FLAGS, dir_fd=fd)
+            try:
+                names |= _files_below(sub, f"{prefix}{entry}/")
+            finally:
+                os.close(sub)
+        else:
+            names.add(prefix + entry)
+    return names
+
+
+def _remove_stale(dfd: int, pfd: int, new: dict) -> None:
+    """Remove the previous run's files (listed in the stage's old-manifest.json) that the new
+    manifest does not list."""
+    old_raw = _read(pfd, "old-manifest.json")
+    old = {}
+    with contextlib.suppress(ValueError):
+        old = json.loads(old_raw) if old_raw else {}
+    stale = set(old.get("files", {}) if isinstance(old, dict) else ()) - set(new.get("files", {}))
+    for name in sorted(stale):  # the previous run's files that this run does not write
+        with contextlib.suppress(ValueError, UsageError):
+            name = safe_relpath(name)
+            with _parent(dfd, name, create=False) as (dp, base):
+                if dp is not None and _exists(dp, base) and not stat.S_ISDIR(
+                        os.stat(base, dir_fd=dp, follow_symlinks=False).st_mode):
+                    os.unlink(base, dir_fd=dp)
+                    os.fsync(dp)
 
 
 def _rmtree_at(dfd: int, name: str) -> None:

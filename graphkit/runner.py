@@ -246,28 +246,40 @@ class Session:
                 self.notice(f"notice: backend '{bname}' for {g.type} cannot run node '{name}' here ({e.reason}); using numpy")
             return self._run_node(name, input_digests)
 
+    def cached(self, name: str, input_digests: dict[str, str]) -> NodeOutcome | None:
+        """Node ``name``'s outcome when its result is in the store (a hit), else None; nothing
+        is computed or locked, so an executor can resolve the hits in its own thread."""
+        g = self.graph.nodes[name]
+        t0 = time.perf_counter()
+        key, parts = self.key(g, input_digests)
+        rec = self._lookup(g, key, parts, touch=True)
+        return None if rec is None else self._hit(g, key, parts, rec, t0)
+
+    def _hit(self, g: GNode, key: str, parts: dict, rec: dict, t0: float) -> NodeOutcome:
+        bname, _, bver = self.backend_for(g)
+        outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
+        return self._remember(NodeOutcome(g.name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts))
+
     def _run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
+        hit = self.cached(name, input_digests)
+        if hit is not None:
+            return hit
         g = self.graph.nodes[name]
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
         key, parts = self.key(g, input_digests)
-        rec = self._lookup(g, key, parts, touch=True)
-        if rec is None:
-            with self.store.key_lock(key, name) as waited:
-                # another run held the key (it was computing it): look again.  A lock taken at
-                # once (False) means nobody computed the key since the miss just above, bar a run
-                # that did all of it within those microseconds: at worst a node is computed twice,
-                # with the same bytes (None: this lock cannot tell, so look again)
-                if waited is not False:
-                    rec = self._lookup(g, key, parts)
-                if rec is None:
-                    outputs = self._compute(g, bcls, key, parts, input_digests)
-                    o = NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver, outputs, parts)
+        with self.store.key_lock(key, name) as waited:
+            # another run held the key (it was computing it): look again.  A lock taken at
+            # once (False) means nobody computed the key since the miss just above, bar a run
+            # that did all of it within those microseconds: at worst a node is computed twice,
+            # with the same bytes (None: this lock cannot tell, so look again)
+            rec = self._lookup(g, key, parts) if waited is not False else None
             if rec is None:
-                self.store.commit(force=False)  # group commit: at most one syncfs per interval
-                return self._remember(o)
-        outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
-        return self._remember(NodeOutcome(name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts))
+                outputs = self._compute(g, bcls, key, parts, input_digests)
+        if rec is not None:
+            return self._hit(g, key, parts, rec, t0)
+        self.store.commit(force=False)  # group commit: at most one syncfs per interval
+        return self._remember(NodeOutcome(name, g.type, key, False, time.perf_counter() - t0, bname, bver, outputs, parts))
 
     _BOUND = ("recipe", "node_type", "node_version", "backend", "backend_version")
 

@@ -121,3 +121,36 @@ def test_two_outputs_writing_one_file_are_refused_before_running(write, engine_r
                         "outputs: {a: s1.file, b: s2.file}")
     errs = errors(write, engine_registry, text)
     assert errs == [(11, 70, "nodes 's1' and 's2' both write 'x/r.exr' into --out")], errs
+
+
+ANCHORS = [  # (text, data or None, the one error or diagnostics): as PyYAML's composer read them
+    ("a: &x {k: 1}\nb: *x\nc: [*x, *x]\n", {"a": {"k": 1}, "b": {"k": 1}, "c": [{"k": 1}, {"k": 1}]}, []),
+    ("&k k: 1\n*k : 2\n", {"k": 1}, ["f:1:1: error: duplicate key 'k'"]),
+    ("a: !foo [1, &z 2]\nb: *z\n", {"a": None, "b": 2},
+     ["f:1:4: error: YAML tag '!foo' is not allowed: graph files hold plain data only"]),
+    ("? [a]\n: 1\nb: 2\n", {"b": 2}, ["f:1:3: error: mapping keys must be plain scalars"]),
+    ("a: *x\n", None, ["f:1:4: error: malformed YAML: found undefined alias"]),
+    ("a: &x 1\nb: &x 2\n", None, ["f:2:4: error: malformed YAML: found duplicate anchor; first occurrence second occurrence"]),
+    ("a: 1\n---\nb: 2\n", None, ["f:2:1: error: malformed YAML: expected a single document in the stream but found another document"]),
+    ("a: &x [1, *x]\n", None, ["f:1:1: error: malformed YAML: nested too deeply"]),
+    ("a: &x [1, *x]\nb: *y\n", None, ["f:2:4: error: malformed YAML: found undefined alias"]),
+    ("a: *y\nb: [\n", None, ["f:3:1: error: malformed YAML: while parsing a flow node did not find expected node content"]),
+    ("a: *y\nb: " + "[" * 101 + "]" * 101 + "\n", None, ["f:2:103: error: YAML nested too deeply: more than 100 levels of lists and mappings"]),
+]
+
+
+@pytest.mark.parametrize("text, data, errors", ANCHORS)
+def test_anchors_aliases_and_their_errors(text, data, errors):
+    """Issue 25: graph files are composed from the parser's events in one pass; anchors,
+    aliases and the order in which errors are found are as PyYAML's composer had them (a
+    syntax error or too deep a nesting anywhere comes before an alias error, an alias error
+    before a cycle)."""
+    from graphkit.graphfile import parse_yaml
+
+    if data is None:
+        with pytest.raises(GraphError) as e:
+            parse_yaml(text, "f")
+        assert [str(d) for d in e.value.diagnostics] == errors
+    else:
+        doc = parse_yaml(text, "f")
+        assert doc.data == data and [str(d) for d in doc.diags] == errors

@@ -219,3 +219,59 @@ def consistent_small(out, seed):
         a = np.load(out / f"o{k}.npy")
         assert a.shape == (64,) and a[0] == a[-1] == seed + k
     return True
+
+
+def test_kill_9_while_some_files_stay_in_place(tmp_path, write, engine_registry):
+    """Issue 25: runs that leave half of --out in place (those outputs do not depend on the
+    seed) and are killed at random moments still leave a manifest that describes every file."""
+    half = "graphkit: 1\nname: pub\nparams: {seed: 0}\nnodes:\n" \
+        f"  base: {{type: Const, params: {{value: \"${{params.seed}}\", size: {N}}}}}\n" \
+        f"  zero: {{type: Const, params: {{value: 0, size: {N}}}}}\n" \
+        + "".join(f"  o{k}: {{type: Add, inputs: {{a: {'base' if k % 2 else 'zero'}.out}}, params: {{offset: {k}}}}}\n"
+                  for k in range(K)) \
+        + "outputs: {" + ", ".join(f"o{k}: o{k}.out" for k in range(K)) + "}\n"
+    g, cache, out = write("g.yaml", half), tmp_path / "c", tmp_path / "o"
+
+    def check():
+        if not (out / "manifest.json").exists():  # only while a complete stage waits to be finished
+            assert any(p.name.startswith(".graphkit-publish-") for p in out.iterdir())
+            return
+        m = json.loads((out / "manifest.json").read_text())
+        for k in range(K):
+            a = np.load(out / f"o{k}.npy")
+            want = (m["params"]["seed"] if k % 2 else 0) + k
+            assert a[0] == a[-1] == want, f"manifest of seed {m['params']['seed']}, o{k}.npy holds {a[0]}"
+
+    t0 = time.perf_counter()
+    assert os.waitpid(_run_in_child(g, cache, out, 1, engine_registry), 0)[1] == 0
+    full = time.perf_counter() - t0
+    rng = random.Random(25)
+    killed = 0
+    for attempt in range(2, 60):
+        pid = _run_in_child(g, cache, out, attempt, engine_registry)
+        time.sleep(rng.uniform(0.0, full))
+        os.kill(pid, signal.SIGKILL)
+        killed += os.WIFSIGNALED(os.waitpid(pid, 0)[1])
+        check()
+        if killed == 10:
+            break
+    assert killed == 10
+    assert os.waitpid(_run_in_child(g, cache, out, 99, engine_registry), 0)[1] == 0
+    check()
+
+
+def test_npy_bytes_are_what_np_save_writes():
+    """Outputs are exported with np.save's header made once per (dtype, shape): the same bytes
+    as np.save for every kind of array, also the second time a (dtype, shape) is seen."""
+    import io
+
+    from graphkit.publish import npy_bytes
+
+    cases = [np.zeros((16, 16)), np.arange(12, dtype=np.uint8).reshape(3, 4), np.zeros((4, 5, 3), np.float32),
+             np.asfortranarray(np.ones((3, 4))), np.ones((3, 4))[:, ::2], np.zeros(0), np.array(3.5),
+             np.zeros((2, 2), dtype=[("a", "<f4"), ("b", "<i2")]), np.array(["ab", "c"]), np.zeros((2, 3), ">f8"),
+             np.zeros((1, 5)), np.zeros((5, 1)), np.array([1 + 2j]), np.zeros((2, 2), bool), np.arange(6.0).reshape(2, 3)]
+    for a in cases:
+        want = io.BytesIO()
+        np.save(want, a, allow_pickle=False)
+        assert npy_bytes(a) == want.getvalue() == npy_bytes(a), a

@@ -52,3 +52,24 @@ def test_large_graphs_run_end_to_end(tmp_path, write, engine_registry, make, n, 
             st.close()
         assert state["graph"]["valid"], state["errors"]
         assert {nd["name"]: nd["layer"] for nd in state["nodes"]}[last] == n - 1
+
+
+def test_studio_parses_a_graph_once(tmp_path, write, engine_registry, monkeypatch):
+    """Opening a graph in the studio parses its text once: the document it shows and the graph
+    it validates share that parse; a problem is still placed in the graph file."""
+    import graphkit.graphfile as gf
+    from graphkit.studio.core import Studio
+
+    parses = []
+    real = gf.parse_yaml
+    monkeypatch.setattr(gf, "parse_yaml", lambda text, file: parses.append(file) or real(text, file))
+    for text, valid in ((chain(50), True), (chain(50) + "name: again\n", False)):  # (a duplicate key)
+        parses.clear()
+        g = write("g.yaml", text)
+        st = Studio(g, cache=str(tmp_path / "c"), out=None, registry=engine_registry, autorun=False)
+        try:
+            state = st.state()
+        finally:
+            st.close()
+        assert state["graph"]["valid"] is valid and len(parses) == 1, (state["errors"], parses)
+        assert valid or state["errors"][0]["file"] == str(g), state["errors"]

@@ -109,7 +109,7 @@ class Studio:
     def _try_load(self, doc: YamlDoc):
         """(graph, errors) for a document."""
         try:
-            g = load_graph(self.path, self.registry, text=doc.text)
+            g = load_graph(self.path, self.registry, text=doc.text, parsed=doc.parsed())
             return g, []
         except GraphError as e:
             return None, [{"file": d.file, "line": d.line, "col": d.col, "message": d.message,

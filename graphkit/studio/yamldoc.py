@@ -61,6 +61,11 @@ class YamlDoc:
         do not modify it."""
         return None if self._data is None else self._data.data
 
+    def parsed(self):
+        """The parse behind :meth:`data` (graphkit.graphfile's, for ``load_graph(parsed=...)``:
+        one parse per text), or None when the text is not readable YAML."""
+        return self._data
+
     def with_params(self, changes: list[tuple[str | None, str, Any]]) -> "YamlDoc":
         """A copy with each ``(node or None for a graph param, param, value)`` set."""
         text = self.text
