@@ -1170,11 +1170,7 @@ class Store:
         run's journal).  ``touch`` marks the record used (its file's or journal's mtime) when it
         was last used more than TOUCH_GRANULARITY_S ago."""
         if not self._local:
-            raw = self.fs.read(rel)
-            if raw is not None and is_journal(raw[:JOURNAL_HEAD]):
-                raw = journal_record(raw, key)
-                return raw, (NOT_IN_JOURNAL if raw is None else None), False
-            return raw, None, False
+            return self._raw_remote_record(rel, key)
         try:
             fd = os.open(self.fs._s(rel), _READ_FLAGS)
         except (FileNotFoundError, NotADirectoryError):
@@ -1184,28 +1180,40 @@ class Store:
                 raise
             return None, NOT_A_FILE, False
         try:
-            st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode):
-                return None, NOT_A_FILE, False
-            if st.st_nlink == 1 and st.st_size <= MiB:  # a record file (or a journal linked once)
-                raw = _read_fd(fd, st.st_size)
-                linked = is_journal(raw[:JOURNAL_HEAD])
-                if linked:
-                    raw = journal_record(raw, key)
-            else:
-                linked, raw = self._journal_lookup(fd, st, key)
-                if not linked:
-                    raw = _read_fd(fd, st.st_size)
-            if raw is None:
-                return None, NOT_IN_JOURNAL, False
-            if touch and time.time() - st.st_mtime > self.TOUCH_GRANULARITY_S:
-                if linked and self._journal_here():
-                    return raw, None, True
-                with contextlib.suppress(OSError):  # read-only caches stay readable
-                    os.utime(fd)
-            return raw, None, False
+            return self._raw_fd_record(fd, key, touch)
         finally:
             os.close(fd)
+
+    def _raw_remote_record(self, rel: str, key: str) -> tuple[bytes | None, str | None, bool]:
+        """``_raw_record`` on a store that is not a local folder (never touched)."""
+        raw = self.fs.read(rel)
+        if raw is not None and is_journal(raw[:JOURNAL_HEAD]):
+            raw = journal_record(raw, key)
+            return raw, (NOT_IN_JOURNAL if raw is None else None), False
+        return raw, None, False
+
+    def _raw_fd_record(self, fd: int, key: str, touch: bool) -> tuple[bytes | None, str | None, bool]:
+        """``_raw_record`` of the local file open as ``fd``."""
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            return None, NOT_A_FILE, False
+        if st.st_nlink == 1 and st.st_size <= MiB:  # a record file (or a journal linked once)
+            raw = _read_fd(fd, st.st_size)
+            linked = is_journal(raw[:JOURNAL_HEAD])
+            if linked:
+                raw = journal_record(raw, key)
+        else:
+            linked, raw = self._journal_lookup(fd, st, key)
+            if not linked:
+                raw = _read_fd(fd, st.st_size)
+        if raw is None:
+            return None, NOT_IN_JOURNAL, False
+        if touch and time.time() - st.st_mtime > self.TOUCH_GRANULARITY_S:
+            if linked and self._journal_here():
+                return raw, None, True
+            with contextlib.suppress(OSError):  # read-only caches stay readable
+                os.utime(fd)
+        return raw, None, False
 
     def _journal_lookup(self, fd: int, st: os.stat_result, key: str) -> tuple[bool, bytearray | None]:
         """(whether the file open as ``fd`` is a journal, the record of ``key`` in it): from what
@@ -1615,61 +1623,12 @@ class Store:
             raise CacheError(f"cache {self.location}: cannot gc: the cache is read-only")
         with self._exclusive("gc"), self._errors("gc"):
             stale = self.clean_stale()
-            objs = {rel.rsplit("/", 1)[-1]: size for rel, size in self._sizes("objects").items()}
-            recs = sorted(self.records(), key=lambda r: r[2])  # oldest first
-            rec_sizes, links, journals = self._record_files()
-            refs: dict[str, int] = {}
-            for _, rec, _ in recs:
-                for d in {o["digest"] for o in (rec or {}).get("outputs", {}).values()}:
-                    refs[d] = refs.get(d, 0) + 1
-            total = self.size()
-            removed_keys = removed_objs = 0
-
-            def drop(key: str) -> int:
-                """Remove a record; the bytes that frees (a journal's when its last link goes)."""
-                self.fs.remove(self._krel(key))
-                ident = links.get(key)
-                if ident is None:
-                    return rec_sizes.get(key, 0)
-                j = journals[ident]
-                j[1] -= 1
-                if j[1] > 0:
-                    return 0
-                if j[2] is not None:
-                    self.fs.remove(j[2])
-                return j[0]
-
-            for key, rec, _ in recs:  # untrustworthy records first: they are misses anyway
-                if rec is None:
-                    total -= drop(key)
-                    removed_keys += 1
-            recs = [r for r in recs if r[1] is not None]
-            for d in [d for d in objs if d not in refs]:  # orphans
-                self.fs.remove(self._orel(d))
-                total -= objs.pop(d)
-                removed_objs += 1
-            for key, rec, _ in recs:
-                if total <= max_bytes:
-                    break
-                total -= drop(key)
-                removed_keys += 1
-                for d in {o["digest"] for o in rec.get("outputs", {}).values()}:
-                    refs[d] -= 1
-                    if refs[d] == 0 and d in objs:
-                        self.fs.remove(self._orel(d))
-                        total -= objs.pop(d)
-                        removed_objs += 1
-            if total > max_bytes:  # notes for explain and the file memo go last
-                for rel, size, _ in sorted(self.fs.listdir("runs"), key=lambda r: r[2]):
-                    if total <= max_bytes:
-                        break
-                    self.fs.remove(rel)
-                    total -= size
-                memo = self.memo_file
-                if total > max_bytes and memo is not None and memo.exists():
-                    total -= memo.stat().st_size
-                    memo.unlink(missing_ok=True)
-            return {"removed_records": removed_keys, "removed_objects": removed_objs,
+            run = _Gc(self)
+            run.untrusted_records()
+            run.orphans()
+            run.least_recently_used(max_bytes)
+            run.notes_and_memo(max_bytes)
+            return {"removed_records": run.removed_keys, "removed_objects": run.removed_objs,
                     "stale_files": stale["files"], "stale_bytes": stale["bytes"], "bytes": self.size()}
 
     def verify(self, repair: bool = False) -> list[str]:
@@ -1711,3 +1670,81 @@ class Store:
             if repair:
                 self.clean_stale()
         return problems
+
+
+def _output_digests(rec: dict) -> set[str]:
+    return {o["digest"] for o in rec.get("outputs", {}).values()}
+
+
+class _Gc:
+    """One gc of a store, under its exclusive lock: what it holds and what is removed, in the
+    order gc removes it; ``total`` counts the bytes still held."""
+
+    def __init__(self, store: Store):
+        self.store = store
+        self.objs = {rel.rsplit("/", 1)[-1]: size for rel, size in store._sizes("objects").items()}
+        self.recs = sorted(store.records(), key=lambda r: r[2])  # oldest first
+        self.rec_sizes, self.links, self.journals = store._record_files()
+        self.refs: dict[str, int] = {}
+        for _, rec, _ in self.recs:
+            for d in _output_digests(rec or {}):
+                self.refs[d] = self.refs.get(d, 0) + 1
+        self.total = store.size()
+        self.removed_keys = self.removed_objs = 0
+
+    def drop(self, key: str) -> None:
+        """Remove a record; count the bytes that frees (a journal's when its last link goes)."""
+        self.store.fs.remove(self.store._krel(key))
+        self.removed_keys += 1
+        ident = self.links.get(key)
+        if ident is None:
+            self.total -= self.rec_sizes.get(key, 0)
+            return
+        j = self.journals[ident]
+        j[1] -= 1
+        if j[1] > 0:
+            return
+        if j[2] is not None:
+            self.store.fs.remove(j[2])
+        self.total -= j[0]
+
+    def drop_object(self, d: str) -> None:
+        self.store.fs.remove(self.store._orel(d))
+        self.total -= self.objs.pop(d)
+        self.removed_objs += 1
+
+    def untrusted_records(self) -> None:
+        """Untrustworthy records go first: they are misses anyway."""
+        for key, rec, _ in self.recs:
+            if rec is None:
+                self.drop(key)
+        self.recs = [r for r in self.recs if r[1] is not None]
+
+    def orphans(self) -> None:
+        for d in [d for d in self.objs if d not in self.refs]:
+            self.drop_object(d)
+
+    def least_recently_used(self, max_bytes: int) -> None:
+        """Records, oldest first, each with the objects only it referred to."""
+        for key, rec, _ in self.recs:
+            if self.total <= max_bytes:
+                break
+            self.drop(key)
+            for d in _output_digests(rec):
+                self.refs[d] -= 1
+                if self.refs[d] == 0 and d in self.objs:
+                    self.drop_object(d)
+
+    def notes_and_memo(self, max_bytes: int) -> None:
+        """Notes for explain (oldest first) and the file memo go last."""
+        if self.total <= max_bytes:
+            return
+        for rel, size, _ in sorted(self.store.fs.listdir("runs"), key=lambda r: r[2]):
+            if self.total <= max_bytes:
+                break
+            self.store.fs.remove(rel)
+            self.total -= size
+        memo = self.store.memo_file
+        if self.total > max_bytes and memo is not None and memo.exists():
+            self.total -= memo.stat().st_size
+            memo.unlink(missing_ok=True)
