@@ -4,8 +4,8 @@
   integral (exact for an unoccluded polygon, after clipping it to the receiver's hemisphere).
 * :func:`element_form_factors` — element → element form factors F_ij (Loscos 2000 §2.3),
   averaged over stratified points on the receiver.
-* :func:`segment_blocked` — ray casting against the scene's parallelograms, used for the
-  link attenuation factors V (§2.3: VISIBLE / PARTIAL / INVISIBLE).
+* :func:`ray_first_hit` — the nearest parallelogram along camera rays.  Occlusion (the link
+  attenuation factors V, §2.3) is :func:`nodes.common.rays.occluded`.
 
 All lengths are in scene units (metres for builtin:cornell2); form factors are unitless.
 Polygons are planar parallelograms given by origin o, edges u, v: x(s, t) = o + s·u + t·v,
@@ -14,6 +14,8 @@ s, t ∈ [0, 1], front normal n = u × v / |u × v|.
 from __future__ import annotations
 
 import numpy as np
+
+from nodes.common.rays import dual_basis  # noqa: F401  (in-plane coordinates, one place)
 
 
 def frame(verts: np.ndarray):
@@ -114,51 +116,6 @@ def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int 
         front = np.einsum("nc,nc->n", x - np.repeat(o_j[a:b], S, axis=0),
                           np.repeat(n_j[a:b], S, axis=0)) > 0
         out[a:b] = np.where(front, f, 0.0).reshape(m, S).mean(1)
-    return out
-
-
-def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Dual basis of parallelogram edge pairs (P, 3): (x − o)·du, (x − o)·dv are the in-plane
-    coordinates (s, t) of a point x on the plane o + s·u + t·v."""
-    uu = np.einsum("pc,pc->p", u, u)
-    vv = np.einsum("pc,pc->p", v, v)
-    uv = np.einsum("pc,pc->p", u, v)
-    det = uu * vv - uv * uv
-    du = (vv[:, None] * u - uv[:, None] * v) / det[:, None]
-    dv = (uu[:, None] * v - uv[:, None] * u) / det[:, None]
-    return du, dv
-
-
-def segment_blocked(p0: np.ndarray, p1: np.ndarray, occ_o, occ_u, occ_v, occ_n,
-                    ignore: np.ndarray | None = None, chunk: int = 100_000) -> np.ndarray:
-    """Whether each segment p0→p1 (N,3) crosses one of the parallelograms (two-sided).
-
-    ``ignore`` (N,2) int: polygon indices not tested for each segment (the segment's own
-    sender and receiver polygons; -1 for none).  End points are excluded (t ∈ (1e-6, 1−1e-6)).
-    """
-    N = len(p0)
-    out = np.zeros(N, bool)
-    if N == 0 or len(occ_o) == 0:
-        return out
-    du, dv = dual_basis(occ_u, occ_v)
-    pid = np.arange(len(occ_o))
-    for a in range(0, N, chunk):
-        b = min(N, a + chunk)
-        o = p0[a:b]
-        d = p1[a:b] - o
-        den = d @ occ_n.T  # (n,P)
-        num = np.einsum("pc,pc->p", occ_o, occ_n)[None, :] - o @ occ_n.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = num / den
-        ok = (np.abs(den) > 1e-14) & (t > 1e-6) & (t < 1 - 1e-6)
-        q = o[:, None, :] + np.where(ok, t, 0.0)[..., None] * d[:, None, :] - occ_o[None]
-        s = np.einsum("npc,pc->np", q, du)
-        tt = np.einsum("npc,pc->np", q, dv)
-        hit = ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1)
-        if ignore is not None:
-            ig = ignore[a:b]
-            hit &= (pid[None, :] != ig[:, 0:1]) & (pid[None, :] != ig[:, 1:2])
-        out[a:b] = hit.any(1)
     return out
 
 
