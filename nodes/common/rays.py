@@ -130,7 +130,7 @@ def scene(occ):
     return sc
 
 
-def _occluded_embree(p0, p1, occ, ignore=None):
+def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 2):
     sc = scene(occ)
     d = p1 - p0
     org = (p0 + T_EPS * d).astype(np.float32)
@@ -139,10 +139,20 @@ def _occluded_embree(p0, p1, occ, ignore=None):
     hit = sc.run(org, dirs, dists=tfar, query="OCCLUDED") >= 0
     if ignore is None:
         return hit
-    # a blocked ray whose first hit is one of its own two parallelograms (a float32 hit at an
-    # end point, or a ray grazing its own plane) is cast again by the reference, which ignores them
+    # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
+    # point) goes on past that hit; one that keeps meeting them (grazing its own plane) is cast
+    # again by the reference, which ignores them
     todo = np.flatnonzero(hit)
-    prim = sc.run(org[todo], dirs[todo], dists=tfar[todo], output=1)["primID"] // 2
-    own = todo[(prim == ignore[todo, 0]) | (prim == ignore[todo, 1])]
-    hit[own] = _occluded_numpy(p0[own], p1[own], *occ, ignore=ignore[own])
+    t0 = np.zeros(len(p0))
+    for _ in range(rounds):
+        r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
+                   dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
+        prim = r["primID"] // 2
+        own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
+        hit[todo[r["primID"] < 0]] = False
+        t0[todo[own]] += r["tfar"][own] + T_EPS
+        todo = todo[own]
+        if len(todo) == 0:
+            return hit
+    hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ, ignore=ignore[todo])
     return hit
