@@ -48,13 +48,45 @@ def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray) -> np.ndar
     half-space in front of x (Sutherland–Hodgman), then Lambert's formula is applied:
     F = 1/(2π) Σ_k γ_k (R_k × R_{k+1})/|R_k × R_{k+1}| · nx, with γ_k the angle between the
     vectors R_k, R_{k+1} from x to consecutive vertices.  Returns (N,) unitless, ≥ 0.
+    Points that see the whole polygon in front (most of them) skip the clipping.
     """
     x = np.asarray(x, np.float64)
     nx = np.asarray(nx, np.float64)
     P = np.asarray(poly, np.float64)
-    N, K, _ = P.shape
     R = P - x[:, None, :]
     d = np.einsum("nkc,nc->nk", R, nx)
+    whole = (d > 0).all(1)
+    out = np.empty(len(x))
+    if whole.any():
+        Rw = R[whole]
+        out[whole] = np.abs(_lambert(Rw, np.roll(Rw, -1, axis=1), nx[whole], pad=True))
+    clip = ~whole
+    if clip.any():
+        out[clip] = _ff_clipped(R[clip], d[clip], nx[clip])
+    return out
+
+
+def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray, pad: bool = False) -> np.ndarray:
+    """Σ_k γ_k (V_k × V_k+1)/|V_k × V_k+1| · nx / 2π over the edges V_k → Vn_k (N,K,3).
+
+    ``pad``: sum as the clipped path sums its 2K slots, where every other edge has length 0
+    (numpy's pairwise order), so both paths give the same bits."""
+    c = np.cross(V, Vn)
+    cn = np.linalg.norm(c, axis=-1)
+    lv = np.linalg.norm(V, axis=-1)
+    lvn = np.linalg.norm(Vn, axis=-1)
+    cosg = np.einsum("nkc,nkc->nk", V, Vn) / np.maximum(lv * lvn, 1e-300)
+    gamma = np.arctan2(cn, np.clip(cosg, -1, 1) * lv * lvn)  # robust angle
+    proj = np.einsum("nkc,nc->nk", c, nx) / np.maximum(cn, 1e-300)
+    g = np.where(cn > 1e-300, gamma * proj, 0.0)
+    if pad:
+        z = np.zeros_like(g)
+        g = np.stack([z, g], -1).reshape(len(g), -1)
+    return g.sum(1) / (2 * np.pi)
+
+
+def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
+    N, K, _ = R.shape
     # clip: for each edge k → k+1 emit vertex k if in front, then the crossing point
     Rn = np.roll(R, -1, axis=1)
     dn = np.roll(d, -1, axis=1)
@@ -78,15 +110,7 @@ def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray) -> np.ndar
     idx = np.where(idx < 0, last[:, None], idx)
     idx = np.maximum(idx, 0)
     V = np.take_along_axis(slots, idx[..., None], axis=1)
-    Vn = np.roll(V, -1, axis=1)
-    c = np.cross(V, Vn)
-    cn = np.linalg.norm(c, axis=-1)
-    lv = np.linalg.norm(V, axis=-1)
-    lvn = np.linalg.norm(Vn, axis=-1)
-    cosg = np.einsum("nkc,nkc->nk", V, Vn) / np.maximum(lv * lvn, 1e-300)
-    gamma = np.arctan2(cn, np.clip(cosg, -1, 1) * lv * lvn)  # robust angle
-    proj = np.einsum("nkc,nc->nk", c, nx) / np.maximum(cn, 1e-300)
-    f = np.where(cn > 1e-300, gamma * proj, 0.0).sum(1) / (2 * np.pi)
+    f = _lambert(V, np.roll(V, -1, axis=1), nx)
     return np.where(anyv, np.abs(f), 0.0)
 
 
