@@ -6,7 +6,8 @@
 For each scene it runs the pipeline at the graph's settings (graphs/room_relight.yaml, as
 benchmarks/loscos_scenes.py) once per ray-casting backend (nodes/common/rays.py): ProjectTextures,
 RadiositySolve, TextureRefine, Unocclude, then Relight for "A off", "B ×2" and a virtual
-light.  It prints each stage's seconds per backend with the ratio, the solution's size, and the
+light.  It prints each stage's wall and CPU seconds per backend with the CPU ratio (on a
+shared machine CPU seconds stand for a quiet machine's wall time), the solution's size, and the
 PSNR between the backends' relit images (inside the room / whole image; sRGB in [0, 1]), and
 with ``--mitsuba`` each backend's PSNR against the Mitsuba references (loscos_scenes.py's,
 cached under /tmp/loscos-scenes).  ``--profile`` prints cProfile's top functions of the first
@@ -22,8 +23,6 @@ import pstats
 import sys
 import time
 
-import numpy as np
-
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import loscos_scenes as LS  # noqa: E402
@@ -37,35 +36,43 @@ from nodes.loscos.textures import ProjectTextures  # noqa: E402
 STAGES = ("ProjectTextures", "RadiositySolve", "TextureRefine", "Unocclude")
 
 
-def preprocess(name):
-    t = {}
+class Clock:
+    """Wall and CPU seconds (this process, all threads) of each stage: on a shared machine the
+    CPU seconds are what a quiet one would take as wall time, for single-threaded numpy."""
+
+    def __init__(self):
+        self.t = {}
+
+    def __call__(self, key, fn, *a, **kw):
+        w, c = time.perf_counter(), time.process_time()
+        out = fn(*a, **kw)
+        self.t[key] = (time.perf_counter() - w, time.process_time() - c)
+        return out
+
+
+def preprocess(name, clock):
     s = LS.run(LoadScene, {"path": f"builtin:{name}"})
-    t0 = time.perf_counter()
-    pr = LS.run(ProjectTextures, {}, scene=s["scene"], camera=s["camera"], photo=s["photo"])
-    t["ProjectTextures"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    sol = LS.run(RadiositySolve, LS.RADIOSITY, scene=s["scene"], projection=pr)["solution"]
-    t["RadiositySolve"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    ref = LS.run(TextureRefine, LS.REFINE, scene=s["scene"], solution=sol, projection=pr)
-    t["TextureRefine"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    un = LS.run(Unocclude, {}, solution=ref, projection=pr, photo=s["photo"])["unoccluded"]
-    t["Unocclude"] = time.perf_counter() - t0
-    return dict(s, projection=pr, solution=ref, unoccluded=un), t
+    pr = clock("ProjectTextures", LS.run, ProjectTextures, {}, scene=s["scene"],
+               camera=s["camera"], photo=s["photo"])
+    sol = clock("RadiositySolve", LS.run, RadiositySolve, LS.RADIOSITY, scene=s["scene"],
+                projection=pr)["solution"]
+    ref = clock("TextureRefine", LS.run, TextureRefine, LS.REFINE, scene=s["scene"],
+                solution=sol, projection=pr)
+    un = clock("Unocclude", LS.run, Unocclude, {}, solution=ref, projection=pr,
+               photo=s["photo"])["unoccluded"]
+    clock.t["preprocess"] = tuple(sum(clock.t[k][i] for k in STAGES) for i in (0, 1))
+    return dict(s, projection=pr, solution=ref, unoccluded=un)
 
 
-def relit(p, name, ms):
+def relit(p, name, ms, clock):
     A, B, V = LS.cases(name, ms)
-    out, t = {}, {}
+    out = {}
     for case, prm in (("A off", {"light_scale": {A: 0.0}}), ("B x2", {"light_scale": {B: 2.0}}),
                       ("virtual", {"virtual_lights": [V], "eps_bf": 0.3, "eps_bfv": 0.03})):
-        t0 = time.perf_counter()
-        out[case] = LS.run(Relight, prm, solution=p["solution"], unoccluded=p["unoccluded"],
-                           projection=p["projection"], photo=p["photo"],
-                           camera=p["camera"]).pixels
-        t[f"Relight {case}"] = time.perf_counter() - t0
-    return out, t
+        out[case] = clock(f"Relight {case}", LS.run, Relight, prm, solution=p["solution"],
+                          unoccluded=p["unoccluded"], projection=p["projection"],
+                          photo=p["photo"], camera=p["camera"]).pixels
+    return out
 
 
 def inside_mask(pr):
@@ -98,27 +105,28 @@ def main():
         res = {}
         for k, b in enumerate(a.backends):
             prof = cProfile.Profile() if a.profile and k == 0 else None
+            clock = Clock()
             with rays.using(b):
                 if prof:
                     prof.enable()
-                p, t = preprocess(name)
+                p = preprocess(name, clock)
                 if prof:
                     prof.disable()
-                imgs, tr = relit(p, name, ms)
-            t["preprocess"] = sum(t[s] for s in STAGES)
-            res[b] = (p, t | tr, imgs)
+                imgs = relit(p, name, ms, clock)
+            res[b] = (p, clock.t, imgs)
             sol = p["solution"]
-            print(f"{name} [{b}]: preprocess {t['preprocess']:.1f} s, {len(sol.leaves)} leaves, "
-                  f"{len(sol.recv)} links (load {os.getloadavg()[0]:.1f})", flush=True)
+            w, c = clock.t["preprocess"]
+            print(f"{name} [{b}]: preprocess {w:.1f} s wall, {c:.1f} s CPU, {len(sol.leaves)} "
+                  f"leaves, {len(sol.recv)} links (load {os.getloadavg()[0]:.1f})", flush=True)
             if prof:
                 profile_top(prof)
         keys = list(next(iter(res.values()))[1])
-        print(f"\n{name}: seconds  " + "  ".join(f"{b:>8s}" for b in a.backends)
-              + ("   ratio" if len(a.backends) == 2 else ""))
+        print(f"\n{name}: seconds, wall / CPU  " + "  ".join(f"{b:>15s}" for b in a.backends)
+              + ("   ratio (CPU)" if len(a.backends) == 2 else ""))
         for key in keys:
             v = [res[b][1][key] for b in a.backends]
-            print(f"  {key:18s}" + "".join(f"{x:10.2f}" for x in v)
-                  + (f"  {v[1] / max(v[0], 1e-9):6.1f}×" if len(v) == 2 else ""))
+            print(f"  {key:18s}" + "".join(f"{x[0]:9.2f} /{x[1]:7.2f}" for x in v)
+                  + (f"  {v[1][1] / max(v[0][1], 1e-9):6.1f}×" if len(v) == 2 else ""))
         inside = inside_mask(res[a.backends[0]][0]["projection"])
         if len(a.backends) == 2:
             b0, b1 = a.backends
