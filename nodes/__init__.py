@@ -15,4 +15,10 @@ their node types, so heavy imports stay out of start-up.
 
 # Backends of built-in node types that ship inside this package ("NodeType/name": "module:Class").
 # Backends that need extra software (OpenCL, OpenGL) live in plugins/ as their own distributions.
-BACKENDS: dict[str, str] = {}
+BACKENDS: dict[str, str] = {
+    # Embree ray casting for the Loscos nodes that cast rays (embreex, a dependency)
+    "ProjectTextures/embree": "nodes.loscos.embree:ProjectTexturesEmbree",
+    "RadiositySolve/embree": "nodes.loscos.embree:RadiositySolveEmbree",
+    "TextureRefine/embree": "nodes.loscos.embree:TextureRefineEmbree",
+    "Relight/embree": "nodes.loscos.embree:RelightEmbree",
+}

@@ -4,8 +4,8 @@
   integral (exact for an unoccluded polygon, after clipping it to the receiver's hemisphere).
 * :func:`element_form_factors` — element → element form factors F_ij (Loscos 2000 §2.3),
   averaged over stratified points on the receiver.
-* :func:`segment_blocked` — ray casting against the scene's parallelograms, used for the
-  link attenuation factors V (§2.3: VISIBLE / PARTIAL / INVISIBLE).
+* :func:`ray_first_hit` — the nearest parallelogram along camera rays.  Occlusion (the link
+  attenuation factors V, §2.3) is :func:`nodes.common.rays.occluded`.
 
 All lengths are in scene units (metres for builtin:cornell2); form factors are unitless.
 Polygons are planar parallelograms given by origin o, edges u, v: x(s, t) = o + s·u + t·v,
@@ -14,6 +14,8 @@ s, t ∈ [0, 1], front normal n = u × v / |u × v|.
 from __future__ import annotations
 
 import numpy as np
+
+from nodes.common.rays import dual_basis  # noqa: F401  (in-plane coordinates, one place)
 
 
 def frame(verts: np.ndarray):
@@ -39,20 +41,58 @@ def grid_st(n: int) -> np.ndarray:
     return np.stack([s.ravel(), t.ravel()], 1)
 
 
-def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray) -> np.ndarray:
+def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray,
+                     chunk: int = 50_000) -> np.ndarray:
     """Form factor from a differential area at x (normal nx) to a convex polygon (unoccluded).
 
     x, nx: (N,3); poly: (N,K,3) vertices in order.  The polygon is first clipped to the
     half-space in front of x (Sutherland–Hodgman), then Lambert's formula is applied:
     F = 1/(2π) Σ_k γ_k (R_k × R_{k+1})/|R_k × R_{k+1}| · nx, with γ_k the angle between the
     vectors R_k, R_{k+1} from x to consecutive vertices.  Returns (N,) unitless, ≥ 0.
+    Points that see the whole polygon in front (most of them) skip the clipping.  Rows are
+    independent; they are taken ``chunk`` at a time (smaller temporaries: 30 % faster here
+    than 200k at a time).
     """
     x = np.asarray(x, np.float64)
     nx = np.asarray(nx, np.float64)
     P = np.asarray(poly, np.float64)
-    N, K, _ = P.shape
+    if len(x) > chunk:
+        return np.concatenate([ff_point_polygon(x[a:a + chunk], nx[a:a + chunk], P[a:a + chunk])
+                               for a in range(0, len(x), chunk)])
     R = P - x[:, None, :]
     d = np.einsum("nkc,nc->nk", R, nx)
+    whole = (d > 0).all(1)
+    out = np.empty(len(x))
+    if whole.any():
+        Rw = R[whole]
+        out[whole] = np.abs(_lambert(Rw, np.roll(Rw, -1, axis=1), nx[whole], pad=True))
+    clip = ~whole
+    if clip.any():
+        out[clip] = _ff_clipped(R[clip], d[clip], nx[clip])
+    return out
+
+
+def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray, pad: bool = False) -> np.ndarray:
+    """Σ_k γ_k (V_k × V_k+1)/|V_k × V_k+1| · nx / 2π over the edges V_k → Vn_k (N,K,3).
+
+    ``pad``: sum as the clipped path sums its 2K slots, where every other edge has length 0
+    (numpy's pairwise order), so both paths give the same bits."""
+    c = np.cross(V, Vn)
+    cn = np.linalg.norm(c, axis=-1)
+    lv = np.linalg.norm(V, axis=-1)
+    lvn = np.linalg.norm(Vn, axis=-1)
+    cosg = np.einsum("nkc,nkc->nk", V, Vn) / np.maximum(lv * lvn, 1e-300)
+    gamma = np.arctan2(cn, np.clip(cosg, -1, 1) * lv * lvn)  # robust angle
+    proj = np.einsum("nkc,nc->nk", c, nx) / np.maximum(cn, 1e-300)
+    g = np.where(cn > 1e-300, gamma * proj, 0.0)
+    if pad:
+        z = np.zeros_like(g)
+        g = np.stack([z, g], -1).reshape(len(g), -1)
+    return g.sum(1) / (2 * np.pi)
+
+
+def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
+    N, K, _ = R.shape
     # clip: for each edge k → k+1 emit vertex k if in front, then the crossing point
     Rn = np.roll(R, -1, axis=1)
     dn = np.roll(d, -1, axis=1)
@@ -76,15 +116,7 @@ def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray) -> np.ndar
     idx = np.where(idx < 0, last[:, None], idx)
     idx = np.maximum(idx, 0)
     V = np.take_along_axis(slots, idx[..., None], axis=1)
-    Vn = np.roll(V, -1, axis=1)
-    c = np.cross(V, Vn)
-    cn = np.linalg.norm(c, axis=-1)
-    lv = np.linalg.norm(V, axis=-1)
-    lvn = np.linalg.norm(Vn, axis=-1)
-    cosg = np.einsum("nkc,nkc->nk", V, Vn) / np.maximum(lv * lvn, 1e-300)
-    gamma = np.arctan2(cn, np.clip(cosg, -1, 1) * lv * lvn)  # robust angle
-    proj = np.einsum("nkc,nc->nk", c, nx) / np.maximum(cn, 1e-300)
-    f = np.where(cn > 1e-300, gamma * proj, 0.0).sum(1) / (2 * np.pi)
+    f = _lambert(V, np.roll(V, -1, axis=1), nx)
     return np.where(anyv, np.abs(f), 0.0)
 
 
@@ -114,51 +146,6 @@ def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int 
         front = np.einsum("nc,nc->n", x - np.repeat(o_j[a:b], S, axis=0),
                           np.repeat(n_j[a:b], S, axis=0)) > 0
         out[a:b] = np.where(front, f, 0.0).reshape(m, S).mean(1)
-    return out
-
-
-def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Dual basis of parallelogram edge pairs (P, 3): (x − o)·du, (x − o)·dv are the in-plane
-    coordinates (s, t) of a point x on the plane o + s·u + t·v."""
-    uu = np.einsum("pc,pc->p", u, u)
-    vv = np.einsum("pc,pc->p", v, v)
-    uv = np.einsum("pc,pc->p", u, v)
-    det = uu * vv - uv * uv
-    du = (vv[:, None] * u - uv[:, None] * v) / det[:, None]
-    dv = (uu[:, None] * v - uv[:, None] * u) / det[:, None]
-    return du, dv
-
-
-def segment_blocked(p0: np.ndarray, p1: np.ndarray, occ_o, occ_u, occ_v, occ_n,
-                    ignore: np.ndarray | None = None, chunk: int = 100_000) -> np.ndarray:
-    """Whether each segment p0→p1 (N,3) crosses one of the parallelograms (two-sided).
-
-    ``ignore`` (N,2) int: polygon indices not tested for each segment (the segment's own
-    sender and receiver polygons; -1 for none).  End points are excluded (t ∈ (1e-6, 1−1e-6)).
-    """
-    N = len(p0)
-    out = np.zeros(N, bool)
-    if N == 0 or len(occ_o) == 0:
-        return out
-    du, dv = dual_basis(occ_u, occ_v)
-    pid = np.arange(len(occ_o))
-    for a in range(0, N, chunk):
-        b = min(N, a + chunk)
-        o = p0[a:b]
-        d = p1[a:b] - o
-        den = d @ occ_n.T  # (n,P)
-        num = np.einsum("pc,pc->p", occ_o, occ_n)[None, :] - o @ occ_n.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = num / den
-        ok = (np.abs(den) > 1e-14) & (t > 1e-6) & (t < 1 - 1e-6)
-        q = o[:, None, :] + np.where(ok, t, 0.0)[..., None] * d[:, None, :] - occ_o[None]
-        s = np.einsum("npc,pc->np", q, du)
-        tt = np.einsum("npc,pc->np", q, dv)
-        hit = ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1)
-        if ignore is not None:
-            ig = ignore[a:b]
-            hit &= (pid[None, :] != ig[:, 0:1]) & (pid[None, :] != ig[:, 1:2])
-        out[a:b] = hit.any(1)
     return out
 
 

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nodes.common import rays
+
 from . import geometry as G
 
 DEAD = -2  # parent id of elements removed by an undone subdivision
@@ -185,7 +187,7 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     p0 = ro[:, None] + ja[..., 0:1] * ru[:, None] + ja[..., 1:2] * rv[:, None]
     p1 = so[:, None] + jb[..., 0:1] * su[:, None] + jb[..., 1:2] * sv[:, None]
     ign = np.repeat(np.stack([h.poly[r], h.poly[s]], 1), k, axis=0)
-    blocked = G.segment_blocked(p0.reshape(-1, 3), p1.reshape(-1, 3), *occ, ignore=ign)
+    blocked = rays.occluded(p0.reshape(-1, 3), p1.reshape(-1, 3), occ, ignore=ign)
     # weight each ray by the point-to-point kernel cos·cos/r², so that F·V estimates the
     # occluded form factor even where visibility correlates with distance
     d = p1 - p0

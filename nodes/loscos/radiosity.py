@@ -434,6 +434,14 @@ class RadiositySolve(Node):
     outputs = {"solution": RADIOSITY, "lights": Json}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
 
+    @classmethod
+    def examples(cls):
+        """The ray-casting backends' conformance case: a small room with a box (embree.py)."""
+        from .embree import RAY_PARAMS, ray_examples
+
+        e = ray_examples()
+        return [(RAY_PARAMS["RadiositySolve"], {"scene": e["scene"], "projection": e["projection"]})]
+
     class Params(RefineParamsMixin):
         rounds: int = Field(2, ge=1, le=5, description="refine/solve rounds (BF uses the last B)")
         reflectance: Literal["photo", "scene"] = Field(
@@ -643,6 +651,15 @@ class TextureRefine(Node):
     inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
+
+    @classmethod
+    def examples(cls):
+        """The ray-casting backends' conformance case: a small room with a box (embree.py)."""
+        from .embree import RAY_PARAMS, ray_examples
+
+        e = ray_examples()
+        return [(RAY_PARAMS["TextureRefine"], {"scene": e["scene"], "solution": e["solution"],
+                                               "projection": e["projection"]})]
 
     class Params(RefineParamsMixin):
         rays: int = Field(6, ge=1, le=16, description="rays² per light link at the leaves")

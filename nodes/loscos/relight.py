@@ -243,8 +243,20 @@ class Relight(Node):
     @classmethod
     def examples(cls):
         """A small room (3 walls, 2 lights, 40×32 px) solved coarsely: lights switched off,
-        scaled and recoloured (the backend conformance cases; solved once per process)."""
-        return _relight_examples()
+        scaled and recoloured (the backend conformance cases; solved once per process); and a
+        virtual box in a room with a real box, whose links are re-evaluated (§4.5)."""
+        from graphkit import Context
+
+        from .embree import ray_examples
+
+        e = ray_examples()
+        un = Unocclude(Unocclude.Params(), Context()).compute(
+            solution=e["refined"], projection=e["projection"], photo=e["photo"])["unoccluded"]
+        box = {"name": "v", "center": [0.4, -0.85, 0.2], "size": [0.3, 0.3, 0.3],
+               "rotation_deg": 20, "reflectance": [0.8, 0.4, 0.1]}
+        return _relight_examples() + [({"virtual_boxes": [box]}, {
+            "solution": e["refined"], "unoccluded": un, "projection": e["projection"],
+            "photo": e["photo"], "camera": e["camera"]})]
 
 
 @functools.lru_cache(maxsize=1)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Node
+from nodes.common import rays
 
 from . import checks
 from . import geometry as G
@@ -236,8 +237,8 @@ def project(scene: RoomScene, cam: Camera, photo: np.ndarray, res: int) -> Proje
     cand = np.flatnonzero(inside)
     pid = np.repeat(np.arange(P), res * res)
     ign = np.stack([pid[cand], np.full(len(cand), -1)], 1)
-    blocked = G.segment_blocked(pts[cand], np.broadcast_to(c, (len(cand), 3)), po, pu, pv, pn,
-                                ignore=ign)
+    blocked = rays.occluded(pts[cand], np.broadcast_to(c, (len(cand), 3)), (po, pu, pv, pn),
+                            ignore=ign)
     cov = np.zeros(len(pts), bool)
     cov[cand[~blocked]] = True
     pp, pst = pixel_map(verts, cam)
@@ -320,6 +321,15 @@ class ProjectTextures(Node):
               "photo": In(Image, "the photograph (linear RGB; an alpha channel is ignored)",
                           channels=(3, 4), same_size_as="camera")}
     outputs = {"projection": PROJECTION}
+
+    @classmethod
+    def examples(cls):
+        """The ray-casting backends' conformance case: a small room with a box (embree.py)."""
+        from .embree import RAY_PARAMS, ray_examples
+
+        e = ray_examples()
+        return [(RAY_PARAMS["ProjectTextures"],
+                 {"scene": e["scene"], "camera": e["camera"], "photo": e["photo"]})]
 
     class Params(Node.Params):
         resolution: int = Field(128, ge=4, le=1024, description="texels per polygon side")

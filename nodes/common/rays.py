@@ -1,0 +1,158 @@
+"""Batched ray casting against planar parallelograms: one occlusion query, two backends.
+
+:func:`occluded` answers, for N segments p0→p1, whether one of the scene's parallelograms
+(two-sided) crosses the open segment.  Every ray the Loscos nodes cast goes through it (form-factor
+visibility, the texel → camera test, the links re-evaluated around a virtual object).
+
+* ``numpy`` — the reference: every segment against every parallelogram in float64
+  (O(N·P) memory and time, chunked).
+* ``embree`` — Intel Embree through ``embreex``: the parallelograms as two triangles each in a BVH,
+  built once per set of occluders (:func:`scene`, cached on the arrays' bytes) and reused by
+  every later call.  Embree tests in float32, so a ray that grazes an edge or a surface may
+  answer differently from the reference (see nodes/loscos/README.md for the measured effect).
+
+The backend is chosen per call stack with :func:`using` (a context variable, so concurrent
+node computes do not see each other's choice); the default is the reference.
+"""
+from __future__ import annotations
+
+import contextlib
+import contextvars
+
+import numpy as np
+
+BACKENDS = ("numpy", "embree")
+_backend: contextvars.ContextVar[str] = contextvars.ContextVar("rays_backend", default="numpy")
+# segments start and end this fraction of their length inside (the reference's open interval)
+T_EPS = 1e-6
+
+
+@contextlib.contextmanager
+def using(name: str):
+    """Cast the rays of the enclosed code with backend ``name`` ("numpy" or "embree")."""
+    if name not in BACKENDS:
+        raise ValueError(f"unknown ray-casting backend '{name}' (one of {', '.join(BACKENDS)})")
+    tok = _backend.set(name)
+    try:
+        yield
+    finally:
+        _backend.reset(tok)
+
+
+def backend() -> str:
+    return _backend.get()
+
+
+def embree_missing() -> str | None:
+    """None when the Embree backend can run here, else why not."""
+    try:
+        import embreex.rtcore_scene  # noqa: F401
+    except ImportError as e:
+        return f"embreex is not installed ({e}); pip install embreex"
+    return None
+
+
+def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = None) -> np.ndarray:
+    """Whether each segment p0→p1 (N,3) crosses one of the parallelograms ``occ`` = (o, u, v, n)
+    (each (P,3); two-sided), end points excluded (t ∈ (T_EPS, 1 − T_EPS)).
+
+    ``ignore`` (N,2) int: parallelogram indices not tested for each segment (its own sender and
+    receiver; -1 for none)."""
+    p0 = np.asarray(p0, np.float64)
+    p1 = np.asarray(p1, np.float64)
+    if len(p0) == 0 or len(occ[0]) == 0:
+        return np.zeros(len(p0), bool)
+    if _backend.get() == "embree":
+        return _occluded_embree(p0, p1, occ, ignore)
+    return _occluded_numpy(p0, p1, *occ, ignore=ignore)
+
+
+def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Dual basis of parallelogram edge pairs (P, 3): (x − o)·du, (x − o)·dv are the in-plane
+    coordinates (s, t) of a point x on the plane o + s·u + t·v."""
+    uu = np.einsum("pc,pc->p", u, u)
+    vv = np.einsum("pc,pc->p", v, v)
+    uv = np.einsum("pc,pc->p", u, v)
+    det = uu * vv - uv * uv
+    du = (vv[:, None] * u - uv[:, None] * v) / det[:, None]
+    dv = (uu[:, None] * v - uv[:, None] * u) / det[:, None]
+    return du, dv
+
+
+def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, ignore=None, chunk: int = 100_000):
+    N = len(p0)
+    out = np.zeros(N, bool)
+    du, dv = dual_basis(occ_u, occ_v)
+    pid = np.arange(len(occ_o))
+    on = np.einsum("pc,pc->p", occ_o, occ_n)
+    for a in range(0, N, chunk):
+        b = min(N, a + chunk)
+        o = p0[a:b]
+        d = p1[a:b] - o
+        den = d @ occ_n.T  # (n,P)
+        num = on[None, :] - o @ occ_n.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+        ok = (np.abs(den) > 1e-14) & (t > T_EPS) & (t < 1 - T_EPS)
+        q = o[:, None, :] + np.where(ok, t, 0.0)[..., None] * d[:, None, :] - occ_o[None]
+        s = np.einsum("npc,pc->np", q, du)
+        tt = np.einsum("npc,pc->np", q, dv)
+        hit = ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1)
+        if ignore is not None:
+            ig = ignore[a:b]
+            hit &= (pid[None, :] != ig[:, 0:1]) & (pid[None, :] != ig[:, 1:2])
+        out[a:b] = hit.any(1)
+    return out
+
+
+_SCENES: dict[bytes, object] = {}
+_MAX_SCENES = 8
+
+
+def scene(occ):
+    """The Embree scene of parallelograms (o, u, v, n): triangles (o, o+u, o+u+v) and
+    (o, o+u+v, o+v), so primitive k belongs to parallelogram k // 2.  Built once per set of
+    occluders and kept (the last few sets)."""
+    import xxhash
+    from embreex import mesh_construction, rtcore_scene
+
+    o, u, v = (np.ascontiguousarray(a, np.float64) for a in occ[:3])
+    key = xxhash.xxh3_128_digest(o.tobytes() + u.tobytes() + v.tobytes())
+    sc = _SCENES.get(key)
+    if sc is None:
+        c = np.stack([o, o + u, o + u + v, o + v], 1)
+        tri = np.stack([c[:, [0, 1, 2]], c[:, [0, 2, 3]]], 1).reshape(-1, 3, 3)
+        sc = rtcore_scene.EmbreeScene(robust=True)
+        mesh_construction.TriangleMesh(sc, tri.astype(np.float32))
+        if len(_SCENES) >= _MAX_SCENES:
+            _SCENES.pop(next(iter(_SCENES)))
+        _SCENES[key] = sc
+    return sc
+
+
+def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
+    sc = scene(occ)
+    d = p1 - p0
+    org = (p0 + T_EPS * d).astype(np.float32)
+    dirs = d.astype(np.float32)
+    tfar = np.full(len(p0), 1 - 2 * T_EPS, np.float32)
+    hit = sc.run(org, dirs, dists=tfar, query="OCCLUDED") >= 0
+    if ignore is None:
+        return hit
+    # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
+    # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times; what is left
+    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference
+    todo = np.flatnonzero(hit)
+    t0 = np.zeros(len(p0))
+    for _ in range(rounds):
+        r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
+                   dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
+        prim = r["primID"] // 2
+        own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
+        hit[todo[r["primID"] < 0]] = False
+        t0[todo[own]] += r["tfar"][own] + T_EPS
+        todo = todo[own]
+        if len(todo) == 0:
+            return hit
+    hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ, ignore=ignore[todo])
+    return hit

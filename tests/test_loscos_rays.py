@@ -1,0 +1,77 @@
+"""nodes/common/rays.py: the Embree occlusion backend against the numpy reference, on the
+segments the Loscos solver casts (sender and receiver facing each other) in builtin:room, and
+on the cases where float32 and the reference could part: segments that start on their own
+polygon, graze it, or end on a neighbour.  The node-level agreement (``--backend embree``) is
+tests/test_conformance.py, on the nodes' examples (nodes/loscos/embree.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphkit import Context
+from nodes.common import rays
+from nodes.loscos import geometry as G
+from nodes.loscos.scene import LoadScene
+
+pytest.importorskip("embreex", reason="embreex is a dependency (pyproject.toml)")
+
+
+def _room_occluders():
+    sc = LoadScene(LoadScene.Params(path="builtin:room"), Context()).compute()["scene"]
+    po, pu, pv, pn, _ = G.frame(sc.verts)
+    return po, pu, pv, pn
+
+
+def _facing_segments(occ, n, seed):
+    po, pu, pv, pn = occ
+    rng = np.random.default_rng(seed)
+    a, b = rng.integers(0, len(po), (2, n))
+    sa, sb = rng.random((2, n, 2))
+    p0 = po[a] + sa[:, :1] * pu[a] + sa[:, 1:] * pv[a]
+    p1 = po[b] + sb[:, :1] * pu[b] + sb[:, 1:] * pv[b]
+    d = p1 - p0
+    f = (np.einsum("nc,nc->n", d, pn[a]) > 1e-9) & (np.einsum("nc,nc->n", -d, pn[b]) > 1e-9)
+    return p0[f], p1[f], np.stack([a, b], 1)[f]
+
+
+def test_embree_agrees_with_reference_on_room_links():
+    occ = _room_occluders()
+    p0, p1, ign = _facing_segments(occ, 60_000, seed=3)
+    ref = rays.occluded(p0, p1, occ, ign)
+    with rays.using("embree"):
+        got = rays.occluded(p0, p1, occ, ign)
+    assert len(p0) > 10_000 and 0.1 < ref.mean() < 0.9  # both answers are common
+    assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(p0)} segments differ"
+
+
+def test_own_polygons_ignored_and_end_points_excluded():
+    # a floor (0) and a wall (1) meeting at an edge, and a blocker (2) between them
+    o = np.array([[0, 0, 0], [0, 0, 0], [0.5, 0.0, -1.0]], float)
+    u = np.array([[1, 0, 0], [0, 0, 1], [0, 1, 0]], float)
+    v = np.array([[0, 0, 1], [0, 1, 0], [0, 0, 3]], float)
+    n = np.cross(u, v)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    occ = (o, u, v, n)
+    p0 = np.array([[0.9, 0, 0.5],        # floor → wall, crosses the blocker
+                   [0.3, 0, 0.5],        # floor → wall, blocker behind the start
+                   [0.4, 0, 0.5],        # grazing its own floor: 1e-7 above it at the far end
+                   [0.2, 0, 0.5]])       # floor → blocker's own face (end point on it)
+    p1 = np.array([[0, 0.5, 0.5], [0, 0.5, 0.5], [0.1, 1e-7, 0.5], [0.5, 0.3, 0.5]])
+    ign = np.array([[0, 1], [0, 1], [0, -1], [0, 2]])
+    want = np.array([True, False, False, False])
+    assert np.array_equal(rays.occluded(p0, p1, occ, ign), want)
+    with rays.using("embree"):
+        assert np.array_equal(rays.occluded(p0, p1, occ, ign), want)
+
+
+def test_scene_built_once_per_occluder_set():
+    occ = _room_occluders()
+    assert rays.scene(occ) is rays.scene(tuple(a.copy() for a in occ))
+    moved = (occ[0] + 0.01,) + occ[1:]
+    assert rays.scene(moved) is not rays.scene(occ)
+
+
+def test_unknown_backend_is_refused():
+    with pytest.raises(ValueError, match="unknown ray-casting backend 'optix'"):
+        with rays.using("optix"):
+            pass
