@@ -247,6 +247,13 @@ class Studio:
             self._wake.notify_all()
             return self.gen
 
+    def stop(self) -> None:
+        """Stop the running run at its next node boundary (what it finished stays cached)."""
+        with self._lock:
+            self.gen += 1
+            self._pending = None
+            self._wake.notify_all()
+
     def wait_idle(self, timeout: float = 60.0) -> dict:
         """Block until no run is pending or running (tests, benchmarks); the last run info."""
         end = time.time() + timeout

@@ -27,6 +27,7 @@ def routes(studio, token: str, cookie: str) -> list:
         Route("/api/state", api.state),
         Route("/api/params", api.params, methods=["POST"]),
         Route("/api/run", api.run, methods=["POST"]),
+        Route("/api/stop", api.stop, methods=["POST"]),
         Route("/api/autorun", api.autorun, methods=["POST"]),
         Route("/api/save", api.save, methods=["POST"]),
         Route("/api/nodes", api.nodes),
@@ -94,6 +95,10 @@ class Api:
         if self.studio.graph is None:
             return err(422, "the graph does not validate", errors=self.studio.errors)
         return JSONResponse({"ok": True, "gen": self.studio.request_run()})
+
+    async def stop(self, request):
+        self.studio.stop()
+        return JSONResponse({"ok": True})
 
     async def autorun(self, request):
         data = await body(request)

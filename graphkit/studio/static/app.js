@@ -1,5 +1,6 @@
 // graphkit studio page: state over a websocket, DAG, controls, previews, live views.
-import { Dag } from './dag.js';
+import { Editor } from './graph.js';
+import { mountPalette } from './palette.js';
 import { makeControl, boundParam } from './controls.js';
 
 const token = new URLSearchParams(location.search).get('token') || sessionStorage.getItem('gk-token') || '';
@@ -29,7 +30,13 @@ function log(msg) {
 }
 
 // ---- rendering ------------------------------------------------------------------------
-const dag = new Dag($('dag'), name => selectNode(name));
+const dag = studio.editor = new Editor($('graph'), {
+  select: name => { if (studio.selected !== name) selectNode(name); },
+  thumbURL: (node, port, max) => previewURL(node, port, max),
+  open: (node, port) => setPreview([node, port]),
+  edit: edits => edit(edits),
+  undo: redo => undo(redo),
+});
 let controls = {};  // "node/param" or "/param" -> control
 
 function nodeByName(name) { return (studio.state?.nodes || []).find(n => n.name === name); }
@@ -281,7 +288,26 @@ async function refreshPreview() {
   } catch { /* a preview that cannot be shown leaves the last one */ }
 }
 
-// ---- edits ----------------------------------------------------------------------------
+// ---- graph edits: the server applies them (the loader's checks) or says why not -----------
+async function edit(edits) {
+  const r = await api('/api/edit', { edits });
+  showEditMsg(r.ok ? '' : (r.errors || []).map(e => e.text).join('\n') || r.error);
+  return r;
+}
+
+async function undo(redo) {
+  const r = await api(redo ? '/api/redo' : '/api/undo', {});
+  showEditMsg(r.ok ? '' : (r.errors || []).map(e => e.text).join('\n'));
+}
+
+function showEditMsg(text) {
+  const el = $('edit-msg');
+  el.hidden = !text;
+  el.textContent = text || '';
+  if (text) log(text);
+}
+
+// ---- param edits --------------------------------------------------------------------------
 // While a change is in flight, newer values wait; only the newest is sent next.
 const pending = new Map();
 let sending = false;
@@ -426,6 +452,18 @@ $('run-btn').addEventListener('click', async () => {
   const r = await api('/api/run', {});
   if (!r.ok) log(r.error);
 });
+$('stop-btn').addEventListener('click', () => api('/api/stop', {}));
+$('fit-btn').addEventListener('click', () => dag.fit());
+$('layout-btn').addEventListener('click', () => dag.layout());
+$('undo-btn').addEventListener('click', () => undo(false));
+$('redo-btn').addEventListener('click', () => undo(true));
+$('dup-btn').addEventListener('click', () => dag.duplicate());
+$('rename-btn').addEventListener('click', () => dag.rename());
+$('delete-btn').addEventListener('click', () => dag.remove());
+$('palette-search').addEventListener('focus', () => { $('palette').hidden = false; });
+document.addEventListener('click', e => {
+  if (!e.target.closest('#palette, #palette-search')) $('palette').hidden = true;
+});
 $('autorun').addEventListener('change', e => api('/api/autorun', { on: e.target.checked }));
 $('save-btn').addEventListener('click', async () => {
   const suggestion = (studio.state?.graph.path || 'graph.yaml').replace(/\.ya?ml$/, '') + '_edited.yaml';
@@ -442,4 +480,9 @@ $('preview-select').addEventListener('change', e => {
   const v = e.target.value, i = v.lastIndexOf('.');
   setPreview([v.slice(0, i), v.slice(i + 1)]);
 });
-connect();
+api('/api/nodes').then(rows => {
+  dag.setCatalogue(rows);
+  mountPalette($('palette-search'), $('palette'), rows, type => { $('palette').hidden = true; dag.add(type); });
+  if (studio.state) dag.draw(studio.state.nodes);
+  connect();
+});
