@@ -17,7 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "support")]
 
-from studio_support import Server, browser_page, wait_run  # noqa: E402
+from studio_support import Server, browser_page, click_node, wait_graph, wait_run  # noqa: E402
 
 SHOTS = {  # graph: (node to select, preview)
     "face_relight": ("left60", "sheet.image"),
@@ -42,16 +42,16 @@ def main():
             try:
                 page = ctx.new_page()
                 page.goto(s.url)
-                page.wait_for_selector("#dag g.node")
+                wait_graph(page)
                 wait_run(page, timeout=3600)
-                page.click(f'#dag g.node[data-node="{node}"]')
+                click_node(page, node)
                 page.select_option("#preview-select", preview)
                 page.wait_for_function("() => document.getElementById('preview').complete && "
                                        "document.getElementById('preview').dataset.digest")
                 if page.query_selector("#view-panel:not([hidden])"):
                     page.wait_for_function("() => { const i = document.querySelector('#view-body img.view-img');"
                                            " return i && +i.dataset.frames > 0 && i.complete; }", timeout=120_000)
-                page.evaluate("document.getElementById('dag-wrap').scrollLeft = 0")
+                page.evaluate("studio.editor.fit()")
                 raw = Path(tmp) / f"{g}.png"
                 page.screenshot(path=str(raw))
                 img = cv2.imread(str(raw))

@@ -103,4 +103,31 @@ def wait_run(page, status="ok", after_gen=0, timeout=60):
 
 
 def node_state(page, name):
-    return page.eval_on_selector(f'#dag g.node[data-node="{name}"]', "e => e.dataset.state")
+    """The state the graph pane shows on node ``name`` (idle, running, done, cached, failed, …)."""
+    return page.evaluate("n => studio.editor.nodes[n]?.gkState", name)
+
+
+def wait_graph(page, timeout=30000):
+    """Until the graph pane has drawn and laid out the graph's nodes."""
+    page.wait_for_function("() => +document.getElementById('graph').dataset.laidOut > 0", timeout=timeout)
+
+
+def drawn_nodes(page):
+    return page.evaluate("Object.keys(studio.editor.nodes)")
+
+
+def click_node(page, name):
+    """A real mouse click on node ``name``'s title bar in the graph canvas."""
+    x, y = page.evaluate("n => studio.editor.nodePoint(n)", name)
+    page.mouse.click(x, y)
+
+
+def drag_link(page, src, out_port, dst, in_port):
+    """Drag with the mouse from output socket ``src.out_port`` to input socket ``dst.in_port``."""
+    x0, y0 = page.evaluate("a => studio.editor.slotPoint(a[0], a[1], false)", [src, out_port])
+    x1, y1 = page.evaluate("a => studio.editor.slotPoint(a[0], a[1], true)", [dst, in_port])
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=4)
+    page.mouse.move(x1, y1, steps=4)
+    page.mouse.up()

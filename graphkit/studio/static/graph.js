@@ -220,6 +220,7 @@ export class Editor {
       if (this.nodes[c.id]) this.nodes[c.id].pos = [c.x, c.y + TH];
     }
     if (fit) this.fit();
+    this.host.dataset.laidOut = Object.keys(this.nodes).length;
     this.canvas.setDirty(true, true);
   }
 
