@@ -59,6 +59,7 @@ class Studio:
         self._gc_modules = 0 if freeze_gc else None
         self.doc = YamlDoc(text)
         self.saved_text = text
+        self.revision = 0  # counts the texts loaded: a page drops a state older than one it has
         self.undo_texts: list[str] = []  # the node editor's undo / redo: texts before each edit
         self.redo_texts: list[str] = []
         self.graph = None
@@ -125,6 +126,7 @@ class Studio:
         g, errors = loaded if loaded is not None else self._try_load(doc)
         with self._lock:
             self.doc, self.graph, self.errors = doc, g, errors
+            self.revision += 1
             names = list(g.nodes) if g else list(((doc.data() or {}).get("nodes") or {}))
             old = self.nodes
             self.nodes = {n: old.get(n, {"state": "idle", "seconds": None, "message": "", "digests": {}})
@@ -160,8 +162,8 @@ class Studio:
             self.emit({"type": "state", "state": self.state()})
         return {"ok": not errors, "errors": errors}
 
-    # the loader's messages an edit may leave behind: a graph being built has unfed inputs
-    _UNFINISHED = ("missing required input",)
+    # the loader's messages an edit may leave behind: a graph being built has unfed inputs and unset params
+    _UNFINISHED = ("missing required input", "missing required param")
 
     def edit(self, edits: list[dict]) -> dict:
         """Apply node-editor edits (yamldoc.EDITS: add / remove / rename a node, set an input).

@@ -42,7 +42,7 @@ def snapshot(studio) -> dict:
         "outputs": {k: list(v) for k, v in g.outputs.items()} if g else {},
         "preview": _default_preview(g),
         "run": dict(studio.run_info), "autorun": studio.autorun,
-        "undo": len(studio.undo_texts), "redo": len(studio.redo_texts),
+        "revision": studio.revision, "undo": len(studio.undo_texts), "redo": len(studio.redo_texts),
         "out": studio.out, "files": list(studio.files),
         "manifest": _manifest_summary(studio.manifest),
     }

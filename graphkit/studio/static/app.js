@@ -42,6 +42,8 @@ let controls = {};  // "node/param" or "/param" -> control
 function nodeByName(name) { return (studio.state?.nodes || []).find(n => n.name === name); }
 
 function render(state) {
+  // states are sent from more than one thread: one older than the graph on show is stale
+  if (studio.state && state.revision < studio.state.revision) return;
   studio.state = state;
   $('graph-name').textContent = state.graph.name;
   $('graph-path').textContent = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');

@@ -324,9 +324,17 @@ export class Editor {
     return `${stem}${k}`;
   }
 
+  // the first place from ``at`` downwards (then rightwards) where a new node overlaps none
+  freeSpot([x, y]) {
+    const H = 150, hit = (a, b) => Object.values(this.nodes).some(n =>
+      a < n.pos[0] + n.size[0] + 10 && a + W + 10 > n.pos[0] && b < n.pos[1] + n.size[1] + 10 && b + H > n.pos[1] - 30);
+    for (let k = 0; hit(x, y) && k < 400; k++) { y += 40; if (k % 12 === 11) { y -= 480; x += W + 30; } }
+    return [x, y];
+  }
+
   add(type, params, at) {
     const name = this.freeName(type);
-    this.pos[name] = at || this.centre();
+    this.pos[name] = this.freeSpot(at || this.centre());
     return this.hooks.edit([{ op: 'add_node', name, type, ...(params ? { params } : {}) }]);
   }
 

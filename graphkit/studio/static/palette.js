@@ -27,14 +27,18 @@ export function mountPalette(input, list, rows, onPick) {
     return [li, `${r.type} ${r.doc} ${p.textContent}`.toLowerCase()];
   });
   list.replaceChildren(...items.map(([li]) => li));
+  // shown: the types whose type, doc or ports hold every word; a type named by the search first
+  const rank = li => { const t = li.dataset.type.toLowerCase(), q = input.value.trim().toLowerCase();
+    return t === q ? 0 : t.startsWith(q) ? 1 : 2; };
   const filter = () => {
     const words = input.value.toLowerCase().split(/\s+/).filter(Boolean);
     for (const [li, text] of items) li.hidden = !words.every(w => text.includes(w));
+    list.replaceChildren(...items.map(([li]) => li).sort((a, b) => rank(a) - rank(b)));
   };
   input.addEventListener('input', filter);
   input.addEventListener('keydown', e => {
     if (e.key !== 'Enter') return;
-    const first = items.find(([li]) => !li.hidden);
-    if (first) onPick(first[0].dataset.type);
+    const first = [...list.children].find(li => !li.hidden);
+    if (first) onPick(first.dataset.type);
   });
 }
