@@ -228,9 +228,11 @@ class Studio:
         try:
             load_graph(str(p), self.registry, text=text)
         except GraphError as e:
-            if os.path.dirname(str(p)) != os.path.dirname(self.path):
-                raise UsageError(f"{p}: the graph would not load from there:\n{e}") from None
-            raise
+            # a node whose plugin is not installed here is saved as it was written; other errors refuse
+            if not all("unknown node type" in d.message for d in e.diagnostics):
+                if os.path.dirname(str(p)) != os.path.dirname(self.path):
+                    raise UsageError(f"{p}: the graph would not load from there:\n{e}") from None
+                raise
         tmp = p.parent / f".{p.name}.{os.getpid()}.tmp"
         try:
             tmp.write_text(text, encoding="utf-8")
