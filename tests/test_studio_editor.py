@@ -123,6 +123,12 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
             page.mouse.up()
             wait_run(page, after_gen=gen, timeout=120)
             wait_for(lambda: preview_pixels(page)[1] != before, what="the preview's pixels to change")
+            # the viewer: 1:1 shows the image pixel for pixel, B compares a second output
+            page.check("#one-to-one")
+            assert page.evaluate("(c => c.clientWidth === c.width)(document.getElementById('preview'))")
+            page.select_option("#compare-select", "smooth.image")
+            wait_for(lambda: page.evaluate("document.getElementById('preview-b').width") > 0, what="the B image")
+            assert page.is_visible("#compare-split")
             assert errors == []
             b.close()
     finally:

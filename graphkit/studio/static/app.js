@@ -203,8 +203,39 @@ function renderPreviewChoices(state) {
     sel.dataset.key = key;
     sel.replaceChildren(...opts.map(o => { const e = document.createElement('option'); e.value = e.textContent = o; return e; }));
   }
+  const cmp = $('compare-select');
+  if (cmp.dataset.key !== key) {
+    const keep = cmp.value;
+    cmp.dataset.key = key;
+    cmp.replaceChildren(...['', ...opts].map(o => { const e = document.createElement('option'); e.value = o; e.textContent = o || '—'; return e; }));
+    cmp.value = opts.includes(keep) ? keep : '';
+  }
+  refreshCompare();
   if (!studio.preview && state.preview) studio.preview = state.preview;
   if (studio.preview) sel.value = studio.preview.join('.');
+}
+
+// A/B compare: output B drawn over the preview (same size), shown right of the divider
+async function refreshCompare() {
+  const v = $('compare-select').value, b = $('preview-b');
+  $('compare-split').hidden = b.hidden = !v;
+  if (!v) return;
+  const i = v.lastIndexOf('.'), node = v.slice(0, i), port = v.slice(i + 1);
+  if (!digestOf(node, port)) return;
+  const url = previewURL(node, port);
+  if (b.dataset.url === url) return;
+  b.dataset.url = url;
+  const r = await fetch(url, { headers: { 'x-graphkit-token': token } });
+  if (!r.ok) return;
+  const bm = await createImageBitmap(await r.blob());
+  b.width = bm.width; b.height = bm.height;
+  b.getContext('2d').drawImage(bm, 0, 0);
+  bm.close();
+  splitCompare();
+}
+
+function splitCompare() {
+  $('preview-b').style.clipPath = `inset(0 0 0 ${$('compare-split').value}%)`;
 }
 
 function setPreview(p) {
@@ -477,7 +508,11 @@ $('save-btn').addEventListener('click', async () => {
 $('exposure').addEventListener('input', e => {
   $('exposure-val').textContent = (+e.target.value).toFixed(1);
   refreshPreview();
+  refreshCompare();
 });
+$('one-to-one').addEventListener('change', e => $('preview-frame').classList.toggle('one-to-one', e.target.checked));
+$('compare-select').addEventListener('change', refreshCompare);
+$('compare-split').addEventListener('input', splitCompare);
 $('preview-select').addEventListener('change', e => {
   const v = e.target.value, i = v.lastIndexOf('.');
   setPreview([v.slice(0, i), v.slice(i + 1)]);
