@@ -25,6 +25,38 @@ LiteGraph.isValidConnection = () => true;  // the engine decides (onConnectInput
 LiteGraph.release_link_on_empty_shows_menu = false;
 LGraphCanvas.prototype.processContextMenu = () => {};  // no local menus that change the graph
 
+// A sweep's instances ("lamp[ring00]", …) are drawn as one node, "lamp ×32", whose state is
+// the most telling of theirs; the YAML has one node for them, which the edits address.
+const SWEPT = /^(.+)\[([^\]]+)\]$/;
+const RANK = ['failed', 'running', 'blocked', 'queued', 'idle', 'done', 'cached'];
+const base = name => (SWEPT.exec(name) || [, name])[1];
+
+function collapse(nodes) {
+  const out = new Map();
+  for (const n of nodes) {
+    const name = base(n.name);
+    let g = out.get(name);
+    if (!g) out.set(name, g = { ...n, name, inputs: [], members: [] });
+    g.members.push(n);
+    for (const [p, src, sp] of n.inputs) {
+      const b = base(src);
+      if (!g.inputs.some(x => x[0] === p && x[1] === b && x[2] === sp)) g.inputs.push([p, b, sp]);
+    }
+  }
+  for (const g of out.values()) {
+    if (g.members.length < 2 && g.members[0].name === g.name) {  // not swept: one link per sweep it reads
+      out.set(g.name, g.inputs.length === g.members[0].inputs.length ? g.members[0] : { ...g.members[0], inputs: g.inputs });
+      continue;
+    }
+    g.count = g.members.length;
+    const worst = g.members.reduce((a, m) => RANK.indexOf(m.state || 'idle') < RANK.indexOf(a.state || 'idle') ? m : a);
+    g.state = worst.state; g.message = worst.message; g.progress = undefined;
+    g.seconds = g.members.every(m => m.seconds != null) ? g.members.reduce((t, m) => t + m.seconds, 0) : null;
+    g.done = g.members.filter(m => m.state === 'done' || m.state === 'cached').length;
+  }
+  return [...out.values()];
+}
+
 export class Editor {
   // host: the element the canvas fills; catalogue: /api/nodes rows; hooks: {select, edit, refused, open}
   constructor(host, hooks) {
@@ -40,7 +72,7 @@ export class Editor {
     this.canvas = new LGraphCanvas(cv, this.graph);
     Object.assign(this.canvas, { allow_searchbox: false, render_canvas_border: false, show_info: false,
       allow_dragcanvas: true });
-    this.canvas.onNodeSelected = n => { this.selected = n.gk; hooks.select(n.gk); };
+    this.canvas.onNodeSelected = n => { this.selected = n.gk; hooks.select(this.state[n.gk]?.members?.[0].name ?? n.gk); };
     this.canvas.onNodeDblClicked = n => this.rename(n.gk);
     this.minimap = document.createElement('canvas');
     this.minimap.id = 'minimap'; this.minimap.width = 180; this.minimap.height = 120;
@@ -61,10 +93,12 @@ export class Editor {
   }
 
   // ---- drawing the server's state -------------------------------------------------------
-  draw(nodes) {
+  draw(all) {
+    this.all = all;
+    const nodes = collapse(all);
     const key = JSON.stringify(nodes.map(n => [n.name, n.type, n.missing, n.inputs, n.outputs]));
     if (key !== this.key) this.build(nodes, key);
-    for (const n of nodes) this.update(n);
+    for (const n of nodes) this.show(n);
   }
 
   build(nodes, key) {
@@ -99,7 +133,7 @@ export class Editor {
 
   makeNode(n) {
     const spec = this.catalogue[n.type];
-    const node = new LGraphNode(n.name);
+    const node = new LGraphNode(n.count ? `${n.name} ×${n.count}` : n.name);
     node.gk = n.name;
     node.gkType = n.type;
     const add = (label, type, gk) => { node.addInput(label, type); node.inputs.at(-1).gk = gk; };
@@ -118,7 +152,7 @@ export class Editor {
       if (!this.building && kind === LiteGraph.INPUT && !connected) this.disconnect(node, slot);
     };
     node.onDrawForeground = ctx => this.drawInfo(node, ctx);
-    node.onMouseDown = () => { if (node.thumbRect && this.overThumb(node)) this.hooks.open?.(n.name, node.thumbPort); };
+    node.onMouseDown = () => { if (node.thumbRect && this.overThumb(node)) this.hooks.open?.(node.thumbNode, node.thumbPort); };
     node.onMoved = () => {};
     const base = node.computeSize();
     node.baseH = base[1];
@@ -130,7 +164,16 @@ export class Editor {
     return node;
   }
 
+  // one node's new state (a run's event); a sweep instance redraws its sweep's node
   update(n) {
+    if (SWEPT.test(n.name) && this.all) {
+      const g = collapse(this.all).find(x => x.name === base(n.name));
+      return g && this.show(g);
+    }
+    this.show(n);
+  }
+
+  show(n) {
     const node = this.nodes[n.name];
     if (!node) return;
     const st = n.missing ? 'missing' : (n.state || 'idle');
@@ -139,20 +182,21 @@ export class Editor {
     if (!n.missing) node.boxcolor = STATE_COLOURS[st] || STATE_COLOURS.idle;
     const img = Object.entries(n.outputs || {}).find(([p, t]) => (t === 'Image' || t === 'Mask') && n.digests?.[p]);
     node.thumbPort = img ? img[0] : null;
-    if (img) this.thumb(n.name, img[0], n.digests[img[0]]);
+    node.thumbNode = n.members ? n.members[0].name : n.name;  // a sweep: its first instance's
+    if (img) this.thumb(n.name, node.thumbNode, img[0]);
     const h = node.baseH + INFO + (node.hasImage ? THUMB : 0) + (st === 'failed' || st === 'blocked' ? 26 : 0);
     if (node.size[1] !== h) node.size = [W, h];
     this.canvas.setDirty(true, false);
   }
 
-  thumb(name, port, digest) {
-    const url = this.hooks.thumbURL(name, port, 96);
+  thumb(name, source, port) {
+    const url = this.hooks.thumbURL(source, port, 96);
     const t = this.thumbs[name];
     if (t && t.url === url) return;
     const img = new Image();
     img.onload = () => this.canvas.setDirty(true, false);
     img.src = url;
-    this.thumbs[name] = { url, img, digest };
+    this.thumbs[name] = { url, img };
   }
 
   drawInfo(node, ctx) {
@@ -164,7 +208,8 @@ export class Editor {
     ctx.textAlign = 'left';
     ctx.fillText(node.gkType, 8, y);
     const secs = st === 'running' ? (n.progress !== undefined ? `running ${Math.round(n.progress * 100)}%` : 'running')
-      : (n.seconds !== null && n.seconds !== undefined ? `${st} ${n.seconds.toFixed(2)}s` : st);
+      : (n.seconds !== null && n.seconds !== undefined ? `${st} ${n.seconds.toFixed(2)}s` : st)
+      + (n.count ? ` ${n.done}/${n.count}` : '');
     ctx.fillStyle = STATE_COLOURS[st] || '#e05050';
     ctx.textAlign = 'right';
     ctx.fillText(secs, W - 8, y);
@@ -371,6 +416,7 @@ export class Editor {
   }
 
   select(name) {
+    name = base(name);
     this.selected = name;
     const n = this.nodes[name];
     if (n && !this.canvas.selected_nodes?.[n.id]) this.canvas.selectNode(n);
