@@ -88,6 +88,10 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
             click_node(page, "blur_x")  # delete it again (the Delete key, on the canvas)
             page.keyboard.press("Delete")
             wait_for(lambda: "blur_x" not in drawn_nodes(page), what="blur_x deleted")
+            page.keyboard.press("Control+z")  # undo brings it back, redo deletes it again
+            wait_for(lambda: "blur_x" in drawn_nodes(page), what="the delete undone")
+            page.keyboard.press("Control+Shift+z")
+            wait_for(lambda: "blur_x" not in drawn_nodes(page), what="the delete redone")
 
             for node, param, value in PARAMS:
                 click_node(page, node)
