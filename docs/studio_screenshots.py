@@ -46,8 +46,7 @@ def main():
                 wait_run(page, timeout=3600)
                 click_node(page, node)
                 page.select_option("#preview-select", preview)
-                page.wait_for_function("() => document.getElementById('preview').complete && "
-                                       "document.getElementById('preview').dataset.digest")
+                page.wait_for_function("() => document.getElementById('preview').dataset.digest")
                 if page.query_selector("#view-panel:not([hidden])"):
                     page.wait_for_function("() => { const i = document.querySelector('#view-body img.view-img');"
                                            " return i && +i.dataset.frames > 0 && i.complete; }", timeout=120_000)

@@ -104,6 +104,7 @@ export class Editor {
   build(nodes, key) {
     this.key = key;
     this.building = true;
+    for (const [name, n] of Object.entries(this.nodes)) this.pos[name] = [...n.pos];  // kept where the user left them
     this.graph.clear();
     this.nodes = {};
     for (const n of nodes) {
@@ -153,7 +154,6 @@ export class Editor {
     };
     node.onDrawForeground = ctx => this.drawInfo(node, ctx);
     node.onMouseDown = () => { if (node.thumbRect && this.overThumb(node)) this.hooks.open?.(node.thumbNode, node.thumbPort); };
-    node.onMoved = () => {};
     const base = node.computeSize();
     node.baseH = base[1];
     // room for a thumbnail from the start: the layout does not change as results come in
