@@ -36,7 +36,7 @@ def main():
     import cv2
 
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as pw:
-        b, ctx = browser_page(pw, viewport=(1400, 860))
+        b, ctx = browser_page(pw, webgl=True, viewport=(1400, 860))
         for g, (node, preview) in SHOTS.items():
             s = Server(ROOT / "graphs" / f"{g}.yaml", Path(tmp) / g, plugins="", cache=args.cache)
             try:
@@ -48,8 +48,11 @@ def main():
                 page.select_option("#preview-select", preview)
                 page.wait_for_function("() => document.getElementById('preview').dataset.digest")
                 if page.query_selector("#view-panel:not([hidden])"):
+                    # an image view (a frame in) or a WebGL view (a canvas)
                     page.wait_for_function("() => { const i = document.querySelector('#view-body img.view-img');"
-                                           " return i && +i.dataset.frames > 0 && i.complete; }", timeout=120_000)
+                                           " return (i && +i.dataset.frames > 0 && i.complete)"
+                                           " || document.querySelector('#view-body canvas'); }", timeout=120_000)
+                    page.wait_for_timeout(1500)
                 page.evaluate("studio.editor.fit()")
                 raw = Path(tmp) / f"{g}.png"
                 page.screenshot(path=str(raw))
