@@ -5,6 +5,8 @@ graphs/ are opened (not run) to check that the page draws every one of them.
 """
 from __future__ import annotations
 
+import collections
+
 import json
 import os
 import signal
@@ -131,8 +133,13 @@ def test_page_loads_for_every_graph(pw, tmp_path):
                 page.goto(s.url)
                 wait_graph(page)
                 drawn = drawn_nodes(page)
-                # every node, and every instance of a swept node (foreach: NODE[INSTANCE])
-                assert sorted(drawn) == sorted(load_graph(g, default_registry()).nodes), g.name
+                # every node; a swept node's instances (foreach: NODE[INSTANCE]) as one node with their count
+                names = list(load_graph(g, default_registry()).nodes)
+                instances = collections.Counter(n.split("[")[0] for n in names if "[" in n)
+                assert sorted(drawn) == sorted({n.split("[")[0] for n in names}), g.name
+                titles = page.evaluate("Object.fromEntries(Object.entries(studio.editor.nodes).map(([k, n]) => [k, n.title]))")
+                for n in drawn:
+                    assert titles[n] == (f"{n} ×{instances[n]}" if n in instances else n), (g.name, n)
                 assert page.eval_on_selector("#errors", "e => e.hidden"), (g.name, page.inner_text("#errors"))
                 gp = page.eval_on_selector_all("#gp-controls .ctl", "es => es.map(e => e.dataset.param)")
                 assert gp == list(data.get("params") or {}), g.name

@@ -517,9 +517,10 @@ $('preview-select').addEventListener('change', e => {
   const v = e.target.value, i = v.lastIndexOf('.');
   setPreview([v.slice(0, i), v.slice(i + 1)]);
 });
+connect();
+// the palette (every node type's ports: the registry imports them all, which takes a while)
 api('/api/nodes').then(rows => {
   dag.setCatalogue(rows);
   mountPalette($('palette-search'), $('palette'), rows, type => { $('palette').hidden = true; dag.add(type); });
   if (studio.state) dag.draw(studio.state.nodes);
-  connect();
 });
