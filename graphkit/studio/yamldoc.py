@@ -190,20 +190,23 @@ def _rename_node(text: str, e: dict) -> str:
         raise ValueError(f"no node '{old}' in the graph file")
     if old != new and _get(nodes, new)[0] is not None:
         raise ValueError(f"there is a node '{new}' already")
-    spans = [(key, flow(new))]
-    for _, spec in nodes.value:
-        _, inputs = _get(spec, "inputs")
-        for _, v in (inputs.value if isinstance(inputs, yaml.MappingNode) else []):
-            spans += [(x, flow(new + "." + x.value.rpartition(".")[2])) for x in
-                      (v.value if isinstance(v, yaml.SequenceNode) else [v])
-                      if isinstance(x, yaml.ScalarNode) and x.value.rpartition(".")[0] == old]
-    _, outputs = _get(root, "outputs")
-    for _, v in (outputs.value if isinstance(outputs, yaml.MappingNode) else []):
-        if isinstance(v, yaml.ScalarNode) and v.value.rpartition(".")[0] == old:
-            spans.append((v, flow(new + "." + v.value.rpartition(".")[2])))
+    spans = [(key, flow(new))] + [(x, flow(new + "." + x.value.rpartition(".")[2])) for x in _sources(root, nodes)
+                                  if x.value.rpartition(".")[0] == old]
     for n, value in sorted(spans, key=lambda sv: -sv[0].start_mark.index):  # last first: indices stay
         text = text[:n.start_mark.index] + value + text[n.end_mark.index:]
     return text
+
+
+def _sources(root, nodes) -> list:
+    """Every "node.port" scalar of the file: the nodes' inputs and the graph's outputs."""
+    values = []
+    for _, spec in nodes.value:
+        _, inputs = _get(spec, "inputs")
+        values += [v for _, v in inputs.value] if isinstance(inputs, yaml.MappingNode) else []
+    _, outputs = _get(root, "outputs")
+    values += [v for _, v in outputs.value] if isinstance(outputs, yaml.MappingNode) else []
+    flat = [x for v in values for x in (v.value if isinstance(v, yaml.SequenceNode) else [v])]
+    return [x for x in flat if isinstance(x, yaml.ScalarNode)]
 
 
 #: the node editor's edits: op → function(text, edit) → text
