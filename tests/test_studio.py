@@ -191,11 +191,17 @@ def test_request_without_token_is_refused(server):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(url, timeout=10)
             assert e.value.code == 403, url
-    for body in ({"changes": [{"node": "gain", "param": "stops", "value": 2}]}, {}):
-        req = urllib.request.Request(s.base + "api/params", data=json.dumps(body).encode(), method="POST")
+    for path, body in [("api/params", {"changes": [{"node": "gain", "param": "stops", "value": 2}]}), ("api/params", {}),
+                       ("api/edit", {"edits": [{"op": "remove_node", "name": "gain"}]}), ("api/undo", {}),
+                       ("api/stop", {}), ("api/save", {"path": "x.yaml"})]:
+        req = urllib.request.Request(s.base + path, data=json.dumps(body).encode(), method="POST")
         with pytest.raises(urllib.error.HTTPError) as e:
             urllib.request.urlopen(req, timeout=10)
         assert e.value.code == 403
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(s.base + "api/nodes", timeout=10)
+    assert e.value.code == 403
+    assert "gain" in [n["name"] for n in s.api("/api/state")["nodes"]]  # nothing was edited
     from websockets.exceptions import WebSocketException
     from websockets.sync.client import connect
 
@@ -426,6 +432,36 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
         # the stale run's nap (salt 0) never finished, so it was never cached
         keys = [st.store.get_record(f.stem) for f in (tmp_path / "c" / "keys").rglob("*.json")]
         assert sorted(k["parts"]["params"].get("salt") for k in keys if k["node"] == "nap") == [1]
+    finally:
+        st.close()
+
+
+def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):
+    """Python-level: Stop (the editor's button, /api/stop) ends the run going; what it finished
+    stays cached and the node it was in never is."""
+    import enginenodes  # noqa: F401
+    import studionodes
+
+    from graphkit.studio.core import Studio
+
+    engine_registry.add_provider("nodes", "tests", studionodes)
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH.replace("  save:\n    type: SaveImage\n    inputs: {image: gain.image}", """\
+  nap:
+    type: Nap
+    inputs: {image: gain.image}
+    params: {seconds: 1.0}
+  save:
+    type: SaveImage
+    inputs: {image: nap.image}"""))
+    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    try:
+        wait_for(lambda: st.nodes.get("nap", {}).get("state") == "running", what="nap running")
+        st.stop()
+        assert st.wait_idle(30)["status"] == "superseded"
+        assert not (tmp_path / "o" / "manifest.json").exists()
+        cached = {st.store.get_record(f.stem)["node"] for f in (tmp_path / "c" / "keys").rglob("*.json")}
+        assert "gain" in cached and "nap" not in cached
     finally:
         st.close()
 
