@@ -100,6 +100,16 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
                 page.press(field, "Enter")
                 wait_for(lambda: page.evaluate("a => studio.state.nodes.find(x => x.name === a[0]).raw_params[a[1]]",
                                                [node, param]) == value, what=f"{node}.{param}")
+            # duplicate (Ctrl+D): the same type and params, then deleted again
+            click_node(page, "photo")
+            page.keyboard.press("Control+d")
+            wait_for(lambda: "loadImage1" in drawn_nodes(page), what="the duplicate")
+            raw = "n => studio.state.nodes.find(x => x.name === n).raw_params"
+            assert page.evaluate(raw, "loadImage1") == {"path": "builtin:astronaut"}
+            page.click("#fit-btn")
+            click_node(page, "loadImage1")
+            page.click("#delete-btn")
+            wait_for(lambda: "loadImage1" not in drawn_nodes(page), what="the duplicate deleted")
             wait_for(lambda: page.evaluate("studio.state.graph.valid"), what="a valid graph")
             wait_run(page, timeout=120)
 
