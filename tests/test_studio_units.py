@@ -213,3 +213,19 @@ def test_a_missing_node_type_is_kept_on_save_and_saves_stay_in_the_graphs_folder
         assert not (tmp_path.parent / "out.yaml").exists()
     finally:
         s.close()
+
+
+def test_vendored_editor_libraries_match_their_checksums():
+    """static/vendor/ holds what SHA256SUMS lists (`make vendor-studio` writes both), each with
+    its licence, and the page loads those versions."""
+    import hashlib
+
+    vendor = ROOT / "graphkit" / "studio" / "static" / "vendor"
+    sums = dict(reversed(line.split("  ", 1)) for line in (vendor / "SHA256SUMS").read_text().splitlines())
+    files = sorted(str(p.relative_to(vendor)) for p in vendor.rglob("*") if p.is_file() and p.name != "SHA256SUMS")
+    assert sorted(k.removeprefix("./") for k in sums if k.startswith("./")) == files
+    for f in files:
+        assert hashlib.sha256((vendor / f).read_bytes()).hexdigest() == sums["./" + f], f
+    for d in {f.split("/")[0] for f in files}:
+        assert any((vendor / d / n).exists() for n in ("LICENSE", "LICENSE.md")), d
+        assert f"/static/vendor/{d}/" in (ROOT / "graphkit" / "studio" / "static" / "index.html").read_text()
