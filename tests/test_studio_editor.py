@@ -77,6 +77,16 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
                 assert [dport, src, sport] in links(page, dst)
             assert page.is_hidden("#edit-msg")
 
+            # a link dragged off its input and dropped on the empty canvas is removed; undo brings it back
+            x, y = page.evaluate("a => studio.editor.slotPoint(a[0], a[1], true)", ["save_detail", "image"])
+            page.mouse.move(x, y)
+            page.mouse.down()
+            page.mouse.move(x - 40, y + 200, steps=6)
+            page.mouse.up()
+            wait_for(lambda: links(page, "save_detail") == [], what="the link removed")
+            page.keyboard.press("Control+z")
+            wait_for(lambda: links(page, "save_detail") == [["image", "detail", "ratio"]], what="the link back")
+
             # a link whose types do not fit: refused with the loader's own message, nothing drawn
             add_node(page, "blur_x", "Blur")
             page.click("#fit-btn")
