@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 # blender-data (CC0 HDR environments for the ProbeLight probes).
 APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 povray pocl-opencl-icd chromium blender-data
 
-.PHONY: demo test bench complexity sysdeps clean lock wheel-check mutate mutate-nodes
+.PHONY: demo test bench complexity sysdeps clean lock wheel-check mutate mutate-nodes vendor-studio
 demo: $(STAMP)
 	$(BIN)/graphkit run graphs/face_relight.yaml --out out
 	@echo "results in out/ (open out/portraits.png: the photo relit; out/contact_sheet.png: the close-ups)"
@@ -69,6 +69,11 @@ sysdeps:
 	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
+
+# Refresh the studio's vendored node editor (litegraph) and layout (elkjs) from the npm registry,
+# checked against graphkit/studio/static/vendor/SHA256SUMS (UPDATE=1 after a version change).
+vendor-studio:
+	sh tools/vendor_studio.sh
 
 # Re-pin constraints.txt from the current environment (after changing dependencies).
 lock: $(STAMP)

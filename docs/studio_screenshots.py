@@ -17,7 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "support")]
 
-from studio_support import Server, browser_page, wait_run  # noqa: E402
+from studio_support import Server, browser_page, click_node, wait_graph, wait_run  # noqa: E402
 
 SHOTS = {  # graph: (node to select, preview)
     "face_relight": ("left60", "sheet.image"),
@@ -36,22 +36,24 @@ def main():
     import cv2
 
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as pw:
-        b, ctx = browser_page(pw, viewport=(1400, 860))
+        b, ctx = browser_page(pw, webgl=True, viewport=(1400, 860))
         for g, (node, preview) in SHOTS.items():
             s = Server(ROOT / "graphs" / f"{g}.yaml", Path(tmp) / g, plugins="", cache=args.cache)
             try:
                 page = ctx.new_page()
                 page.goto(s.url)
-                page.wait_for_selector("#dag g.node")
+                wait_graph(page)
                 wait_run(page, timeout=3600)
-                page.click(f'#dag g.node[data-node="{node}"]')
+                click_node(page, node)
                 page.select_option("#preview-select", preview)
-                page.wait_for_function("() => document.getElementById('preview').complete && "
-                                       "document.getElementById('preview').dataset.digest")
+                page.wait_for_function("() => document.getElementById('preview').dataset.digest")
                 if page.query_selector("#view-panel:not([hidden])"):
+                    # an image view (a frame in) or a WebGL view (a canvas)
                     page.wait_for_function("() => { const i = document.querySelector('#view-body img.view-img');"
-                                           " return i && +i.dataset.frames > 0 && i.complete; }", timeout=120_000)
-                page.evaluate("document.getElementById('dag-wrap').scrollLeft = 0")
+                                           " return (i && +i.dataset.frames > 0 && i.complete)"
+                                           " || document.querySelector('#view-body canvas'); }", timeout=120_000)
+                    page.wait_for_timeout(1500)
+                page.evaluate("studio.editor.fit()")
                 raw = Path(tmp) / f"{g}.png"
                 page.screenshot(path=str(raw))
                 img = cv2.imread(str(raw))

@@ -439,7 +439,7 @@ def cmd_nodes(args) -> int:
     rows = []
     for n in [args.name] if args.name else reg.node_names():
         try:
-            rows.append(_node_info(reg, n))
+            rows.append(node_info(reg, n))
         except GraphkitError as e:
             print(f"warning: {e}", file=sys.stderr)
     if args.json:
@@ -453,7 +453,7 @@ def cmd_nodes(args) -> int:
     return 0
 
 
-def _node_info(reg, name: str) -> dict:
+def node_info(reg, name: str) -> dict:
     """What `graphkit nodes` says about node type ``name`` (the --json row)."""
     import inspect
 
@@ -461,7 +461,7 @@ def _node_info(reg, name: str) -> dict:
     return {
         "type": name, "version": cls.version, "provider": reg.nodes[name].provider,
         "doc": inspect.getdoc(cls) or "",
-        "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "doc": p.doc,
+        "inputs": {p.name: {"type": p.type.name, "optional": p.optional, "variadic": p.variadic, "doc": p.doc,
                             "constraints": p.constraints.to_json()} for p in cls.in_ports.values()},
         "outputs": {p.name: {"type": p.type.name, "doc": p.doc} for p in cls.out_ports.values()},
         "params": {k: _param_info(f) for k, f in cls.Params.model_fields.items()},

@@ -103,4 +103,41 @@ def wait_run(page, status="ok", after_gen=0, timeout=60):
 
 
 def node_state(page, name):
-    return page.eval_on_selector(f'#dag g.node[data-node="{name}"]', "e => e.dataset.state")
+    """The state the graph pane shows on node ``name`` (idle, running, done, cached, failed, …)."""
+    return page.evaluate("n => studio.editor.nodes[n]?.gkState", name)
+
+
+def wait_graph(page, timeout=30000):
+    """Until the graph pane has drawn and laid out the graph's nodes."""
+    page.wait_for_function("() => +document.getElementById('graph').dataset.laidOut > 0", timeout=timeout)
+
+
+def drawn_nodes(page):
+    return page.evaluate("Object.keys(studio.editor.nodes)")
+
+
+def click_node(page, name):
+    """A real mouse click on node ``name``'s title bar in the graph canvas, until the editor
+    has it selected (a click the canvas took for the second half of a double-click selects
+    nothing: it is clicked again half a second later)."""
+    want = name.split("[")[0]
+    for _ in range(3):
+        x, y = page.evaluate("n => studio.editor.nodePoint(n)", want)
+        page.mouse.click(x, y)
+        try:
+            page.wait_for_function("n => studio.editor.selected === n", arg=want, timeout=500)
+            return
+        except Exception:  # noqa: BLE001 - playwright's TimeoutError
+            continue
+    raise AssertionError(f"a click on node {name!r} does not select it")
+
+
+def drag_link(page, src, out_port, dst, in_port):
+    """Drag with the mouse from output socket ``src.out_port`` to input socket ``dst.in_port``."""
+    x0, y0 = page.evaluate("a => studio.editor.slotPoint(a[0], a[1], false)", [src, out_port])
+    x1, y1 = page.evaluate("a => studio.editor.slotPoint(a[0], a[1], true)", [dst, in_port])
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=4)
+    page.mouse.move(x1, y1, steps=4)
+    page.mouse.up()

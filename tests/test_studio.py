@@ -5,6 +5,8 @@ graphs/ are opened (not run) to check that the page draws every one of them.
 """
 from __future__ import annotations
 
+import collections
+
 import json
 import os
 import signal
@@ -16,7 +18,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, engine_env, graphkit
-from studio_support import Server, browser_page, need_browser, node_state, run_status, wait_for, wait_run
+from studio_support import (Server, browser_page, click_node, drawn_nodes, need_browser, node_state, run_status,
+                            wait_for, wait_graph, wait_run)
 
 pytestmark = pytest.mark.xdist_group("studio")
 
@@ -87,7 +90,7 @@ def server(tmp_path):
 def open_page(ctx, s):
     page = ctx.new_page()
     page.goto(s.url)
-    page.wait_for_selector("#dag g.node")
+    wait_graph(page)
     return page
 
 
@@ -128,10 +131,15 @@ def test_page_loads_for_every_graph(pw, tmp_path):
                 page = ctx.new_page()
                 page.on("pageerror", lambda e: errors.append(str(e)))
                 page.goto(s.url)
-                page.wait_for_selector("#dag g.node")
-                drawn = page.eval_on_selector_all("#dag g.node", "es => es.map(e => e.dataset.node)")
-                # every node, and every instance of a swept node (foreach: NODE[INSTANCE])
-                assert sorted(drawn) == sorted(load_graph(g, default_registry()).nodes), g.name
+                wait_graph(page)
+                drawn = drawn_nodes(page)
+                # every node; a swept node's instances (foreach: NODE[INSTANCE]) as one node with their count
+                names = list(load_graph(g, default_registry()).nodes)
+                instances = collections.Counter(n.split("[")[0] for n in names if "[" in n)
+                assert sorted(drawn) == sorted({n.split("[")[0] for n in names}), g.name
+                titles = page.evaluate("Object.fromEntries(Object.entries(studio.editor.nodes).map(([k, n]) => [k, n.title]))")
+                for n in drawn:
+                    assert titles[n] == (f"{n} ×{instances[n]}" if n in instances else n), (g.name, n)
                 assert page.eval_on_selector("#errors", "e => e.hidden"), (g.name, page.inner_text("#errors"))
                 gp = page.eval_on_selector_all("#gp-controls .ctl", "es => es.map(e => e.dataset.param)")
                 assert gp == list(data.get("params") or {}), g.name
@@ -153,7 +161,7 @@ def test_slider_changes_preview_and_only_downstream_reruns(browser, server):
     wait_run(page)
     first = manifest(s)
     assert all(not n["hit"] for n in first["nodes"].values())
-    page.click('#dag g.node[data-node="gain"]')
+    click_node(page, "gain")
     page.wait_for_selector('#node-panel .ctl[data-param="stops"] input[type=range]')
     # the preview canvas is drawn when its pixels arrive (fetched, or pushed over the websocket):
     # wait until it shows gain's output (data-digest is set once the pixels are on the canvas)
@@ -183,11 +191,17 @@ def test_request_without_token_is_refused(server):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(url, timeout=10)
             assert e.value.code == 403, url
-    for body in ({"changes": [{"node": "gain", "param": "stops", "value": 2}]}, {}):
-        req = urllib.request.Request(s.base + "api/params", data=json.dumps(body).encode(), method="POST")
+    for path, body in [("api/params", {"changes": [{"node": "gain", "param": "stops", "value": 2}]}), ("api/params", {}),
+                       ("api/edit", {"edits": [{"op": "remove_node", "name": "gain"}]}), ("api/undo", {}),
+                       ("api/stop", {}), ("api/save", {"path": "x.yaml"})]:
+        req = urllib.request.Request(s.base + path, data=json.dumps(body).encode(), method="POST")
         with pytest.raises(urllib.error.HTTPError) as e:
             urllib.request.urlopen(req, timeout=10)
         assert e.value.code == 403
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(s.base + "api/nodes", timeout=10)
+    assert e.value.code == 403
+    assert "gain" in [n["name"] for n in s.api("/api/state")["nodes"]]  # nothing was edited
     from websockets.exceptions import WebSocketException
     from websockets.sync.client import connect
 
@@ -270,7 +284,7 @@ def test_invalid_graph_opens_with_its_errors_and_runs_nothing(browser, server):
     assert cli.returncode == 2
     assert text.strip() == cli.stderr.strip()
     assert f"{path}:11:11: error: node 'gain': unknown node type 'Gian'; did you mean 'Gain'?" in text
-    assert sorted(page.eval_on_selector_all("#dag g.node", "es => es.map(e => e.dataset.node)")) == \
+    assert sorted(drawn_nodes(page)) == \
         ["flat", "gain", "save", "save_side", "side"]
     assert run_status(page)[0] in ("idle", "invalid")
     assert not any((s.cache / "keys").rglob("*.json")) if (s.cache / "keys").exists() else True
@@ -298,12 +312,12 @@ outputs: {gain: save.file, side: save_side.file, boom: after_boom.image}
     assert node_state(page, "boom") == "failed"
     assert node_state(page, "after_boom") == "blocked"
     assert node_state(page, "gain") in ("done", "cached") and node_state(page, "save") in ("done", "cached")
-    page.click('#dag g.node[data-node="boom"]')
+    click_node(page, "boom")
     msg = page.inner_text("#node-msg")
     assert msg.strip() and msg.strip() in cli.stderr, (msg, cli.stderr)
     assert "boom went the node" in msg and "Traceback" not in msg
     # the page keeps working: a change elsewhere runs
-    page.click('#dag g.node[data-node="gain"]')
+    click_node(page, "gain")
     gen = run_status(page)[1]
     page.fill('#node-panel .ctl[data-param="stops"] input[type=range]', "2")
     wait_run(page, "failed", after_gen=gen)
@@ -321,7 +335,7 @@ def test_second_tab_sees_the_same_state(browser, server):
     wait_run(a)
     b = ctx.new_page()
     b.goto(s.base)  # the cookie set by the first tab carries the token
-    b.wait_for_selector("#dag g.node")
+    wait_graph(b)
     wait_run(b)
     a.fill('#gp-controls .ctl[data-param="level"] input[type=range]', "0.75")
     wait_for(lambda: b.input_value('#gp-controls .ctl[data-param="level"] input[type=number]') == "0.75",
@@ -338,7 +352,7 @@ def test_save_as_graph_keeps_comments(browser, server, tmp_path):
     s, path = server()
     page = open_page(ctx, s)
     wait_run(page)
-    page.click('#dag g.node[data-node="gain"]')
+    click_node(page, "gain")
     page.fill('#node-panel .ctl[data-param="stops"] input[type=number]', "1.5")
     page.press('#node-panel .ctl[data-param="stops"] input[type=number]', "Enter")
     wait_for(lambda: s.api("/api/state")["graph"]["dirty"], what="edited")
@@ -422,6 +436,36 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
         st.close()
 
 
+def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):
+    """Python-level: Stop (the editor's button, /api/stop) ends the run going; what it finished
+    stays cached and the node it was in never is."""
+    import enginenodes  # noqa: F401
+    import studionodes
+
+    from graphkit.studio.core import Studio
+
+    engine_registry.add_provider("nodes", "tests", studionodes)
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH.replace("  save:\n    type: SaveImage\n    inputs: {image: gain.image}", """\
+  nap:
+    type: Nap
+    inputs: {image: gain.image}
+    params: {seconds: 1.0}
+  save:
+    type: SaveImage
+    inputs: {image: nap.image}"""))
+    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    try:
+        wait_for(lambda: st.nodes.get("nap", {}).get("state") == "running", what="nap running")
+        st.stop()
+        assert st.wait_idle(30)["status"] == "superseded"
+        assert not (tmp_path / "o" / "manifest.json").exists()
+        cached = {st.store.get_record(f.stem)["node"] for f in (tmp_path / "c" / "keys").rglob("*.json")}
+        assert "gain" in cached and "nap" not in cached
+    finally:
+        st.close()
+
+
 def test_live_view_hook_draws_frames_and_commits(browser, server):
     """A node class names a LiveView (studio_view); its ES module's slider draws through
     frame() over the websocket and, on release, commit() edits the graph and it re-runs."""
@@ -429,7 +473,7 @@ def test_live_view_hook_draws_frames_and_commits(browser, server):
     s, _ = server(GRAPH.replace("type: Gain", "type: ViewGain").replace("level: 0.25 ", "level: 0.125"))
     page = open_page(ctx, s)
     wait_run(page)
-    page.click('#dag g.node[data-node="gain"]')
+    click_node(page, "gain")
     sel = '#view-body input[type=range][data-key="stops"]'
     page.wait_for_selector(sel)
     page.wait_for_function("() => +document.querySelector('#view-body img.view-img').dataset.frames > 0")

@@ -15,7 +15,7 @@ import base64
 import numpy as np
 import pytest
 
-from studio_support import Server, browser_page, need_browser, wait_for
+from studio_support import Server, browser_page, click_node, need_browser, wait_for, wait_graph
 
 GRAPH = """graphkit: 1
 name: face_gl
@@ -70,9 +70,9 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
         page = ctx.new_page()
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         page.goto(s.url)
-        page.wait_for_selector("#dag g.node")
+        wait_graph(page)
         wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
-        page.click('#dag g.node[data-node="render"]')
+        click_node(page, "render")
         page.wait_for_selector("#view-body canvas.face-gl", timeout=60000)
         wait_for(lambda: page.evaluate("() => !!document.querySelector('#view-body canvas.face-gl').gkFace"),
                  30, "the WebGL view")
@@ -146,9 +146,9 @@ def test_face_view_light_frame_in_page_equals_host(pw, tmp_path):
     try:
         page = ctx.new_page()
         page.goto(s.url)
-        page.wait_for_selector("#dag g.node")
+        wait_graph(page)
         wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
-        page.click('#dag g.node[data-node="render"]')
+        click_node(page, "render")
         page.wait_for_selector("#view-body canvas.face-gl", timeout=60000)
         wait_for(lambda: page.evaluate(f"() => !!{face}"), 30, "the WebGL view")
         cases = [{"direction": [0.4, -0.5, -0.75]}, {"direction": [-0.6, 0.3, -0.75], "intensity": 2.5},

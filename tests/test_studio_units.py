@@ -103,3 +103,129 @@ def test_layout_of_a_graph_deeper_than_the_recursion_limit():
     pos = _layout(deps)
     assert pos["n0"] == (0, 0) and pos[f"n{n - 1}"] == (n - 1, 0)
     assert _layout({"a": ["b"], "b": ["a"], "c": ["c", "x"]}) == {"a": (2, 0), "b": (1, 0), "c": (1, 1)}
+
+
+# -- the node editor's edits (yamldoc.EDITS through Studio.edit) ------------------------------------
+
+def _studio(tmp_path, text, name="g.yaml"):
+    from graphkit.studio.core import Studio
+
+    p = tmp_path / name
+    p.write_text(text)
+    return Studio(p, cache=str(tmp_path / "cache"), autorun=False)
+
+
+def test_structural_edits_keep_the_text_of_untouched_nodes():
+    import difflib
+
+    from graphkit.studio.yamldoc import YamlDoc
+
+    text = (ROOT / "graphs" / "quickstart.yaml").read_text()
+    new = YamlDoc(text).with_edits([
+        {"op": "add_node", "name": "blur2", "type": "Blur", "params": {"sigma_px": 2.0}},
+        {"op": "set_input", "node": "blur2", "port": "image", "source": "photo.image"},
+        {"op": "rename_node", "name": "smooth", "new": "soft"},
+        {"op": "remove_node", "name": "save_photo"}]).text
+    data = yaml.safe_load(new)
+    assert list(data["nodes"]) == ["photo", "soft", "detail", "sheet", "save_detail", "save_sheet", "blur2"]
+    assert data["nodes"]["detail"]["inputs"] == {"a": "photo.image", "b": "soft.image"}
+    assert data["nodes"]["sheet"]["inputs"]["images"] == ["photo.image", "soft.image", "detail.ratio"]
+    assert data["nodes"]["blur2"] == {"type": "Blur", "params": {"sigma_px": 2.0}, "inputs": {"image": "photo.image"}}
+    assert "photo" not in data["outputs"]  # the removed writer's output went with it
+    assert "  sigma: 6.0        # blur of the smoothed copy (pixels): --set sigma=12\n" in new
+    changed = [x for x in difflib.ndiff(text.splitlines(), new.splitlines()) if x[:1] in "+-"]
+    # the renamed node's key and the 2 lines referring to it, the removed node (4 lines) and its output, the added node
+    assert len([x for x in changed if x[0] == "-"]) == 3 + 4 + 1, changed
+    assert len([x for x in changed if x[0] == "+"]) == 3 + 1, changed
+
+
+def test_an_edit_that_brings_a_new_error_is_refused_with_the_loaders_message(tmp_path):
+    s = _studio(tmp_path, "graphkit: 1\nname: t\n# kept\nnodes: {}\n")
+    try:
+        assert s.edit([{"op": "add_node", "name": "a", "type": "LoadImage", "params": {"path": "builtin:astronaut"}}])["ok"]
+        assert s.edit([{"op": "add_node", "name": "w", "type": "SaveImage"}])["ok"]  # unset path: unfinished, not refused
+        assert s.edit([{"op": "add_node", "name": "b", "type": "Blur"}])["ok"]
+        text = s.doc.text
+        r = s.edit([{"op": "set_input", "node": "b", "port": "image", "source": "w.file"}])
+        assert not r["ok"] and r["errors"][0]["message"] == "node 'b', input 'image' takes Image but w.file gives File"
+        r = s.edit([{"op": "set_input", "node": "b", "port": "image", "source": "a.nope"}])
+        assert not r["ok"] and "has no output port 'nope'" in r["errors"][0]["message"]
+        r = s.edit([{"op": "add_node", "name": "c", "type": "Blur", "params": {"sigma_px": -1}}])
+        assert not r["ok"] and "sigma_px" in r["errors"][0]["message"]  # out of its declared range
+        assert s.doc.text == text  # nothing applied
+        assert s.edit([{"op": "set_input", "node": "b", "port": "image", "source": "a.image"}])["ok"]
+        s.undo()
+        assert s.doc.text == text
+        s.undo(redo=True)
+        assert "inputs: {image: a.image}" in s.doc.text and "# kept" in s.doc.text
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize("edit", [
+    {"op": "add_node", "name": "x", "type": "!!python/object/apply:os.system"},
+    {"op": "add_node", "name": "x: !!python/name:os.system\n  y", "type": "Blur"},
+    {"op": "rename_node", "name": "a", "new": "!!python/object/apply:os.system ['true']"},
+    {"op": "set_input", "node": "a", "port": "image", "source": "!!python/name:os.system"},
+    {"op": "add_node", "name": "x", "type": "Blur", "params": {"sigma_px": "!!python/object/apply:os.system ['true']"}},
+])
+def test_nothing_typed_puts_code_into_the_graph_file(tmp_path, edit):
+    from graphkit.graphfile import parse_yaml
+
+    s = _studio(tmp_path, "graphkit: 1\nname: t\nnodes:\n  a: {type: LoadImage, params: {path: 'builtin:astronaut'}}\n")
+    try:
+        r = s.edit([edit])
+        assert not r["ok"]
+        assert "!!" not in s.doc.text
+        assert not parse_yaml(s.doc.text, "g").diags
+    finally:
+        s.close()
+    # and the loader refuses a tag however it got into a file
+    from graphkit.errors import GraphError
+    from graphkit.graphfile import load_graph
+    from graphkit.registry import default_registry
+
+    p = tmp_path / "tagged.yaml"
+    p.write_text("graphkit: 1\nname: t\nnodes:\n  a: !!python/object/apply:os.system ['true']\n")
+    with pytest.raises(GraphError):
+        load_graph(p, default_registry())
+
+
+def test_a_missing_node_type_is_kept_on_save_and_saves_stay_in_the_graphs_folder(tmp_path):
+    from graphkit.errors import UsageError
+
+    text = ("graphkit: 1\nname: t\nnodes:\n  a: {type: LoadImage, params: {path: 'builtin:astronaut'}}\n"
+            "  p: {type: FromAnUninstalledPlugin, inputs: {image: a.image}, params: {strength: 0.5, mode: [1, 2]}}\n")
+    s = _studio(tmp_path, text)
+    try:
+        st = s.state()
+        p = next(n for n in st["nodes"] if n["name"] == "p")
+        assert p["missing"] and p["raw_params"] == {"strength": 0.5, "mode": [1, 2]} and p["inputs"] == [["image", "a", "image"]]
+        assert s.edit([{"op": "add_node", "name": "b", "type": "Blur", "params": {"sigma_px": 2.0}}])["ok"]
+        assert s.edit([{"op": "set_input", "node": "b", "port": "image", "source": "a.image"}])["ok"]
+        s.save_as("saved.yaml")
+        saved = yaml.safe_load((tmp_path / "saved.yaml").read_text())
+        assert saved["nodes"]["p"] == {"type": "FromAnUninstalledPlugin", "inputs": {"image": "a.image"},
+                                       "params": {"strength": 0.5, "mode": [1, 2]}}
+        for outside in ["../out.yaml", str(tmp_path.parent / "out.yaml"), "sub/../../out.yaml"]:
+            with pytest.raises(UsageError, match="only into the graph's folder"):
+                s.save_as(outside)
+        assert not (tmp_path.parent / "out.yaml").exists()
+    finally:
+        s.close()
+
+
+def test_vendored_editor_libraries_match_their_checksums():
+    """static/vendor/ holds what SHA256SUMS lists (`make vendor-studio` writes both), each with
+    its licence, and the page loads those versions."""
+    import hashlib
+
+    vendor = ROOT / "graphkit" / "studio" / "static" / "vendor"
+    sums = dict(reversed(line.split("  ", 1)) for line in (vendor / "SHA256SUMS").read_text().splitlines())
+    files = sorted(str(p.relative_to(vendor)) for p in vendor.rglob("*") if p.is_file() and p.name != "SHA256SUMS")
+    assert sorted(k.removeprefix("./") for k in sums if k.startswith("./")) == files
+    for f in files:
+        assert hashlib.sha256((vendor / f).read_bytes()).hexdigest() == sums["./" + f], f
+    for d in {f.split("/")[0] for f in files}:
+        assert any((vendor / d / n).exists() for n in ("LICENSE", "LICENSE.md")), d
+        assert f"/static/vendor/{d}/" in (ROOT / "graphkit" / "studio" / "static" / "index.html").read_text()

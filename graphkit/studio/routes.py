@@ -27,8 +27,13 @@ def routes(studio, token: str, cookie: str) -> list:
         Route("/api/state", api.state),
         Route("/api/params", api.params, methods=["POST"]),
         Route("/api/run", api.run, methods=["POST"]),
+        Route("/api/stop", api.stop, methods=["POST"]),
         Route("/api/autorun", api.autorun, methods=["POST"]),
         Route("/api/save", api.save, methods=["POST"]),
+        Route("/api/nodes", api.nodes),
+        Route("/api/edit", api.edit, methods=["POST"]),
+        Route("/api/undo", api.undo, methods=["POST"]),
+        Route("/api/redo", api.redo, methods=["POST"]),
         Route("/api/preview", api.preview),
         Route("/api/manifest", api.manifest),
         Route("/api/view/{node}", api.view_data),
@@ -36,6 +41,19 @@ def routes(studio, token: str, cookie: str) -> list:
         WebSocketRoute("/ws", LiveSocket.endpoint(studio)),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
+
+
+def node_catalogue(registry) -> list[dict]:
+    """`graphkit nodes --json`'s rows (the palette), a node type that cannot load left out."""
+    from ..cli import node_info
+
+    rows = []
+    for n in registry.node_names():
+        try:
+            rows.append(node_info(registry, n))
+        except GraphkitError:
+            continue
+    return rows
 
 
 def err(status: int, message: str, **extra) -> JSONResponse:
@@ -56,6 +74,7 @@ class Api:
 
     def __init__(self, studio, token: str, cookie: str):
         self.studio, self.token, self.cookie = studio, token, cookie
+        self._palette = None
 
     async def index(self, request):
         r = FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
@@ -77,6 +96,10 @@ class Api:
             return err(422, "the graph does not validate", errors=self.studio.errors)
         return JSONResponse({"ok": True, "gen": self.studio.request_run()})
 
+    async def stop(self, request):
+        self.studio.stop()
+        return JSONResponse({"ok": True})
+
     async def autorun(self, request):
         data = await body(request)
         self.studio.set_autorun(bool(data.get("on", True)))
@@ -91,6 +114,25 @@ class Api:
         except GraphkitError as e:
             return err(422, str(e))
         return JSONResponse({"ok": True, "path": written})
+
+    async def nodes(self, request):
+        """The palette: what `graphkit nodes --json` says of every registered node type."""
+        if self._palette is None:
+            self._palette = await run_in_threadpool(node_catalogue, self.studio.registry)
+        return JSONResponse(self._palette)
+
+    async def edit(self, request):
+        edits = (await body(request)).get("edits")
+        if not isinstance(edits, list) or not all(isinstance(e, dict) for e in edits):
+            return err(400, "expected {\"edits\": [{\"op\": ..., ...}]}")
+        res = await run_in_threadpool(self.studio.edit, edits)
+        return JSONResponse(res, status_code=200 if res["ok"] else 422)
+
+    async def undo(self, request):
+        return JSONResponse(await run_in_threadpool(self.studio.undo))
+
+    async def redo(self, request):
+        return JSONResponse(await run_in_threadpool(self.studio.undo, True))
 
     async def preview(self, request):
         q = request.query_params

@@ -42,6 +42,7 @@ def snapshot(studio) -> dict:
         "outputs": {k: list(v) for k, v in g.outputs.items()} if g else {},
         "preview": _default_preview(g),
         "run": dict(studio.run_info), "autorun": studio.autorun,
+        "revision": studio.revision, "undo": len(studio.undo_texts), "redo": len(studio.redo_texts),
         "out": studio.out, "files": list(studio.files),
         "manifest": _manifest_summary(studio.manifest),
     }
@@ -63,6 +64,7 @@ def _node(studio, name: str, spec: dict) -> tuple[dict, list[str]]:
         view = view_for(studio.registry, typ)
     return {"name": name, "type": typ, "inputs": ins, "outputs": outs,
             "params": values, "raw_params": _dict(spec.get("params")), "doc": spec.get("doc", ""),
+            "missing": typ not in studio.registry.nodes,
             "view": view.describe() if view else None, **st}, deps
 
 

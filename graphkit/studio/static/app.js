@@ -1,5 +1,6 @@
 // graphkit studio page: state over a websocket, DAG, controls, previews, live views.
-import { Dag } from './dag.js';
+import { Editor } from './graph.js';
+import { mountPalette } from './palette.js';
 import { makeControl, boundParam } from './controls.js';
 
 const token = new URLSearchParams(location.search).get('token') || sessionStorage.getItem('gk-token') || '';
@@ -29,12 +30,20 @@ function log(msg) {
 }
 
 // ---- rendering ------------------------------------------------------------------------
-const dag = new Dag($('dag'), name => selectNode(name));
+const dag = studio.editor = new Editor($('graph'), {
+  select: name => { if (studio.selected !== name) selectNode(name); },
+  thumbURL: (node, port, max) => previewURL(node, port, max),
+  open: (node, port) => setPreview([node, port]),
+  edit: edits => edit(edits),
+  undo: redo => undo(redo),
+});
 let controls = {};  // "node/param" or "/param" -> control
 
 function nodeByName(name) { return (studio.state?.nodes || []).find(n => n.name === name); }
 
 function render(state) {
+  // states are sent from more than one thread: one older than the graph on show is stale
+  if (studio.state && state.revision < studio.state.revision) return;
   studio.state = state;
   $('graph-name').textContent = state.graph.name;
   $('graph-path').textContent = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
@@ -194,8 +203,39 @@ function renderPreviewChoices(state) {
     sel.dataset.key = key;
     sel.replaceChildren(...opts.map(o => { const e = document.createElement('option'); e.value = e.textContent = o; return e; }));
   }
+  const cmp = $('compare-select');
+  if (cmp.dataset.key !== key) {
+    const keep = cmp.value;
+    cmp.dataset.key = key;
+    cmp.replaceChildren(...['', ...opts].map(o => { const e = document.createElement('option'); e.value = o; e.textContent = o || '—'; return e; }));
+    cmp.value = opts.includes(keep) ? keep : '';
+  }
+  refreshCompare();
   if (!studio.preview && state.preview) studio.preview = state.preview;
   if (studio.preview) sel.value = studio.preview.join('.');
+}
+
+// A/B compare: output B drawn over the preview (same size), shown right of the divider
+async function refreshCompare() {
+  const v = $('compare-select').value, b = $('preview-b');
+  $('compare-split').hidden = b.hidden = !v;
+  if (!v) return;
+  const i = v.lastIndexOf('.'), node = v.slice(0, i), port = v.slice(i + 1);
+  if (!digestOf(node, port)) return;
+  const url = previewURL(node, port);
+  if (b.dataset.url === url) return;
+  b.dataset.url = url;
+  const r = await fetch(url, { headers: { 'x-graphkit-token': token } });
+  if (!r.ok) return;
+  const bm = await createImageBitmap(await r.blob());
+  b.width = bm.width; b.height = bm.height;
+  b.getContext('2d').drawImage(bm, 0, 0);
+  bm.close();
+  splitCompare();
+}
+
+function splitCompare() {
+  $('preview-b').style.clipPath = `inset(0 0 0 ${$('compare-split').value}%)`;
 }
 
 function setPreview(p) {
@@ -281,7 +321,26 @@ async function refreshPreview() {
   } catch { /* a preview that cannot be shown leaves the last one */ }
 }
 
-// ---- edits ----------------------------------------------------------------------------
+// ---- graph edits: the server applies them (the loader's checks) or says why not -----------
+async function edit(edits) {
+  const r = await api('/api/edit', { edits });
+  showEditMsg(r.ok ? '' : (r.errors || []).map(e => e.text).join('\n') || r.error);
+  return r;
+}
+
+async function undo(redo) {
+  const r = await api(redo ? '/api/redo' : '/api/undo', {});
+  showEditMsg(r.ok ? '' : (r.errors || []).map(e => e.text).join('\n'));
+}
+
+function showEditMsg(text) {
+  const el = $('edit-msg');
+  el.hidden = !text;
+  el.textContent = text || '';
+  if (text) log(text);
+}
+
+// ---- param edits --------------------------------------------------------------------------
 // While a change is in flight, newer values wait; only the newest is sent next.
 const pending = new Map();
 let sending = false;
@@ -426,6 +485,18 @@ $('run-btn').addEventListener('click', async () => {
   const r = await api('/api/run', {});
   if (!r.ok) log(r.error);
 });
+$('stop-btn').addEventListener('click', () => api('/api/stop', {}));
+$('fit-btn').addEventListener('click', () => dag.fit());
+$('layout-btn').addEventListener('click', () => dag.layout());
+$('undo-btn').addEventListener('click', () => undo(false));
+$('redo-btn').addEventListener('click', () => undo(true));
+$('dup-btn').addEventListener('click', () => dag.duplicate());
+$('rename-btn').addEventListener('click', () => dag.rename());
+$('delete-btn').addEventListener('click', () => dag.remove());
+$('palette-search').addEventListener('focus', () => { $('palette').hidden = false; });
+document.addEventListener('click', e => {
+  if (!e.target.closest('#palette, #palette-search')) $('palette').hidden = true;
+});
 $('autorun').addEventListener('change', e => api('/api/autorun', { on: e.target.checked }));
 $('save-btn').addEventListener('click', async () => {
   const suggestion = (studio.state?.graph.path || 'graph.yaml').replace(/\.ya?ml$/, '') + '_edited.yaml';
@@ -437,9 +508,19 @@ $('save-btn').addEventListener('click', async () => {
 $('exposure').addEventListener('input', e => {
   $('exposure-val').textContent = (+e.target.value).toFixed(1);
   refreshPreview();
+  refreshCompare();
 });
+$('one-to-one').addEventListener('change', e => $('preview-frame').classList.toggle('one-to-one', e.target.checked));
+$('compare-select').addEventListener('change', refreshCompare);
+$('compare-split').addEventListener('input', splitCompare);
 $('preview-select').addEventListener('change', e => {
   const v = e.target.value, i = v.lastIndexOf('.');
   setPreview([v.slice(0, i), v.slice(i + 1)]);
 });
 connect();
+// the palette (every node type's ports: the registry imports them all, which takes a while)
+api('/api/nodes').then(rows => {
+  dag.setCatalogue(rows);
+  mountPalette($('palette-search'), $('palette'), rows, type => { $('palette').hidden = true; dag.add(type); });
+  if (studio.state) dag.draw(studio.state.nodes);
+});
