@@ -45,7 +45,7 @@ def routes(studio, token: str, cookie: str) -> list:
 
 def node_catalogue(registry) -> list[dict]:
     """`graphkit nodes --json`'s rows (the palette), a node type that cannot load left out."""
-    from ..cli import node_info
+    from ..nodeinfo import node_info
 
     rows = []
     for n in registry.node_names():
