@@ -11,7 +11,6 @@ that casts shadows).
 from __future__ import annotations
 
 import functools
-import importlib
 
 import numpy as np
 
@@ -22,11 +21,10 @@ from nodes.common import rays
 class _Embree(Backend):
     name = "embree"
     version = "1"
-    #: "module:Class" of the node type whose compute runs with Embree's rays
-    node_class = ""
     #: float32 ray-triangle tests against the float64 reference: a ray that grazes a polygon's
     #: edge may answer otherwise, and the values it lights move a little
     tolerance = {"rtol": 1e-4, "atol": 1e-5}
+
     @classmethod
     def available(cls) -> bool:
         return rays.embree_missing() is None
@@ -36,32 +34,27 @@ class _Embree(Backend):
         return rays.embree_missing() or ""
 
     def compute(self, **inputs):
-        mod, _, name = self.node_class.partition(":")
-        node = getattr(importlib.import_module(mod), name)
+        from graphkit.registry import default_registry
+
+        node = default_registry().node_class(self.node)  # the node type's own compute
         with rays.using("embree"):
             return node(self.params, self.ctx).compute(**inputs)
 
 
 class ProjectTexturesEmbree(_Embree):
     node = "ProjectTextures"
-    node_class = "nodes.loscos.textures:ProjectTextures"
 
 
 class RadiositySolveEmbree(_Embree):
     node = "RadiositySolve"
-    node_class = "nodes.loscos.radiosity:RadiositySolve"
 
 
 class TextureRefineEmbree(_Embree):
     node = "TextureRefine"
-    node_class = "nodes.loscos.radiosity:TextureRefine"
 
 
 class RelightEmbree(_Embree):
     node = "Relight"
-    node_class = "nodes.loscos.relight:Relight"
-
-
 
 
 @functools.lru_cache(maxsize=1)
@@ -70,24 +63,11 @@ def ray_examples() -> dict:
     front, two ceiling lights and a box on the floor that shadows the floor and the walls;
     40×32 px.  {"scene", "camera", "photo", "projection", "solution", "refined"}."""
     from .radiosity import RadiositySolve, TextureRefine
-    from .scene import parse_scene
+    from .scene import example_room
     from .textures import ProjectTextures
 
     box = [[0.25, 0, 0, -0.2], [0, 0.3, 0, -0.7], [0, 0, 0.25, -0.3], [0, 0, 0, 1]]
-    doc = {"loscos_scene": 1, "camera": {"width": 40, "height": 32, "fov_deg": 60,
-                                         "position": [0, 0, 2.5], "look_at": [0, 0, 0]},
-           "materials": {"w": [0.7, 0.6, 0.5], "r": [0.6, 0.1, 0.1], "b": [0.2, 0.3, 0.6]},
-           "polygons": [{"name": "back", "material": "w", "vertices": [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1]]},
-                        {"name": "floor", "material": "w", "vertices": [[-1, -1, 1], [1, -1, 1], [1, -1, -1], [-1, -1, -1]]},
-                        {"name": "left", "material": "r", "vertices": [[-1, -1, 1], [-1, -1, -1], [-1, 1, -1], [-1, 1, 1]]}],
-           "boxes": [{"name": "box", "material": "b", "to_world": box, "bottom": False}],
-           "lights": [{"name": "A", "material": "w", "emittance": [20, 20, 16],
-                       "vertices": [[-.3, .99, -.6], [.3, .99, -.6], [.3, .99, -.2], [-.3, .99, -.2]]},
-                      {"name": "B", "material": "w", "emittance": [8, 12, 16],
-                       "vertices": [[.5, .99, .1], [.8, .99, .1], [.8, .99, .4], [.5, .99, .4]]}]}
-    sc, cam, _ = parse_scene(doc)
-    yy, xx = np.mgrid[0:32, 0:40] / 40.0
-    photo = Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+    sc, cam, photo = example_room(box)
 
     def run(node, params, **kw):
         return node(node.Params(**params), Context()).compute(**kw)

@@ -265,22 +265,10 @@ def _relight_examples():
     from graphkit import Context
 
     from .radiosity import RadiositySolve
-    from .scene import parse_scene
+    from .scene import example_room
     from .textures import ProjectTextures
 
-    q = [[-.3, .99, -.6], [.3, .99, -.6], [.3, .99, -.2], [-.3, .99, -.2]]  # facing down
-    doc = {"loscos_scene": 1, "camera": {"width": 40, "height": 32, "fov_deg": 60,
-                                         "position": [0, 0, 2.5], "look_at": [0, 0, 0]},
-           "materials": {"w": [0.7, 0.6, 0.5], "r": [0.6, 0.1, 0.1]},
-           "polygons": [{"name": "back", "material": "w", "vertices": [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1]]},
-                        {"name": "floor", "material": "w", "vertices": [[-1, -1, 1], [1, -1, 1], [1, -1, -1], [-1, -1, -1]]},
-                        {"name": "left", "material": "r", "vertices": [[-1, -1, 1], [-1, -1, -1], [-1, 1, -1], [-1, 1, 1]]}],
-           "lights": [{"name": "A", "material": "w", "emittance": [20, 20, 16], "vertices": q},
-                      {"name": "B", "material": "w", "emittance": [8, 12, 16],
-                       "vertices": [[.5, .99, .1], [.8, .99, .1], [.8, .99, .4], [.5, .99, .4]]}]}
-    sc, cam, _ = parse_scene(doc)
-    yy, xx = np.mgrid[0:32, 0:40] / 40.0
-    photo = Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+    sc, cam, photo = example_room()
 
     def run(node, params, **kw):
         return node(node.Params(**params), Context()).compute(**kw)

@@ -94,6 +94,27 @@ def check_polygons(verts: np.ndarray, names, port: str, rel_tol: float = 1e-6):
                                  f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms")
 
 
+def example_room(box: list | None = None) -> tuple[RoomScene, Camera, Image]:
+    """The nodes' small example room (conformance cases): a 2 m room open at the front, two
+    ceiling lights, optionally a box (4×4 ``to_world``) on the floor; a 40×32 px camera and a
+    smooth synthetic photo.  (scene, camera, photo)."""
+    doc = {"loscos_scene": 1, "camera": {"width": 40, "height": 32, "fov_deg": 60,
+                                         "position": [0, 0, 2.5], "look_at": [0, 0, 0]},
+           "materials": {"w": [0.7, 0.6, 0.5], "r": [0.6, 0.1, 0.1], "b": [0.2, 0.3, 0.6]},
+           "polygons": [{"name": "back", "material": "w", "vertices": [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1]]},
+                        {"name": "floor", "material": "w", "vertices": [[-1, -1, 1], [1, -1, 1], [1, -1, -1], [-1, -1, -1]]},
+                        {"name": "left", "material": "r", "vertices": [[-1, -1, 1], [-1, -1, -1], [-1, 1, -1], [-1, 1, 1]]}],
+           "lights": [{"name": "A", "material": "w", "emittance": [20, 20, 16],  # facing down
+                       "vertices": [[-.3, .99, -.6], [.3, .99, -.6], [.3, .99, -.2], [-.3, .99, -.2]]},
+                      {"name": "B", "material": "w", "emittance": [8, 12, 16],
+                       "vertices": [[.5, .99, .1], [.8, .99, .1], [.8, .99, .4], [.5, .99, .4]]}]}
+    if box is not None:
+        doc["boxes"] = [{"name": "box", "material": "b", "to_world": box, "bottom": False}]
+    sc, cam, _ = parse_scene(doc)
+    yy, xx = np.mgrid[0:32, 0:40] / 40.0
+    return sc, cam, Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+
+
 def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str | None]:
     """Scene YAML document → (RoomScene, Camera, photo file name or None)."""
     try:
