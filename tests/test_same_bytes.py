@@ -41,7 +41,7 @@ def _x86_64_v3() -> bool:
 def computed():
     """The graphs' digests now, from the recorder (its pinned environment) in a fresh process."""
     if not _x86_64_v3():
-        pytest.skip("the digests were recorded with x86-64-v3 (AVX2) kernels: other CPUs give other last bits")
+        pytest.skip(reason="the digests were recorded with x86-64-v3 (AVX2) kernels: other CPUs give other last bits")
     env = {k: v for k, v in os.environ.items() if not k.startswith("GRAPHKIT_")}
     r = subprocess.run([sys.executable, RECORDER, "--print", *sorted(RECORDED), *(["--full"] if FULL else [])],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=1800)
