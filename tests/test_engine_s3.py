@@ -2,6 +2,7 @@
 user would (``--cache s3://bucket/prefix``, the endpoint in FSSPEC_S3_ENDPOINT_URL).  The same
 bytes as a folder, warm runs all cached, damage detected, bad input refused with exit 2, and
 concurrent clients with `cache gc` looping beside them computing each key once."""
+import contextlib
 import json
 import subprocess
 import sys
@@ -156,6 +157,25 @@ def test_out_inside_the_cache_folder_is_refused(tmp_path, write):
     assert graphkit("cache", "verify", "--cache", cache, env=env).returncode == 0
 
 
+@contextlib.contextmanager
+def looping_gc(url, env):
+    """`cache gc` run over and over on the cache while the block runs; yields the list of their
+    results (all must have succeeded: asserted by the caller after the block)."""
+    stop, gcs = threading.Event(), []
+
+    def gc_loop():
+        while not stop.is_set():
+            gcs.append(graphkit("cache", "gc", "--cache", url, "--max-size", "10G", env=env))
+
+    looper = threading.Thread(target=gc_loop)
+    looper.start()
+    try:
+        yield gcs
+    finally:
+        stop.set()
+        looper.join()
+
+
 SWEEP = """\
 graphkit: 1
 name: shared
@@ -174,23 +194,11 @@ def test_concurrent_clients_and_a_looping_gc_compute_each_key_once(s3, url, tmp_
     g = tmp_path / "g.yaml"
     g.write_text(SWEEP.format(log=log))
     env = env_for(s3)
-    stop = threading.Event()
-    gcs = []
-
-    def gc_loop():
-        while not stop.is_set():
-            gcs.append(graphkit("cache", "gc", "--cache", url, "--max-size", "10G", env=env))
-
-    looper = threading.Thread(target=gc_loop)
-    looper.start()
-    try:
+    with looping_gc(url, env) as gcs:
         procs = [subprocess.Popen([sys.executable, "-m", "graphkit", "run", str(g), "--cache", url, "--out",
                                    str(tmp_path / f"o{i}"), "--jobs", "2", "-q"], env=env,
                                   stderr=subprocess.PIPE, text=True) for i in range(2)]
         errs = [p.communicate(timeout=240)[1] for p in procs]
-    finally:
-        stop.set()
-        looper.join()
     assert [p.returncode for p in procs] == [0, 0], errs
     assert all("Traceback" not in e for e in errs), errs
     keys = [line.split()[0] for line in log.read_text().splitlines()]
@@ -372,22 +380,11 @@ def test_dask_workers_one_killed_and_a_client_beside_them_compute_each_key_once(
     gd.write_text(DASK.format(name="dask", log=log, extra=kill, more=", k: k.out"))
     gl.write_text(DASK.format(name="local", log=log, extra="", more=""))
     env = env_for(s3)
-    stop, gcs = threading.Event(), []
-
-    def gc_loop():
-        while not stop.is_set():
-            gcs.append(graphkit("cache", "gc", "--cache", url, "--max-size", "10G", env=env))
-
-    looper = threading.Thread(target=gc_loop)
-    looper.start()
-    try:
+    with looping_gc(url, env) as gcs:
         procs = [subprocess.Popen([sys.executable, "-m", "graphkit", "run", str(g), "--cache", url, "--out",
                                    str(tmp_path / name), *extra, "-q"], env=env, stderr=subprocess.PIPE, text=True)
                  for g, name, extra in ((gd, "od", ["--executor", "dask", "--jobs", "2"]), (gl, "ol", ["--jobs", "2"]))]
         errs = [p.communicate(timeout=300)[1] for p in procs]
-    finally:
-        stop.set()
-        looper.join()
     assert [p.returncode for p in procs] == [0, 0], errs
     assert all("Traceback" not in e for e in errs), errs
     assert (tmp_path / "killed").exists()  # a worker died computing k

@@ -403,8 +403,8 @@ def test_interrupting_leaves_no_partial_cache_entry_or_output(browser, server, h
     assert r.returncode == 0, r.stdout + r.stderr
 
 
-def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
-    """Python-level: two quick changes; the first run stops at its next progress report."""
+def napping_studio(tmp_path, engine_registry):
+    """A Studio over GRAPH with a 1 s Nap node before the save (a run to stop or supersede)."""
     import enginenodes  # noqa: F401
     import studionodes
 
@@ -420,7 +420,12 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
   save:
     type: SaveImage
     inputs: {image: nap.image}"""))
-    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    return Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+
+
+def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
+    """Python-level: two quick changes; the first run stops at its next progress report."""
+    st = napping_studio(tmp_path, engine_registry)
     try:
         wait_for(lambda: st.nodes.get("nap", {}).get("state") == "running", what="nap running")
         assert st.set_params([{"node": "nap", "param": "salt", "value": 1}])["ok"]
@@ -439,22 +444,7 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
 def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):
     """Python-level: Stop (the editor's button, /api/stop) ends the run going; what it finished
     stays cached and the node it was in never is."""
-    import enginenodes  # noqa: F401
-    import studionodes
-
-    from graphkit.studio.core import Studio
-
-    engine_registry.add_provider("nodes", "tests", studionodes)
-    p = tmp_path / "g.yaml"
-    p.write_text(GRAPH.replace("  save:\n    type: SaveImage\n    inputs: {image: gain.image}", """\
-  nap:
-    type: Nap
-    inputs: {image: gain.image}
-    params: {seconds: 1.0}
-  save:
-    type: SaveImage
-    inputs: {image: nap.image}"""))
-    st = Studio(p, cache=str(tmp_path / "c"), out=str(tmp_path / "o"), registry=engine_registry)
+    st = napping_studio(tmp_path, engine_registry)
     try:
         wait_for(lambda: st.nodes.get("nap", {}).get("state") == "running", what="nap running")
         st.stop()
