@@ -539,3 +539,50 @@ def test_preview_on_show_goes_out_before_the_rest_of_the_run(tmp_path, engine_re
         assert (got == px[..., :3]).all()
     finally:
         st.close()
+
+
+SWEEP_GRAPH = """\
+graphkit: 1
+name: studio_sweep
+sweeps:
+  lv:
+    values: [{level: 0.25}, {level: 0.5}]
+    name: "lv{index}"
+nodes:
+  flat:
+    type: Flat
+    foreach: lv
+    params: {level: "${lv.level}", size: 8}
+  gain:
+    type: Gain
+    foreach: lv
+    inputs: {image: flat.image}
+    params: {stops: 0.0}   # one gain for every instance
+outputs: {}
+"""
+
+
+def test_a_sweep_node_is_edited_from_its_panel(browser, server):
+    """A sweep is drawn as one node; its panel edits the graph file's node (every instance),
+    and a param bound to the sweep's values is shown as bound, not as a control that would
+    overwrite the reference."""
+    ctx, errors = browser
+    s, _ = server(SWEEP_GRAPH)
+    page = open_page(ctx, s)
+    wait_run(page)
+    assert sorted(drawn_nodes(page)) == ["flat", "gain"]
+    click_node(page, "flat")
+    page.wait_for_selector("#node-panel h3")
+    assert "instance flat[lv0]" in page.text_content("#node-panel h3")
+    bound = page.inner_text('#node-panel .ctl[data-param="level"] .bound')
+    assert "${lv.level}" in bound, bound
+    assert not page.query_selector('#node-panel .ctl[data-param="level"] input')
+    click_node(page, "gain")
+    page.wait_for_selector('#node-panel .ctl[data-param="stops"] input[type=range]')
+    gen = run_status(page)[1]
+    page.fill('#node-panel .ctl[data-param="stops"] input[type=range]', "1")
+    wait_run(page, after_gen=gen)
+    assert page.inner_text('#node-panel .ctl[data-param="stops"] .err').strip() == ""
+    got = page.evaluate("studio.state.nodes.filter(n => n.base === 'gain').map(n => [n.params.stops, n.raw_params])")
+    assert got == [[1.0, {"stops": 1.0}]] * 2, got  # the sweep node's param, so both instances
+    assert not errors

@@ -24,7 +24,7 @@ def snapshot(studio) -> dict:
     nodes, schemas, defs = [], {}, {}
     deps: dict[str, list[str]] = {}
     for name in studio.nodes:
-        spec = _dict(raw_nodes.get(name))
+        spec = _dict(raw_nodes.get(_base(studio.graph, name)))
         entry, deps[name] = _node(studio, name, spec)
         _add_schema(studio, entry["type"], schemas, defs)
         nodes.append(entry)
@@ -62,10 +62,17 @@ def _node(studio, name: str, spec: dict) -> tuple[dict, list[str]]:
     view = None
     with contextlib.suppress(Exception):
         view = view_for(studio.registry, typ)
-    return {"name": name, "type": typ, "inputs": ins, "outputs": outs,
+    return {"name": name, "base": _base(g, name), "type": typ, "inputs": ins, "outputs": outs,
             "params": values, "raw_params": _dict(spec.get("params")), "doc": spec.get("doc", ""),
             "missing": typ not in studio.registry.nodes,
             "view": view.describe() if view else None, **st}, deps
+
+
+def _base(g, name: str) -> str:
+    """The graph file's name of node ``name`` (a sweep's instance ``lamp[ring00]`` is ``lamp``):
+    the node its params and inputs are edited in."""
+    gn = g.nodes.get(name) if g is not None else None
+    return (gn.base or name) if gn is not None else name
 
 
 def _from_graph(gn):

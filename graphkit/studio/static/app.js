@@ -129,7 +129,8 @@ function renderNodePanel(n, rebuild) {
     box.dataset.key = key;
     box.replaceChildren();
     const h = document.createElement('h3');
-    h.textContent = `${n.name} · ${n.type}`;
+    // a sweep's instance shows its values; its params are the sweep node's, edited there
+    h.textContent = n.base && n.base !== n.name ? `${n.base} · ${n.type} (instance ${n.name})` : `${n.name} · ${n.type}`;
     box.append(h);
     const msg = document.createElement('div');
     msg.className = 'node-msg';
@@ -146,7 +147,7 @@ function renderNodePanel(n, rebuild) {
     for (const k of Object.keys(props)) {
       const bound = boundParam((n.raw_params || {})[k]);
       const c = makeControl(k, props[k], (n.params || {})[k], studio.state.defs,
-        v => change(n.name, k, v, c), { bound });
+        v => change(n.base || n.name, k, v, c), { bound });
       controls[n.name + '/' + k] = c;
       box.append(c.root);
     }

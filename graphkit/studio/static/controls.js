@@ -4,7 +4,8 @@
 // strings and paths; the param's description is the tooltip.  Values are checked by the
 // server (the graph loader), whose message is shown under the control.
 
-const REF = /^\s*\$\{params\.([A-Za-z_][A-Za-z0-9_]*)\}\s*$/;
+// a param written as a reference: "${params.x}" (a graph param) or "${light.azimuth}" (a sweep's value)
+const REF = /^\s*\$\{([A-Za-z_][A-Za-z0-9_]*)((?:\.[A-Za-z_][A-Za-z0-9_]*)*)\}\s*$/;
 
 export function unwrap(s, defs) {
   if (!s || typeof s !== 'object') return {};
@@ -63,9 +64,10 @@ export function makeControl(name, schema, value, defs, onChange, opts = {}) {
   const send = v => onChange(v);
 
   if (opts.bound) {
-    field.append(el('span', { class: 'bound', title: `set by the graph param '${opts.bound}'` },
-      `${JSON.stringify(value)}  ← \${params.${opts.bound}}`));
-    set = v => { field.firstChild.textContent = `${JSON.stringify(v)}  ← \${params.${opts.bound}}`; };
+    const [owner, ...path] = opts.bound.split('.');
+    const title = owner === 'params' ? `set by the graph param '${path.join('.')}'` : `set by the sweep '${owner}' (one value per instance)`;
+    field.append(el('span', { class: 'bound', title }, `${JSON.stringify(value)}  ← \${${opts.bound}}`));
+    set = v => { field.firstChild.textContent = `${JSON.stringify(v)}  ← \${${opts.bound}}`; };
   } else if (s.enum || s.const !== undefined) {
     const choices = s.enum || [s.const];
     const sel = el('select');
@@ -137,7 +139,8 @@ export function makeControl(name, schema, value, defs, onChange, opts = {}) {
   };
 }
 
+// the reference a param is written as ("params.exposure", "light.azimuth"), or null
 export function boundParam(raw) {
   const m = typeof raw === 'string' && raw.match(REF);
-  return m ? m[1] : null;
+  return m ? m[1] + m[2] : null;
 }
