@@ -378,7 +378,7 @@ def test_interrupting_leaves_no_partial_cache_entry_or_output(browser, server, h
   nap:
     type: Nap
     inputs: {image: gain.image}
-    params: {seconds: 2.0}
+    params: {seconds: 5.0}   # long enough to be running once a loaded machine's page is up
   save:
     type: SaveImage
     inputs: {image: nap.image}""")

@@ -21,6 +21,21 @@ const STATE_COLOURS = { idle: '#5a606c', queued: '#5a606c', cached: '#3aa0c8', r
   done: '#4cb860', failed: '#e05050', blocked: '#8a6a3a' };
 const W = 210, INFO = 34, THUMB = 84;
 
+// ELK lays out in a Web Worker (elk_worker.js), so a big graph's layout never blocks the page.
+// Started with the page, so ELK loads while the page does.
+const worker = new Worker('/static/elk_worker.js');
+const waiting = new Map();
+let asked = 0;
+worker.onmessage = ({ data }) => {
+  const w = waiting.get(data.id);
+  waiting.delete(data.id);
+  if (data.error) w.reject(new Error(data.error)); else w.resolve(data.graph);
+};
+function layOut(graph) {
+  const id = ++asked;
+  return new Promise((resolve, reject) => { waiting.set(id, { resolve, reject }); worker.postMessage({ id, graph }); });
+}
+
 LiteGraph.isValidConnection = () => true;  // the engine decides (onConnectInput → /api/edit)
 LiteGraph.release_link_on_empty_shows_menu = false;
 LGraphCanvas.prototype.processContextMenu = () => {};  // no local menus that change the graph
@@ -258,7 +273,7 @@ export class Editor {
         targets: [`${this.graph.getNodeById(l.target_id).gk}/i${l.target_slot}`] })),
     };
     const t0 = performance.now();
-    const res = await new window.ELK().layout(g);
+    const res = await layOut(g);
     this.layoutMs = performance.now() - t0;
     for (const c of res.children) {
       this.pos[c.id] = [c.x, c.y + TH];
