@@ -115,7 +115,8 @@ def preview_pixel(page):
 
 
 def test_page_loads_for_every_graph(pw, tmp_path):
-    """Each graph in graphs/ opens (without running): every node drawn, graph params as controls."""
+    """Each graph in graphs/ opens (without running): every node drawn, graph params as controls;
+    zoomed out to a quarter, most nodes still show their names (drawn at a size read on screen)."""
     import yaml
 
     from graphkit.graphfile import load_graph
@@ -141,6 +142,10 @@ def test_page_loads_for_every_graph(pw, tmp_path):
                 for n in drawn:
                     assert titles[n] == (f"{n} ×{instances[n]}" if n in instances else n), (g.name, n)
                 assert page.eval_on_selector("#errors", "e => e.hidden"), (g.name, page.inner_text("#errors"))
+                labelled = page.evaluate("""() => { const e = studio.editor, c = e.canvas.canvas;
+                    e.canvas.ds.changeScale(0.25, [c.width / 2, c.height / 2]); e.canvas.draw(true, true);
+                    return +document.getElementById('graph').dataset.labelled; }""")
+                assert labelled >= len(drawn) / 2, (g.name, labelled, len(drawn))
                 gp = page.eval_on_selector_all("#gp-controls .ctl", "es => es.map(e => e.dataset.param)")
                 assert gp == list(data.get("params") or {}), g.name
                 assert not errors, (g.name, errors)

@@ -20,6 +20,9 @@ export function typeColour(t) {
 const STATE_COLOURS = { idle: '#5a606c', queued: '#5a606c', cached: '#3aa0c8', running: '#e0b030',
   done: '#4cb860', failed: '#e05050', blocked: '#8a6a3a' };
 const W = 210, INFO = 34, THUMB = 84;
+// Below this zoom litegraph draws nodes without text; the editor then writes each node's name
+// at a fixed size on screen (LABEL_PX) wherever it fits in the node's box.
+const FAR = 0.6, LABEL_PX = 12;
 
 // ELK lays out in a Web Worker (elk_worker.js), so a big graph's layout never blocks the page.
 // Started with the page, so ELK loads while the page does.
@@ -72,6 +75,22 @@ function collapse(nodes) {
   return [...out.values()];
 }
 
+// ``text`` broken into lines no wider than ``width`` (after '_', '-', ' ', '×' where it can,
+// else anywhere); null where one character is already too wide
+function wrapText(ctx, text, width) {
+  if (ctx.measureText('M').width > width) return null;
+  const lines = [];
+  let line = '';
+  for (const part of text.match(/[^_\- ×]+[_\- ×]*|[_\- ×]+/g) || []) {
+    for (const piece of ctx.measureText(part).width <= width ? [part] : [...part]) {
+      if (line && ctx.measureText(line + piece).width > width) { lines.push(line.trim()); line = ''; }
+      line += piece;
+    }
+  }
+  if (line.trim()) lines.push(line.trim());
+  return lines;
+}
+
 export class Editor {
   // host: the element the canvas fills; catalogue: /api/nodes rows; hooks: {select, edit, refused, open}
   constructor(host, hooks) {
@@ -87,6 +106,7 @@ export class Editor {
     this.canvas = new LGraphCanvas(cv, this.graph);
     Object.assign(this.canvas, { allow_searchbox: false, render_canvas_border: false, show_info: false,
       allow_dragcanvas: true });
+    this.canvas.onDrawForeground = ctx => this.drawFarLabels(ctx);
     this.canvas.onNodeSelected = n => { this.selected = n.gk; hooks.select(this.state[n.gk]?.members?.[0].name ?? n.gk); };
     this.canvas.onNodeDblClicked = n => this.rename(n.gk);
     this.minimap = document.createElement('canvas');
@@ -245,6 +265,32 @@ export class Editor {
       node.thumbRect = [(W - w) / 2, y, w, h];
       ctx.drawImage(t.img, ...node.thumbRect);
     }
+  }
+
+  // zoomed out: names at LABEL_PX screen pixels, wrapped into each node's box; a name that
+  // does not fit is left out (the node still shows its state colour)
+  drawFarLabels(ctx) {
+    const scale = this.canvas.ds.scale;
+    if (scale >= FAR) return;
+    const px = LABEL_PX / scale, TH = LiteGraph.NODE_TITLE_HEIGHT;
+    ctx.save();
+    ctx.font = `600 ${px}px system-ui, sans-serif`;
+    ctx.textAlign = 'center';
+    ctx.textBaseline = 'middle';
+    let drawn = 0;
+    for (const n of Object.values(this.nodes)) {
+      const [x, y] = n.pos, w = n.size[0], h = n.size[1] + TH;
+      const lines = wrapText(ctx, n.title, w - px / 2);
+      if (!lines || lines.length * px * 1.2 > h) continue;
+      const top = y - TH + (h - lines.length * px * 1.2) / 2 + px * 0.6;
+      ctx.fillStyle = 'rgba(18,20,24,.8)';
+      ctx.fillRect(x, top - px * 0.6, w, lines.length * px * 1.2);
+      ctx.fillStyle = '#e8eaee';
+      lines.forEach((l, i) => ctx.fillText(l, x + w / 2, top + i * px * 1.2));
+      drawn += 1;
+    }
+    ctx.restore();
+    this.host.dataset.labelled = drawn;
   }
 
   overThumb(node) {
