@@ -106,8 +106,8 @@ class LoadEnvironment(BuiltinFiles, Node):
         return {"image": Image(px), "frame": self.frame(camera)}
 
     def frame(self, camera: Camera | None) -> EnvironmentFrame:
-        axes = np.eye(3) if camera is None else np.asarray(camera.pose, np.float64)[:3, :3]
-        right, up, centre = axes[:, 0], -axes[:, 1], axes[:, 2]
+        axes = np.eye(3) if camera is None else camera.rotation  # rows: the camera's x, y, z in world
+        right, up, centre = axes[0], -axes[1], axes[2]
         a = np.radians(self.params.rotation_deg)
         right, centre = np.cos(a) * right - np.sin(a) * centre, np.cos(a) * centre + np.sin(a) * right
         t = lambda v: tuple(float(x) for x in v)  # noqa: E731

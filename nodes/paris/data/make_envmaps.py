@@ -168,7 +168,7 @@ def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.
 
     env = compute_checked(EnvironmentLights(EnvironmentLights.Params(**params)), image=Image(px), frame=EnvironmentFrame())
     m, _, _ = head_mesh(4)
-    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off")), mesh=m, camera=camera(size),
+    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size)), mesh=m, camera=camera(size),
                           material=PhongMaterial(diffuse=ALBEDO, specular=0.0), environment=env)
     return out["image"].pixels, out["coverage"].alpha > 0.5
 
