@@ -70,8 +70,11 @@ class LoadEnvironment(BuiltinFiles, Node):
     """Read an equirectangular HDR environment map (OpenEXR or Radiance ``.hdr``, linear RGB
     radiance) and say where it points.
 
-    Orientation: the map's centre column looks along the frame's ``centre`` and its top row is
-    ``up`` (see this module's doc for the full convention).  Without a ``camera`` the frame is
+    Orientation: pixel (x, y) of the W×H map has u = (x + ½)/W, v = (y + ½)/H, θ = π·v,
+    φ = 2π·(u − ½), and looks towards sin θ sin φ · right + cos θ · up + sin θ cos φ · centre:
+    the centre column looks along ``centre``, the top row straight ``up``, the column a
+    quarter to the right of the centre along ``right`` (Mitsuba's ``envmap`` and Blender read
+    maps so, here with to_world columns −right, up, centre).  Without a ``camera`` the frame is
     the world's with OpenCV axes: centre = +z (forward), up = −y, right = +x.  With the face
     ``camera`` connected they are that camera's: the map's centre is what the camera sees
     behind the face, its left and right edges are behind the camera (the light that falls on
@@ -110,7 +113,7 @@ class LoadEnvironment(BuiltinFiles, Node):
         right, up, centre = axes[0], -axes[1], axes[2]
         a = np.radians(self.params.rotation_deg)
         right, centre = np.cos(a) * right - np.sin(a) * centre, np.cos(a) * centre + np.sin(a) * right
-        t = lambda v: tuple(float(x) for x in v)  # noqa: E731
+        t = lambda v: tuple(float(x) + 0.0 for x in v)  # noqa: E731  (+ 0.0: no −0.0)
         return EnvironmentFrame(right=t(right), up=t(up), centre=t(centre))
 
     @classmethod
