@@ -34,7 +34,6 @@ def psnr_table() -> None:
     from nodes.io.environment import read_hdr
     from nodes.paris.data import make_envmaps as E
     from nodes.paris.environment import map_energy
-    from tests.test_paris_environment import _lighting
 
     refs = np.load(E.REFS)
     print("map        set    " + "  ".join(f"{n:>5d} lights" for n in (0, 8, 16, 32)) + "   energy ratio (16)")
@@ -44,7 +43,7 @@ def psnr_table() -> None:
         for n in (0, 8, 16, 32):
             img, cov = E.relight(px, lights=n)
             row.append(f"{E.skin_psnr(img, refs[name], cov):8.1f} dB")
-        ratio = _lighting(px).energy() / map_energy(px)
+        ratio = E.lighting(px).energy() / map_energy(px)
         print(f"{name:10s} {'tune' if name in E.TUNE else 'check':5s} " + "  ".join(row)
               + "   " + " ".join(f"{r:.6f}" for r in ratio))
 

@@ -20,9 +20,7 @@ from nodes.paris.environment import (EnvironmentLighting, EnvironmentLights, map
 H = 64
 
 
-def _lighting(px, **params) -> EnvironmentLighting:
-    return compute_checked(EnvironmentLights(EnvironmentLights.Params(**params)), image=Image(px.astype(np.float32)),
-                           frame=EnvironmentFrame())
+_lighting = E.lighting
 
 
 def near_fraction(disc) -> float:

@@ -156,17 +156,25 @@ if __name__ == "__main__":
     main()
 
 
-def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.ndarray]:
-    """(Render of the same head under EnvironmentLights(px) — numpy reference —, its coverage)."""
+def lighting(px: np.ndarray, **params):
+    """EnvironmentLights(**params) of the map ``px`` in the default frame."""
     from graphkit import Image
     from graphkit.contract import compute_checked
     from nodes.io.environment import EnvironmentFrame
-    from nodes.paris.data.make_capture import camera, head_mesh
     from nodes.paris.environment import EnvironmentLights
+
+    return compute_checked(EnvironmentLights(EnvironmentLights.Params(**params)),
+                           image=Image(np.asarray(px, np.float32)), frame=EnvironmentFrame())
+
+
+def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.ndarray]:
+    """(Render of the same head under EnvironmentLights(px) — numpy reference —, its coverage)."""
+    from graphkit.contract import compute_checked
+    from nodes.paris.data.make_capture import camera, head_mesh
     from nodes.paris.models import PhongMaterial
     from nodes.paris.render import Render
 
-    env = compute_checked(EnvironmentLights(EnvironmentLights.Params(**params)), image=Image(px), frame=EnvironmentFrame())
+    env = lighting(px, **params)
     m, _, _ = head_mesh(4)
     out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size)), mesh=m, camera=camera(size),
                           material=PhongMaterial(diffuse=ALBEDO, specular=0.0), environment=env)
