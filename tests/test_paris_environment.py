@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graphkit import BadInput, Image
+from graphkit import BadInput
 from graphkit.contract import compute_checked
 from nodes.io.environment import EnvironmentFrame, LoadEnvironment, local_directions, read_hdr, solid_angles
 from nodes.paris.data import make_envmaps as E

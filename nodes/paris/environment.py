@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from graphkit import BadInput, Field, Image, In, Light, Node, Out
+from graphkit import Field, Image, In, Light, Node, Out
 from nodes.io.environment import EnvironmentFrame, check_equirect, local_directions, solid_angles
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance of linear RGB
