@@ -242,5 +242,11 @@ def test_the_studio_turns_the_environment_and_the_render_follows(tmp_path):
         assert info["status"] == "ok" and info["computed"] == ["environment", "lighting", "relit", "save"], info
         after = read_exr(tmp_path / "o" / "relit.exr")
         assert np.abs(after - before).max() > 0.05
+        # Render's WebGL live view does not draw the SH ambient: it refuses, naming the port
+        from nodes.paris.studio_view import FaceView
+
+        with pytest.raises(BadInput) as e:
+            FaceView(st, "relit").data()
+        assert e.value.port == "environment"
     finally:
         st.close()
