@@ -250,3 +250,10 @@ def test_the_studio_turns_the_environment_and_the_render_follows(tmp_path):
         assert e.value.port == "environment"
     finally:
         st.close()
+
+
+def test_a_radiance_hdr_map_is_read(tmp_path):
+    """Radiance .hdr (RGBE) as well as OpenEXR: the values come back within RGBE's 8-bit mantissa."""
+    px = np.random.default_rng(0).uniform(0, 3, (8, 16, 3)).astype(np.float32)
+    _write(tmp_path / "m.hdr", px)
+    np.testing.assert_allclose(read_hdr(str(tmp_path / "m.hdr")), px, rtol=1 / 128, atol=1e-3)
