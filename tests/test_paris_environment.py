@@ -253,7 +253,9 @@ def test_the_studio_turns_the_environment_and_the_render_follows(tmp_path):
 
 
 def test_a_radiance_hdr_map_is_read(tmp_path):
-    """Radiance .hdr (RGBE) as well as OpenEXR: the values come back within RGBE's 8-bit mantissa."""
+    """Radiance .hdr (RGBE) as well as OpenEXR: the values come back within RGBE's 8-bit mantissa
+    (of the pixel's largest channel: the exponent is shared)."""
     px = np.random.default_rng(0).uniform(0, 3, (8, 16, 3)).astype(np.float32)
     _write(tmp_path / "m.hdr", px)
-    np.testing.assert_allclose(read_hdr(str(tmp_path / "m.hdr")), px, rtol=1 / 128, atol=1e-3)
+    err = np.abs(read_hdr(str(tmp_path / "m.hdr")) - px)
+    assert np.all(err <= px.max(2, keepdims=True) / 64)
