@@ -13,7 +13,7 @@ of turning the environment.
    (time.process_time: this process, all its threads) and wall seconds over ``--repeat``
    rotations, with Render under one light (as face_relight.yaml's portraits) as the peer.
 
-Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--skip-psnr]
+Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--lights 16] [--skip-psnr]
 """
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ def _timed(fn):
     return out, time.process_time() - c, time.perf_counter() - w
 
 
-def rotation_timing(size: int, repeat: int) -> None:
+def rotation_timing(size: int, repeat: int, lights: int) -> None:
     import cv2
     import skimage.data
 
@@ -84,7 +84,8 @@ def rotation_timing(size: int, repeat: int) -> None:
         env = LoadEnvironment(LoadEnvironment.Params(path="builtin:envmaps/interior.exr", rotation_deg=deg,
                                                      scale=1.5), Context())
         e = compute_checked(env, camera=cam)
-        lighting = compute_checked(EnvironmentLights(), image=e["image"], frame=e["frame"])
+        lighting = compute_checked(EnvironmentLights(EnvironmentLights.Params(lights=lights)),
+                                   image=e["image"], frame=e["frame"])
         return lighting
 
     stages = {"LoadEnvironment+EnvironmentLights": [], "Render (environment)": [], "CompositeFace": [],
@@ -103,7 +104,7 @@ def rotation_timing(size: int, repeat: int) -> None:
                         ("Render (1 light, peer)", c4, w4)):
             stages[k].append(c)
             walls[k].append(w)
-    print(f"\nenvironment rotation at {size}², median of {repeat} (load: {os.getloadavg()[0]:.1f})")
+    print(f"\nenvironment rotation at {size}², {lights} lights, median of {repeat} (load: {os.getloadavg()[0]:.1f})")
     for k in stages:
         print(f"  {k:34s} CPU {1000 * statistics.median(stages[k]):8.0f} ms   wall {1000 * statistics.median(walls[k]):8.0f} ms")
     ratio = statistics.median(stages["rotation total"]) / statistics.median(stages["Render (1 light, peer)"])
@@ -114,11 +115,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--size", type=int, default=1024)
+    p.add_argument("--lights", type=int, default=16, help="EnvironmentLights' lights in the rotation timing")
     p.add_argument("--skip-psnr", action="store_true")
     a = p.parse_args(argv)
     if not a.skip_psnr:
         psnr_table()
-    rotation_timing(a.size, a.repeat)
+    rotation_timing(a.size, a.repeat, a.lights)
     return 0
 
 
