@@ -263,7 +263,8 @@ def test_bad_inputs():
         _render(_sphere(4), [Light(direction=(0, 0, 1))], shadows=False)
     assert e.value.port == "lights"
     # declared on the ports, refused by the engine before compute: a detail texture of another
-    # size than its camera (same_size_as), no light (min_items), NaN vertices (finite)
+    # size than its camera (same_size_as), NaN vertices (finite); no light (by hand: an
+    # environment may stand in for the lights)
     with pytest.raises(BadInput) as e:
         compute_checked(Render(), mesh=_sphere(4), camera=CAM, material=MAT, lights=[light],
                         detail=Image(np.ones((50, 40, 3))), texture_camera=CAM)
@@ -271,7 +272,8 @@ def test_bad_inputs():
     assert e.value.message == f"sizes differ: detail is 40×50×3, texture_camera is {CAM.width}×{CAM.height}"
     with pytest.raises(BadInput) as e:
         compute_checked(Render(), mesh=_sphere(4), camera=CAM, material=MAT, lights=[])
-    assert e.value.port == "lights" and e.value.message == "needs at least 1 connection, got 0"
+    assert e.value.port == "lights" and e.value.message == ("needs at least 1 connection, got 0 (or "
+                                                            "connect an `environment`)")
     bad = _sphere(4)
     bad.vertices[0] = np.nan
     for node, more in ((Render(), dict(material=MAT, lights=[light])), (MeshMask(), {}),

@@ -1,9 +1,10 @@
-"""Image and mesh files: LoadImage / SaveImage (OpenImageIO), LoadPhoto (8-bit sRGB photos), LoadMesh / SaveMesh (trimesh);
+"""Image and mesh files: LoadImage / SaveImage (OpenImageIO), LoadPhoto (8-bit sRGB photos), LoadEnvironment (equirectangular HDR maps), LoadMesh / SaveMesh (trimesh);
 ContactSheet lays images out for a person to look at, AnimatedPreview plays them (GIF); Blur
 smooths an image."""
 
 NODES = {
     "LoadImage": "nodes.io.images:LoadImage",
+    "LoadEnvironment": "nodes.io.environment:LoadEnvironment",
     "LoadPhoto": "nodes.io.photo:LoadPhoto",
     "SaveImage": "nodes.io.images:SaveImage",
     "LoadMesh": "nodes.io.meshes:LoadMesh",

@@ -21,6 +21,10 @@ BUILTIN = {
     "sample_capture": ("nodes.paris", "data/sample_capture",
                        "a Mitsuba capture of a head: photo.exr, probe.exr, mesh.ply, camera.json "
                        "(nodes/paris/data/make_capture.py)"),
+    "envmaps": ("nodes.paris", "data/envmaps",
+                "small equirectangular HDR environment maps: studio.exr, interior.exr, city.exr, "
+                "courtyard.exr, forest.exr (Blender's CC0 studio lights), sky.exr (Mitsuba sunsky), "
+                "window.exr (a room with one window) (nodes/paris/data/make_envmaps.py)"),
 }
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
+from .environment import EnvironmentLighting, sh_irradiance
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -387,11 +388,14 @@ class ShadeFace(Node):
                       "light": Light(kind="point", position=(0.0, -0.5, 0.0), intensity=16.0)})]
 
 
-def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None) -> list:
-    """Render's input checks that no port constraint expresses (the declared ones: at least
-    one light, the texture camera's size is the detail texture's), shared by its backends: the
-    lights as a list."""
-    lights = list(lights) if isinstance(lights, (list, tuple)) else [lights]
+def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = None,
+                        environment=None) -> list:
+    """Render's input checks that no port constraint expresses (the declared one: the texture
+    camera's size is the detail texture's), shared by its backends: at least one light or an
+    environment; the lights as a list."""
+    lights = [] if lights is None else list(lights) if isinstance(lights, (list, tuple)) else [lights]
+    if not lights and environment is None:
+        raise BadInput("lights", "needs at least 1 connection, got 0 (or connect an `environment`)")
     if detail is not None:
         check_rgb(detail, "detail", grey=True)  # it multiplies RGB
     if detail is not None and texture_camera is None:
@@ -404,10 +408,11 @@ def check_render_inputs(lights, detail, texture_camera, camera: Camera | None = 
     return lights
 
 
-def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_holes: bool):
+def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_holes: bool,
+                   environment=None):
     """Render's checks and set-up shared by every backend: (lights in world units, the mesh
     to draw (inner holes closed when asked))."""
-    lights = check_render_inputs(lights, detail, texture_camera, camera)
+    lights = check_render_inputs(lights, detail, texture_camera, camera, environment)
     check_mesh(mesh)
     m = close_holes(mesh) if fill_holes else mesh
     check_in_view(m, camera)
@@ -432,6 +437,10 @@ class Render(Node):
     * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``.
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
+    * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
+      shaded and shadowed as the others (they may lie behind the face), its 9 spherical-
+      harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
+      Then ``lights`` may be empty.  Only the numpy backend takes it.
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
@@ -441,13 +450,15 @@ class Render(Node):
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
               "material": In(PhongMaterial, "skin material (FitSkinPhong.material)"),
-              "lights": In(Light, "light sources, world frame (any number)", variadic=True,
-                           min_items=1),
+              "lights": In(Light, "light sources, world frame (any number; at least one unless "
+                                  "an environment is connected)", variadic=True, optional=True),
               "detail": In(Image, "detail texture (RatioImage of photo / shaded face)", optional=True),
               "texture_camera": In(Camera, "the photo camera, for projective texture coordinates",
                                    optional=True, same_size_as="detail"),
               "ambient": In(Light, "a light whose ambient term is added (e.g. FitSkinPhong.light); "
-                                   "its direct part is ignored", optional=True)}
+                                   "its direct part is ignored", optional=True),
+              "environment": In(EnvironmentLighting, "lights and SH ambient of an environment map "
+                                                     "(EnvironmentLights.lighting)", optional=True)}
     outputs = {"image": Out(Image, "rendered image (linear RGB)"),
                "depth": Out(Image, "camera-space depth, mesh units, 0 where uncovered"),
                "coverage": Out(Mask, "pixels covered by the mesh")}
@@ -470,16 +481,20 @@ class Render(Node):
         fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) so the detail texture covers them")
         ambient_gain: float = Field(1.0, ge=0, description="multiplier on the ambient of the `ambient` input")
 
-    def compute(self, mesh, camera: Camera, material: PhongMaterial, lights,
+    def compute(self, mesh, camera: Camera, material: PhongMaterial, lights=None,
                 detail: Image | None = None, texture_camera: Camera | None = None,
-                ambient: Light | None = None):
+                ambient: Light | None = None, environment: EnvironmentLighting | None = None):
         from nodes.common import raster
 
         from . import phong
 
         p = self.params
         eye_mesh = mesh
-        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
+        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes,
+                                      environment)
+        own = len(lights)  # the lights given on `lights`: each must light the face
+        if environment is not None:
+            lights += world_lights(environment.lights, camera, mesh, "environment")
         s = surface(mesh, camera, min_pixels=1)
         H, W = camera.height, camera.width
         M = len(s.points)
@@ -489,21 +504,26 @@ class Render(Node):
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
-            check_lit(diff, "lights", f"light {i} ({light.kind}, direction {light.direction}, "
-                                      f"position {light.position})", f"{M} visible pixels")
+            if i < own:
+                check_lit(diff, "lights", f"light {i} ({light.kind}, direction {light.direction}, "
+                                          f"position {light.position})", f"{M} visible pixels")
+            elif not (diff > 0).any():
+                continue
             if p.shadows:
                 try:
                     sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
                                            up=camera.rotation[1])
                     vis = sm.visibility(s.points, s.normals)
                 except ValueError as e:
-                    raise BadInput("lights", f"light {i}: {e}") from None
+                    raise BadInput("lights" if i < own else "environment", f"light {i}: {e}") from None
                 diff, spec = diff * vis, spec * vis
             col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
         if ambient is not None:
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
         col += kd * amb
+        if environment is not None:
+            col += kd * sh_irradiance(environment.sh, s.normals)
         if detail is not None:
             col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
         img = np.empty((H, W, 3))

@@ -75,6 +75,10 @@ class FaceView(LiveView):
         from .glscene import scene
 
         v = self.inputs()
+        if v.get("environment") is not None:
+            raise BadInput("environment", "the WebGL face view does not draw an environment's "
+                                          "spherical-harmonic ambient: follow the node's output "
+                                          "(e.g. LoadEnvironment's rotation slider) instead")
         return scene(self.params, v["mesh"], v["camera"], v["material"], self._lights(values),
                      v.get("detail"), v.get("texture_camera"), v.get("ambient"))
 

@@ -83,10 +83,13 @@ class RenderGL(Backend):
     def why_unavailable(cls) -> str:
         return _probe() or "available"
 
-    def compute(self, mesh, camera: Camera, material, lights, detail: Image | None = None,
-                texture_camera: Camera | None = None, ambient: Light | None = None):
+    def compute(self, mesh, camera: Camera, material, lights=None, detail: Image | None = None,
+                texture_camera: Camera | None = None, ambient: Light | None = None, environment=None):
         from nodes.paris.glscene import scene, static_key
 
+        if environment is not None:
+            raise BadInput("environment", "the opengl backend does not draw an environment's "
+                                          "spherical-harmonic ambient: use the numpy backend")
         p = self.params
         H, W = camera.height, camera.width
         job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient,

@@ -1,0 +1,128 @@
+"""Relighting to an environment (issue 26 items 4 and 6): accuracy against Mitsuba and the cost
+of turning the environment.
+
+1. For every map of nodes/paris/data/make_envmaps.py (TUNE maps chose EnvironmentLights'
+   defaults, CHECK maps did not): the relit head's PSNR against Mitsuba's render of the same
+   diffuse head under the same ``envmap`` emitter (tests/data/envmap_refs.npz), with the SH
+   ambient alone (0 lights) and with 8, 16 (default) and 32 lights; and the energy the lights +
+   ambient hold over the map's ∫ L dω.
+2. An environment rotation at 1024² after the preprocess is cached: the astronaut photo
+   upsampled to 1024², its FaceMesh mesh and camera (the preprocess, done once), then per
+   rotation LoadEnvironment (builtin:envmaps/interior.exr) → EnvironmentLights → Render
+   (numpy, 16 shadowed lights + SH, detail texture) → CompositeFace.  Median CPU seconds
+   (time.process_time: this process, all its threads) and wall seconds over ``--repeat``
+   rotations, with Render under one light (as face_relight.yaml's portraits) as the peer.
+
+Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--lights 16] [--skip-psnr]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def psnr_table() -> None:
+    from nodes.io.environment import read_hdr
+    from nodes.paris.data import make_envmaps as E
+    from nodes.paris.environment import map_energy
+
+    refs = np.load(E.REFS)
+    print("map        set    " + "  ".join(f"{n:>5d} lights" for n in (0, 8, 16, 32)) + "   energy ratio (16)")
+    for name in E.TUNE + E.CHECK:
+        px = read_hdr(os.path.join(E.HERE, "envmaps", name + ".exr"))
+        row = []
+        for n in (0, 8, 16, 32):
+            img, cov = E.relight(px, lights=n)
+            row.append(f"{E.skin_psnr(img, refs[name], cov):8.1f} dB")
+        ratio = E.lighting(px).energy() / map_energy(px)
+        print(f"{name:10s} {'tune' if name in E.TUNE else 'check':5s} " + "  ".join(row)
+              + "   " + " ".join(f"{r:.6f}" for r in ratio))
+
+
+def _timed(fn):
+    c, w = time.process_time(), time.perf_counter()
+    out = fn()
+    return out, time.process_time() - c, time.perf_counter() - w
+
+
+def rotation_timing(size: int, repeat: int, lights: int) -> None:
+    import cv2
+    import skimage.data
+
+    from graphkit import Image, Light
+    from graphkit.contract import compute_checked
+    from graphkit.node import Context
+    from graphkit.registry import default_registry
+    from nodes.common.color import srgb_to_linear
+    from nodes.io.environment import LoadEnvironment
+    from nodes.paris.composite import CompositeFace
+    from nodes.paris.environment import EnvironmentLights
+    from nodes.paris.mesh import SmoothMesh
+    from nodes.paris.models import PhongMaterial
+    from nodes.paris.render import Render
+
+    photo = srgb_to_linear(cv2.resize(skimage.data.astronaut(), (size, size), interpolation=cv2.INTER_CUBIC) / 255.0)
+    photo = Image(photo.astype(np.float32))
+    fm = default_registry().node_class("FaceMesh")().compute(image=photo)
+    mesh = SmoothMesh(SmoothMesh.Params(iterations=2)).compute(mesh=fm["mesh"])
+    cam = fm["camera"]
+    detail = Image(np.random.default_rng(0).uniform(0.8, 1.2, (size, size, 3)).astype(np.float32))
+    mat = PhongMaterial(diffuse=(0.55, 0.4, 0.33), specular=0.05, shininess=8.0)
+    render = Render()
+    common = dict(mesh=mesh, camera=cam, material=mat, detail=detail, texture_camera=cam)
+
+    def turn(deg):
+        env = LoadEnvironment(LoadEnvironment.Params(path="builtin:envmaps/interior.exr", rotation_deg=deg,
+                                                     scale=1.5), Context())
+        e = compute_checked(env, camera=cam)
+        lighting = compute_checked(EnvironmentLights(EnvironmentLights.Params(lights=lights)),
+                                   image=e["image"], frame=e["frame"])
+        return lighting
+
+    stages = {"LoadEnvironment+EnvironmentLights": [], "Render (environment)": [], "CompositeFace": [],
+              "rotation total": [], "Render (1 light, peer)": []}
+    walls = {k: [] for k in stages}
+    light = Light(direction=(0.3, -0.2, -0.93))
+    for i in range(repeat):
+        deg = 15.0 * (i + 1)
+        lighting, c1, w1 = _timed(lambda: turn(deg))
+        out, c2, w2 = _timed(lambda: compute_checked(render, environment=lighting, **common))
+        _, c3, w3 = _timed(lambda: compute_checked(CompositeFace(), photo=photo, relit=out["image"],
+                                                   coverage=out["coverage"]))
+        _, c4, w4 = _timed(lambda: compute_checked(render, lights=[light], **common))
+        for k, c, w in (("LoadEnvironment+EnvironmentLights", c1, w1), ("Render (environment)", c2, w2),
+                        ("CompositeFace", c3, w3), ("rotation total", c1 + c2 + c3, w1 + w2 + w3),
+                        ("Render (1 light, peer)", c4, w4)):
+            stages[k].append(c)
+            walls[k].append(w)
+    print(f"\nenvironment rotation at {size}², {lights} lights, median of {repeat} (load: {os.getloadavg()[0]:.1f})")
+    for k in stages:
+        print(f"  {k:34s} CPU {1000 * statistics.median(stages[k]):8.0f} ms   wall {1000 * statistics.median(walls[k]):8.0f} ms")
+    ratio = statistics.median(stages["rotation total"]) / statistics.median(stages["Render (1 light, peer)"])
+    print(f"  rotation total / Render with one light (CPU): {ratio:.2f}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--size", type=int, default=1024)
+    p.add_argument("--lights", type=int, default=16, help="EnvironmentLights' lights in the rotation timing")
+    p.add_argument("--skip-psnr", action="store_true")
+    a = p.parse_args(argv)
+    if not a.skip_psnr:
+        psnr_table()
+    rotation_timing(a.size, a.repeat, a.lights)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
