@@ -190,8 +190,8 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
             qv = np.cross(tv, e1[None])
             v = np.einsum("ntc,nc->nt", qv, d) * inv
             t = np.einsum("ntc,tc->nt", qv, e2) * inv
-        hit = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) \
-            & (t > rays.T_EPS) & (t < 1 - rays.T_EPS)
+            hit = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) \
+                & (t > rays.T_EPS) & (t < 1 - rays.T_EPS)
         out[s:s + step] = hit.any(1)
     return out
 
@@ -247,9 +247,9 @@ def weighted_visible(blocked: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def check_placement(h: HR.Hierarchy, thing: Thing, port: str, names=None) -> None:
-    """BadInput naming the object when it lies outside the room (a vertex outside the real
-    polygons' bounding box) or inside a wall (one of its edges crosses a real polygon, or a
-    real polygon's edge crosses one of its triangles)."""
+    """BadInput naming the object when it lies inside a wall (one of its edges crosses a real
+    polygon, or a real polygon's edge crosses one of its triangles) or outside the room (a
+    vertex outside the real polygons' bounding box)."""
     from nodes.common import rays
 
     what = "virtual light" if thing.light else "virtual object"
@@ -259,10 +259,6 @@ def check_placement(h: HR.Hierarchy, thing: Thing, port: str, names=None) -> Non
     v = thing.tris.reshape(-1, 3)
     if not np.all(np.isfinite(v)):
         raise BadInput(port, f"{what} '{thing.name}' has non-finite coordinates")
-    if np.any(v < lo - tol) or np.any(v > hi + tol):
-        raise BadInput(port, f"{what} '{thing.name}' lies outside the room (its bounds "
-                             f"{np.round(thing.lo, 3).tolist()}–{np.round(thing.hi, 3).tolist()}, "
-                             f"the room's {np.round(lo, 3).tolist()}–{np.round(hi, 3).tolist()})")
     e0 = thing.tris.reshape(-1, 3)
     e1 = thing.tris[:, [1, 2, 0]].reshape(-1, 3)
     occ = (h.P_o, h.P_u, h.P_v, h.P_n)
@@ -274,6 +270,20 @@ def check_placement(h: HR.Hierarchy, thing: Thing, port: str, names=None) -> Non
         p = _crossed_polygon(e0[hit], e1[hit], occ) if len(hit) else back[0] // 4
         wall = f"polygon '{names[p]}'" if names is not None and p < len(names) else f"polygon {p}"
         raise BadInput(port, f"{what} '{thing.name}' is inside a wall: it crosses {wall}")
+    if np.any(v < lo - tol) or np.any(v > hi + tol):
+        raise BadInput(port, f"{what} '{thing.name}' lies outside the room (its bounds "
+                             f"{np.round(thing.lo, 3).tolist()}–{np.round(thing.hi, 3).tolist()}, "
+                             f"the room's {np.round(lo, 3).tolist()}–{np.round(hi, 3).tolist()})")
+
+
+def check_params_placement(h: HR.Hierarchy, vlights, vboxes) -> None:
+    """Relight's virtual_lights / virtual_boxes params: each inside the room, none in a wall."""
+    for L in vlights:
+        check_placement(h, light_thing(L.name, L.center, L.size, L.normal, L.emittance),
+                        "virtual_lights")
+    for bx in vboxes:
+        check_placement(h, box_thing(bx.name, bx.center, bx.size, bx.rotation_deg, bx.reflectance),
+                        "virtual_boxes")
 
 
 def _crossed_polygon(p0, p1, occ) -> int:
@@ -678,14 +688,14 @@ def _first_triangle(o, d, tris):
     a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     pv = np.cross(d[:, None], e2[None])
     det = np.einsum("ntc,tc->nt", pv, e1)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         inv = 1.0 / det
         tv = o[:, None] - a[None]
         u = np.einsum("ntc,ntc->nt", tv, pv) * inv
         qv = np.cross(tv, e1[None])
         v = np.einsum("ntc,nc->nt", qv, d) * inv
         t = np.einsum("ntc,tc->nt", qv, e2) * inv
-    ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
+        ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
     t = np.where(ok, t, np.inf)
     k = np.argmin(t, 1)
     tk = t[np.arange(len(o)), k]
