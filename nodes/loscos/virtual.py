@@ -341,6 +341,7 @@ class VirtualSession:
         self.f_leaf = np.einsum("lsc,sc->lc", leaf_multiplier(sol, un), self.e)
         glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
         self.glow_px = np.asarray(self.plan.glow @ glow)
+        self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
         self.stats: dict = {}
@@ -599,35 +600,45 @@ class VirtualSession:
         return out
 
     def _draw(self, out: np.ndarray) -> None:
-        """Virtual things over the image: SUB² rays per pixel of their screen box, each the
-        nearest of the room and the things; a thing's sample shows its patch's B/π."""
+        """Virtual things over the image: SUB² rays per pixel of each thing's screen box, each
+        the nearest of the room (its depth, once per session) and the things; a thing's sample
+        shows its patch's B/π."""
         from .textures import rays_at
 
         tris = self._virtual_tris()
-        boxes = [h["box"] for h in self.handles()]
         H, W = out.shape[:2]
-        x0 = int(max(0, np.floor(min(b[0] for b in boxes)) - 1))
-        y0 = int(max(0, np.floor(min(b[1] for b in boxes)) - 1))
-        x1 = int(min(W, np.ceil(max(b[2] for b in boxes)) + 1))
-        y1 = int(min(H, np.ceil(max(b[3] for b in boxes)) + 1))
-        if x1 <= x0 or y1 <= y0:
-            return
         g = (np.arange(SUB) + 0.5) / SUB
-        ys, xs = np.mgrid[y0:y1, x0:x1]
+        for hd in self.handles():
+            x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
+            x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
+            if x1 <= x0 or y1 <= y0:
+                continue
+            ys, xs = np.mgrid[y0:y1, x0:x1]
+            X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
+            Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
+            o, d = rays_at(self.camera, X, Y)
+            tri, t_v = _first_triangle(o, d, tris)
+            hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
+            L = np.zeros((len(X), 3))
+            if hit.any():
+                L[hit] = self._patch_radiance(tri[hit], o[hit] + t_v[hit, None] * d[hit])
+            k = SUB * SUB
+            cov = hit.reshape(-1, k).mean(1)
+            Lm = L.reshape(-1, k, 3).sum(1) / k
+            blk = out[y0:y1, x0:x1].reshape(-1, 3)
+            out[y0:y1, x0:x1] = (blk * (1 - cov)[:, None] + Lm).reshape(y1 - y0, x1 - x0, 3)
+
+    def _room_depth(self, H: int, W: int) -> np.ndarray:
+        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
+        from .textures import rays_at
+
+        g = (np.arange(SUB) + 0.5) / SUB
+        ys, xs = np.mgrid[0:H, 0:W]
         X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
         Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
         o, d = rays_at(self.camera, X, Y)
-        _, t_room, _, _ = G.ray_first_hit(o, d, *self.occ, two_sided=True)
-        tri, t_v = _first_triangle(o, d, tris)
-        hit = (tri >= 0) & (t_v < t_room)
-        L = np.zeros((len(X), 3))
-        if hit.any():
-            L[hit] = self._patch_radiance(tri[hit], o[hit] + t_v[hit, None] * d[hit])
-        k = SUB * SUB
-        cov = hit.reshape(-1, k).mean(1)
-        Lm = L.reshape(-1, k, 3).sum(1) / k
-        blk = out[y0:y1, x0:x1].reshape(-1, 3)
-        out[y0:y1, x0:x1] = (blk * (1 - cov)[:, None] + Lm).reshape(y1 - y0, x1 - x0, 3)
+        _, t, _, _ = G.ray_first_hit(o, d, *self.occ, two_sided=True)
+        return t.reshape(H, W, SUB * SUB)
 
     def _patch_radiance(self, tri: np.ndarray, x: np.ndarray) -> np.ndarray:
         """B/π of the patch under world points x on virtual triangles ``tri`` (a box face's
