@@ -120,3 +120,41 @@ def test_relight_refuses_a_box_in_a_wall():
     node = Relight(Relight.Params(virtual_boxes=[bad]), Context())
     with pytest.raises(BadInput, match="virtual object 'crate' is inside a wall"):
         node.compute(**inputs)
+
+
+def test_cli_box_in_a_wall_exits_2_naming_it(tmp_path):
+    """graphkit run: exit 2, one message naming the node, the port and the object, no
+    traceback, nothing in --out and no Relight result in the cache."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    from nodes.io.images import encode_image
+    from nodes.loscos.scene import example_doc, example_photo
+
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump({**example_doc(), "photo": "photo.exr"}))
+    (tmp_path / "photo.exr").write_bytes(encode_image(example_photo().pixels, ".exr", 32))
+    (tmp_path / "g.yaml").write_text(
+        "graphkit: 1\nnodes:\n"
+        "  scene: {type: LoadScene, params: {path: scene.yaml}}\n"
+        "  textures: {type: ProjectTextures, inputs: {scene: scene.scene, camera: scene.camera,"
+        " photo: scene.photo}, params: {resolution: 8}}\n"
+        "  radiosity: {type: RadiositySolve, inputs: {scene: scene.scene, projection:"
+        " textures.projection}, params: {eps_bf: 0.5, eps_bfv: 0.05, min_area: 0.05, max_level: 3}}\n"
+        "  unoccluded: {type: Unocclude, inputs: {solution: radiosity.solution, projection:"
+        " textures.projection, photo: scene.photo}}\n"
+        "  relit: {type: Relight, inputs: {solution: radiosity.solution, unoccluded:"
+        " unoccluded.unoccluded, projection: textures.projection, photo: scene.photo, camera:"
+        " scene.camera}, params: {virtual_boxes: [{name: crate, center: [0.0, -0.85, -1.0],"
+        " size: [0.3, 0.3, 0.3]}]}}\n"
+        "  save: {type: SaveImage, inputs: {image: relit.image}, params: {path: relit.exr}}\n"
+        "outputs: {relit: save.file}\n")
+    r = subprocess.run([sys.executable, "-m", "graphkit", "run", "g.yaml", "--out", "out",
+                        "--cache", "cache"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert "relit" in r.stderr and "Relight" in r.stderr and "virtual_boxes" in r.stderr
+    assert "virtual object 'crate' is inside a wall: it crosses the scene's polygon 0" in r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
+    cached = " ".join(p.read_text() for p in (tmp_path / "cache").rglob("*.json"))
+    assert "Relight" not in cached and "SaveImage" not in cached

@@ -44,6 +44,7 @@ SUB = 3  # 3×3 coverage rays per pixel for drawing virtual things
 NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflected light
 TOL = 1e-4  # relative change of B at which the update stops
 MAX_ITER = 60
+EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
 
 
 # ------------------------------------------------------------------------------------------
@@ -197,27 +198,38 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
 
 
 def link_bounds(h: HR.Hierarchy):
-    """Per link: the bounding box (lo, hi) of both elements, the centres and the capsule radius
-    (the larger element's half diagonal) — what the shaft tests need, once per session."""
+    """Per link what the shaft tests need, once per session: the bounding box (lo, hi: (3, M)
+    float32, axis by axis) of both elements, their centres and half diagonals."""
     o1, u1, v1, _, _ = h.geom(h.recv)
     o2, u2, v2, _, _ = h.geom(h.send)
     pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
-    rad = 0.5 * np.maximum(np.linalg.norm(u1 + v1, axis=1), np.linalg.norm(u2 + v2, axis=1))
-    return pts.min(1), pts.max(1), o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2), rad
+    lo, hi = (np.ascontiguousarray(x.T, np.float32) for x in (pts.min(1), pts.max(1)))
+    r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1)
+    r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1)
+    return lo, hi, o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2), r1, r2
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
-    """Indices of links whose shaft may meet the box [lo, hi]: bounding boxes overlap, and the
-    box's bounding sphere meets the capsule of radius rad around the centres' segment (the
-    convex hull of two elements lies inside it)."""
-    blo, bhi, c1, c2, rad = bounds
-    cand = np.flatnonzero(np.all((blo <= hi) & (bhi >= lo), axis=1))
-    mid, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    a, b = c1[cand], c2[cand]
-    d = b - a
-    t = np.clip(np.einsum("nc,nc->n", mid - a, d) / np.maximum(np.einsum("nc,nc->n", d, d), 1e-300), 0, 1)
-    dist = np.linalg.norm(a + t[:, None] * d - mid, axis=1)
-    return cand[dist <= r + rad[cand]]
+    """Indices of links whose shaft (the convex hull of the two elements) may meet the box
+    [lo, hi]: their bounding boxes overlap, and the box's bounding sphere (m, r) meets the
+    tapered capsule around the elements' bounding spheres (c₁, r₁), (c₂, r₂) — which holds
+    the hull: min over λ ∈ [0, 1] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
+    function of λ, minimised in closed form)."""
+    blo, bhi, c1, c2, r1, r2 = bounds
+    cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
+    for k in (1, 2):
+        cand = cand[(blo[k][cand] <= hi[k]) & (bhi[k][cand] >= lo[k])]
+    m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    a1, d = c1[cand], c2[cand] - c1[cand]
+    L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    w = m - a1
+    a = np.einsum("nc,nc->n", w, d) / L  # along the axis
+    hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
+    k = (r2[cand] - r1[cand]) / L  # radius growth per metre
+    kc = np.clip(k, -0.999999, 0.999999)  # |k| ≥ 1: monotone, the clip reaches an end
+    s = np.clip(a + kc * hh / np.sqrt(1 - kc * kc), 0, L)
+    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k * s
+    return cand[gap <= r]
 
 
 def link_rays(h: HR.Hierarchy, r, s, n: int):
@@ -259,16 +271,19 @@ def check_placement(h: HR.Hierarchy, thing: Thing, port: str, names=None) -> Non
     v = thing.tris.reshape(-1, 3)
     if not np.all(np.isfinite(v)):
         raise BadInput(port, f"{what} '{thing.name}' has non-finite coordinates")
+    # touching is not crossing: both sides' polygons shrink by EDGE of their size (a box on a
+    # table may overhang its edge, one against a wall may touch it)
     e0 = thing.tris.reshape(-1, 3)
     e1 = thing.tris[:, [1, 2, 0]].reshape(-1, 3)
-    occ = (h.P_o, h.P_u, h.P_v, h.P_n)
+    occ = (h.P_o + EDGE * (h.P_u + h.P_v), (1 - 2 * EDGE) * h.P_u, (1 - 2 * EDGE) * h.P_v, h.P_n)
     hit = np.flatnonzero(rays.occluded(e0, e1, occ))
     pe0 = pts.reshape(-1, 3)
     pe1 = pts[:, [1, 2, 3, 0]].reshape(-1, 3)
-    back = np.flatnonzero(segments_hit(pe0, pe1, thing.tris))
+    mid = thing.tris.mean(1, keepdims=True)
+    back = np.flatnonzero(segments_hit(pe0, pe1, mid + (1 - 2 * EDGE) * (thing.tris - mid)))
     if len(hit) or len(back):
         p = _crossed_polygon(e0[hit], e1[hit], occ) if len(hit) else back[0] // 4
-        wall = f"polygon '{names[p]}'" if names is not None and p < len(names) else f"polygon {p}"
+        wall = f"polygon '{names[p]}'" if names is not None and p < len(names) else f"the scene's polygon {p} (from 0, in the scene's order)"
         raise BadInput(port, f"{what} '{thing.name}' is inside a wall: it crosses {wall}")
     if np.any(v < lo - tol) or np.any(v > hi + tol):
         raise BadInput(port, f"{what} '{thing.name}' lies outside the room (its bounds "
@@ -344,6 +359,9 @@ class VirtualSession:
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
+        self._K0c = self.ops.K.tocsc()
+        self._Be0 = self.ops.pull @ self.B_ref
+        self._y0 = self.ops.K @ self._Be0
         self.stats: dict = {}
 
     # -- public ------------------------------------------------------------------------------
@@ -535,12 +553,11 @@ class VirtualSession:
         nv = sum(len(p.thing.centre) for p in self.things.values())
         N, L = self.N0 + nv, self.L0 + nv
         h = self.h
-        fac = {}
-        for p in self.things.values():
-            for i, f in zip(p.links, p.vfac):
-                fac[i] = fac.get(i, 1.0) * f
-        idx = np.fromiter(fac, np.int64, len(fac))
-        vf = np.fromiter(fac.values(), float, len(fac))
+        objs = self._objects()
+        idx, inv = np.unique(np.concatenate([p.links for p in objs] + [np.zeros(0, np.int64)]),
+                             return_inverse=True)
+        vf = np.ones(len(idx))
+        np.multiply.at(vf, inv, np.concatenate([p.vfac for p in objs] + [np.zeros(0)]))
         sub = HR.Hierarchy(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS})
         sub.recv, sub.send = h.recv[idx], h.send[idx]
         dK = HR.link_matrix(sub, h.F[idx] * h.V[idx] * (vf - 1.0), h.C[idx, :2]).tocoo()
@@ -563,8 +580,6 @@ class VirtualSession:
 
     def update(self) -> np.ndarray:
         """Iterate B = E + ρ·gather(B) with K₀ + ΔK from the last B; the relit image."""
-        import scipy.sparse as sp
-
         E, rho, dK, nv = self._system()
         ops = self.ops
         B = E.copy()  # warm start: the last B (patches added since start at E)
@@ -573,10 +588,9 @@ class VirtualSession:
         scale = max(np.abs(E).max(), 1e-300)
         it = 0
         for it in range(1, MAX_ITER + 1):
-            Be = sp.csr_matrix.dot(ops.pull, B[:self.L0])
-            Be = np.concatenate([Be, B[self.L0:]])
+            Be = np.concatenate([ops.pull @ B[:self.L0], B[self.L0:]])
             H = dK @ Be
-            H[:self.N0] += ops.K @ Be[:self.N0]
+            H[:self.N0] += self._gather0(Be[:self.N0], TOL * scale)
             Hl = np.concatenate([ops.push @ H[:self.N0], H[self.N0:]])
             Bn = E + rho * Hl
             d = np.abs(Bn - B).max()
@@ -586,6 +600,16 @@ class VirtualSession:
         self.B = B
         self.stats.update(iterations=it, patches=nv)
         return self.image()
+
+    def _gather0(self, Be: np.ndarray, thr: float) -> np.ndarray:
+        """K₀ @ Be, kept up to date column by column: only the elements whose radiosity moved
+        by more than ``thr`` since they were last gathered are (K₀ in CSC: their columns)."""
+        diff = Be - self._Be0
+        cols = np.flatnonzero(np.abs(diff).max(1) > thr)
+        if len(cols):
+            self._y0 += self._K0c[:, cols] @ diff[cols]
+            self._Be0[cols] = Be[cols]
+        return self._y0.copy()
 
     def image(self) -> np.ndarray:
         B = self.B
