@@ -47,7 +47,7 @@ def test_shaft_test_keeps_every_link_the_box_blocks():
     t = box()
     h = S.h
     crossed = set(VV.shaft_crossed(S.bounds, t.lo, t.hi).tolist())
-    p0, p1, _ = VV.link_rays(h, h.recv, h.send, 3)
+    p0, p1 = VV.link_rays(h, h.recv, h.send, 3)
     hit = VV.segments_hit(p0.reshape(-1, 3), p1.reshape(-1, 3), t.tris).reshape(len(h.recv), -1)
     blocked = set(np.flatnonzero(hit.any(1)).tolist())
     assert blocked and blocked <= crossed

@@ -233,19 +233,24 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
 
 
 def link_rays(h: HR.Hierarchy, r, s, n: int):
-    """Stratified ray end points (M, n², 3) on receivers r and senders s, and the kernel
-    weights cos·cos/r⁴ (as hierarchy.link_visibility) of each pair."""
+    """Stratified ray end points (M, n², 3) on receivers r and senders s (each receiver point
+    paired with a different sender point)."""
     st = G.grid_st(n)
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, sn, _ = h.geom(s)
+    ro, ru, rv, _, _ = h.geom(r)
+    so, su, sv, _, _ = h.geom(s)
     p0 = ro[:, None] + st[None, :, 0:1] * ru[:, None] + st[None, :, 1:2] * rv[:, None]
-    sst = st[::-1]  # pair each receiver point with a different sender point
+    sst = st[::-1]
     p1 = so[:, None] + sst[None, :, 0:1] * su[:, None] + sst[None, :, 1:2] * sv[:, None]
+    return p0, p1
+
+
+def ray_weights(h: HR.Hierarchy, r, s, p0, p1):
+    """The point-to-point kernel cos·cos/r⁴ of each ray (as hierarchy.link_visibility)."""
+    rn, sn = h.P_n[h.poly[r]], h.P_n[h.poly[s]]
     d = p1 - p0
     r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
-    w = (np.clip(np.einsum("mkc,mc->mk", d, rn), 0, None)
-         * np.clip(-np.einsum("mkc,mc->mk", d, sn), 0, None) / (r2 * r2))
-    return p0, p1, w
+    return (np.clip(np.einsum("mkc,mc->mk", d, rn), 0, None)
+            * np.clip(-np.einsum("mkc,mc->mk", d, sn), 0, None) / (r2 * r2))
 
 
 def weighted_visible(blocked: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -357,6 +362,7 @@ class VirtualSession:
         glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
+        self._rays = (np.zeros(0, np.int64), np.zeros((0, LINK_RAYS ** 2, 3)), np.zeros((0, LINK_RAYS ** 2, 3)))
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
@@ -468,10 +474,28 @@ class VirtualSession:
         if not len(idx):
             return np.zeros(0)
         h = self.h
-        p0, p1, w = link_rays(h, h.recv[idx], h.send[idx], LINK_RAYS)
+        r, s = h.recv[idx], h.send[idx]
+        p0, p1 = self._link_rays(idx)
         k = p0.shape[1]
         b = segments_hit(p0.reshape(-1, 3), p1.reshape(-1, 3), tris).reshape(len(idx), k)
-        return weighted_visible(b, w)
+        out = np.ones(len(idx))
+        m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
+        out[m] = weighted_visible(b[m], ray_weights(h, r[m], s[m], p0[m], p1[m]))
+        return out
+
+    def _link_rays(self, idx: np.ndarray):
+        """link_rays of the links idx (sorted), those of the last call reused: a drag moves
+        the object a little, so most of its links stay the same."""
+        old, o0, o1 = self._rays
+        pos = np.minimum(np.searchsorted(old, idx), max(len(old) - 1, 0))
+        have = (old[pos] == idx) if len(old) else np.zeros(len(idx), bool)
+        k = LINK_RAYS * LINK_RAYS
+        p0, p1 = np.empty((len(idx), k, 3)), np.empty((len(idx), k, 3))
+        p0[have], p1[have] = o0[pos[have]], o1[pos[have]]
+        new = ~have
+        p0[new], p1[new] = link_rays(self.h, self.h.recv[idx[new]], self.h.send[idx[new]], LINK_RAYS)
+        self._rays = (idx, p0, p1)
+        return p0, p1
 
     def _object_links(self, p: _Placed) -> tuple:
         """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
