@@ -38,7 +38,7 @@ from . import hierarchy as HR
 from .relight import LUM, box_quads, emitter_leaves, fixture_glow, leaf_multiplier, quad_from
 
 BOX_SPLIT = 4  # a box face → 4×4 patches
-LINK_RAYS = 3  # 3×3 rays per re-evaluated real link
+LINK_RAYS = 2  # 2×2 rays per re-evaluated real link (3×3: the same PSNR against Mitsuba, 1.5× the time)
 SOURCE_RAYS = 3  # 3×3 points on each sender polygon seen from a patch / leaf
 SUB = 3  # 3×3 coverage rays per pixel for drawing virtual things
 NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflected light
