@@ -95,6 +95,12 @@ class Thing:
     def hi(self):
         return self.tris.reshape(-1, 3).max(0)
 
+    @property
+    def foot(self):
+        """The centre of its bounding box's bottom (what a drag puts on the floor)."""
+        lo, hi = self.lo, self.hi
+        return np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+
     def moved(self, offset, rotation_deg: float = 0.0) -> "Thing":
         """The thing translated by ``offset`` and turned about +y (through its centre)."""
         c = np.radians(rotation_deg)
@@ -387,7 +393,7 @@ class VirtualSession:
         p = self._placed(name, port)
         t = p.thing
         if to is not None:
-            offset = np.asarray(to, float) - np.array([(t.lo[0] + t.hi[0]) / 2, t.lo[1], (t.lo[2] + t.hi[2]) / 2])
+            offset = np.asarray(to, float) - t.foot
         new = t.moved(np.zeros(3) if offset is None else offset, rotation_deg)
         check_placement(self.h, new, port, self.names)
         old_lo, old_hi = t.lo, t.hi
@@ -412,12 +418,10 @@ class VirtualSession:
 
     def handles(self) -> list[dict]:
         """Each thing's name, kind, bottom centre (world) and where it is in the image."""
-        from .textures import rays_at  # noqa: F401 (the camera model)
-
         out = []
         for name, p in self.things.items():
             t = p.thing
-            foot = np.array([(t.lo[0] + t.hi[0]) / 2, t.lo[1], (t.lo[2] + t.hi[2]) / 2])
+            foot = t.foot
             xy = project(self.camera, np.concatenate([foot[None], t.tris.reshape(-1, 3)]))
             out.append({"name": name, "kind": "light" if t.light else "object",
                         "foot": foot.round(6).tolist(), "xy": xy[0].round(2).tolist(),
