@@ -575,9 +575,7 @@ class VirtualSession:
 
     # -- radiosity and image -----------------------------------------------------------------
     def _system(self):
-        """Extended E, ρ and the ΔK matrix of all things (links re-evaluated, own links)."""
-        import scipy.sparse as sp
-
+        """Extended E, ρ and ΔK of all things (links re-evaluated, own links)."""
         nv = sum(len(p.thing.centre) for p in self.things.values())
         N, L = self.N0 + nv, self.L0 + nv
         h = self.h
@@ -588,16 +586,16 @@ class VirtualSession:
         np.multiply.at(vf, inv, np.concatenate([p.vfac for p in objs] + [np.zeros(0)]))
         sub = HR.Hierarchy(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS})
         sub.recv, sub.send = h.recv[idx], h.send[idx]
-        dK = HR.link_matrix(sub, h.F[idx] * h.V[idx] * (vf - 1.0), h.C[idx, :2]).tocoo()
-        rows, cols, vals = [dK.row], [dK.col], [dK.data]
+        rows, cols, vals = (
+            [x] for x in HR.link_entries(sub, h.F[idx] * h.V[idx] * (vf - 1.0), h.C[idx, :2]))
         for p in self._objects():
             rows.append(p.coo[0]); cols.append(p.coo[1]); vals.append(p.coo[2])
         for p in self._lights():
             ok = np.flatnonzero(p.F * p.V > 0)
             rows.append(self.ops.leaves[ok]); cols.append(np.full(len(ok), self._elem(p.first)))
             vals.append((p.F * p.V)[ok])
-        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows).astype(np.int64),
-                                                  np.concatenate(cols).astype(np.int64))), shape=(N, N))
+        K = _Entries(np.concatenate(rows).astype(np.int64), np.concatenate(cols).astype(np.int64),
+                     np.concatenate(vals), N)
         E = np.zeros((L, 3))
         rho = np.zeros((L, 3))
         E[:self.L0], rho[:self.L0] = self.E0, self.sol.rho
@@ -722,6 +720,21 @@ class VirtualSession:
                 val = self.B[p.first + local] / np.pi
             out[m] = val
         return out
+
+
+@dataclass(eq=False)
+class _Entries:
+    """ΔK as its entries (duplicates kept): built anew on every move, so never sorted into CSR;
+    ``@`` sums each channel with one bincount."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    vals: np.ndarray
+    n: int
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        return np.stack([np.bincount(self.rows, self.vals * x[self.cols, c], minlength=self.n)
+                         for c in range(x.shape[1])], 1).astype(float)  # (no entries: ints)
 
 
 def _dual(u, v):
