@@ -205,14 +205,15 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
 
 def link_bounds(h: HR.Hierarchy):
     """Per link what the shaft tests need, once per session: the bounding box (lo, hi: (3, M)
-    float32, axis by axis) of both elements, their centres and half diagonals."""
+    float32, axis by axis) of both elements, their centres and half diagonals (float32)."""
     o1, u1, v1, _, _ = h.geom(h.recv)
     o2, u2, v2, _, _ = h.geom(h.send)
     pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
     lo, hi = (np.ascontiguousarray(x.T, np.float32) for x in (pts.min(1), pts.max(1)))
-    r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1)
-    r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1)
-    return lo, hi, o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2), r1, r2
+    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731 (half the memory traffic)
+    r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1) + 1e-5  # (+ float32's rounding, to stay safe)
+    r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1) + 1e-5
+    return lo, hi, f(o1 + 0.5 * (u1 + v1)), f(o2 + 0.5 * (u2 + v2)), f(r1), f(r2)
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
@@ -225,7 +226,7 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
     for k in (1, 2):
         cand = cand[(blo[k][cand] <= hi[k]) & (bhi[k][cand] >= lo[k])]
-    m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
     a1, d = c1[cand], c2[cand] - c1[cand]
     L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
     w = m - a1
