@@ -394,6 +394,12 @@ def link_matrix(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
     import scipy.sparse as sp
 
     N = h.n_elems
+    rows, cols, vals = link_entries(h, weight, cen)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(N, N))
+
+
+def link_entries(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
+    """The (row, column, value) entries of :func:`link_matrix` (duplicates not summed)."""
     r, s = h.recv, h.send
     has = h.child0[s] >= 0
     d = np.clip(np.asarray(cen, float)[has] - 0.5, -0.25, 0.25)
@@ -402,8 +408,7 @@ def link_matrix(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
         rows.append(r[has])
         cols.append(h.child0[s[has]] + c)
         vals.append(weight[has] * (0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]))
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(N, N))
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
 
 
 def solve(ops: Operators, E: np.ndarray, rho: np.ndarray, tol: float = 1e-7,

@@ -232,6 +232,9 @@ class Relight(Node):
             if camera is None:
                 raise BadInput("camera", "inserting virtual lights or boxes needs the camera")
             checks.pinhole(camera, "camera", "inserting virtual lights or boxes needs")
+            from .virtual import check_params_placement
+
+            check_params_placement(sol.hierarchy(), p.virtual_lights, p.virtual_boxes)
             prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays, 3, p.seed)
             img, _ = relight_virtual(sol, unoccluded, projection, px, camera, e,
                                      virtual_polygons(p.virtual_lights, p.virtual_boxes), prm,

@@ -98,6 +98,18 @@ def example_room(box: list | None = None) -> tuple[RoomScene, Camera, Image]:
     """The nodes' small example room (conformance cases): a 2 m room open at the front, two
     ceiling lights, optionally a box (4×4 ``to_world``) on the floor; a 40×32 px camera and a
     smooth synthetic photo.  (scene, camera, photo)."""
+    sc, cam, _ = parse_scene(example_doc(box))
+    return sc, cam, example_photo()
+
+
+def example_photo() -> Image:
+    """example_room's photo: smooth, synthetic, 40×32."""
+    yy, xx = np.mgrid[0:32, 0:40] / 40.0
+    return Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+
+
+def example_doc(box: list | None = None) -> dict:
+    """example_room as a scene document (the scene YAML's format)."""
     doc = {"loscos_scene": 1, "camera": {"width": 40, "height": 32, "fov_deg": 60,
                                          "position": [0, 0, 2.5], "look_at": [0, 0, 0]},
            "materials": {"w": [0.7, 0.6, 0.5], "r": [0.6, 0.1, 0.1], "b": [0.2, 0.3, 0.6]},
@@ -110,9 +122,7 @@ def example_room(box: list | None = None) -> tuple[RoomScene, Camera, Image]:
                        "vertices": [[.5, .99, .1], [.8, .99, .1], [.8, .99, .4], [.5, .99, .4]]}]}
     if box is not None:
         doc["boxes"] = [{"name": "box", "material": "b", "to_world": box, "bottom": False}]
-    sc, cam, _ = parse_scene(doc)
-    yy, xx = np.mgrid[0:32, 0:40] / 40.0
-    return sc, cam, Image((0.3 + 0.4 * np.dstack([xx, yy, xx * yy])).astype(np.float32))
+    return doc
 
 
 def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str | None]:

@@ -1,0 +1,798 @@
+"""Virtual objects you can move, and virtual lights, after the preprocess (Loscos 2000 §4.5, §5).
+
+:class:`VirtualSession` keeps what a preprocess gives (the solution's links and gather operator,
+the pixel plan of the photograph) and inserts, moves and removes virtual things incrementally:
+
+* a virtual **object** (a box, or any triangle mesh through trimesh) is a set of *patches*
+  (a box face split into ``BOX_SPLIT``² parallelograms, or a mesh's triangles), each one leaf of
+  its own beside the hierarchy's;
+* the real links whose **shaft** the object's bounds cross (a conservative test: the links'
+  bounding boxes against the object's, then the capsule around the two elements' centres) get
+  their attenuation re-evaluated: rays between the two elements (``LINK_RAYS``² stratified
+  pairs, kernel-weighted as in :func:`hierarchy.link_visibility`) cast against the object's
+  triangles, V = V_preprocess × V_object (the object blocks the unblocked share);
+* the object's patches gather from every real polygon and virtual light (point-to-polygon form
+  factors from each patch's centre, visibility by rays through :func:`nodes.common.rays.occluded`
+  against the real polygons and against every virtual triangle), and give back to the real
+  leaves near them (the point kernel, reciprocity);
+* radiosity is updated, not solved anew: B = E + ρ·gather(B) with the gather operator K₀ + ΔK
+  (ΔK: only the changed links), iterated from the last B; the photograph's leaves are scaled by
+  B / B_ref (B_ref: the same iteration without ΔK, once per session), as Relight does (§4.4);
+* a virtual **light** is one emitting parallelogram linked to every real leaf and patch.
+
+Moving an object re-evaluates the links crossed by its old or new bounds, its own links, and
+the virtual lights' links to the leaves whose shafts it crossed.  The image is the pixel plan
+applied to the new leaf multipliers, with the virtual things drawn over it by coverage
+(``SUB``² rays per pixel in their screen box, depth-tested against the room).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from graphkit import BadInput
+
+from . import geometry as G
+from . import hierarchy as HR
+from .relight import LUM, box_quads, emitter_leaves, fixture_glow, leaf_multiplier, quad_from
+
+BOX_SPLIT = 4  # a box face → 4×4 patches
+LINK_RAYS = 2  # 2×2 rays per re-evaluated real link (3×3: the same PSNR against Mitsuba, 1.5× the time)
+SOURCE_RAYS = 3  # 3×3 points on each sender polygon seen from a patch / leaf
+SUB = 3  # 3×3 coverage rays per pixel for drawing virtual things
+NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflected light
+TOL = 1e-4  # relative change of B at which the update stops
+MAX_ITER = 60
+EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
+
+
+# ------------------------------------------------------------------------------------------
+# geometry of virtual things
+
+
+def quad_patches(quads: np.ndarray, n: int):
+    """Split parallelograms (K,4,3) into n×n: centres, normals, areas (K·n², …) and the
+    parallelograms (o, u, v) of the patches."""
+    o, u, v, nrm, area = G.frame(quads)
+    g = np.arange(n)
+    I, J = np.meshgrid(g, g, indexing="ij")
+    po = o[:, None] + (I.ravel()[None, :, None] * u[:, None] + J.ravel()[None, :, None] * v[:, None]) / n
+    pu = np.repeat(u / n, n * n, axis=0)
+    pv = np.repeat(v / n, n * n, axis=0)
+    po = po.reshape(-1, 3)
+    return po + 0.5 * (pu + pv), np.repeat(nrm, n * n, 0), np.repeat(area / (n * n), n * n), (po, pu, pv)
+
+
+def quad_triangles(quads: np.ndarray) -> np.ndarray:
+    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
+@dataclass(eq=False)
+class Thing:
+    """A virtual object or light: its triangles (T,3,3) (occluders, drawn), patches (centre,
+    normal, area, reflectance (n,3), emittance (n,3)) and, for drawing, each triangle's patch
+    (a box face's triangles map their points to the face's n×n patches)."""
+
+    name: str
+    tris: np.ndarray
+    centre: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    rho: np.ndarray
+    emit: np.ndarray
+    light: bool = False
+    #: per triangle: (patch of its first cell, split n, quad origin, u, v) for box faces; else
+    #: patch = triangle index
+    faces: tuple | None = None
+    quads: np.ndarray | None = None
+
+    @property
+    def lo(self):
+        return self.tris.reshape(-1, 3).min(0)
+
+    @property
+    def hi(self):
+        return self.tris.reshape(-1, 3).max(0)
+
+    @property
+    def foot(self):
+        """The centre of its bounding box's bottom (what a drag puts on the floor)."""
+        lo, hi = self.lo, self.hi
+        return np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+
+    def moved(self, offset, rotation_deg: float = 0.0) -> "Thing":
+        """The thing translated by ``offset`` and turned about +y (through its centre)."""
+        c = np.radians(rotation_deg)
+        R = np.array([[np.cos(c), 0, np.sin(c)], [0, 1, 0], [-np.sin(c), 0, np.cos(c)]])
+        mid = 0.5 * (self.lo + self.hi)
+        f = lambda x: (x - mid) @ R.T + mid + np.asarray(offset, float)  # noqa: E731
+        q = None if self.quads is None else f(self.quads)
+        return Thing(self.name, f(self.tris), f(self.centre), self.normal @ R.T, self.area,
+                     self.rho, self.emit, self.light, self.faces, q)
+
+
+def box_thing(name, center, size, rotation_deg=0.0, reflectance=(0.8, 0.45, 0.1)) -> Thing:
+    """A diffuse box (as Relight's VirtualBox) split into patches."""
+    quads = np.asarray(box_quads(center, size, rotation_deg), float)
+    return _quad_thing(name, quads, BOX_SPLIT, np.asarray(reflectance, float), np.zeros(3))
+
+
+def light_thing(name, center, size, normal, emittance) -> Thing:
+    """A virtual rectangular area light (as Relight's VirtualLight): one emitting patch."""
+    quads = quad_from(center, size, normal)[None]
+    return _quad_thing(name, quads, 1, np.zeros(3), np.asarray(emittance, float), light=True)
+
+
+def _quad_thing(name, quads, n, rho, emit, light=False) -> Thing:
+    c, nrm, a, _ = quad_patches(quads, n)
+    k = len(c)
+    return Thing(name, quad_triangles(quads), c, nrm, a, np.tile(rho, (k, 1)),
+                 np.tile(emit, (k, 1)), light, faces=(n,), quads=quads)
+
+
+def mesh_thing(name, path, center, scale=1.0, rotation_deg=0.0,
+               reflectance=(0.8, 0.45, 0.1), max_faces: int = 4000) -> Thing:
+    """Any mesh file trimesh reads (OBJ, PLY, glTF/GLB, STL…), its bounding box's bottom centre
+    put at ``center``: one patch per triangle."""
+    import trimesh
+
+    try:
+        m = trimesh.load(path, force="mesh")
+    except Exception as e:  # trimesh raises many kinds for unreadable files
+        raise BadInput("mesh", f"virtual object '{name}': cannot read {path}: {e}") from None
+    if len(m.faces) == 0:
+        raise BadInput("mesh", f"virtual object '{name}': {path} has no faces")
+    if len(m.faces) > max_faces:
+        raise BadInput("mesh", f"virtual object '{name}': {len(m.faces)} faces, at most "
+                               f"{max_faces} (decimate it first)")
+    tris = np.asarray(m.triangles, float) * float(scale)
+    lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+    tris = tris - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    if not np.all(np.isfinite(tris)):
+        raise BadInput("mesh", f"virtual object '{name}': non-finite vertices in {path}")
+    e1, e2 = tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    cr = np.cross(e1, e2)
+    a = 0.5 * np.linalg.norm(cr, axis=1)
+    ok = a > 1e-12
+    tris, cr, a = tris[ok], cr[ok], a[ok]
+    k = len(tris)
+    t = Thing(name, tris, tris.mean(1), cr / (2 * a[:, None]), a,
+              np.tile(np.asarray(reflectance, float), (k, 1)), np.zeros((k, 3)))
+    return t.moved(np.asarray(center, float), rotation_deg)
+
+
+# ------------------------------------------------------------------------------------------
+# rays against triangles, and the shaft test
+
+
+def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Whether each open segment p0→p1 (N,3) crosses one of the triangles (T,3,3) (two-sided,
+    t ∈ (T_EPS, 1 − T_EPS) as :func:`nodes.common.rays.occluded`); Embree when that backend is
+    selected, else numpy (Möller–Trumbore)."""
+    from nodes.common import rays
+
+    if len(p0) == 0 or len(tris) == 0:
+        return np.zeros(len(p0), bool)
+    if rays.backend() == "embree":
+        from embreex import mesh_construction, rtcore_scene
+
+        sc = rtcore_scene.EmbreeScene(robust=True)
+        mesh_construction.TriangleMesh(sc, tris.astype(np.float32))
+        d = p1 - p0
+        tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
+        return sc.run((p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32),
+                      dists=tfar, query="OCCLUDED") >= 0
+    out = np.zeros(len(p0), bool)
+    a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    step = max(1, 2_000_000 // len(tris))
+    for s in range(0, len(p0), step):
+        o, d = p0[s:s + step], p1[s:s + step] - p0[s:s + step]
+        pv = np.cross(d[:, None], e2[None])
+        det = np.einsum("ntc,tc->nt", pv, e1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / det
+            tv = o[:, None] - a[None]
+            u = np.einsum("ntc,ntc->nt", tv, pv) * inv
+            qv = np.cross(tv, e1[None])
+            v = np.einsum("ntc,nc->nt", qv, d) * inv
+            t = np.einsum("ntc,tc->nt", qv, e2) * inv
+            hit = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) \
+                & (t > rays.T_EPS) & (t < 1 - rays.T_EPS)
+        out[s:s + step] = hit.any(1)
+    return out
+
+
+def link_bounds(h: HR.Hierarchy):
+    """Per link what the shaft tests need, once per session: the bounding box (lo, hi: (3, M)
+    float32, axis by axis) of both elements, their centres and half diagonals (float32)."""
+    o1, u1, v1, _, _ = h.geom(h.recv)
+    o2, u2, v2, _, _ = h.geom(h.send)
+    pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
+    lo, hi = (np.ascontiguousarray(x.T, np.float32) for x in (pts.min(1), pts.max(1)))
+    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731 (half the memory traffic)
+    r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1) + 1e-5  # (+ float32's rounding, to stay safe)
+    r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1) + 1e-5
+    return lo, hi, f(o1 + 0.5 * (u1 + v1)), f(o2 + 0.5 * (u2 + v2)), f(r1), f(r2)
+
+
+def shaft_crossed(bounds, lo, hi) -> np.ndarray:
+    """Indices of links whose shaft (the convex hull of the two elements) may meet the box
+    [lo, hi]: their bounding boxes overlap, and the box's bounding sphere (m, r) meets the
+    tapered capsule around the elements' bounding spheres (c₁, r₁), (c₂, r₂) — which holds
+    the hull: min over λ ∈ [0, 1] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
+    function of λ, minimised in closed form)."""
+    blo, bhi, c1, c2, r1, r2 = bounds
+    cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
+    for k in (1, 2):
+        cand = cand[(blo[k][cand] <= hi[k]) & (bhi[k][cand] >= lo[k])]
+    m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
+    a1, d = c1[cand], c2[cand] - c1[cand]
+    L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    w = m - a1
+    a = np.einsum("nc,nc->n", w, d) / L  # along the axis
+    hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
+    k = (r2[cand] - r1[cand]) / L  # radius growth per metre
+    kc = np.clip(k, -0.999999, 0.999999)  # |k| ≥ 1: monotone, the clip reaches an end
+    s = np.clip(a + kc * hh / np.sqrt(1 - kc * kc), 0, L)
+    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k * s
+    return cand[gap <= r]
+
+
+def link_rays(h: HR.Hierarchy, r, s, n: int):
+    """Stratified ray end points (M, n², 3) on receivers r and senders s (each receiver point
+    paired with a different sender point)."""
+    st = G.grid_st(n)
+    ro, ru, rv, _, _ = h.geom(r)
+    so, su, sv, _, _ = h.geom(s)
+    p0 = ro[:, None] + st[None, :, 0:1] * ru[:, None] + st[None, :, 1:2] * rv[:, None]
+    sst = st[::-1]
+    p1 = so[:, None] + sst[None, :, 0:1] * su[:, None] + sst[None, :, 1:2] * sv[:, None]
+    return p0, p1
+
+
+def ray_weights(h: HR.Hierarchy, r, s, p0, p1):
+    """The point-to-point kernel cos·cos/r⁴ of each ray (as hierarchy.link_visibility)."""
+    rn, sn = h.P_n[h.poly[r]], h.P_n[h.poly[s]]
+    d = p1 - p0
+    r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
+    return (np.clip(np.einsum("mkc,mc->mk", d, rn), 0, None)
+            * np.clip(-np.einsum("mkc,mc->mk", d, sn), 0, None) / (r2 * r2))
+
+
+def weighted_visible(blocked: np.ndarray, w: np.ndarray) -> np.ndarray:
+    vis = 1.0 - blocked
+    ws = w.sum(1)
+    return np.where(ws > 0, (w * vis).sum(1) / np.maximum(ws, 1e-300), vis.mean(1))
+
+
+# ------------------------------------------------------------------------------------------
+# placement
+
+
+def check_placement(h: HR.Hierarchy, thing: Thing, port: str, names=None) -> None:
+    """BadInput naming the object when it lies inside a wall (one of its edges crosses a real
+    polygon, or a real polygon's edge crosses one of its triangles) or outside the room (a
+    vertex outside the real polygons' bounding box)."""
+    from nodes.common import rays
+
+    what = "virtual light" if thing.light else "virtual object"
+    pts = h.P_o[:, None] + np.stack([0 * h.P_u, h.P_u, h.P_u + h.P_v, h.P_v], 1)
+    lo, hi = pts.reshape(-1, 3).min(0), pts.reshape(-1, 3).max(0)
+    tol = 1e-6 * np.linalg.norm(hi - lo)
+    v = thing.tris.reshape(-1, 3)
+    if not np.all(np.isfinite(v)):
+        raise BadInput(port, f"{what} '{thing.name}' has non-finite coordinates")
+    # touching is not crossing: both sides' polygons shrink by EDGE of their size (a box on a
+    # table may overhang its edge, one against a wall may touch it)
+    e0 = thing.tris.reshape(-1, 3)
+    e1 = thing.tris[:, [1, 2, 0]].reshape(-1, 3)
+    occ = (h.P_o + EDGE * (h.P_u + h.P_v), (1 - 2 * EDGE) * h.P_u, (1 - 2 * EDGE) * h.P_v, h.P_n)
+    hit = np.flatnonzero(rays.occluded(e0, e1, occ))
+    pe0 = pts.reshape(-1, 3)
+    pe1 = pts[:, [1, 2, 3, 0]].reshape(-1, 3)
+    mid = thing.tris.mean(1, keepdims=True)
+    back = np.flatnonzero(segments_hit(pe0, pe1, mid + (1 - 2 * EDGE) * (thing.tris - mid)))
+    if len(hit) or len(back):
+        p = _crossed_polygon(e0[hit], e1[hit], occ) if len(hit) else back[0] // 4
+        wall = f"polygon '{names[p]}'" if names is not None and p < len(names) else f"the scene's polygon {p} (from 0, in the scene's order)"
+        raise BadInput(port, f"{what} '{thing.name}' is inside a wall: it crosses {wall}")
+    if np.any(v < lo - tol) or np.any(v > hi + tol):
+        raise BadInput(port, f"{what} '{thing.name}' lies outside the room (its bounds "
+                             f"{np.round(thing.lo, 3).tolist()}–{np.round(thing.hi, 3).tolist()}, "
+                             f"the room's {np.round(lo, 3).tolist()}–{np.round(hi, 3).tolist()})")
+
+
+def check_params_placement(h: HR.Hierarchy, vlights, vboxes) -> None:
+    """Relight's virtual_lights / virtual_boxes params: each inside the room, none in a wall."""
+    for L in vlights:
+        check_placement(h, light_thing(L.name, L.center, L.size, L.normal, L.emittance),
+                        "virtual_lights")
+    for bx in vboxes:
+        check_placement(h, box_thing(bx.name, bx.center, bx.size, bx.rotation_deg, bx.reflectance),
+                        "virtual_boxes")
+
+
+def _crossed_polygon(p0, p1, occ) -> int:
+    """The first real polygon the segments cross (for the message)."""
+    from nodes.common import rays
+
+    for p in range(len(occ[0])):
+        if rays.occluded(p0, p1, tuple(a[p:p + 1] for a in occ)).any():
+            return p
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# the session
+
+
+@dataclass(eq=False)
+class _Placed:
+    """A thing in the session with what it changed: real links re-evaluated (idx, V factor),
+    its own gather rows (ΔK in COO: rows, cols, values over the extended elements)."""
+
+    thing: Thing
+    first: int  # index of its first patch among the extended leaves / elements
+    links: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    coo: tuple = ()
+    F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
+    V: np.ndarray | None = None
+
+
+class VirtualSession:
+    """Insert, move and remove virtual objects and lights on a preprocessed room (see the
+    module docstring).  ``image()`` gives the relit photograph (H,W,3) float32."""
+
+    def __init__(self, sol, un, proj, photo, camera, e_real=None, rho_fix=(0.5, 0.5, 0.5),
+                 names=None, seed: int = 0):
+        self.sol, self.camera, self.names = sol, camera, names
+        self.e = sol.emit if e_real is None else np.asarray(e_real, float)
+        h = self.h = sol.hierarchy()
+        self.rng = np.random.default_rng(seed)
+        self.ops = HR.operators(h)
+        self.N0, self.L0 = h.n_elems, len(self.ops.leaves)
+        lv = self.ops.leaves
+        o, u, v, n, a = h.geom(lv)
+        self.leaf_c, self.leaf_n, self.leaf_a = o + 0.5 * (u + v), n, a
+        self.E0 = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H, self.e)
+        self.B_ref, _ = HR.solve(self.ops, self.E0, sol.rho, tol=TOL * 0.1)
+        self.bounds = link_bounds(h)
+        self.occ = (h.P_o, h.P_u, h.P_v, h.P_n)
+        self.roots = np.flatnonzero(h.parent == -1)
+        self.root_of_poly = np.full(len(h.P_o), -1)
+        self.root_of_poly[h.poly[self.roots]] = self.roots
+        # the display: per pixel, the leaves' multipliers (Relight's plan at emittances e)
+        self.plan = _pixel_plan_of(sol, proj, photo)
+        self.f_leaf = np.einsum("lsc,sc->lc", leaf_multiplier(sol, un), self.e)
+        glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
+        self.glow_px = np.asarray(self.plan.glow @ glow)
+        self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
+        self._rays = (np.zeros(0, np.int64), np.zeros((0, LINK_RAYS ** 2, 3)), np.zeros((0, LINK_RAYS ** 2, 3)))
+        self.things: dict[str, _Placed] = {}
+        self.B = self.B_ref
+        self._K0c = self.ops.K.tocsc()
+        self._Be0 = self.ops.pull @ self.B_ref
+        self._y0 = self.ops.K @ self._Be0
+        self.stats: dict = {}
+
+    # -- public ------------------------------------------------------------------------------
+    def insert(self, thing: Thing, port: str = "virtual_boxes") -> np.ndarray:
+        if thing.name in self.things:
+            raise BadInput(port, f"virtual object '{thing.name}' is already in the room")
+        check_placement(self.h, thing, port, self.names)
+        first = self.L0 + sum(len(p.thing.centre) for p in self.things.values())
+        self.things[thing.name] = _Placed(thing, first)
+        self._relink(thing.name, None)
+        return self.update()
+
+    def move(self, name: str, offset=None, rotation_deg: float = 0.0, to=None,
+             port: str = "virtual_boxes") -> np.ndarray:
+        """Move thing ``name`` by ``offset`` (or its bottom centre ``to``); BadInput (nothing
+        changed) when the new place is outside the room or inside a wall."""
+        p = self._placed(name, port)
+        t = p.thing
+        if to is not None:
+            offset = np.asarray(to, float) - t.foot
+        new = t.moved(np.zeros(3) if offset is None else offset, rotation_deg)
+        check_placement(self.h, new, port, self.names)
+        old_lo, old_hi = t.lo, t.hi
+        p.thing = new
+        self._relink(name, (old_lo, old_hi))
+        return self.update()
+
+    def remove(self, name: str) -> np.ndarray:
+        p = self._placed(name, "virtual_boxes")
+        bounds = (p.thing.lo, p.thing.hi)
+        del self.things[name]
+        first = self.L0
+        for q in self.things.values():  # patches are numbered anew: their links too
+            q.first, first = first, first + len(q.thing.centre)
+        for q in self._objects():
+            q.coo = self._object_links(q)
+        for q in self._lights():
+            redo = self._light_shafts(q.thing, [bounds])
+            q.V[redo] = self._light_links(q.thing, redo)[1]
+        self.B = self.B[:self.L0]
+        return self.update()
+
+    def handles(self) -> list[dict]:
+        """Each thing's name, kind, bottom centre (world) and where it is in the image."""
+        out = []
+        for name, p in self.things.items():
+            t = p.thing
+            foot = t.foot
+            xy = project(self.camera, np.concatenate([foot[None], t.tris.reshape(-1, 3)]))
+            out.append({"name": name, "kind": "light" if t.light else "object",
+                        "foot": foot.round(6).tolist(), "xy": xy[0].round(2).tolist(),
+                        "box": [*xy[1:].min(0).round(2).tolist(), *xy[1:].max(0).round(2).tolist()]})
+        return out
+
+    # -- links -------------------------------------------------------------------------------
+    def _placed(self, name, port):
+        if name not in self.things:
+            raise BadInput(port, f"no virtual object '{name}' (have: {', '.join(self.things) or 'none'})")
+        return self.things[name]
+
+    def _virtual_tris(self, but: str | None = None) -> np.ndarray:
+        ts = [p.thing.tris for n, p in self.things.items() if n != but]
+        return np.concatenate(ts) if ts else np.zeros((0, 3, 3))
+
+    def _blocked(self, p0, p1, ignore_poly=None) -> np.ndarray:
+        """Rays blocked by the real polygons (rays.occluded) or by any virtual triangle."""
+        from nodes.common import rays
+
+        ign = None if ignore_poly is None else np.stack([ignore_poly, np.full_like(ignore_poly, -1)], 1)
+        b = rays.occluded(p0, p1, self.occ, ignore=ign)
+        return b | segments_hit(p0, p1, self._virtual_tris())
+
+    def _relink(self, name: str, old_bounds) -> None:
+        """Re-evaluate what thing ``name`` changes: for an object, the real links whose shafts
+        its new bounds cross (those only its old bounds crossed drop back to their preprocessed
+        V), its own links, and the virtual lights' links to the leaves whose shafts its old or
+        new bounds cross; for a light, its links and the objects' links (they gather from it)."""
+        p = self.things[name]
+        t = p.thing
+        if t.light:
+            p.F, p.V = self._light_links(t, np.arange(self.L0))
+            for q in self._objects():
+                q.coo = self._object_links(q)
+            return
+        idx = shaft_crossed(self.bounds, t.lo - 1e-6, t.hi + 1e-6)
+        p.links, p.vfac = idx, self._object_factor(idx, t.tris)
+        p.coo = self._object_links(p)
+        boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
+        for q in self._lights():
+            redo = self._light_shafts(q.thing, boxes)
+            q.V[redo] = self._light_links(q.thing, redo)[1]
+        self.stats["links_reevaluated"] = int(len(idx))
+
+    def _objects(self):
+        return [p for p in self.things.values() if not p.thing.light]
+
+    def _lights(self):
+        return [p for p in self.things.values() if p.thing.light]
+
+    def _object_factor(self, idx: np.ndarray, tris: np.ndarray) -> np.ndarray:
+        """V_object of the real links idx: their rays' kernel-weighted unblocked share."""
+        if not len(idx):
+            return np.zeros(0)
+        h = self.h
+        r, s = h.recv[idx], h.send[idx]
+        p0, p1 = self._link_rays(idx)
+        k = p0.shape[1]
+        b = segments_hit(p0.reshape(-1, 3), p1.reshape(-1, 3), tris).reshape(len(idx), k)
+        out = np.ones(len(idx))
+        m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
+        out[m] = weighted_visible(b[m], ray_weights(h, r[m], s[m], p0[m], p1[m]))
+        return out
+
+    def _link_rays(self, idx: np.ndarray):
+        """link_rays of the links idx (sorted), those of the last call reused: a drag moves
+        the object a little, so most of its links stay the same."""
+        old, o0, o1 = self._rays
+        pos = np.minimum(np.searchsorted(old, idx), max(len(old) - 1, 0))
+        have = (old[pos] == idx) if len(old) else np.zeros(len(idx), bool)
+        k = LINK_RAYS * LINK_RAYS
+        p0, p1 = np.empty((len(idx), k, 3)), np.empty((len(idx), k, 3))
+        p0[have], p1[have] = o0[pos[have]], o1[pos[have]]
+        new = ~have
+        p0[new], p1[new] = link_rays(self.h, self.h.recv[idx[new]], self.h.send[idx[new]], LINK_RAYS)
+        self._rays = (idx, p0, p1)
+        return p0, p1
+
+    def _object_links(self, p: _Placed) -> tuple:
+        """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
+        polygon (its root element) and every virtual light, giving to the real leaves near it."""
+        t = p.thing
+        pid = self._elem(p.first + np.arange(len(t.centre)))
+        h = self.h
+        senders = [(h.P_o, h.P_u, h.P_v, self.root_of_poly, np.arange(len(h.P_o)))]
+        for q in self._lights():
+            qo, qu, qv = _light_quad(q.thing)
+            senders.append((qo, qu, qv, self._elem(np.array([q.first])), np.full(1, -1)))
+        rows, cols, vals = [], [], []
+        for so, su, sv, selem, spoly in senders:
+            F, V = self._point_to_polygons(t.centre, t.normal, so, su, sv, spoly)
+            r, s = np.nonzero(F * V > 0)
+            rows.append(pid[r]); cols.append(selem[s]); vals.append((F * V)[r, s])
+        near = self._near_leaves(t)
+        Fk = _point_kernel(self.leaf_c[near], self.leaf_n[near], t.centre, t.normal, t.area)
+        r, s = np.nonzero(Fk > 0)
+        rows.append(self.ops.leaves[near[r]]); cols.append(pid[s]); vals.append(Fk[r, s])
+        return tuple(np.concatenate(x) for x in (rows, cols, vals))
+
+    def _light_links(self, t: Thing, leaves: np.ndarray):
+        """F and V of real leaves ← a virtual light (point-to-polygon from the leaf centres)."""
+        qo, qu, qv = _light_quad(t)
+        F, V = self._point_to_polygons(self.leaf_c[leaves], self.leaf_n[leaves], qo, qu, qv,
+                                       np.full(1, -1))
+        return F[:, 0], V[:, 0]
+
+    def _light_shafts(self, t: Thing, boxes) -> np.ndarray:
+        """Real leaves whose shaft to light t may meet one of the boxes (lo, hi)."""
+        c = t.centre[0]
+        rl = 0.5 * np.linalg.norm(t.hi - t.lo) + np.sqrt(self.leaf_a)
+        d = c - self.leaf_c
+        out = np.zeros(self.L0, bool)
+        for lo, hi in boxes:
+            mid, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+            s = np.clip(np.einsum("nc,nc->n", mid - self.leaf_c, d) / np.maximum(np.einsum("nc,nc->n", d, d), 1e-300), 0, 1)
+            out |= np.linalg.norm(self.leaf_c + s[:, None] * d - mid, axis=1) <= r + rl
+        return np.flatnonzero(out)
+
+    def _elem(self, leaf_idx):
+        """Element index of extended leaves ≥ L0 (patches: one element each, after N0)."""
+        return np.asarray(leaf_idx) - self.L0 + self.N0
+
+    def _near_leaves(self, t: Thing) -> np.ndarray:
+        mid = 0.5 * (t.lo + t.hi)
+        r = 0.5 * np.linalg.norm(t.hi - t.lo)
+        return np.flatnonzero(np.linalg.norm(self.leaf_c - mid, axis=1) < NEAR * r)
+
+    def _point_to_polygons(self, x, n, so, su, sv, spoly):
+        """(M,K) form factors from points x (normals n) to parallelograms (o, u, v) and their
+        visibility by SOURCE_RAYS² rays to stratified points on each."""
+        M, K = len(x), len(so)
+        P = G.corners(so, su, sv)
+        X = np.repeat(x, K, 0)
+        Nn = np.repeat(n, K, 0)
+        F = G.ff_point_polygon(X + 1e-6 * Nn, Nn, np.tile(P, (M, 1, 1))).reshape(M, K)
+        sn = np.cross(su, sv)
+        front = np.einsum("mkc,kc->mk", x[:, None] - so[None], sn) > 0
+        F = np.where(front, F, 0.0)
+        r, s = np.nonzero(F > 1e-9)
+        V = np.zeros((M, K))
+        if len(r):
+            st = G.grid_st(SOURCE_RAYS)
+            p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
+            p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
+            k = p1.shape[1]
+            ig = np.repeat(spoly[s], k)
+            b = self._blocked(p0.reshape(-1, 3), p1.reshape(-1, 3), ig)
+            V[r, s] = 1.0 - b.reshape(len(r), k).mean(1)
+        return F, V
+
+    # -- radiosity and image -----------------------------------------------------------------
+    def _system(self):
+        """Extended E, ρ and ΔK of all things (links re-evaluated, own links)."""
+        nv = sum(len(p.thing.centre) for p in self.things.values())
+        N, L = self.N0 + nv, self.L0 + nv
+        h = self.h
+        objs = self._objects()
+        idx, inv = np.unique(np.concatenate([p.links for p in objs] + [np.zeros(0, np.int64)]),
+                             return_inverse=True)
+        vf = np.ones(len(idx))
+        np.multiply.at(vf, inv, np.concatenate([p.vfac for p in objs] + [np.zeros(0)]))
+        sub = HR.Hierarchy(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS})
+        sub.recv, sub.send = h.recv[idx], h.send[idx]
+        rows, cols, vals = (
+            [x] for x in HR.link_entries(sub, h.F[idx] * h.V[idx] * (vf - 1.0), h.C[idx, :2]))
+        for p in self._objects():
+            rows.append(p.coo[0]); cols.append(p.coo[1]); vals.append(p.coo[2])
+        for p in self._lights():
+            ok = np.flatnonzero(p.F * p.V > 0)
+            rows.append(self.ops.leaves[ok]); cols.append(np.full(len(ok), self._elem(p.first)))
+            vals.append((p.F * p.V)[ok])
+        K = _Entries(np.concatenate(rows).astype(np.int64), np.concatenate(cols).astype(np.int64),
+                     np.concatenate(vals), N)
+        E = np.zeros((L, 3))
+        rho = np.zeros((L, 3))
+        E[:self.L0], rho[:self.L0] = self.E0, self.sol.rho
+        for p in self.things.values():
+            sl = slice(p.first, p.first + len(p.thing.centre))
+            E[sl], rho[sl] = p.thing.emit, p.thing.rho
+        return E, rho, K, nv
+
+    def update(self) -> np.ndarray:
+        """Iterate B = E + ρ·gather(B) with K₀ + ΔK from the last B; the relit image."""
+        E, rho, dK, nv = self._system()
+        ops = self.ops
+        B = E.copy()  # warm start: the last B (patches added since start at E)
+        n = min(len(B), len(self.B))
+        B[:n] = self.B[:n]
+        scale = max(np.abs(E).max(), 1e-300)
+        it = 0
+        for it in range(1, MAX_ITER + 1):
+            Be = np.concatenate([ops.pull @ B[:self.L0], B[self.L0:]])
+            H = dK @ Be
+            H[:self.N0] += self._gather0(Be[:self.N0], TOL * scale)
+            Hl = np.concatenate([ops.push @ H[:self.N0], H[self.N0:]])
+            Bn = E + rho * Hl
+            d = np.abs(Bn - B).max()
+            B = Bn
+            if d <= TOL * scale:
+                break
+        self.B = B
+        self.stats.update(iterations=it, patches=nv)
+        return self.image()
+
+    def _gather0(self, Be: np.ndarray, thr: float) -> np.ndarray:
+        """K₀ @ Be, kept up to date column by column: only the elements whose radiosity moved
+        by more than ``thr`` since they were last gathered are (K₀ in CSC: their columns)."""
+        diff = Be - self._Be0
+        cols = np.flatnonzero(np.abs(diff).max(1) > thr)
+        if len(cols):
+            self._y0 += self._K0c[:, cols] @ diff[cols]
+            self._Be0[cols] = Be[cols]
+        return self._y0.copy()
+
+    def image(self) -> np.ndarray:
+        B = self.B
+        ratio = np.where(self.B_ref > 1e-12, B[:self.L0] / np.maximum(self.B_ref, 1e-12), 1.0)
+        f = self.f_leaf[self.plan.near] * ratio
+        R = np.asarray(self.plan.surface @ f)
+        out = self.plan.photo.copy()
+        flat = out.reshape(-1, 3)
+        flat[self.plan.index] = self.plan.base * R + self.glow_px
+        if self.things:
+            self._draw(out)
+        return out
+
+    def _draw(self, out: np.ndarray) -> None:
+        """Virtual things over the image: SUB² rays per pixel of each thing's screen box, each
+        the nearest of the room (its depth, once per session) and the things; a thing's sample
+        shows its patch's B/π."""
+        from .textures import rays_at
+
+        tris = self._virtual_tris()
+        H, W = out.shape[:2]
+        g = (np.arange(SUB) + 0.5) / SUB
+        for hd in self.handles():
+            x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
+            x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
+            if x1 <= x0 or y1 <= y0:
+                continue
+            ys, xs = np.mgrid[y0:y1, x0:x1]
+            X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
+            Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
+            o, d = rays_at(self.camera, X, Y)
+            tri, t_v = _first_triangle(o, d, tris)
+            hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
+            L = np.zeros((len(X), 3))
+            if hit.any():
+                L[hit] = self._patch_radiance(tri[hit], o[hit] + t_v[hit, None] * d[hit])
+            k = SUB * SUB
+            cov = hit.reshape(-1, k).mean(1)
+            Lm = L.reshape(-1, k, 3).sum(1) / k
+            blk = out[y0:y1, x0:x1].reshape(-1, 3)
+            out[y0:y1, x0:x1] = (blk * (1 - cov)[:, None] + Lm).reshape(y1 - y0, x1 - x0, 3)
+
+    def _room_depth(self, H: int, W: int) -> np.ndarray:
+        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
+        from .textures import rays_at
+
+        g = (np.arange(SUB) + 0.5) / SUB
+        ys, xs = np.mgrid[0:H, 0:W]
+        X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
+        Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
+        o, d = rays_at(self.camera, X, Y)
+        _, t, _, _ = G.ray_first_hit(o, d, *self.occ, two_sided=True)
+        return t.reshape(H, W, SUB * SUB)
+
+    def _patch_radiance(self, tri: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """B/π of the patch under world points x on virtual triangles ``tri`` (a box face's
+        n×n patch by (s, t) in the face; a mesh's triangle; a light's front only)."""
+        out = np.zeros((len(tri), 3))
+        t0 = 0
+        for p in self.things.values():
+            t = p.thing
+            m = (tri >= t0) & (tri < t0 + len(t.tris))
+            t0 += len(t.tris)
+            if not m.any():
+                continue
+            local = tri[m] - (t0 - len(t.tris))
+            if t.quads is not None:
+                nq = len(t.quads)
+                face = local % nq
+                n = t.faces[0]
+                o, u, v, nrm, _ = G.frame(t.quads)
+                du, dv = _dual(u, v)
+                q = x[m] - o[face]
+                s = np.clip((np.einsum("nc,nc->n", q, du[face]) * n).astype(int), 0, n - 1)
+                tt = np.clip((np.einsum("nc,nc->n", q, dv[face]) * n).astype(int), 0, n - 1)
+                patch = face * n * n + s * n + tt
+                val = self.B[p.first + patch] / np.pi
+                if t.light:  # the back of a light is black
+                    back = np.einsum("nc,nc->n", self.camera.position - x[m], nrm[face]) < 0
+                    val[back] = 0.0
+            else:
+                val = self.B[p.first + local] / np.pi
+            out[m] = val
+        return out
+
+
+@dataclass(eq=False)
+class _Entries:
+    """ΔK as its entries (duplicates kept): built anew on every move, so never sorted into CSR;
+    ``@`` sums each channel with one bincount."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    vals: np.ndarray
+    n: int
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        return np.stack([np.bincount(self.rows, self.vals * x[self.cols, c], minlength=self.n)
+                         for c in range(x.shape[1])], 1).astype(float)  # (no entries: ints)
+
+
+def _dual(u, v):
+    from nodes.common.rays import dual_basis
+
+    return dual_basis(u, v)
+
+
+def _light_quad(t: Thing):
+    o, u, v, _, _ = G.frame(t.quads)
+    return o, u, v
+
+
+def _point_kernel(x, n, y, m, area):
+    """(M,K) F from points x (normals n) to small patches y (normals m, areas): A cos cos / πr²,
+    bounded by the disc of the patch's area seen head-on."""
+    d = y[None] - x[:, None]
+    r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
+    ci = np.clip(np.einsum("mkc,mc->mk", d, n), 0, None)
+    cj = np.clip(-np.einsum("mkc,kc->mk", d, m), 0, None)
+    F = area[None] * ci * cj / (np.pi * r2 * r2)
+    return np.minimum(F, area[None] / (area[None] + np.pi * r2))
+
+
+def _first_triangle(o, d, tris):
+    """Nearest triangle hit along rays (two-sided): index (-1 none), t."""
+    a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    pv = np.cross(d[:, None], e2[None])
+    det = np.einsum("ntc,tc->nt", pv, e1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv = 1.0 / det
+        tv = o[:, None] - a[None]
+        u = np.einsum("ntc,ntc->nt", tv, pv) * inv
+        qv = np.cross(tv, e1[None])
+        v = np.einsum("ntc,nc->nt", qv, d) * inv
+        t = np.einsum("ntc,tc->nt", qv, e2) * inv
+        ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
+    t = np.where(ok, t, np.inf)
+    k = np.argmin(t, 1)
+    tk = t[np.arange(len(o)), k]
+    return np.where(np.isfinite(tk), k, -1), tk
+
+
+def project(cam, x: np.ndarray) -> np.ndarray:
+    """Image coordinates (px) of world points x (N,3)."""
+    xc = (x - cam.position) @ cam.pose[:3, :3].T
+    return np.stack([cam.fx * xc[:, 0] / xc[:, 2] + cam.cx, cam.fy * xc[:, 1] / xc[:, 2] + cam.cy], 1)
+
+
+def _pixel_plan_of(sol, proj, photo):
+    """Relight's pixel plan (display.pixel_plan) with the leaves' nearest seen leaf."""
+    from .display import nearest_seen, pixel_plan
+    from .relight import emitter_polygons, photo_emitter_radiance
+
+    h = sol.hierarchy()
+    emit_poly = emitter_polygons(h, sol.leaves, emitter_leaves(sol))
+    plan = pixel_plan(h, proj, photo, emit_poly, photo_emitter_radiance(sol, proj, emit_poly),
+                      leaf_radiance=sol.T @ LUM)
+    plan.near = nearest_seen(h, np.all(np.isfinite(sol.T), 1))
+    return plan
