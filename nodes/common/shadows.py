@@ -83,7 +83,7 @@ def _chunk(sm, dpad, pts, nrm, radius, tan_angle, bias, z_near):
     else:
         search = tan_angle * np.maximum(d - z_near, 0) / sm.texel
     search = np.clip(search, 1.0, MAX_RADIUS)
-    blocked, deepest = _taps(dpad, xy, d - b, grad, search, vogel_disc(SEARCH_TAPS), blockers=True)
+    blocked, deepest = _taps(dpad, xy, d - b, grad, search, vogel_disc(SEARCH_TAPS))
     out = np.ones(len(pts))
     some = blocked > 0
     if not some.any():
@@ -95,9 +95,8 @@ def _chunk(sm, dpad, pts, nrm, radius, tan_angle, bias, z_near):
     else:
         half = tan_angle * (ds - d_b) / sm.texel
     half = np.clip(half, 1.0, MAX_RADIUS)
-    lit, _ = _taps(dpad, xy[some], (d - b)[some], grad[some], half, vogel_disc(FILTER_TAPS),
-                   blockers=False)
-    out[some] = lit / FILTER_TAPS
+    shade, _ = _taps(dpad, xy[some], (d - b)[some], grad[some], half, vogel_disc(FILTER_TAPS))
+    out[some] = np.clip(1.0 - shade / FILTER_TAPS, 0.0, 1.0)
     return out
 
 
@@ -120,11 +119,11 @@ def _receiver_gradient(sm, pts, nrm, per_texel):
     return -n[:, :2] / nz[:, None] * per_texel[:, None]
 
 
-def _taps(dpad, xy, d_test, grad, radius, disc, *, blockers: bool):
+def _taps(dpad, xy, d_test, grad, radius, disc):
     """Bilinear percentage-closer taps over a disc of ``radius`` texels round each point.
 
-    Per point: (the weight of the taps where the map is nearer than the receiver plane, the
-    deepest of those taps) when ``blockers``; (the lit weight, None) otherwise."""
+    Per point: (the weight of the taps where the map is nearer than the receiver plane (each
+    tap weighs 1), the deepest of those taps' depths, −inf where none)."""
     H, W = dpad.shape[0] - 2 * PAD, dpad.shape[1] - 2 * PAD
     pad = PAD
     off = radius[:, None, None] * disc[None]  # N×T×2 texels
@@ -134,14 +133,23 @@ def _taps(dpad, xy, d_test, grad, radius, disc, *, blockers: bool):
     u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
     fu, fv = u - u0, v - v0
     hits = np.zeros(len(xy))
-    deepest = np.full(len(xy), -np.inf) if blockers else None
+    deepest = np.full(len(xy), -np.inf)
     for du, dv, w in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)),
                       (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
         z = dpad[v0 + dv, u0 + du]
-        if blockers:
-            blk = w * (z < ref)
-            hits += blk.sum(1)
-            deepest = np.maximum(deepest, np.where(blk > 0, z, -np.inf).max(1))
-        else:
-            hits += (w * (z >= ref)).sum(1)
+        blk = w * (z < ref)
+        hits += blk.sum(1)
+        deepest = np.maximum(deepest, np.where(blk > 0, z, -np.inf).max(1))
     return hits, deepest
+
+
+def light_visibility(sm, light, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """Fraction of ``light`` (a :class:`graphkit.Light` in world units) reaching each point,
+    from its shadow map ``sm``: the hard test with a 3×3 percentage-closer filter
+    (:meth:`~nodes.common.raster.ShadowMap.visibility`) for a point or parallel light, soft
+    shadows (:func:`soft_visibility`) for a light with a size."""
+    if light.radius_m > 0:
+        return soft_visibility(sm, points, normals, radius=light.radius_m)
+    if light.angular_radius_deg > 0:
+        return soft_visibility(sm, points, normals, tan_angle=float(np.tan(np.radians(light.angular_radius_deg))))
+    return sm.visibility(points, normals)

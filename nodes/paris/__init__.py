@@ -10,6 +10,7 @@ NODES = {
     "ShadeFace": "nodes.paris.render:ShadeFace",
     "Render": "nodes.paris.render:Render",
     "MakeLight": "nodes.paris.render:MakeLight",
+    "LightSize": "nodes.paris.render:LightSize",
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
     "SmoothMesh": "nodes.paris.mesh:SmoothMesh",

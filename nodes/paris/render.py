@@ -429,7 +429,9 @@ class Render(Node):
       coordinates from ``texture_camera`` (the photo camera, §3); no [0, 2ⁿ] range limit.
     * ``exposure`` multiplies the light; the result is clamped to [0, 1] *after* the texture
       (§5 "Camera sensitivity": over-exposure when exposure > 1).
-    * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``.
+    * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``; soft, with a
+      penumbra set by the light's size, for lights with one (``LightSize``: percentage-closer
+      soft shadows, ``nodes.common.shadows``); hard for a point or parallel light.
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
@@ -474,6 +476,7 @@ class Render(Node):
                 detail: Image | None = None, texture_camera: Camera | None = None,
                 ambient: Light | None = None):
         from nodes.common import raster
+        from nodes.common.shadows import light_visibility
 
         from . import phong
 
@@ -495,7 +498,7 @@ class Render(Node):
                 try:
                     sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
                                            up=camera.rotation[1])
-                    vis = sm.visibility(s.points, s.normals)
+                    vis = light_visibility(sm, light, s.points, s.normals)
                 except ValueError as e:
                     raise BadInput("lights", f"light {i}: {e}") from None
                 diff, spec = diff * vis, spec * vis
@@ -650,6 +653,38 @@ class MakeLight(Node):
                       position=tuple(float(v) for v in pos), color=p.color,
                       intensity=p.intensity, ambient=p.ambient)
         return camera.light_to_world(light) if camera is not None else light
+
+
+class LightSize(Node):
+    """A light with a size, for soft shadows (Paris 2003 §7: shadow boundaries on skin "are
+    always soft"): a point light becomes a sphere of ``radius_m`` metres, a directional light a
+    disc of ``angular_radius_deg`` (the sun: 0.27°, a window or a softbox: several degrees).
+    Render then casts shadows with a penumbra set by that size (percentage-closer soft
+    shadows); its light and shading are otherwise those of the light's centre.  0 leaves the
+    light as it is (a flash stays sharp).  Units: metres, degrees.
+    """
+
+    version = "1"
+    inputs = {"light": In(Light, "the light (any frame)")}
+    outputs = {"light": Out(Light, "the same light with its size")}
+
+    class Params(Node.Params):
+        radius_m: float = Field(0.0, ge=0, description="point light: radius of the emitting sphere (metres)")
+        angular_radius_deg: float = Field(0.0, ge=0, lt=90, description="directional light: angular radius of the emitting disc (degrees)")
+
+    def compute(self, light: Light):
+        p = self.params
+        if p.radius_m and light.kind != "point":
+            raise BadInput("radius_m", "the light is directional: give its size as angular_radius_deg")
+        if p.angular_radius_deg and light.kind != "directional":
+            raise BadInput("angular_radius_deg", "the light is a point light: give its size as radius_m (metres)")
+        return light.model_copy(update={"radius_m": p.radius_m, "angular_radius_deg": p.angular_radius_deg})
+
+    @classmethod
+    def examples(cls):
+        return [({"angular_radius_deg": 3.0}, {"light": Light(direction=(0.0, 0.0, -1.0))}),
+                ({"radius_m": 0.1}, {"light": Light(kind="point", position=(0.0, 0.0, -1.0))}),
+                ({}, {"light": Light()})]
 
 
 class FrameFace(Node):
