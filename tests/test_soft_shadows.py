@@ -135,3 +135,12 @@ def test_opengl_backend_refuses_sized_lights():
     assert e.value.port == "lights" and "light 1" in e.value.message and "numpy" in e.value.message
     _refuse_sized(Render.Params(shadows=False), [sized])
     _refuse_sized(Render.Params(), [Light()])
+
+
+def test_a_sphere_light_reaching_the_mesh_is_refused():
+    params, inputs = Render.examples()[0]  # an ellipsoid about 1 unit (0.25 m) round z = 4 units
+    near = Light(kind="point", position=(0.0, 0.0, 0.5), radius_m=0.2)  # 0.275 m from the surface
+    Render(Render.Params(**params)).compute(**{**inputs, "lights": [near]})
+    with pytest.raises(BadInput) as e:
+        Render(Render.Params(**params)).compute(**{**inputs, "lights": [near.model_copy(update={"radius_m": 0.3})]})
+    assert e.value.port == "lights" and "reaches the mesh" in e.value.message

@@ -179,8 +179,8 @@ def vertex_normals(mesh) -> np.ndarray:
 
 def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> list:
     """The lights (world frame, point positions in metres) in the camera's world units
-    (``Light.in_world_units``), checked: a point light inside the mesh (its convex hull) or
-    with a non-finite position is refused."""
+    (``Light.in_world_units``), checked: a point light inside the mesh (its convex hull), whose
+    sphere (``radius_m``) reaches the mesh, or with a non-finite position is refused."""
     out = []
     hull = None
     for i, light in enumerate(lights):
@@ -197,6 +197,11 @@ def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> lis
                 raise BadInput(port, f"light {i}: the point light at {tuple(light.position)} m (world) "
                                      "is inside the mesh: it must be outside the face (positions are "
                                      "in metres, world frame)")
+            near = float(np.min(np.linalg.norm(np.asarray(mesh.vertices, np.float64) - p, axis=1)))
+            if lw.radius_m >= near:
+                raise BadInput(port, f"light {i}: the light's sphere (radius {light.radius_m:g} m) reaches the "
+                                     f"mesh ({near * camera.metres_per_unit:.3g} m from its centre): give it a "
+                                     "smaller radius or move it away")
         elif lw.kind == "directional":
             unit_direction(lw.direction, port, f"light {i}: the direction")
         out.append(lw)
@@ -660,8 +665,8 @@ class LightSize(Node):
     always soft"): a point light becomes a sphere of ``radius_m`` metres, a directional light a
     disc of ``angular_radius_deg`` (the sun: 0.27°, a window or a softbox: several degrees).
     Render then casts shadows with a penumbra set by that size (percentage-closer soft
-    shadows); its light and shading are otherwise those of the light's centre.  0 leaves the
-    light as it is (a flash stays sharp).  Units: metres, degrees.
+    shadows); its light and shading are otherwise those of the light's centre.  0: no size, a
+    point or parallel light (a flash stays sharp).  Units: metres, degrees.
     """
 
     version = "1"
