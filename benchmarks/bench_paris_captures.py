@@ -10,7 +10,8 @@ make_capture_set's docstring).
 
 ``python benchmarks/bench_paris_captures.py [--only NAME] [--json FILE] [--reflectance k=v …]
 [--light-size RADIUS_M ANGLE_DEG]`` (the last: each relight also with that size, soft shadows,
-against the same references).
+against the same references, and the hard and soft Renders on all skin against Mitsuba under
+the relight as an area light of that size, rendered once and cached beside the capture).
 """
 from __future__ import annotations
 
@@ -71,11 +72,11 @@ def main(argv=None) -> int:
         print(f"  kd {tuple(round(x, 3) for x in m['diffuse'])} "
               f"(truth {tuple(round(x, 3) for x in tr['kd'])}); i_s {m['specular']:.3f}; ambient "
               f"{tuple(round(x, 4) for x in m['ambient'])} (truth {tuple(round(x, 4) for x in tr['ambient'])})")
-        soft = " | soft: lit     all    cast" if a.light_size else ""
+        soft = " | soft: lit     all    cast | area ref: hard   soft" if a.light_size else ""
         print(f"  {'light':>16} {'kind':>11} {'dist':>5} {'angle':>6} {'lit':>7} {'all':>7} {'cast':>7} cast/px{soft}")
         for name, row in r["rows"].items():
             soft = (f" | {row['soft_psnr_lit']:7.2f} {row['soft_psnr_all']:7.2f} {row['soft_psnr_cast']:7.2f}"
-                    if a.light_size else "")
+                    f" | {row['area_hard_psnr_all']:7.2f} {row['area_soft_psnr_all']:7.2f}" if a.light_size else "")
             print(f"  {name:>16} {row['kind']:>11} {row['distance_m'] or '':>5} {row['angle']:6.1f} "
                   f"{row['psnr_lit']:7.2f} {row['psnr_all']:7.2f} {row['psnr_cast']:7.2f} {row['cast_px']}/{row['px']}{soft}")
             if row["angle"] <= 45.0 + 1e-6 and not row["psnr_lit"] >= 30.0:

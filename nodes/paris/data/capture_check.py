@@ -76,7 +76,9 @@ def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shi
     "truth": …}.  ``light_size`` (radius_m of point relights, angular_radius_deg of directional
     ones): each row also holds the PSNRs of Render with the relight given that size (soft
     shadows), ``soft_psnr_lit`` / ``soft_psnr_all`` / ``soft_psnr_cast``, against the same
-    reference."""
+    reference, and on all skin against Mitsuba under the relight *with* that size
+    (``make_capture_set.sized_reference``): hard Render ``area_hard_psnr_all``, soft Render
+    ``area_soft_psnr_all``."""
     from scipy.ndimage import binary_erosion
 
     from graphkit import Image, Mask
@@ -139,9 +141,12 @@ def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shi
             from nodes.paris.render import LightSize
 
             size = {"radius_m": light_size[0]} if light.kind == "point" else {"angular_radius_deg": light_size[1]}
-            a = relit(LightSize(LightSize.Params(**size)).compute(light))
-            rows[ls.name].update(soft_psnr_lit=_psnr(a[~cast], b[~cast]), soft_psnr_all=_psnr(a, b),
-                                 soft_psnr_cast=_psnr(a[cast], b[cast]))
+            s_ = relit(LightSize(LightSize.Params(**size)).compute(light))
+            area = cs.sized_reference(d, spec, ls, tuple(light_size), log=log or (lambda m: None))
+            area = area[surf.coverage][sk]
+            rows[ls.name].update(soft_psnr_lit=_psnr(s_[~cast], b[~cast]), soft_psnr_all=_psnr(s_, b),
+                                 soft_psnr_cast=_psnr(s_[cast], b[cast]), area_hard_psnr_all=_psnr(a, area),
+                                 area_soft_psnr_all=_psnr(s_, area))
         if log:
             log(f"  {ls.name:>16} {rows[ls.name]['angle']:5.1f}° lit {rows[ls.name]['psnr_lit']:6.2f} "
                 f"all {rows[ls.name]['psnr_all']:6.2f} dB")
