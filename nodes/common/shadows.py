@@ -76,6 +76,7 @@ def soft_visibility(sm, points: np.ndarray, normals: np.ndarray | None = None, *
 
 
 def _chunk(sm, dpad, pts, nrm, radius, tan_angle, bias, z_near):
+    """soft_visibility of finite points ``pts`` (one chunk), ``dpad`` the padded map."""
     xy, d = sm._project(pts)
     per_texel = sm.texel * (d / sm._ref_dist if sm.kind == "point" else np.ones(len(d)))  # world/texel at d
     grad = _receiver_gradient(sm, pts, nrm, per_texel)
