@@ -27,7 +27,14 @@ from nodes.common.sss import sss_blur
 
 class ScatterRelit(Node):
     """Subsurface scattering of the light on a relit face (Jimenez 2010 §6 on Render's light),
-    texture kept sharp: image + (image / light) · (sss(light) − light)."""
+    texture kept sharp: image + (image / light) · (sss(light) − light).
+
+    ``light`` is the same Render without the detail texture, eye highlights and clamp (so
+    image = texture × light there); SkinShade's scattering (d'Eon's six Gaussians, in mm on the
+    skin through the camera's ``metres_per_unit`` and Render's depth) softens its shadow edges
+    and terminator.  The skin's specular, inside ``light``, is scattered with it (an
+    approximation).  Pixels outside ``mask`` or where ``light`` ≤ ``eps`` are unchanged.
+    """
 
     version = "1"
     inputs = {"image": In(Image, "the relit face (Render.image)", channels=3, finite=True),
