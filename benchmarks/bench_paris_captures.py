@@ -8,7 +8,10 @@ colour and ambient against the truth.  Goal (issue 11): ≥ 30 dB on lit skin fo
 within 45° of the camera axis, on every capture.  Never tune on this set (see
 make_capture_set's docstring).
 
-``python benchmarks/bench_paris_captures.py [--only NAME] [--json FILE] [--reflectance k=v …]``
+``python benchmarks/bench_paris_captures.py [--only NAME] [--json FILE] [--reflectance k=v …]
+[--light-size RADIUS_M ANGLE_DEG]`` (the last: each relight also with that size, soft shadows,
+against the same references, and the hard and soft Renders on all skin against Mitsuba under
+the relight as an area light of that size, rendered once and cached beside the capture).
 """
 from __future__ import annotations
 
@@ -41,6 +44,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--reflectance", nargs="*", help="ReflectanceMap params, k=v")
     ap.add_argument("--fit", nargs="*", help="FitSkinPhong params, k=v")
+    ap.add_argument("--light-size", nargs=2, type=float, metavar=("RADIUS_M", "ANGLE_DEG"),
+                    help="also relight with soft shadows: point relights get this radius (m), "
+                         "directional ones this angular radius (degrees); the soft PSNRs are printed beside")
     a = ap.parse_args(argv)
     results, fails = {}, []
     for spec in cs.CAPTURES:
@@ -54,7 +60,7 @@ def main(argv=None) -> int:
                 continue
         d = cs.make(spec, a.out, log=lambda m: print("  render", m, flush=True))
         t = time.perf_counter()
-        r = capture_check.run(d, reflectance=_kv(a.reflectance), fit=_kv(a.fit))
+        r = capture_check.run(d, reflectance=_kv(a.reflectance), fit=_kv(a.fit), light_size=a.light_size)
         r["seconds"] = time.perf_counter() - t
         results[spec.name] = r
         m, tr = r["material"], r["truth"]
@@ -66,10 +72,13 @@ def main(argv=None) -> int:
         print(f"  kd {tuple(round(x, 3) for x in m['diffuse'])} "
               f"(truth {tuple(round(x, 3) for x in tr['kd'])}); i_s {m['specular']:.3f}; ambient "
               f"{tuple(round(x, 4) for x in m['ambient'])} (truth {tuple(round(x, 4) for x in tr['ambient'])})")
-        print(f"  {'light':>16} {'kind':>11} {'dist':>5} {'angle':>6} {'lit':>7} {'all':>7} {'cast':>7} cast/px")
+        soft = " | soft: lit     all    cast | area ref: hard   soft" if a.light_size else ""
+        print(f"  {'light':>16} {'kind':>11} {'dist':>5} {'angle':>6} {'lit':>7} {'all':>7} {'cast':>7} cast/px{soft}")
         for name, row in r["rows"].items():
+            soft = (f" | {row['soft_psnr_lit']:7.2f} {row['soft_psnr_all']:7.2f} {row['soft_psnr_cast']:7.2f}"
+                    f" | {row['area_hard_psnr_all']:7.2f} {row['area_soft_psnr_all']:7.2f}" if a.light_size else "")
             print(f"  {name:>16} {row['kind']:>11} {row['distance_m'] or '':>5} {row['angle']:6.1f} "
-                  f"{row['psnr_lit']:7.2f} {row['psnr_all']:7.2f} {row['psnr_cast']:7.2f} {row['cast_px']}/{row['px']}")
+                  f"{row['psnr_lit']:7.2f} {row['psnr_all']:7.2f} {row['psnr_cast']:7.2f} {row['cast_px']}/{row['px']}{soft}")
             if row["angle"] <= 45.0 + 1e-6 and not row["psnr_lit"] >= 30.0:
                 fails.append(f"{spec.name}/{name}: {row['psnr_lit']:.2f} dB")
     if a.json:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 
 
 # --------------------------------------------------------------------------------------------
@@ -334,6 +334,9 @@ def _move_light(light: "Light", R: np.ndarray, t_m: np.ndarray) -> "Light":
                                     "position": tuple(float(x) for x in p)})
 
 
+_LIGHT_SIZES = ("radius_m", "angular_radius_deg")  # Light's size fields, dropped while 0
+
+
 class Light(BaseModel):
     """A light source in the WORLD frame (the meshes' frame; a Camera maps it to its own).
 
@@ -349,6 +352,11 @@ class Light(BaseModel):
     * ``ambient``: linear-RGB ambient term in flash units (already multiplied by its intensity;
       a white surface of diffuse colour k shows k·ambient).
 
+    * the light's size, for soft shadows: ``radius_m``, a point light's radius as a sphere
+      (metres); ``angular_radius_deg``, a directional light's angular radius as a disc (the sun
+      is 0.27°).  0 (the default) is a point or a parallel light: hard shadows.  A size is left
+      out of the light's serialised form while it is 0, so lights without one keep their bytes.
+
     ``color`` is linear RGB.
     """
 
@@ -359,6 +367,29 @@ class Light(BaseModel):
     color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     intensity: float = Field(1.0, ge=0)
     ambient: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    radius_m: float = Field(0.0, ge=0, allow_inf_nan=False)
+    angular_radius_deg: float = Field(0.0, ge=0, lt=90)
+
+    @model_validator(mode="after")
+    def _size_fits_kind(self):
+        if self.radius_m and self.kind != "point":
+            raise ValueError("radius_m is a point light's size; a directional light's is angular_radius_deg")
+        if self.angular_radius_deg and self.kind != "directional":
+            raise ValueError("angular_radius_deg is a directional light's size; a point light's is radius_m")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_zero_size(self, handler):
+        out = handler(self)
+        for k in _LIGHT_SIZES:
+            if out.get(k) == 0:
+                del out[k]
+        return out
+
+    @property
+    def has_size(self) -> bool:
+        """Whether the light has a size (soft shadows)."""
+        return self.radius_m > 0 or self.angular_radius_deg > 0
 
     def in_world_units(self, metres_per_unit: float) -> "Light":
         """The light with a point light's position and intensity in world units of
@@ -367,7 +398,8 @@ class Light(BaseModel):
             return self
         u = float(metres_per_unit)
         return self.model_copy(update={"position": tuple(float(x) / u for x in self.position),
-                                       "intensity": self.intensity / (u * u)})
+                                       "intensity": self.intensity / (u * u),
+                                       "radius_m": self.radius_m / u})
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,8 @@ that cross the camera plane, ``nodes.paris.render.check_in_view``).
 Shadow maps (Williams 1978, used by Paris 2003 §5 "Cast shadows") are built on the same
 rasteriser: :func:`shadow_map` renders depth from a directional (orthographic) or point
 (perspective) light and :meth:`ShadowMap.visibility` tests points against it with a slope
-bias and percentage-closer filtering.
+bias and percentage-closer filtering; :mod:`nodes.common.shadows` filters the same map to the
+penumbra of a light with a size (percentage-closer soft shadows).
 
 Units: whatever the mesh uses (depth is in mesh units along the camera's +z axis).
 """

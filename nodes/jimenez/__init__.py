@@ -8,4 +8,5 @@ NODES: dict[str, str] = {
     "FlushTarget": "nodes.jimenez.histmatch:FlushTarget",
     "SkinColorLUT": "nodes.jimenez.skinlut:SkinColorLUT",
     "SkinShade": "nodes.jimenez.shade:SkinShade",
+    "ScatterRelit": "nodes.jimenez.scatter:ScatterRelit",
 }

@@ -11,6 +11,7 @@ NODES = {
     "Render": "nodes.paris.render:Render",
     "MakeLight": "nodes.paris.render:MakeLight",
     "EnvironmentLights": "nodes.paris.environment:EnvironmentLights",
+    "LightSize": "nodes.paris.render:LightSize",
     "FrameFace": "nodes.paris.render:FrameFace",
     "MeshMask": "nodes.paris.render:MeshMask",
     "SmoothMesh": "nodes.paris.mesh:SmoothMesh",

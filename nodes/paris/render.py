@@ -180,8 +180,8 @@ def vertex_normals(mesh) -> np.ndarray:
 
 def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> list:
     """The lights (world frame, point positions in metres) in the camera's world units
-    (``Light.in_world_units``), checked: a point light inside the mesh (its convex hull) or
-    with a non-finite position is refused."""
+    (``Light.in_world_units``), checked: a point light inside the mesh (its convex hull), whose
+    sphere (``radius_m``) reaches the mesh, or with a non-finite position is refused."""
     out = []
     hull = None
     for i, light in enumerate(lights):
@@ -198,6 +198,11 @@ def world_lights(lights, camera: Camera, mesh=None, port: str = "lights") -> lis
                 raise BadInput(port, f"light {i}: the point light at {tuple(light.position)} m (world) "
                                      "is inside the mesh: it must be outside the face (positions are "
                                      "in metres, world frame)")
+            near = float(np.min(np.linalg.norm(np.asarray(mesh.vertices, np.float64) - p, axis=1)))
+            if lw.radius_m >= near:
+                raise BadInput(port, f"light {i}: the light's sphere (radius {light.radius_m:g} m) reaches the "
+                                     f"mesh ({near * camera.metres_per_unit:.3g} m from its centre): give it a "
+                                     "smaller radius or move it away")
         elif lw.kind == "directional":
             unit_direction(lw.direction, port, f"light {i}: the direction")
         out.append(lw)
@@ -434,7 +439,9 @@ class Render(Node):
       coordinates from ``texture_camera`` (the photo camera, §3); no [0, 2ⁿ] range limit.
     * ``exposure`` multiplies the light; the result is clamped to [0, 1] *after* the texture
       (§5 "Camera sensitivity": over-exposure when exposure > 1).
-    * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``.
+    * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``; soft, with a
+      penumbra set by the light's size, for lights with one (``LightSize``: percentage-closer
+      soft shadows, ``nodes.common.shadows``); hard for a point or parallel light.
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
@@ -485,6 +492,7 @@ class Render(Node):
                 detail: Image | None = None, texture_camera: Camera | None = None,
                 ambient: Light | None = None, environment: EnvironmentLighting | None = None):
         from nodes.common import raster
+        from nodes.common.shadows import light_visibility
 
         from . import phong
 
@@ -513,7 +521,7 @@ class Render(Node):
                 try:
                     sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
                                            up=camera.rotation[1])
-                    vis = sm.visibility(s.points, s.normals)
+                    vis = light_visibility(sm, light, s.points, s.normals)
                 except ValueError as e:
                     raise BadInput("lights" if i < own else "environment", f"light {i}: {e}") from None
                 diff, spec = diff * vis, spec * vis
@@ -670,6 +678,38 @@ class MakeLight(Node):
                       position=tuple(float(v) for v in pos), color=p.color,
                       intensity=p.intensity, ambient=p.ambient)
         return camera.light_to_world(light) if camera is not None else light
+
+
+class LightSize(Node):
+    """A light with a size, for soft shadows (Paris 2003 §7: shadow boundaries on skin "are
+    always soft"): a point light becomes a sphere of ``radius_m`` metres, a directional light a
+    disc of ``angular_radius_deg`` (the sun: 0.27°, a window or a softbox: several degrees).
+    Render then casts shadows with a penumbra set by that size (percentage-closer soft
+    shadows); its light and shading are otherwise those of the light's centre.  0: no size, a
+    point or parallel light (a flash stays sharp).  Units: metres, degrees.
+    """
+
+    version = "1"
+    inputs = {"light": In(Light, "the light (any frame)")}
+    outputs = {"light": Out(Light, "the same light with its size")}
+
+    class Params(Node.Params):
+        radius_m: float = Field(0.0, ge=0, description="point light: radius of the emitting sphere (metres)")
+        angular_radius_deg: float = Field(0.0, ge=0, lt=90, description="directional light: angular radius of the emitting disc (degrees)")
+
+    def compute(self, light: Light):
+        p = self.params
+        if p.radius_m and light.kind != "point":
+            raise BadInput("radius_m", "the light is directional: give its size as angular_radius_deg")
+        if p.angular_radius_deg and light.kind != "directional":
+            raise BadInput("angular_radius_deg", "the light is a point light: give its size as radius_m (metres)")
+        return light.model_copy(update={"radius_m": p.radius_m, "angular_radius_deg": p.angular_radius_deg})
+
+    @classmethod
+    def examples(cls):
+        return [({"angular_radius_deg": 3.0}, {"light": Light(direction=(0.0, 0.0, -1.0))}),
+                ({"radius_m": 0.1}, {"light": Light(kind="point", position=(0.0, 0.0, -1.0))}),
+                ({}, {"light": Light()})]
 
 
 class FrameFace(Node):

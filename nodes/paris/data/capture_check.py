@@ -71,9 +71,14 @@ def cast_shadows(mesh, points, normals, light, metres_per_unit) -> np.ndarray:
 
 
 def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shininess: float | None = None,
-        log=None) -> dict:
+        log=None, light_size: tuple[float, float] | None = None) -> dict:
     """The pipeline on capture folder ``d`` → {"rows": {light: {...}}, "probe": …, "material": …,
-    "truth": …}."""
+    "truth": …}.  ``light_size`` (radius_m of point relights, angular_radius_deg of directional
+    ones): each row also holds the PSNRs of Render with the relight given that size (soft
+    shadows), ``soft_psnr_lit`` / ``soft_psnr_all`` / ``soft_psnr_cast``, against the same
+    reference, and on all skin against Mitsuba under the relight *with* that size
+    (``make_capture_set.sized_reference``): hard Render ``area_hard_psnr_all``, soft Render
+    ``area_soft_psnr_all``."""
     from scipy.ndimage import binary_erosion
 
     from graphkit import Image, Mask
@@ -119,10 +124,12 @@ def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shi
     rows = {}
     for ls in spec.lights:
         light = cs.relight_light(spec, ls)
-        out = Render(Render.Params(shadow_map_size=512)).compute(
-            mesh=mesh, camera=cam, material=mat, lights=[light], detail=detail, texture_camera=cam,
-            ambient=flash_fit)["image"].pixels
-        a = out[surf.coverage][sk]
+        def relit(lt):
+            return Render(Render.Params(shadow_map_size=512)).compute(
+                mesh=mesh, camera=cam, material=mat, lights=[lt], detail=detail, texture_camera=cam,
+                ambient=flash_fit)["image"].pixels[surf.coverage][sk]
+
+        a = relit(light)
         b = c["refs"][ls.name][surf.coverage][sk]
         cast = cast_shadows(mesh, surf.points[sk], surf.normals[sk], light, cam.metres_per_unit)
         dcam = cs.light_direction_cam(ls.azimuth_deg, ls.elevation_deg)
@@ -130,6 +137,16 @@ def run(d: str, *, reflectance: dict | None = None, fit: dict | None = None, shi
                          "distance_m": ls.distance_m, "psnr_lit": _psnr(a[~cast], b[~cast]),
                          "psnr_all": _psnr(a, b), "psnr_cast": _psnr(a[cast], b[cast]),
                          "cast_px": int(cast.sum()), "px": int(len(a))}
+        if light_size is not None:
+            from nodes.paris.render import LightSize
+
+            size = {"radius_m": light_size[0]} if light.kind == "point" else {"angular_radius_deg": light_size[1]}
+            s_ = relit(LightSize(LightSize.Params(**size)).compute(light))
+            area = cs.sized_reference(d, spec, ls, tuple(light_size), log=log or (lambda m: None))
+            area = area[surf.coverage][sk]
+            rows[ls.name].update(soft_psnr_lit=_psnr(s_[~cast], b[~cast]), soft_psnr_all=_psnr(s_, b),
+                                 soft_psnr_cast=_psnr(s_[cast], b[cast]), area_hard_psnr_all=_psnr(a, area),
+                                 area_soft_psnr_all=_psnr(s_, area))
         if log:
             log(f"  {ls.name:>16} {rows[ls.name]['angle']:5.1f}° lit {rows[ls.name]['psnr_lit']:6.2f} "
                 f"all {rows[ls.name]['psnr_all']:6.2f} dB")

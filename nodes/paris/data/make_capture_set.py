@@ -361,9 +361,11 @@ def light_direction_cam(az, el):
 
 
 def render(spec: Spec, cam, mesh, uv, tex, what: str, light: LightSpec | None = None, spp: int = 64,
-           seed: int = 0):
+           seed: int = 0, light_size: tuple[float, float] = (0.0, 0.0)):
     """Render 'photo' (flash + ambient), 'probe' (ball + flash + ambient) or 'relight' (the
-    light + ambient) in Mitsuba; H×W×3 float32."""
+    light + ambient) in Mitsuba; H×W×3 float32.  ``light_size``: the relight as an area light,
+    (radius in m of a point light's sphere, angular radius in degrees of a directional light's
+    disc: a sphere 100 m away), with the same irradiance at normal incidence."""
     import mitsuba as mi
 
     mc._mi()
@@ -403,9 +405,18 @@ def render(spec: Spec, cam, mesh, uv, tex, what: str, light: LightSpec | None = 
         Rw = camera_to_world(spec)[:3, :3]
         d_cam = light_direction_cam(light.azimuth_deg, light.elevation_deg)
         rgb = np.asarray(light.color, np.float64) * light.intensity
-        if light.kind == "directional":
+        radius_m, angle = light_size[0], np.radians(light_size[1])
+        if light.kind == "directional" and angle > 0:
+            far = 100.0
+            scene["sun"] = _sphere_light(to_world_m(spec, C + far * d_cam), far * np.sin(angle) / u,
+                                         rgb * E / (np.pi * np.sin(angle) ** 2))
+        elif light.kind == "directional":
             scene["sun"] = {"type": "directional", "direction": list(-(Rw @ d_cam)),
                             "irradiance": {"type": "rgb", "value": list(rgb * E)}}
+        elif radius_m > 0:
+            r = radius_m / u
+            scene["lamp"] = _sphere_light(to_world_m(spec, C + light.distance_m * d_cam), r,
+                                          rgb * E / u ** 2 / (np.pi * r * r))
         else:
             P = C + light.distance_m * d_cam
             scene["lamp"] = {"type": "point", "position": list(to_world_m(spec, P)),
@@ -476,6 +487,33 @@ def truth_maps(mesh, uv, tex, sk, cam):
     iy = np.clip((UV[..., 1] * H).astype(np.int64), 0, H - 1)
     skin = r.coverage & (sk[iy, ix] > 0.5)
     return skin, tex[iy, ix]
+
+
+def _sphere_light(centre, radius: float, radiance) -> dict:
+    """A black sphere emitting ``radiance`` (RGB) uniformly (scene units)."""
+    return {"type": "sphere", "center": [float(x) for x in centre], "radius": float(radius),
+            "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [float(x) for x in radiance]}},
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}}
+
+
+def sized_reference(d: str, spec: Spec, light: LightSpec, light_size: tuple[float, float], log=print):
+    """Mitsuba's render of capture ``d`` under ``light`` as an area light of ``light_size``
+    (see :func:`render`), cached beside the capture as ``ref_<light>_r<m>_a<deg>.exr``."""
+    from nodes.io.images import encode_image, read_image
+
+    path = os.path.join(d, f"ref_{light.name}_r{light_size[0]:g}_a{light_size[1]:g}.exr")
+    if not os.path.exists(path):
+        with open(os.path.join(d, "capture.json")) as f:
+            key = json.load(f)["key"]
+        log(f"{spec.name}: {os.path.basename(path)}")
+        mesh, uv, tex, _ = build(spec)
+        cam, _ = cameras(spec, key["size"], key["probe_size"])
+        seed = 2 + [x.name for x in spec.lights].index(light.name)
+        img = render(spec, cam, mesh, uv, tex, "relight", light, spp=key["spp"], seed=seed, light_size=light_size)
+        with open(path + ".part", "wb") as f:
+            f.write(encode_image(np.asarray(img, np.float32), ".exr", 32))
+        os.replace(path + ".part", path)
+    return read_image(path)[0]
 
 
 def make(spec: Spec, out: str, size: int = 160, probe_size: int = 384, spp: int = 64, log=print) -> str:
