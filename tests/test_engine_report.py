@@ -131,3 +131,24 @@ def test_animated_preview_of_a_sweep(tmp_path, write, reg):
         px = np.asarray(gif.convert("RGB"))
         assert px.shape == (19, 32, 3)  # 40x24 scaled to 32 wide
         assert np.abs(px.astype(float) - srgb8(v)).max() <= 1
+
+
+def test_a_warm_report_reads_its_thumbnails_as_one_sheet(tmp_path, write, reg, monkeypatch):
+    """The thumbnails a report shows are kept as one sheet (one record, one object): the next
+    report of the same images reads the sheet, not a record and an object per image (what a warm
+    run on an object store pays per request), and shows the same images."""
+    import graphkit.report as report
+
+    g = write("rep.yaml", G)
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "cold", registry=reg)
+    cold = Rows()
+    cold.feed((tmp_path / "cold" / "report.html").read_text())
+    assert len(cold.imgs) == 4  # the three frames and the gif
+
+    def alone(*a, **k):
+        pytest.fail("a thumbnail looked up or made alone")
+    monkeypatch.setattr(report, "thumbnail", alone)
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "warm", registry=reg)
+    warm = Rows()
+    warm.feed((tmp_path / "warm" / "report.html").read_text())
+    assert warm.imgs == cold.imgs

@@ -62,6 +62,8 @@ class Store:
         #: digests of objects this process wrote or read back whole while holding the run lock
         #: (gc and verify --repair cannot remove them then): put_value does not look for them again
         self._present: set[str] = set()
+        #: entries read ahead in one batch (:meth:`prefetch`), each taken by its next read
+        self._ahead: dict[str, bytes | None] = {}
         #: the keyed check's secret (GRAPHKIT_CACHE_KEY; None: records carry no MAC)
         self.secret = cache_key()
         #: called with one line for each damaged entry found (Session sets it to its notice)
@@ -139,17 +141,32 @@ class Store:
 
         A record that fails its check is quarantined with a notice and reads as a miss."""
         rel = record_rel(key)
-        raw, why, stale = self.fs.read_record(rel, key, self.TOUCH_GRANULARITY_S if touch else None,
-                                              self._run_lock_depth > 0, self._journal_here())
+        if rel in self._ahead:
+            raw, why, stale = *record_bytes(self._ahead.pop(rel, None), key), False
+        else:
+            raw, why, stale = self.fs.read_record(rel, key, self.TOUCH_GRANULARITY_S if touch else None,
+                                                  self._run_lock_depth > 0, self._journal_here())
         return self._trusted(key, raw, why, stale)
 
     def get_records(self, keys: Iterable[str], touch: bool = False) -> dict[str, dict | None]:
         """:meth:`get_record` of many keys: on a file system that sends reads together, one batch."""
         keys = list(keys)
-        if self.fs.local or len(keys) < 2:
-            return {k: self.get_record(k, touch) for k in keys}
-        raws = self.fs.read_many([record_rel(k) for k in keys])
-        return {k: self._trusted(k, *record_bytes(raws[record_rel(k)], k), False) for k in keys}
+        self.prefetch([record_rel(k) for k in keys])
+        return {k: self.get_record(k, touch) for k in keys}
+
+    def prefetch(self, rels: Iterable[str]) -> None:
+        """Read these entries now, together, where the file system sends reads together (an
+        object store: one concurrent batch; a folder reads each when asked): the next read of
+        each takes its bytes from here."""
+        if self.fs.local:
+            return
+        rels = [r for r in dict.fromkeys(rels) if r not in self._ahead]
+        if len(rels) > 1:
+            self._ahead.update(self.fs.read_many(rels))
+
+    def prefetch_values(self, digests: Iterable[str]) -> None:
+        """:meth:`prefetch` the objects of these digests (values about to be loaded)."""
+        self.prefetch(object_rel(d) for d in digests)
 
     def _trusted(self, key: str, raw: bytes | None, why: str | None, stale: bool) -> dict | None:
         """The record in ``raw`` if it passes its checks; else quarantined (a notice) and None."""
@@ -233,7 +250,7 @@ class Store:
         A damaged object is quarantined and :class:`CorruptObject` raised; an absent one raises
         :class:`MissingObject` (both are :class:`CacheError`; a Session recomputes the value)."""
         rel = object_rel(digest)
-        raw = self.fs.read(rel)
+        raw = self._ahead.pop(rel) if rel in self._ahead else self.fs.read(rel)
         try:
             tname, meta, arrays = check_object(raw, digest)
         except CorruptObject as e:
@@ -301,6 +318,7 @@ class Store:
                 self._run_lock_depth -= 1
                 if self._run_lock_depth == 0:
                     self._present.clear()
+                    self._ahead.clear()
                     self.fs.end_run()  # this run's journal is complete; what others wrote may change
                     self._run_cm.__exit__(None, None, None)
 
