@@ -255,33 +255,40 @@ def _instances_table(session, graph, outcomes: dict) -> list[str]:
 
 
 class _Thumbnails:
-    """The image outputs' thumbnails as <img> tags, at most MAX_THUMBS per report."""
+    """The image outputs' thumbnails as <img> tags, at most MAX_THUMBS per report.
+
+    The thumbnails a report shows are kept as one sheet (one record, one object), keyed by the
+    digests of every output that may be an image (Image, Mask, File): the next report of the
+    same outputs reads two entries, not a record and an object per image, and shows the same
+    images (a File value is known to be an image only once it is in memory; the sheet says so)."""
 
     def __init__(self, session):
-        self.session, self.shown, self.skipped = session, 0, 0
+        self.session, self.shown, self.skipped, self.failed = session, 0, 0, False
         self.records: dict[str, Any] = {}  # digest -> its thumbnail's record (looked up together)
-        self.sheet: dict[str, bytes] | None = None  # this report's thumbnails, kept as one sheet
+        self.sheet: dict[str, bytes] | None = None  # the thumbnails read as one sheet
         self.made: dict[str, bytes] = {}  # the thumbnails this report shows
-        self.sheet_key, self.digests = "", []
+        self.sheet_key = ""
 
-    def images(self, g, o) -> list[tuple[str, str, Any]]:
-        """(port, digest, port type) of the image outputs of node ``g``'s outcome ``o``."""
+    @staticmethod
+    def candidates(g, o) -> list[tuple[str, str, Any]]:
+        """(port, digest, port type) of the outputs of node ``g``'s outcome ``o`` that may be images."""
         out = []
         for port, d in o.outputs.items():
             p = g.cls.out_ports.get(port)
-            if p is not None and _is_image_output(self.session, p.type, d):
+            if p is not None and p.type.name in (*_IMAGE_TYPES, "File"):
                 out.append((port, d, p.type))
         return out
 
     def look_up(self, nodes) -> None:
-        """The thumbnails of these (node, outcome) pairs' images (the first MAX_THUMBS): their
-        records, then their objects, read together (one batch each on an object store)."""
+        """The sheet of these (node, outcome) pairs' thumbnails; without one, the records and then
+        the objects of the first MAX_THUMBS, read together (one batch each on an object store)."""
         store = self.session.store
-        digests = self.digests = [d for g, o in nodes for _, d, _ in self.images(g, o)][:MAX_THUMBS]
-        self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": digests})
+        cands = [c for g, o in nodes for c in self.candidates(g, o)]
+        self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": [d for _, d, _ in cands]})
         try:
-            self.sheet = _sheet(store, self.sheet_key) if digests else None
+            self.sheet = _sheet(store, self.sheet_key) if cands else None
             if self.sheet is None:
+                digests = [d for _, d, t in cands if _is_image_output(self.session, t, d)][:MAX_THUMBS]
                 recs = store.get_records(thumbnail_key(d) for d in digests)
                 self.records = {d: recs[thumbnail_key(d)] for d in digests}
                 store.prefetch_values(r["outputs"]["jpeg"]["digest"] for r in self.records.values() if r)
@@ -289,27 +296,36 @@ class _Thumbnails:
             self.sheet, self.records = None, {}
 
     def keep(self) -> None:
-        """The thumbnails shown, kept as one sheet when they were not read from one."""
-        if self.sheet is None and self.made and set(self.made) == set(self.digests):
+        """Every thumbnail shown, kept as one sheet (unless read from one, or some are missing)."""
+        if self.sheet is None and self.made and not (self.skipped or self.failed):
             with contextlib.suppress(Exception):  # (a read-only cache simply does not keep it)
                 _keep_sheet(self.session.store, self.sheet_key, self.made)
 
     def of(self, g, o) -> str:
         imgs = []
-        for port, d, ptype in self.images(g, o):
+        for port, d, ptype in self.candidates(g, o):
+            jpeg = (self.sheet or {}).get(d)
+            if jpeg is None and not _is_image_output(self.session, ptype, d):
+                continue
             if self.shown >= MAX_THUMBS:
                 self.skipped += 1
                 continue
-            try:
-                jpeg = (self.sheet or {}).get(d) or thumbnail(self.session, d, ptype, self.records.get(d, ...))
-            except Exception:  # noqa: BLE001 - a report never fails a run
-                jpeg = None
+            if jpeg is None:
+                jpeg = self._made_alone(d, ptype)
             if jpeg:
                 self.shown += 1
                 self.made[d] = jpeg
                 imgs.append(f"<img alt='{_e(port)}' title='{_e(port)}' src='data:image/jpeg;base64,"
                             f"{base64.b64encode(jpeg).decode()}'>")
+            else:
+                self.failed = True
         return "".join(imgs)
+
+    def _made_alone(self, d: str, ptype) -> bytes | None:
+        try:
+            return thumbnail(self.session, d, ptype, self.records.get(d, ...))
+        except Exception:  # noqa: BLE001 - a report never fails a run
+            return None
 
 
 def report_file(session, result, manifest: dict) -> tuple[str, bytes]:

@@ -32,9 +32,10 @@ from .localfs import LocalFS
 from .objectfs import FsspecFS
 from .records import cache_key, decode_record, encode_record, record_bytes, record_rel
 
-def open_fs(location: str) -> FileSystem:
-    """The file system of a cache location: an fsspec URL (``scheme://…``) or a folder."""
-    return FsspecFS(location) if "://" in location else LocalFS(location)
+def open_fs(location: str, options: dict | None = None) -> FileSystem:
+    """The file system of a cache location: an fsspec URL (``scheme://…``, with storage
+    ``options`` under those of the environment) or a folder."""
+    return FsspecFS(location, options) if "://" in location else LocalFS(location)
 
 
 class Store:
@@ -46,8 +47,8 @@ class Store:
     #: least-recently-used order has this granularity, and warm re-runs write nothing
     TOUCH_GRANULARITY_S = 60.0
 
-    def __init__(self, location: str | os.PathLike, sync: bool = True):
-        self.fs = open_fs(str(location))
+    def __init__(self, location: str | os.PathLike, sync: bool = True, options: dict | None = None):
+        self.fs = open_fs(str(location), options)
         self.sync = sync
         self.location = self.fs.describe()
         self.read_only = False

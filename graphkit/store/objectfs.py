@@ -126,11 +126,13 @@ class FsspecFS(FileSystem):
     _locks: dict[str, threading.Lock] = {}
     _locks_guard = threading.Lock()
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, options: dict | None = None):
+        """``options``: storage options (a graph file's), under those of GRAPHKIT_CACHE_OPTIONS."""
         import fsspec
 
         protocol = fsspec.core.split_protocol(url)[0]
-        self.options = merged_options(CLIENT_DEFAULTS.get(protocol, {}), cache_options())
+        self.options = merged_options(merged_options(CLIENT_DEFAULTS.get(protocol, {}), options or {}),
+                                      cache_options())
         try:
             self.fs, self.root = fsspec.core.url_to_fs(url, **self.options)
         except TypeError as e:
