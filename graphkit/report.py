@@ -284,7 +284,8 @@ class _Thumbnails:
         the objects of the first MAX_THUMBS, read together (one batch each on an object store)."""
         store = self.session.store
         cands = [c for g, o in nodes for c in self.candidates(g, o)]
-        self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": [d for _, d, _ in cands]})
+        values = sorted({d for _, d, _ in cands})  # (a computed node's ports and a record's come in other orders)
+        self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": values})
         try:
             self.sheet = _sheet(store, self.sheet_key) if cands else None
             if self.sheet is None:
