@@ -256,7 +256,11 @@ class Session:
     def cached(self, name: str, input_digests: dict[str, str]) -> NodeOutcome | None:
         """Node ``name``'s outcome when its result is in the store (a hit), else None; nothing
         is computed or locked, so an executor can resolve the hits in its own thread."""
-        return self.cached_many([(name, input_digests)])[name]
+        g = self.graph.nodes[name]
+        t0 = time.perf_counter()
+        key, parts = self.key(g, input_digests)
+        rec = self._lookup(g, key, parts, touch=True)
+        return None if rec is None else self._hit(g, key, parts, rec, t0)
 
     def cached_many(self, nodes: list[tuple[str, dict[str, str]]]) -> dict[str, NodeOutcome | None]:
         """:meth:`cached` of many nodes (name, input digests) whose inputs are known: their

@@ -141,18 +141,20 @@ class Store:
         """The record of ``key`` (None if absent or untrustworthy); ``touch`` marks it used for gc.
 
         A record that fails its check is quarantined with a notice and reads as a miss."""
-        rel = record_rel(key)
-        if rel in self._ahead:
+        rel = f"keys/{key[:2]}/{key}.json"  # (record_rel, inlined: once per node of a warm run)
+        if self._ahead and rel in self._ahead:
             raw, why, stale = *record_bytes(self._ahead.pop(rel, None), key), False
         else:
-            raw, why, stale = self.fs.read_record(rel, key, self.TOUCH_GRANULARITY_S if touch else None,
-                                                  self._run_lock_depth > 0, self._journal_here())
+            in_run = self._run_lock_depth > 0
+            raw, why, stale = self.fs.read_record(rel, key, self.TOUCH_GRANULARITY_S if touch else None, in_run,
+                                                  in_run and touch and self.fs.hard_links and not self.read_only)
         return self._trusted(key, raw, why, stale)
 
     def get_records(self, keys: Iterable[str], touch: bool = False) -> dict[str, dict | None]:
         """:meth:`get_record` of many keys: on a file system that sends reads together, one batch."""
         keys = list(keys)
-        self.prefetch([record_rel(k) for k in keys])
+        if not self.fs.local:
+            self.prefetch([record_rel(k) for k in keys])
         return {k: self.get_record(k, touch) for k in keys}
 
     def prefetch(self, rels: Iterable[str]) -> None:
