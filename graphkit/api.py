@@ -39,20 +39,24 @@ class Run:
         return self.session.value(o.outputs[port], self.graph.nodes[node].cls.out_ports[port].type, (node, port))
 
 
-def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLike = ".graphkit-cache",
+def run_graph(path: str | os.PathLike | dict | Graph, *, cache: str | os.PathLike | None = None,
               out: str | os.PathLike | None = None, overrides: dict | None = None,
               backends: list[str] | None = None, jobs: int = 1, outputs: list[str] | None = None,
               executor: str = "local", scheduler: str | None = None,
               registry: Registry | None = None, progress: Progress | None = None,
               scheduler_timeout: float = 10.0) -> Run:
     """Load, validate and run a graph (a file, a dict, or a loaded Graph); write its outputs into
-    ``out`` when given.  The stages, in order: load + validate, plan, run, publish."""
+    ``out`` when given.  The stages, in order: load + validate, plan, run, publish.
+
+    ``cache``: a folder or an fsspec URL; None: the graph file's ``cache:``, else
+    $GRAPHKIT_CACHE, else ./.graphkit-cache (Graph.cache_setting)."""
     registry = registry or default_registry()
     graph = load(path, registry, overrides or {})  # a graph file, a dict (load_dict) or a Graph
     plan = make_plan(graph, outputs, out)  # outputs: an output name, or a swept output's group name
+    cache, options, _ = graph.cache_setting(cache)
     if out is not None:
         check_out_folder(out, cache)
-    store = Store(cache).open()
+    store = Store(cache, options=options).open()
     progress = progress or Progress()
     session = Session(graph, registry, store, backends, notice=progress.notice, report=progress.report)
 

@@ -19,9 +19,16 @@ from .nodeinfo import node_info, type_name
 DEFAULT_CACHE = ".graphkit-cache"
 
 
-def _cache_arg(p):
-    p.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", DEFAULT_CACHE),
-                   help="cache folder or fsspec URL (default: $GRAPHKIT_CACHE or ./.graphkit-cache)")
+def _cache_arg(p, from_graph: bool = False):
+    """--cache and --cache-option; ``from_graph``: a command on a graph, whose file may name its
+    cache (``cache:``; --cache replaces it, Graph.cache_setting)."""
+    if from_graph:
+        p.set_defaults(graph_cache=True)
+        p.add_argument("--cache", default=None, help="cache folder or fsspec URL (default: the graph file's "
+                       "cache:, else $GRAPHKIT_CACHE, else ./.graphkit-cache)")
+    else:
+        p.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", DEFAULT_CACHE),
+                       help="cache folder or fsspec URL (default: $GRAPHKIT_CACHE or ./.graphkit-cache)")
     p.add_argument("--cache-option", action="append", default=[], metavar="KEY=VALUE",
                    help="an fsspec storage option for a cache URL (repeatable), e.g. endpoint_url=http://host:9000, "
                         "profile=NAME, client_kwargs.region_name=eu-west-1; also $GRAPHKIT_CACHE_OPTIONS (JSON)")
@@ -79,7 +86,7 @@ def build_parser():
 def _run_parser(sub) -> None:
     p = sub.add_parser("run", help="run a graph")
     _graph_args(p)
-    _cache_arg(p)
+    _cache_arg(p, from_graph=True)
     p.add_argument("--out", default="out", help="folder for the outputs, manifest.json and report.html (default: out)")
     _backend_arg(p)
     p.add_argument("--jobs", "-j", type=int, default=os.cpu_count() or 1, help="nodes run at once")
@@ -100,7 +107,7 @@ def _inspect_parsers(sub) -> None:
     """status, validate, show (explain comes after conform)."""
     p = sub.add_parser("status", help="per node instance: cached or would run, and why (runs nothing)")
     _graph_args(p)
-    _cache_arg(p)
+    _cache_arg(p, from_graph=True)
     _backend_arg(p)
     p.add_argument("--output", action="append", default=[], metavar="NAME", help="only these outputs (repeatable)")
     p.add_argument("--json", action="store_true", help="print JSON (for tools)")
@@ -129,7 +136,7 @@ def _tool_parsers(sub) -> None:
     p = sub.add_parser("explain", help="say why a node would (not) re-run")
     _graph_args(p)
     p.add_argument("node")
-    _cache_arg(p)
+    _cache_arg(p, from_graph=True)
 
     p = sub.add_parser("nodes", help="list node types (or describe one)")
     p.add_argument("name", nargs="?")
@@ -161,7 +168,9 @@ def _cache_parser(sub) -> None:
         cp = csub.add_parser(name, help=hlp)
         if name == "init":
             cp.add_argument("url", nargs="?", help="the cache's folder or URL (default: --cache)")
-        _cache_arg(cp)
+        if name == "info":
+            cp.add_argument("graph", nargs="?", help="a graph file: the cache its runs use (its cache:, or --cache)")
+        _cache_arg(cp, from_graph=name == "info")
         if name == "gc":
             cp.add_argument("--max-size", required=True, help="e.g. 500M (MiB), 2G (GiB): binary units")
         if name == "verify":
@@ -298,8 +307,11 @@ def cmd_validate(args) -> int:
 
 def cmd_explain(args) -> int:
     from .explain import explain
+    from .store import Store
 
-    print(explain(_load(args), _store(args.cache), args.node))
+    graph = _load(args)
+    loc, options, _ = graph.cache_setting(args.cache)
+    print(explain(graph, Store(loc, options=options).open(), args.node))
     return 0
 
 
@@ -497,12 +509,30 @@ def cmd_cache(args) -> int:
 
         print(Store(args.url or args.cache).init())
         return 0
-    actions = {"ls": _cache_ls, "gc": _cache_gc, "info": _cache_info}
+    if args.cache_cmd == "info":
+        return _cache_info(args)
+    actions = {"ls": _cache_ls, "gc": _cache_gc}
     return actions.get(args.cache_cmd, _cache_verify)(_store(args.cache), args)
 
 
-def _cache_info(store, args) -> int:
-    for k, v in store.fs.info().items():
+def _cache_setting(args) -> tuple[str, dict, str]:
+    """(location, storage options, where from) of a graph command's cache (Graph.cache_setting)."""
+    if getattr(args, "graph", None):
+        from .graphfile import load_graph
+
+        return load_graph(args.graph, _registry(), {}, check_backends=False).cache_setting(args.cache)
+    if args.cache is not None:
+        return args.cache, {}, "--cache"
+    env = os.environ.get("GRAPHKIT_CACHE")
+    return (env, {}, "$GRAPHKIT_CACHE") if env else (DEFAULT_CACHE, {}, "the default")
+
+
+def _cache_info(args) -> int:
+    from .store import Store
+
+    loc, options, source = _cache_setting(args)
+    print(f"setting: {source}")
+    for k, v in Store(loc, options=options).open().fs.info().items():
         print(f"{k}: {v}")
     return 0
 

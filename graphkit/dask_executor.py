@@ -49,7 +49,8 @@ def _worker_session(token, graph, store_location, backend_order) -> Session:
             from .registry import default_registry
             from .store import Store
 
-            s = Session(graph, default_registry(), Store(store_location).open(), backend_order)
+            s = Session(graph, default_registry(), Store(store_location, options=graph.cache_options(store_location)).open(),
+                        backend_order)
             _sessions.clear()  # one run at a time per worker keeps memory bounded
             _sessions[token] = s
         return s
@@ -76,7 +77,7 @@ def _dask_node(token, graph, store_location, backend_order, name, dep_names, *de
         return _Failed(e)
 
 
-def _probe_worker(needs: dict, store_location: str, version: str) -> list[str]:
+def _probe_worker(needs: dict, store_location: str, version: str, options: dict | None = None) -> list[str]:
     """Run on every worker before the graph: what would stop it from running its tasks."""
     problems = []
     try:
@@ -104,7 +105,7 @@ def _probe_worker(needs: dict, store_location: str, version: str) -> list[str]:
             except KeyError:
                 problems.append(f"has no backend {sorted(pinned)} of {node_type}")
         try:
-            Store(store_location).open()
+            Store(store_location, options=options).open()
         except GraphkitError as e:
             problems.append(f"cannot use the cache: {e}")
     except Exception as e:  # noqa: BLE001 - report, do not crash the worker
@@ -197,8 +198,9 @@ def _preflight(client, session: Session, order: list[str], timeout: float, sched
     except (TimeoutError, OSError):
         raise UsageError(f"the Dask scheduler at {scheduler} has no workers (waited {timeout:g} s)") from None
     try:
-        found = client.run(_probe_worker, {k: sorted(v) for k, v in needs.items()}, session.store.location,
-                           __version__)
+        loc = session.store.location
+        found = client.run(_probe_worker, {k: sorted(v) for k, v in needs.items()}, loc, __version__,
+                           session.graph.cache_options(loc))
     except Exception as e:  # noqa: BLE001 - e.g. a worker that cannot even unpickle graphkit
         raise UsageError(f"cannot check the Dask workers: {type(e).__name__}: {e}") from None
     lines = [f"worker {w} {p}" for w, ps in sorted(found.items()) for p in ps]

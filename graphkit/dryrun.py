@@ -90,7 +90,7 @@ class StatusReport:
         return f"{self.graph.name}: {len(self.would_run)} would run, {len(self.cached)} cached"
 
 
-def status(graph, cache: str | os.PathLike | Store = ".graphkit-cache", *, registry=None,
+def status(graph, cache: str | os.PathLike | Store | None = None, *, registry=None,
            backends: list[str] | None = None, overrides: dict | None = None,
            outputs: list[str] | None = None) -> StatusReport:
     """Per node instance of ``graph`` (a path, a dict or a loaded Graph): cached or would run, why.
@@ -104,7 +104,11 @@ def status(graph, cache: str | os.PathLike | Store = ".graphkit-cache", *, regis
     graph = load(graph, registry, overrides)
     if outputs:
         graph.select_outputs(outputs)
-    store = cache if isinstance(cache, Store) else Store(cache)  # not opened: a dry run creates nothing
+    if isinstance(cache, Store):
+        store = cache
+    else:  # not opened: a dry run creates nothing
+        loc, options, _ = graph.cache_setting(cache)
+        store = Store(loc, options=options)
     session = Session(graph, registry, store, backends)
     targets = sorted({n for n, _ in graph.outputs.values()})
     return StatusReport(graph, walk(session, graph.upstream(targets)))

@@ -122,20 +122,23 @@ class _Pool:
             raise self.error
 
     def _resolve_hits(self) -> None:
-        """Look up every ready node: the hits are done (readying more), the misses queue."""
+        """Look up every ready node, all of them at once (their records are read in one batch):
+        the hits are done (readying more, looked up next), the misses queue."""
         session, outcomes = self.session, self.result.outcomes
         while self.ready and self.error is None:
-            n = self.ready.popleft()
+            batch = list(self.ready)
+            self.ready.clear()
             try:
-                o = session.cached(n, input_digests(session, n, outcomes))
+                found = session.cached_many([(n, input_digests(session, n, outcomes)) for n in batch])
             except Exception as e:  # noqa: BLE001 - as a worker's error: nothing new starts
                 self.error = e
-            else:
-                if o is None:
+                return
+            for n in batch:
+                if found[n] is None:
                     self.misses.append(n)
                 else:
                     self.progress.running(n, session.graph.nodes[n].type)
-                    self._done(o)
+                    self._done(found[n])
 
     def _start(self, pool: ThreadPoolExecutor) -> None:
         session, outcomes = self.session, self.result.outcomes

@@ -8,6 +8,7 @@ node keys, what a name may hold) live here too, so the checks need nothing from 
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,7 +19,11 @@ from .node import Node
 from .suggest import did_you_mean
 
 FORMAT = 1
-TOP_KEYS = ("graphkit", "name", "description", "params", "sweeps", "nodes", "outputs")
+TOP_KEYS = ("graphkit", "name", "description", "params", "sweeps", "nodes", "outputs", "cache")
+#: a graph's ``cache:`` setting: where its cache is, and storage options that say only where
+#: (never who: credentials come from the environment, --cache-option or GRAPHKIT_CACHE_OPTIONS)
+CACHE_KEYS = ("url", "options")
+CACHE_OPTIONS = ("endpoint_url", "region_name", "profile", "anon", "requester_pays")
 NODE_KEYS = ("type", "inputs", "params", "backend", "foreach", "doc")
 NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
 
@@ -78,6 +83,22 @@ class Graph:
     _recipes: dict[str, str] = field(default_factory=dict)
     sweeps: dict = field(default_factory=dict)  # name -> graphkit.sweeps.Sweep
     output_groups: dict[str, list[str]] = field(default_factory=dict)  # a swept output -> its outputs
+    cache: dict = field(default_factory=dict)  # the graph file's cache setting: url, options
+
+    def cache_setting(self, given: str | os.PathLike | None) -> tuple[str, dict, str]:
+        """(cache location, storage options, where they come from) of a run of this graph:
+        ``given`` (--cache), else the graph file's ``cache:``, else $GRAPHKIT_CACHE, else
+        ./.graphkit-cache.  The graph's options go with the graph's url only."""
+        if given is not None:
+            return str(given), {}, "--cache"
+        if self.cache.get("url"):
+            return self.cache["url"], dict(self.cache.get("options") or {}), f"the graph file {self.path}"
+        env = os.environ.get("GRAPHKIT_CACHE")
+        return (env, {}, "$GRAPHKIT_CACHE") if env else (".graphkit-cache", {}, "the default")
+
+    def cache_options(self, location: str) -> dict:
+        """The graph file's storage options for ``location`` (none unless it is the graph's url)."""
+        return dict(self.cache.get("options") or {}) if location == self.cache.get("url") else {}
 
     def select_outputs(self, names) -> None:
         """Keep only the outputs ``names`` (an output name, or the name of a swept output group)."""
@@ -154,4 +175,4 @@ class Graph:
         return key_digest({n: self.recipe_digest(n) for n in self.nodes})
 
 
-__all__ = ["Graph", "GNode", "FORMAT", "TOP_KEYS", "NODE_KEYS", "NAME_RE", "kind"]
+__all__ = ["Graph", "GNode", "FORMAT", "TOP_KEYS", "CACHE_KEYS", "CACHE_OPTIONS", "NODE_KEYS", "NAME_RE", "kind"]

@@ -99,6 +99,7 @@ def export_outputs(session: Session, result: RunResult, out_dir: str | os.PathLi
     graph = session.graph
     out = Path(out_dir)
     files: list[tuple[str, bytes]] = []
+    session.prefetch_values(result.outcomes[n].outputs[p] for n, p in graph.outputs.values() if n in result.outcomes)
     for oname, (node, port) in graph.outputs.items():
         o = result.outcomes.get(node)
         if o is None:

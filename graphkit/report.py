@@ -90,13 +90,19 @@ def _jpeg(rgb: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def thumbnail(session, digest: str, ptype) -> bytes | None:
-    """JPEG bytes of a thumbnail of the image value ``digest``, from the cache when there."""
+def thumbnail_key(digest: str) -> str:
+    """The cache key of the thumbnail of the value ``digest``."""
+    return key_digest({"thumbnail": THUMB_VERSION, "px": THUMB_PX, "value": digest})
+
+
+def thumbnail(session, digest: str, ptype, rec: Any = ...) -> bytes | None:
+    """JPEG bytes of a thumbnail of the image value ``digest``, from the cache when there
+    (``rec``: its record, when already looked up)."""
     from .types import File, port_type
 
     store = session.store
-    key = key_digest({"thumbnail": THUMB_VERSION, "px": THUMB_PX, "value": digest})
-    rec = store.get_record(key)
+    key = thumbnail_key(digest)
+    rec = store.get_record(key) if rec is ... else rec
     ftype = port_type(File)
     if rec is not None:
         try:
@@ -113,6 +119,33 @@ def thumbnail(session, digest: str, ptype) -> bytes | None:
     except Exception:  # noqa: BLE001
         pass
     return jpeg
+
+
+def _sheet(store, key: str) -> dict[str, bytes] | None:
+    """The thumbnails kept as one sheet under ``key`` (digest -> JPEG bytes), or None."""
+    from .types import File, port_type
+
+    rec = store.get_record(key)
+    if rec is None:
+        return None
+    f = store.load_value(rec["outputs"]["sheet"]["digest"], port_type(File))
+    return {d: f.data[at:at + n] for d, at, n in f.metadata["spans"]}
+
+
+def _keep_sheet(store, key: str, jpegs: dict[str, bytes]) -> None:
+    """Keep a report's thumbnails as one sheet (one object, one record): the next report of the
+    same images reads two entries instead of two per image."""
+    from .types import File, port_type
+
+    spans, at = [], 0
+    for d, jpeg in jpegs.items():
+        spans.append([d, at, len(jpeg)])
+        at += len(jpeg)
+    sheet = File("thumbnails.bin", b"".join(jpegs.values()), {"spans": spans})
+    d = store.put_value(port_type(File), sheet)
+    store.put_record(key, {"key": key, "node": "(report thumbnails)",
+                           "parts": {"node_type": "report-thumbnails", "px": THUMB_PX, "values": len(spans)},
+                           "outputs": {"sheet": {"digest": d, "type": "File"}}, "seconds": 0.0})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -203,7 +236,9 @@ def _instances_table(session, graph, outcomes: dict) -> list[str]:
            "<th>time</th><th></th><th>backend</th><th>key</th><th>image outputs</th></tr></thead><tbody>"]
     longest = max((o.seconds for o in outcomes.values()), default=0.0) or 1.0
     thumbs = _Thumbnails(session)
-    for n in [n for n in graph.nodes if n in outcomes]:
+    shown = [n for n in graph.nodes if n in outcomes]
+    thumbs.look_up([(graph.nodes[n], outcomes[n]) for n in shown])
+    for n in shown:
         o, g = outcomes[n], graph.nodes[n]
         bar = max(1, round(120 * o.seconds / longest))
         backend = o.backend + (f" {o.backend_version}" if o.backend != "numpy" else "")
@@ -213,35 +248,85 @@ def _instances_table(session, graph, outcomes: dict) -> list[str]:
             + f"<td class='num'>{o.seconds:.3f} s</td><td><span class='bar' style='width:{bar}px'></span></td>"
             f"<td>{_e(backend)}</td><td class='key'>{_e(o.key[:12])}</td><td>{thumbs.of(g, o)}</td></tr>")
     out.append("</tbody></table>")
+    thumbs.keep()
     if thumbs.skipped:
         out.append(f"<p>{thumbs.skipped} more image outputs have no thumbnail (at most {MAX_THUMBS} per report).</p>")
     return out
 
 
 class _Thumbnails:
-    """The image outputs' thumbnails as <img> tags, at most MAX_THUMBS per report."""
+    """The image outputs' thumbnails as <img> tags, at most MAX_THUMBS per report.
+
+    The thumbnails a report shows are kept as one sheet (one record, one object), keyed by the
+    digests of every output that may be an image (Image, Mask, File): the next report of the
+    same outputs reads two entries, not a record and an object per image, and shows the same
+    images (a File value is known to be an image only once it is in memory; the sheet says so)."""
 
     def __init__(self, session):
-        self.session, self.shown, self.skipped = session, 0, 0
+        self.session, self.shown, self.skipped, self.failed = session, 0, 0, False
+        self.records: dict[str, Any] = {}  # digest -> its thumbnail's record (looked up together)
+        self.sheet: dict[str, bytes] | None = None  # the thumbnails read as one sheet
+        self.made: dict[str, bytes] = {}  # the thumbnails this report shows
+        self.sheet_key = ""
+
+    @staticmethod
+    def candidates(g, o) -> list[tuple[str, str, Any]]:
+        """(port, digest, port type) of the outputs of node ``g``'s outcome ``o`` that may be images."""
+        out = []
+        for port, d in o.outputs.items():
+            p = g.cls.out_ports.get(port)
+            if p is not None and p.type.name in (*_IMAGE_TYPES, "File"):
+                out.append((port, d, p.type))
+        return out
+
+    def look_up(self, nodes) -> None:
+        """The sheet of these (node, outcome) pairs' thumbnails; without one, the records and then
+        the objects of the first MAX_THUMBS, read together (one batch each on an object store)."""
+        store = self.session.store
+        cands = [c for g, o in nodes for c in self.candidates(g, o)]
+        values = sorted({d for _, d, _ in cands})  # (a computed node's ports and a record's come in other orders)
+        self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": values})
+        try:
+            self.sheet = _sheet(store, self.sheet_key) if cands else None
+            if self.sheet is None:
+                digests = [d for _, d, t in cands if _is_image_output(self.session, t, d)][:MAX_THUMBS]
+                recs = store.get_records(thumbnail_key(d) for d in digests)
+                self.records = {d: recs[thumbnail_key(d)] for d in digests}
+                store.prefetch_values(r["outputs"]["jpeg"]["digest"] for r in self.records.values() if r)
+        except Exception:  # noqa: BLE001 - a report never fails a run (each is looked up alone)
+            self.sheet, self.records = None, {}
+
+    def keep(self) -> None:
+        """Every thumbnail shown, kept as one sheet (unless read from one, or some are missing)."""
+        if self.sheet is None and self.made and not (self.skipped or self.failed):
+            with contextlib.suppress(Exception):  # (a read-only cache simply does not keep it)
+                _keep_sheet(self.session.store, self.sheet_key, self.made)
 
     def of(self, g, o) -> str:
         imgs = []
-        for port, d in o.outputs.items():
-            p = g.cls.out_ports.get(port)
-            if p is None or not _is_image_output(self.session, p.type, d):
+        for port, d, ptype in self.candidates(g, o):
+            jpeg = (self.sheet or {}).get(d)
+            if jpeg is None and not _is_image_output(self.session, ptype, d):
                 continue
             if self.shown >= MAX_THUMBS:
                 self.skipped += 1
                 continue
-            try:
-                jpeg = thumbnail(self.session, d, p.type)
-            except Exception:  # noqa: BLE001 - a report never fails a run
-                jpeg = None
+            if jpeg is None:
+                jpeg = self._made_alone(d, ptype)
             if jpeg:
                 self.shown += 1
+                self.made[d] = jpeg
                 imgs.append(f"<img alt='{_e(port)}' title='{_e(port)}' src='data:image/jpeg;base64,"
                             f"{base64.b64encode(jpeg).decode()}'>")
+            else:
+                self.failed = True
         return "".join(imgs)
+
+    def _made_alone(self, d: str, ptype) -> bytes | None:
+        try:
+            return thumbnail(self.session, d, ptype, self.records.get(d, ...))
+        except Exception:  # noqa: BLE001 - a report never fails a run
+            return None
 
 
 def report_file(session, result, manifest: dict) -> tuple[str, bytes]:

@@ -5,6 +5,7 @@ Editors that speak the YAML language server use it through a first line
 """
 from __future__ import annotations
 
+from .model import CACHE_OPTIONS
 from .registry import Registry
 
 #: ``node.port``, ``node[*].port`` (every instance of a swept node) or ``node[INSTANCE].port``
@@ -129,6 +130,10 @@ def graph_schema(reg: Registry) -> dict:
             "description": {"type": "string"},
             "params": {"type": "object"},
             "sweeps": sweeps_schema(),
+            "cache": {"type": "object", "additionalProperties": False, "required": ["url"],
+                      "properties": {"url": {"type": "string", "minLength": 1},
+                                     "options": {"type": "object", "additionalProperties": False,
+                                                 "properties": {k: {} for k in CACHE_OPTIONS}}}},
             "outputs": {"oneOf": [
                 {"type": "array", "items": {"type": "string", "pattern": REF}},
                 {"type": "object", "additionalProperties": {"type": "string", "pattern": REF}},

@@ -26,7 +26,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from .errors import BadInput, GraphError, GraphkitError, UsageError
-from .model import FORMAT, NODE_KEYS, NAME_RE, TOP_KEYS, GNode, Graph, kind
+from .model import CACHE_KEYS, CACHE_OPTIONS, FORMAT, NODE_KEYS, NAME_RE, TOP_KEYS, GNode, Graph, kind
 from .node import probe
 from .paths import OutputNames, UnsafePath, safe_relpath
 from .registry import NUMPY, Registry
@@ -237,6 +237,43 @@ def check_structure(c: Check) -> None:
                              + (f" (its params: {', '.join(gparams)})" if gparams else " (it has no params)"))
         gparams[k] = v
     c.gparams = gparams
+
+
+def check_cache(c: Check) -> dict:
+    """The ``cache:`` section: ``url`` (a folder, relative to the graph file, or an fsspec URL)
+    and ``options`` that say where the store is (never credentials)."""
+    raw = c.data.get("cache")
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        c.at(("cache",), f"'cache' must be a mapping with url and options, got {kind(raw)}")
+        return {}
+    for k in raw:
+        if k not in CACHE_KEYS:
+            c.at(("cache", k), f"unknown cache key '{k}'{did_you_mean(k, CACHE_KEYS)} (a graph's cache has "
+                 f"{' and '.join(CACHE_KEYS)})", key=True)
+    url, opts = raw.get("url"), raw.get("options") or {}
+    if not isinstance(url, str) or not url.strip():
+        c.at(("cache", "url") if "url" in raw else ("cache",), "the cache's 'url' must be a folder or an fsspec URL "
+             "(e.g. s3://bucket/graphkit-cache)")
+        return {}
+    if "://" not in url and not os.path.isabs(url):
+        url = os.path.join(c.base_dir, url)
+    return {"url": url, "options": _cache_options(c, opts)}
+
+
+def _cache_options(c: Check, opts) -> dict:
+    """A graph file's cache options: only those that say where the cache is (a graph file is
+    shared and committed: credentials come from the environment or the command line)."""
+    if not isinstance(opts, dict):
+        c.at(("cache", "options"), f"the cache's 'options' must be a mapping, got {kind(opts)}")
+        return {}
+    for k in opts:
+        if k not in CACHE_OPTIONS:
+            c.at(("cache", "options", k), f"cache option '{k}' cannot be set in a graph file, which says only where "
+                 f"the cache is ({', '.join(CACHE_OPTIONS)}): give credentials and other options with "
+                 "--cache-option, GRAPHKIT_CACHE_OPTIONS or the AWS environment", key=True)
+    return {("client_kwargs.region_name" if k == "region_name" else k): v for k, v in opts.items()}
 
 
 def check_sweeps(c: Check) -> None:
@@ -699,6 +736,7 @@ def validate(doc, data: dict, graph_path: str, base_dir: str, reg: Registry, ove
     """Run every checker; raise GraphError listing every problem, or return the Graph."""
     c = Check(doc, data, graph_path, base_dir, reg, overrides, check_backends)
     check_structure(c)
+    cache = check_cache(c)
     check_sweeps(c)
     check_nodes(c)
     check_params(c)
@@ -715,7 +753,7 @@ def validate(doc, data: dict, graph_path: str, base_dir: str, reg: Registry, ove
     if doc.diags:
         raise GraphError(doc.diags)
     graph = Graph(c.name, graph_path, base_dir, c.gparams, c.nodes, c.outputs, sweeps=c.sweeps,
-                  output_groups=c.output_groups)
+                  output_groups=c.output_groups, cache=cache)
     graph.__dict__["_order"] = c.order
     return graph
 

@@ -109,7 +109,7 @@ def test_objects_known_present_only_while_the_run_lock_is_held(write, engine_reg
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="os.fork is POSIX only")
 def test_temp_names_carry_the_writing_process_pid_after_a_fork(tmp_path):
-    from graphkit import store as store_mod
+    from graphkit.store import localfs as store_mod
 
     r, w = os.pipe()
     pid = os.fork()

@@ -11,7 +11,7 @@ import os
 import numpy as np
 import pytest
 
-import graphkit.store as st
+import graphkit.store.localfs as st
 from graphkit.executor import run_local
 from graphkit.graphfile import load_graph
 from graphkit.runner import Session
@@ -139,12 +139,12 @@ def test_records_written_outside_a_run_are_files_of_their_own(tmp_path):
     s = Store(tmp_path / "c").open()
     rec = {"key": "ab" * 16, "node": "n", "parts": {}, "outputs": {}}
     s.put_record("ab" * 16, rec)
-    p = tmp_path / "c" / s._krel("ab" * 16)
+    p = tmp_path / "c" / s.record_rel("ab" * 16)
     assert os.stat(p).st_nlink == 1 and p.read_bytes() == encode_record(rec)
     assert not (tmp_path / "c" / "journal").exists()
     with s.run_lock():  # inside one: the journal
         s.put_record("cd" * 16, {**rec, "key": "cd" * 16})
-    q = tmp_path / "c" / s._krel("cd" * 16)
+    q = tmp_path / "c" / s.record_rel("cd" * 16)
     assert os.stat(q).st_nlink == 2 and frames(journals(tmp_path / "c")[0]) == {"cd" * 16: encode_record(
         {**rec, "key": "cd" * 16})}
     assert s.get_record("cd" * 16)["key"] == "cd" * 16 and s.get_record("ab" * 16)["key"] == "ab" * 16
@@ -399,7 +399,7 @@ def test_a_frame_read_half_written_is_found_whole_later(tmp_path):
         with open(j, "ab") as f:
             f.write(frame[60:])
         os.makedirs(tmp_path / "c" / "keys" / "b2", exist_ok=True)
-        os.link(j, tmp_path / "c" / r._krel("b2" * 16))
+        os.link(j, tmp_path / "c" / r.record_rel("b2" * 16))
         assert r.get_record("b2" * 16)["key"] == "b2" * 16
 
 
@@ -440,8 +440,8 @@ def test_a_process_forgets_journals_beyond_its_memory_bound(tmp_path, monkeypatc
     r = Store(tmp_path / "c").open()
     for k in ("a1", "b2", "c3"):
         assert r.get_record(k * 16)["key"] == k * 16
-    (view,) = r._jviews.values()  # each journal read put it over the bound: the others forgotten
-    assert r._jview_bytes == len(view.buf) - 40 > 100
+    (view,) = r.fs.journals.views.values()  # each journal read put it over the bound: the others forgotten
+    assert r.fs.journals.view_bytes == len(view.buf) - 40 > 100
 
 
 def test_links_refused_once_are_not_tried_again_in_that_store(tmp_path, monkeypatch):
@@ -451,7 +451,7 @@ def test_links_refused_once_are_not_tried_again_in_that_store(tmp_path, monkeypa
         for k in ("a1", "b2", "c3"):
             put(s, k * 16)
     assert len(calls) == 1
-    assert all(os.stat(tmp_path / "c" / s._krel(k * 16)).st_nlink == 1 for k in ("a1", "b2", "c3"))
+    assert all(os.stat(tmp_path / "c" / s.record_rel(k * 16)).st_nlink == 1 for k in ("a1", "b2", "c3"))
 
 
 def test_a_journal_that_will_not_take_links_gives_a_record_file(tmp_path, monkeypatch):
@@ -460,7 +460,7 @@ def test_a_journal_that_will_not_take_links_gives_a_record_file(tmp_path, monkey
     with s.run_lock():
         put(s, "a1" * 16)
     assert len(calls) == 2 and len(journals(tmp_path / "c")) == 2  # its journal, then a new one
-    p = tmp_path / "c" / s._krel("a1" * 16)
+    p = tmp_path / "c" / s.record_rel("a1" * 16)
     assert os.stat(p).st_nlink == 1 and s.get_record("a1" * 16)["key"] == "a1" * 16
 
 
@@ -498,7 +498,7 @@ def test_a_journal_whose_header_cannot_be_written_is_not_left(tmp_path, monkeypa
     with s.run_lock(), pytest.raises(CacheError, match="the disk is full"):
         put(s, "a1" * 16)
     monkeypatch.setattr(st, "_write_all", real)
-    assert journals(tmp_path / "c") == [] and s._journal is None
+    assert journals(tmp_path / "c") == [] and s.fs.journals.current is None
 
 
 def test_damaged_records_leave_keys_for_quarantine_on_fsspec_and_local(tmp_path):
@@ -507,8 +507,8 @@ def test_damaged_records_leave_keys_for_quarantine_on_fsspec_and_local(tmp_path)
     for s in (Store(f"memory://j-{uuid.uuid4().hex}").open(), Store(tmp_path / "c").open()):
         notes = []
         s.on_notice = notes.append
-        s.fs.write_atomic(s._krel("ab" * 16), [b"GKREC1 00\n{}"])
-        assert s.get_record("ab" * 16) is None and not s.fs.exists(s._krel("ab" * 16))
+        s.fs.write_atomic(s.record_rel("ab" * 16), [b"GKREC1 00\n{}"])
+        assert s.get_record("ab" * 16) is None and not s.fs.exists(s.record_rel("ab" * 16))
         (q,) = [rel for rel, _, _ in s.fs.listdir("quarantine")]
         assert s.fs.read(q) == b"GKREC1 00\n{}" and "moved to quarantine/" in notes[0]
 
@@ -545,7 +545,7 @@ def test_clean_stale_counts_every_unlinked_journal(tmp_path):
             put(s, k * 16)
     js = journals(tmp_path / "c")
     for k in ("a1", "b2"):
-        os.unlink(tmp_path / "c" / s._krel(k * 16))
+        os.unlink(tmp_path / "c" / s.record_rel(k * 16))
     sizes = sum(j.stat().st_size for j in js)
     assert s.clean_stale(dry_run=True) == {"files": 2, "bytes": sizes}
     assert s.clean_stale() == {"files": 2, "bytes": sizes}
@@ -560,7 +560,7 @@ def test_usage_of_linked_and_plain_records_together(tmp_path):
         put(s, k * 16)  # record files of their own, one before and one after the link in the walk
     u = s.usage()
     (j,) = journals(tmp_path / "c")
-    plain = sum(os.stat(tmp_path / "c" / s._krel(k * 16)).st_size for k in ("00", "ff"))
+    plain = sum(os.stat(tmp_path / "c" / s.record_rel(k * 16)).st_size for k in ("00", "ff"))
     assert (u["journal"], u["keys"]) == (j.stat().st_size, plain)
     assert u["total"] == true_size(tmp_path / "c")
 
@@ -606,16 +606,16 @@ def test_touching_records_in_a_run(tmp_path, monkeypatch):
     with s.run_lock():
         put(s, "a1" * 16)
     old = time_ago(3600)
-    for p in [tmp_path / "c" / s._krel("00" * 16)] + journals(tmp_path / "c"):
+    for p in [tmp_path / "c" / s.record_rel("00" * 16)] + journals(tmp_path / "c"):
         os.utime(p, (old, old))
     with s.run_lock():
         assert s.get_record("00" * 16, touch=True) is not None
-        p = tmp_path / "c" / s._krel("00" * 16)
+        p = tmp_path / "c" / s.record_rel("00" * 16)
         assert os.stat(p).st_nlink == 1 and os.stat(p).st_mtime > old + 3000
         links_fail(monkeypatch, errno.EIO)
         assert s.get_record("a1" * 16, touch=True)["key"] == "a1" * 16
     put(s, "ff" * 16)
-    os.utime(tmp_path / "c" / s._krel("ff" * 16), (old, old))
+    os.utime(tmp_path / "c" / s.record_rel("ff" * 16), (old, old))
     monkeypatch.setattr(st.os, "utime", lambda *a, **k: (_ for _ in ()).throw(PermissionError(errno.EPERM, "no")))
     assert s.get_record("ff" * 16, touch=True)["key"] == "ff" * 16  # (a cache it cannot mark: still read)
 
@@ -629,5 +629,5 @@ def time_ago(seconds):
 def test_a_record_file_over_a_mebibyte_is_read_whole(tmp_path):
     s = Store(tmp_path / "c").open()
     put(s, "ab" * 16, note="x" * (1 << 21))
-    assert os.stat(tmp_path / "c" / s._krel("ab" * 16)).st_size > 1 << 20
+    assert os.stat(tmp_path / "c" / s.record_rel("ab" * 16)).st_size > 1 << 20
     assert s.get_record("ab" * 16)["note"] == "x" * (1 << 21)

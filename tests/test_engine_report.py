@@ -131,3 +131,55 @@ def test_animated_preview_of_a_sweep(tmp_path, write, reg):
         px = np.asarray(gif.convert("RGB"))
         assert px.shape == (19, 32, 3)  # 40x24 scaled to 32 wide
         assert np.abs(px.astype(float) - srgb8(v)).max() <= 1
+
+
+def test_a_warm_report_reads_its_thumbnails_as_one_sheet(tmp_path, write, reg, monkeypatch):
+    """The thumbnails a report shows are kept as one sheet (one record, one object): the next
+    report of the same images reads the sheet, not a record and an object per image (what a warm
+    run on an object store pays per request), and shows the same images."""
+    import graphkit.report as report
+
+    g = write("rep.yaml", G)
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "cold", registry=reg)
+    cold = Rows()
+    cold.feed((tmp_path / "cold" / "report.html").read_text())
+    assert len(cold.imgs) == 4  # the three frames and the gif
+
+    def alone(*a, **k):
+        pytest.fail("a thumbnail looked up or made alone")
+    monkeypatch.setattr(report, "thumbnail", alone)
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "warm", registry=reg)
+    warm = Rows()
+    warm.feed((tmp_path / "warm" / "report.html").read_text())
+    assert warm.imgs == cold.imgs
+
+
+TWO_PORTS = '''
+import numpy as np
+from graphkit import Node, Image
+
+class ZetaAlpha(Node):
+    """Two images, declared z before a (a record lists its outputs sorted: a before z)."""
+    outputs = {"z": Image, "a": Image}
+
+    def compute(self):
+        return {"z": Image(np.full((8, 8, 3), 0.2, np.float32)), "a": Image(np.full((8, 8, 3), 0.7, np.float32))}
+'''
+
+
+def test_the_sheet_is_found_whatever_order_a_node_lists_its_ports(tmp_path, write, engine_registry, monkeypatch):
+    import graphkit.report as report
+
+    (tmp_path / "zetanode.py").write_text(TWO_PORTS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import zetanode
+
+    engine_registry.add_provider("nodes", "tests", zetanode)
+    g = write("za.yaml", "graphkit: 1\nname: za\nnodes:\n  n: {type: ZetaAlpha}\noutputs: {z: n.z}\n")
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "cold", registry=engine_registry)
+    monkeypatch.setattr(report, "thumbnail", lambda *a, **k: pytest.fail("a thumbnail looked up or made alone"))
+    run_graph(g, cache=tmp_path / "c", out=tmp_path / "warm", registry=engine_registry)
+    imgs = [Rows() for _ in range(2)]
+    for p, d in zip(imgs, ("cold", "warm")):
+        p.feed((tmp_path / d / "report.html").read_text())
+    assert len(imgs[0].imgs) == 2 and sorted(imgs[1].imgs) == sorted(imgs[0].imgs)  # (a row lists a record's ports sorted)

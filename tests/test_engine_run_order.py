@@ -69,7 +69,7 @@ def test_on_outputs_comes_before_the_store_writes(graph, tmp_path):
                                              for p, s, sp in g.nodes[node].edges()})
         calls.append((node, dict(digests), {p: v.copy() for p, v in values.items()},
                       store.get_record(key) is None,
-                      all(not store.fs.exists(store._orel(d)) for d in digests.values())))
+                      all(not store.fs.exists(store.object_rel(d)) for d in digests.values())))
 
     session = Session(g, reg, store, on_outputs=hook)
     res = run_local(session, ["ab", "last"])

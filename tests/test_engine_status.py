@@ -103,12 +103,12 @@ def test_reasons_for_each_key_part(tmp_path, write, reg, monkeypatch):
     from graphkit.store import Store
 
     store = Store(cache).open()
-    store.fs.remove(store._krel(r.nodes["b"].key))  # gone: gc or verify --repair
+    store.fs.remove(store.record_rel(r.nodes["b"].key))  # gone: gc or verify --repair
     r = status(g, cache, registry=reg, overrides={"v": 5.0})
     assert parts(r, "b") == (WOULD_RUN, ["inputs"], "input changed: 'a' (from a.out)")
     r = status(g, cache, registry=reg)
     assert parts(r, "b")[0] == CACHED
-    store.fs.remove(store._krel(r.nodes["b"].key))
+    store.fs.remove(store.record_rel(r.nodes["b"].key))
     r = status(g, cache, registry=reg)
     assert parts(r, "b")[1] == ["missing"]
 

@@ -96,16 +96,16 @@ def test_cache_hits_mark_records_used_for_gc(tmp_path, write, engine_registry):
     assert len(keys) == 4
     day = 86400
     for k in keys:  # everything last used a day ago
-        p = tmp_path / "c" / s._krel(k)
+        p = tmp_path / "c" / s.record_rel(k)
         os.utime(p, (os.stat(p).st_atime, os.stat(p).st_mtime - day))
     r = run_graph(old, cache=tmp_path / "c", registry=engine_registry)
     assert r.computed == []
     used = {k: m for k, _, m in s.records()}
     recent = [k for k, m in used.items() if m > keys[k] - day + s.TOUCH_GRANULARITY_S]
     assert len(recent) == 2  # the old graph's a and b, re-marked by the hits
-    stamp = {k: os.stat(tmp_path / "c" / s._krel(k)).st_mtime_ns for k in recent}
+    stamp = {k: os.stat(tmp_path / "c" / s.record_rel(k)).st_mtime_ns for k in recent}
     run_graph(old, cache=tmp_path / "c", registry=engine_registry)
-    assert {k: os.stat(tmp_path / "c" / s._krel(k)).st_mtime_ns for k in recent} == stamp
+    assert {k: os.stat(tmp_path / "c" / s.record_rel(k)).st_mtime_ns for k in recent} == stamp
     s.gc(s.size() - 1)  # the new graph's records are now the least recently used
     left = {k for k, _, _ in s.records()}
     assert set(recent) <= left

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import xxhash
 
-import graphkit.store as st
+import graphkit.store.localfs as st
 from graphkit.errors import CacheError, CanonicalError
 from graphkit.hashing import array_digest, canonical, parts_digest
 from graphkit.store import (ALIGN, MAGIC, CorruptObject, LocalFS, MissingObject, Store, check_object,
@@ -141,20 +141,20 @@ def test_record_body_is_canonical_json():
 
 def test_a_record_that_vanishes_while_listed_reads_as_untrustworthy(store, monkeypatch):
     rec(store, "ab" * 16, [])
-    listdir = store.fs.listdir
+    entries = store.fs.entries
 
     def listed_then_gone(rel):
-        for item in listdir(rel):
-            os.unlink(store.fs._s(item[0]))  # removed between the listing and the read
+        for item in entries(rel):
+            os.unlink(store.fs.path(item[0]))  # removed between the listing and the read
             yield item
-    monkeypatch.setattr(store.fs, "listdir", listed_then_gone)
+    monkeypatch.setattr(store.fs, "entries", listed_then_gone)
     ((key, r, _),) = list(store.records())
     assert key == "ab" * 16 and r is None
 
 
 def test_quarantine_notice_names_the_key_prefix(store):
     key = "0123456789abcdef" + "f" * 16
-    store.fs.write_atomic(store._krel(key), [b"GKREC1 00\n{}"])
+    store.fs.write_atomic(store.record_rel(key), [b"GKREC1 00\n{}"])
     assert store.get_record(key) is None
     assert store.notes[0].startswith(f"notice: cache record {key[:16]} does not match")
 
@@ -211,23 +211,25 @@ def test_modes_come_from_the_create_calls(tmp_path, umask0):
         pass
     for p in (root / "keys", root / "objects" / d[:2], root / "keys" / "ab"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o750, p
-    for p in (root / "objects" / d[:2] / d, root / s._krel("ab" * 16), root / "keys.lock", root / "store.lock"):
+    for p in (root / "objects" / d[:2] / d, root / s.record_rel("ab" * 16), root / "keys.lock", root / "store.lock"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o640, p
-    assert sorted(p.name for p in root.iterdir()) == ["keys", "keys.lock", "objects", "runs", "store.lock", "tmp"]
+    assert stat.S_IMODE((root / "format-1").stat().st_mode) == 0o640
+    assert sorted(p.name for p in root.iterdir()) == ["format-1", "keys", "keys.lock", "objects", "runs", "store.lock",
+                                                      "tmp"]
 
 
 def test_mkdir_stays_below_the_root(tmp_path):
     fs = LocalFS(str(tmp_path / "a" / "c"))  # neither a nor c exists
     with pytest.raises(FileNotFoundError):
-        fs.mkdir(fs._s("x/y"))
+        fs.mkdir(fs.path("x/y"))
     assert not (tmp_path / "a").exists()
     (tmp_path / "a").mkdir()
-    fs.mkdir(fs._s("x/y"))  # the root itself may be made again
+    fs.mkdir(fs.path("x/y"))  # the root itself may be made again
     assert (tmp_path / "a" / "c" / "x" / "y").is_dir()
 
 
 def test_temp_files_are_created_exclusively(store):
-    p = store.fs._s("tmp/t")
+    p = store.fs.path("tmp/t")
     os.close(store.fs._create(p))
     with pytest.raises(FileExistsError):
         store.fs._create(p)
@@ -236,7 +238,7 @@ def test_temp_files_are_created_exclusively(store):
 def test_lock_file_open_falls_back_to_read_only(store, monkeypatch):
     fs = store.fs
     real_open = os.open
-    path = fs._s("keys.lock")
+    path = fs.path("keys.lock")
     with open(path, "w"):
         pass
 
@@ -253,7 +255,7 @@ def test_lock_file_open_falls_back_to_read_only(store, monkeypatch):
         assert fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY
     finally:
         os.close(fd)
-    assert fs._open_lock(fs._s("missing.lock")) is None
+    assert fs._open_lock(fs.path("missing.lock")) is None
 
     def full(p, flags, *a):
         raise OSError(errno.ENOSPC, "full")
@@ -289,8 +291,8 @@ def test_fsspec_writes_and_moves_into_nested_folders(tmp_path):
     s = Store(f"memory://edges-{uuid.uuid4().hex}/").open()
     assert not s.fs.root.endswith("/")
     s.fs.write_atomic("a/b/c/x", [b"12", memoryview(b"3")])
-    assert s.fs.fs.isdir(s.fs._p("a/b/c")) and s.fs.read("a/b/c/x") == b"123"
-    assert s.fs.move_aside("a/b/c/x", "q/r/s/y") and s.fs.fs.isdir(s.fs._p("q/r/s"))
+    assert s.fs.fs.isdir(s.fs.path("a/b/c")) and s.fs.read("a/b/c/x") == b"123"
+    assert s.fs.move_aside("a/b/c/x", "q/r/s/y") and s.fs.fs.isdir(s.fs.path("q/r/s"))
     assert list(s.fs.listdir("tmp")) == []
     ((rel, size, mtime),) = list(s.fs.listdir("q"))
     assert (rel, size) == ("q/r/s/y", 3) and abs(mtime - time.time()) < 600
@@ -302,8 +304,8 @@ def test_fsspec_listdir_times_and_sizes(monkeypatch):
 
     s = Store(f"memory://edges-{uuid.uuid4().hex}").open()
     when = datetime.datetime(2020, 1, 2, tzinfo=datetime.timezone.utc)
-    infos = {s.fs._p("k/a"): {"size": 0, "mtime": when}, s.fs._p("k/b"): {"size": 5, "created": 7.5},
-             s.fs._p("k/c"): {"size": None}}
+    infos = {s.fs.path("k/a"): {"size": 0, "mtime": when}, s.fs.path("k/b"): {"size": 5, "created": 7.5},
+             s.fs.path("k/c"): {"size": None}}
     monkeypatch.setattr(s.fs.fs, "exists", lambda p: True)
     monkeypatch.setattr(s.fs.fs, "find", lambda base, detail: infos)
     assert sorted(s.fs.listdir("k")) == [("k/a", 0, when.timestamp()), ("k/b", 5, 7.5), ("k/c", 0, 0.0)]
@@ -319,7 +321,7 @@ def test_fsspec_failed_write_leaves_no_temp(monkeypatch):
     monkeypatch.setattr(s.fs.fs, "mv", boom)
     with pytest.raises(OSError):
         s.fs.write_atomic("objects/ab/x", [b"1"])
-    assert s.fs.fs.ls(s.fs._p("tmp")) == []
+    assert s.fs.fs.ls(s.fs.path("tmp")) == []
 
 
 # ---------------------------------------------------------------------------------------------
@@ -415,10 +417,10 @@ def test_save_run_writes_sorted_json(store, tmp_path):
 def test_objects_of_unknown_types_load_as_their_meta(store):
     meta = {"a": 1}
     raw, digest, _ = obj_bytes("NoSuchType", meta, [])
-    store.fs.write_atomic(store._orel(digest), [raw])
+    store.fs.write_atomic(store.object_rel(digest), [raw])
     assert store.load_value(digest) == {"a": 1}
     raw, digest, _ = obj_bytes("NoSuchType", {"model": {"x": 2}}, [])
-    store.fs.write_atomic(store._orel(digest), [raw])
+    store.fs.write_atomic(store.object_rel(digest), [raw])
     assert store.load_value(digest) == {"x": 2}
 
 
@@ -471,8 +473,8 @@ def test_gc_evicts_least_recently_used_not_by_key(store, tmp_path):
     keys = ["a1" * 16, "b2" * 16, "c3" * 16]
     for i, key in enumerate(keys):
         rec(store, key, [ds[i]])
-        age(c / store._krel(key), 100 * (i + 1))  # c3 is the least recently used
-    one = (c / store._krel(keys[2])).stat().st_size + (c / "objects" / ds[2][:2] / ds[2]).stat().st_size
+        age(c / store.record_rel(key), 100 * (i + 1))  # c3 is the least recently used
+    one = (c / store.record_rel(keys[2])).stat().st_size + (c / "objects" / ds[2][:2] / ds[2]).stat().st_size
     info = store.gc(store.size() - one)
     assert {k for k, _, _ in store.records()} == set(keys[:2])
     assert (info["removed_records"], info["removed_objects"]) == (1, 1)
@@ -541,7 +543,7 @@ def test_gc_and_verify_wait_for_runs_and_say_so(store, tmp_path, capsys):
 def test_gc_and_verify_name_their_failures(store, monkeypatch):
     def eio(rel):
         raise OSError(errno.EIO, "odd")
-    monkeypatch.setattr(store.fs, "listdir", eio)
+    monkeypatch.setattr(store.fs, "entries", eio)
     with pytest.raises(CacheError) as e:
         store.gc(0)
     assert str(e.value) == f"cache {store.location}: cannot gc: odd"
@@ -569,7 +571,7 @@ def test_verify_taints_records_computed_from_a_damaged_input(store, tmp_path):
 
 def test_verify_reports_a_record_whose_key_is_null(store, tmp_path):
     key = "a1" * 16
-    store.fs.write_atomic(store._krel(key), [encode_record({"key": None, "outputs": {}})])
+    store.fs.write_atomic(store.record_rel(key), [encode_record({"key": None, "outputs": {}})])
     assert store.verify() == [f"record {key}: belongs to key None (a record moved or copied)"]
 
 
@@ -711,7 +713,7 @@ def test_chmod_failures_are_ignored(tmp_path, monkeypatch):
         monkeypatch.setattr(st.os, "chmod", denied)
         assert s.fs._fix_file_mode and s.fs._fix_dir_mode
         s.put_value(ARRAY, np.arange(3.0))
-        os.close(s.fs._open_lock(s.fs._s("other.lock")))
+        os.close(s.fs._open_lock(s.fs.path("other.lock")))
     finally:
         os.umask(old)
 
@@ -762,8 +764,8 @@ def test_touching_reads_return_the_record(store):
 def test_a_damage_notice_is_said_once_even_when_it_cannot_be_moved(store):
     d = store.put_value(ARRAY, np.arange(5.0))
     store.read_only = True
-    store.quarantine(store._orel(d), "cache object X is bad")
-    store.quarantine(store._orel(d), "cache object X is bad")
+    store.quarantine(store.object_rel(d), "cache object X is bad")
+    store.quarantine(store.object_rel(d), "cache object X is bad")
     assert len(store.notes) == 1
 
 

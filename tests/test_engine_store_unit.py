@@ -15,7 +15,7 @@ import xxhash
 
 from graphkit.errors import CacheError
 from graphkit.hashing import parts_digest
-from graphkit.store import (ALIGN, LEGACY_RECORD, MAGIC, CorruptObject, MissingObject, Store, check_object,
+from graphkit.store import (ALIGN, MAGIC, CorruptObject, MissingObject, Store, check_object,
                             decode_object, decode_record, encode_header, encode_record, fmt_size, iter_chunks,
                             UNSIGNED, record_inputs, value_parts)
 from graphkit.types import ARRAY, IMAGE, SCALAR, Image
@@ -76,7 +76,7 @@ def test_records_carry_a_check_line_and_their_key():
     assert decode_record(raw, "k1") == (rec, None)
     assert decode_record(raw, "k2")[0] is None and "belongs to key" in decode_record(raw, "k2")[1]
     assert "check line" in decode_record(raw.replace(b"d1", b"d2"), "k1")[1]
-    assert decode_record(body, "k1") == (None, LEGACY_RECORD)
+    assert decode_record(body, "k1") == (None, "has no integrity line (damaged)")  # (pre-release records too)
     assert "damaged" in decode_record(b"\0\0" + raw, "k1")[1]
     no_outputs = encode_record({"key": "k1"})
     assert decode_record(no_outputs, "k1")[0] is None
@@ -148,7 +148,7 @@ def test_damaged_object_is_quarantined_once_with_a_notice(store, tmp_path):
 def test_records_round_trip_touch_and_quarantine(store, tmp_path):
     rec = {"key": "ab" * 16, "outputs": {"out": {"digest": "d0" * 16, "type": "Array"}}}
     store.put_record("ab" * 16, rec)
-    p = tmp_path / "c" / store._krel("ab" * 16)
+    p = tmp_path / "c" / store.record_rel("ab" * 16)
     assert store.get_record("ab" * 16) == rec and store.get_record("cd" * 16) is None
     old = time.time() - 3600
     os.utime(p, (old, old))
@@ -163,8 +163,9 @@ def test_records_round_trip_touch_and_quarantine(store, tmp_path):
     assert store.get_record("ab" * 16) is None and not p.exists()
     assert len(store.notes) == 1 and "check line" in store.notes[0]
     p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(rec))  # an older graphkit's record: a silent miss
-    assert store.get_record("ab" * 16) is None and p.exists() and len(store.notes) == 1
+    p.write_text(json.dumps(rec))  # a pre-release record (no check line): damaged like any other
+    assert store.get_record("ab" * 16) is None and not p.exists() and len(store.notes) == 2
+    assert "no integrity line" in store.notes[1]
 
 
 def test_group_commit(store, monkeypatch):
@@ -231,8 +232,8 @@ def test_entries_get_the_folder_mode(tmp_path):
         s.put_record("ab" * 16, {"key": "ab" * 16, "outputs": {}})
         with s.run_lock():
             s.put_record("cd" * 16, {"key": "cd" * 16, "outputs": {}})  # into the run's journal
-            assert os.get_inheritable(s._journal.fd) is False
-            fd = s._journal.fd
+            assert os.get_inheritable(s.fs.journals.current.fd) is False
+            fd = s.fs.journals.current.fd
         with pytest.raises(OSError):  # the journal was closed when the run ended
             os.fstat(fd)
         with s.key_lock("ab" * 16):
@@ -242,7 +243,7 @@ def test_entries_get_the_folder_mode(tmp_path):
     (journal,) = (root / "journal").iterdir()
     for p in (root / "objects" / d[:2], root / "keys" / "ab", root / "objects", root / "tmp", root / "journal"):
         assert stat.S_IMODE(p.stat().st_mode) == 0o2775, p
-    for p in (root / "objects" / d[:2] / d, root / s._krel("ab" * 16), root / "store.lock", root / "keys.lock",
+    for p in (root / "objects" / d[:2] / d, root / s.record_rel("ab" * 16), root / "store.lock", root / "keys.lock",
               journal):
         assert stat.S_IMODE(p.stat().st_mode) == 0o664, p
 
@@ -287,7 +288,7 @@ def test_gc_order(store, tmp_path):
     for i, key in enumerate(["a1" * 16, "b2" * 16, "c3" * 16]):
         _rec(store, key, [ds[i]])
         t = time.time() - 1000 + i * 100  # a1 is the least recently used
-        os.utime(c / store._krel(key), (t, t))
+        os.utime(c / store.record_rel(key), (t, t))
     (c / "keys" / "dd").mkdir()
     (c / "keys" / "dd" / ("dd" * 16 + ".json")).write_bytes(b"GKREC1 bad\n{}")
     obj = (c / "objects" / ds[0][:2] / ds[0]).stat().st_size
@@ -336,7 +337,7 @@ def test_ls_rows(store, tmp_path):
                                              "z": {"digest": d1, "type": "Array"}}})
     c = tmp_path / "c"
     t = time.time() - 500
-    os.utime(c / store._krel("a1" * 16), (t, t))
+    os.utime(c / store.record_rel("a1" * 16), (t, t))
     (c / "keys" / "b2").mkdir()
     (c / "keys" / "b2" / ("b2" * 16 + ".json")).write_bytes(b"junk")
     rows = store.ls()
@@ -357,24 +358,24 @@ def test_fsspec_store(tmp_path):
     s = Store(f"memory://unit-{uuid.uuid4().hex}").open()
     assert isinstance(s.fs, FsspecFS) and not s.read_only and s.memo_file is None
     for d in ("objects", "keys", "runs", "tmp"):
-        assert s.fs.fs.isdir(s.fs._p(d)), d
+        assert s.fs.fs.isdir(s.fs.path(d)), d
     d = s.put_value(ARRAY, np.arange(100.0))
-    assert s.fs.exists(s._orel(d)) and not s.fs.exists(s._orel("ab" * 16))
+    assert s.fs.exists(s.object_rel(d)) and not s.fs.exists(s.object_rel("ab" * 16))
     np.testing.assert_array_equal(s.load_value(d, ARRAY), np.arange(100.0))
     rec = {"key": "ab" * 16, "node": "n", "outputs": {"out": {"digest": d, "type": "Array"}}}
     s.put_record("ab" * 16, rec)
     assert s.get_record("ab" * 16, touch=True) == rec
     listed = {rel: size for rel, size, _ in s.fs.listdir("objects")}
-    assert list(listed) == [s._orel(d)] and listed[s._orel(d)] > 800
+    assert list(listed) == [s.object_rel(d)] and listed[s.object_rel(d)] > 800
     assert list(s.fs.listdir("nothing-here")) == []
     assert list(s.fs.listdir("tmp")) == []  # the temp file was moved, not left
-    assert s.fs.move_aside(s._krel("ab" * 16), "quarantine/x") and s.fs.read("quarantine/x") is not None
-    assert not s.fs.move_aside(s._krel("ab" * 16), "quarantine/y")  # gone already
+    assert s.fs.move_aside(s.record_rel("ab" * 16), "quarantine/x") and s.fs.read("quarantine/x") is not None
+    assert not s.fs.move_aside(s.record_rel("ab" * 16), "quarantine/y")  # gone already
     s.fs.remove("quarantine/x")
     s.fs.remove("quarantine/x")  # absent: no error
     assert s.fs.read("quarantine/x") is None
     s.put_record("ab" * 16, rec)
-    assert s.verify() == [] and s.usage()["objects"] == listed[s._orel(d)]
+    assert s.verify() == [] and s.usage()["objects"] == listed[s.object_rel(d)]
     info = s.gc(0)
     assert (info["removed_records"], info["removed_objects"]) == (1, 1) and s.size() == 0
     order = []
@@ -393,15 +394,15 @@ def test_fsspec_store(tmp_path):
 def test_quarantine_names_and_notices(store, tmp_path):
     c = tmp_path / "c"
     d = store.put_value(ARRAY, np.arange(5.0))
-    store.quarantine(store._orel(d), "cache object X is bad")
+    store.quarantine(store.object_rel(d), "cache object X is bad")
     q = list((c / "quarantine").iterdir())
     assert len(q) == 1 and q[0].name.startswith(f"objects_{d[:2]}_{d}.")
     assert store.notes == ["notice: cache object X is bad: moved to quarantine/; recomputing it"]
-    store.quarantine(store._orel(d), "cache object X is bad")  # the same damage: said once
+    store.quarantine(store.object_rel(d), "cache object X is bad")  # the same damage: said once
     assert len(store.notes) == 1
     store.read_only = True
-    d = store.fs.write_atomic(store._orel("ab" * 16), [b"x"])
-    store.quarantine(store._orel("ab" * 16), "cache object Y is bad")
+    d = store.fs.write_atomic(store.object_rel("ab" * 16), [b"x"])
+    store.quarantine(store.object_rel("ab" * 16), "cache object Y is bad")
     assert store.notes[-1] == ("notice: cache object Y is bad: left in place (the cache cannot be written); "
                                "recomputing it")
 
@@ -466,7 +467,7 @@ def test_verify_messages(store, tmp_path):
         f"record {'b2' * 16} (two): output 'o0' object missing or corrupt",
         f"record {'c3' * 16} (three): computed from a damaged value ({d[:16]})",
         f"record {'d4' * 16}: does not match its check line (damaged or edited)",
-        f"record {'e5' * 16}: {LEGACY_RECORD}",
+        f"record {'e5' * 16}: has no integrity line (damaged)",  # (a pre-release record: damaged like any)
     ]), problems
     assert store.verify(repair=True) and store.verify() == []
     assert not list((c / "keys").rglob("*.json")) and not p.exists()
@@ -484,7 +485,7 @@ def test_quarantine_file_names(store, tmp_path):
     import re
 
     d = store.put_value(ARRAY, np.arange(5.0))
-    store.quarantine(store._orel(d), "bad")
+    store.quarantine(store.object_rel(d), "bad")
     (q,) = (tmp_path / "c" / "quarantine").iterdir()
     assert re.fullmatch(rf"objects_{d[:2]}_{d}\.\d{{8}}T\d{{6}}\.[0-9a-f]{{6}}", q.name), q.name
     d2 = store.put_value(ARRAY, np.arange(6.0))
@@ -523,7 +524,7 @@ def test_fsspec_listing_and_moves(tmp_path):
 
 
 def test_group_commit_uses_syncfs(store, monkeypatch):
-    import graphkit.store as st
+    import graphkit.store.localfs as st
 
     monkeypatch.setattr(os, "sync", lambda: (_ for _ in ()).throw(AssertionError("fell back to sync(2)")))
     store.put_value(ARRAY, np.arange(3.0))
@@ -555,7 +556,7 @@ def test_gc_budget_is_exact(store, tmp_path):
     for i, key in enumerate(keys):
         _rec(store, key, [ds[i], shared])
         t = time.time() - 1000 + i * 100
-        os.utime(c / store._krel(key), (t, t))
+        os.utime(c / store.record_rel(key), (t, t))
     store.save_run("old", {"x": 1})
     store.save_run("new", {"y": 2})
     t = time.time() - 5000
@@ -563,7 +564,7 @@ def test_gc_budget_is_exact(store, tmp_path):
     (c / "filememo.json").write_text("{}")
     (c / "tmp" / "partial").write_bytes(b"x" * 1234)
     size = lambda p: p.stat().st_size  # noqa: E731
-    first = size(c / store._krel(keys[0])) + size(c / "objects" / ds[0][:2] / ds[0])
+    first = size(c / store.record_rel(keys[0])) + size(c / "objects" / ds[0][:2] / ds[0])
     budget = store.size() - 1234 - first  # room for all but the stale temp and the oldest entry
     info = store.gc(budget)
     assert info == {"removed_records": 1, "removed_objects": 1, "stale_files": 1, "stale_bytes": 1234,
@@ -580,9 +581,9 @@ def test_gc_budget_is_exact(store, tmp_path):
 
 
 def test_the_kept_json_encoder_writes_what_json_writes():
-    """Records and object headers go through store._json_encode (json's C encoder, kept between
+    """Records and object headers go through store.codec.json_encode (json's C encoder, kept between
     calls); its text must be json.dumps(sort_keys=True, separators=(",", ":")) exactly."""
-    from graphkit import store as store_mod
+    from graphkit.store import codec as store_mod
 
     cases = [{"key": "ab" * 16, "node": "n", "outputs": {"out": {"digest": "cd" * 16, "type": "Array"}},
               "parts": {"params": {"é": [1, 2.5, None, True, float("nan"), float("-inf"), 10**30, "q\"\\\n"]},
@@ -594,7 +595,7 @@ def test_the_kept_json_encoder_writes_what_json_writes():
         fresh({(1, 2): 3})
     for c in cases:
         want = json.dumps(c, sort_keys=True, separators=(",", ":"))
-        assert store_mod._json_encode(c) == want and fresh(c) == want
+        assert store_mod.json_encode(c) == want and fresh(c) == want
 
 
 def test_objects_are_known_present_only_inside_the_run_lock(tmp_path):
@@ -615,7 +616,7 @@ def test_objects_are_known_present_only_inside_the_run_lock(tmp_path):
 def test_verify_follows_a_chain_of_damage_in_linear_work(store, tmp_path, monkeypatch):
     """A chain of 300 records computed one from the next, its first value damaged: every record
     is dropped, and each is looked at a bounded number of times (not once per link)."""
-    import graphkit.store as st
+    import graphkit.store.maintenance as st
 
     prev, n = None, 300
     for i in range(n):
