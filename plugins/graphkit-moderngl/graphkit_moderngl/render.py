@@ -21,7 +21,9 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
     bilinear lookup);
   - ``shade.frag`` (+ ``lights.glsl``): Phong lobes of ``nodes/paris/phong.py``, point lights
     (always 1/d², in world units), ambient, shadow visibility (3×3 PCF as
-    ``ShadowMap.visibility``), background, eye highlights (``Render._eyes``), exposure, clamp.
+    ``ShadowMap.visibility``), background, eye highlights (``Render._eyes``), exposure, clamp;
+    an ``environment``'s lights are lights like the others (shadowed; they may light nothing)
+    and its SH ambient is evaluated per pixel normal (``ENV_SH``, environment.py's weights).
 * GL objects persist between calls and nodes (``runtime.GLObjects``): buffers keyed by the
   content of the vertices/faces, the detail texture by its pixels, render targets by size; the
   shadow atlas and the g-buffer remember what they hold, so a call that changes only the
