@@ -153,6 +153,10 @@ def cases():
         "environment_only_shadows": (
             {"shadow_map_size": 256, "clamp": False},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
+        "environment_sh_only": (
+            {"shadow_map_size": 256},
+            {"mesh": floor_and_ball(), "camera": CAM, "material": mat,
+             "environment": environment().model_copy(update={"lights": ()})}),
         "environment_and_lights_detail_eyes": (
             {"shadow_map_size": 256, "eye_highlights": "on", "eyes": eyes, "mm_per_unit": 100.0},
             {"mesh": S, "camera": rot_cam, "material": mat, "lights": [point], "environment": environment(),

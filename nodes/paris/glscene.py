@@ -181,7 +181,7 @@ def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]
     second result) and the drawn mesh's vertices/faces; what a light drag recomputes."""
     part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None}
     sm_errors = [None] * len(lights)
-    if p.shadows:
+    if p.shadows and lights:  # (none: an environment's SH ambient alone, unshadowed)
         sms = []
         for i, light in enumerate(lights):
             try:
