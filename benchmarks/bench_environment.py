@@ -9,11 +9,15 @@ of turning the environment.
 2. An environment rotation at 1024² after the preprocess is cached: the astronaut photo
    upsampled to 1024², its FaceMesh mesh and camera (the preprocess, done once), then per
    rotation LoadEnvironment (builtin:envmaps/interior.exr) → EnvironmentLights → Render
-   (numpy, 16 shadowed lights + SH, detail texture) → CompositeFace.  Median CPU seconds
-   (time.process_time: this process, all its threads) and wall seconds over ``--repeat``
-   rotations, with Render under one light (as face_relight.yaml's portraits) as the peer.
+   (``--backend`` numpy or opengl; 16 shadowed lights + SH, detail texture) → CompositeFace.
+   Median CPU seconds (time.process_time: this process, all its threads — with opengl also
+   Mesa llvmpipe's, which run in this process) and wall seconds over ``--repeat`` rotations,
+   with Render under one light (as face_relight.yaml's portraits, same backend) as the peer.
+   The opengl Render is given the engine's input digests (Context.inputs), as in a graph run,
+   so it keeps its light-independent set-up between rotations; a first untimed call warms it.
 
-Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--lights 16] [--skip-psnr]
+Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--lights 16]
+      [--backend numpy|opengl] [--skip-psnr]
 """
 from __future__ import annotations
 
@@ -54,7 +58,28 @@ def _timed(fn):
     return out, time.process_time() - c, time.perf_counter() - w
 
 
-def rotation_timing(size: int, repeat: int, lights: int) -> None:
+def _renderer(backend: str):
+    """A function (inputs → Render's outputs) on ``backend``, checked as the engine does."""
+    from graphkit import Context
+    from graphkit.contract import check_inputs, compute_checked
+    from graphkit.registry import default_registry
+    from nodes.paris.render import Render
+
+    if backend == "numpy":
+        render = Render()
+        return lambda **kw: compute_checked(render, **kw)
+    gl = default_registry().backend_class("Render", backend)
+    if not gl.available():
+        raise SystemExit(f"the {backend} backend is not available here: {gl.why_unavailable()}")
+
+    def run(**kw):
+        check_inputs(Render, kw)
+        dig = {k: f"bench:{k}" for k in ("mesh", "camera", "detail", "texture_camera")}  # fixed inputs
+        return gl(Render.Params(), Context(inputs=dig)).compute(**kw)
+    return run
+
+
+def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy") -> None:
     import cv2
     import skimage.data
 
@@ -68,7 +93,6 @@ def rotation_timing(size: int, repeat: int, lights: int) -> None:
     from nodes.paris.environment import EnvironmentLights
     from nodes.paris.mesh import SmoothMesh
     from nodes.paris.models import PhongMaterial
-    from nodes.paris.render import Render
 
     photo = srgb_to_linear(cv2.resize(skimage.data.astronaut(), (size, size), interpolation=cv2.INTER_CUBIC) / 255.0)
     photo = Image(photo.astype(np.float32))
@@ -77,7 +101,7 @@ def rotation_timing(size: int, repeat: int, lights: int) -> None:
     cam = fm["camera"]
     detail = Image(np.random.default_rng(0).uniform(0.8, 1.2, (size, size, 3)).astype(np.float32))
     mat = PhongMaterial(diffuse=(0.55, 0.4, 0.33), specular=0.05, shininess=8.0)
-    render = Render()
+    render = _renderer(backend)
     common = dict(mesh=mesh, camera=cam, material=mat, detail=detail, texture_camera=cam)
 
     def turn(deg):
@@ -92,19 +116,23 @@ def rotation_timing(size: int, repeat: int, lights: int) -> None:
               "rotation total": [], "Render (1 light, peer)": []}
     walls = {k: [] for k in stages}
     light = Light(direction=(0.3, -0.2, -0.93))
+    render(environment=turn(0.0), **common)  # warm-up (GL programs, kept set-up), not timed
+    render(lights=[light], **common)
     for i in range(repeat):
         deg = 15.0 * (i + 1)
         lighting, c1, w1 = _timed(lambda: turn(deg))
-        out, c2, w2 = _timed(lambda: compute_checked(render, environment=lighting, **common))
+        out, c2, w2 = _timed(lambda: render(environment=lighting, **common))
         _, c3, w3 = _timed(lambda: compute_checked(CompositeFace(), photo=photo, relit=out["image"],
                                                    coverage=out["coverage"]))
-        _, c4, w4 = _timed(lambda: compute_checked(render, lights=[light], **common))
+        moved = Light(direction=(0.3 - 0.02 * i, -0.2, -0.93))  # a new light each time (kept nothing)
+        _, c4, w4 = _timed(lambda: render(lights=[moved], **common))
         for k, c, w in (("LoadEnvironment+EnvironmentLights", c1, w1), ("Render (environment)", c2, w2),
                         ("CompositeFace", c3, w3), ("rotation total", c1 + c2 + c3, w1 + w2 + w3),
                         ("Render (1 light, peer)", c4, w4)):
             stages[k].append(c)
             walls[k].append(w)
-    print(f"\nenvironment rotation at {size}², {lights} lights, median of {repeat} (load: {os.getloadavg()[0]:.1f})")
+    print(f"\nenvironment rotation at {size}², {lights} lights, Render on {backend}, median of {repeat} "
+          f"(load: {os.getloadavg()[0]:.1f})")
     for k in stages:
         print(f"  {k:34s} CPU {1000 * statistics.median(stages[k]):8.0f} ms   wall {1000 * statistics.median(walls[k]):8.0f} ms")
     ratio = statistics.median(stages["rotation total"]) / statistics.median(stages["Render (1 light, peer)"])
@@ -116,11 +144,12 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--lights", type=int, default=16, help="EnvironmentLights' lights in the rotation timing")
+    p.add_argument("--backend", choices=("numpy", "opengl"), default="numpy", help="Render's backend in the rotation timing")
     p.add_argument("--skip-psnr", action="store_true")
     a = p.parse_args(argv)
     if not a.skip_psnr:
         psnr_table()
-    rotation_timing(a.size, a.repeat, a.lights)
+    rotation_timing(a.size, a.repeat, a.lights, a.backend)
     return 0
 
 

@@ -80,6 +80,21 @@ CAM = Camera(width=96, height=80, fx=110, fy=110, cx=48, cy=40)
 MAT = {"diffuse": (0.6, 0.45, 0.35), "specular": 0.35, "shininess": 20.0}
 
 
+def environment():
+    """An environment's lighting: a key light, a light behind the face (it lights nothing: allowed
+    for an environment's lights, as in numpy) and a side light that the ball shadows onto the
+    wall, plus an SH ambient with all 9 coefficients set (each band changes the image)."""
+    from nodes.paris.environment import EnvironmentLighting
+
+    sh = np.array([[0.3, 0.25, 0.2], [0.05, 0.02, 0.0], [-0.08, -0.05, -0.02], [0.06, 0.07, 0.1],
+                   [0.03, 0.0, -0.02], [-0.04, 0.02, 0.03], [0.05, 0.04, 0.02], [0.02, -0.03, 0.0],
+                   [-0.05, 0.01, 0.04]])
+    lights = (Light(direction=(0.3, -0.6, -0.74), color=(1.0, 0.9, 0.8), intensity=0.6),
+              Light(direction=(0.0, 0.1, 1.0), intensity=2.0),
+              Light(direction=(-0.7, 0.3, -0.65), color=(0.5, 0.6, 1.0), intensity=0.3))
+    return EnvironmentLighting(lights=lights, sh=tuple(tuple(r) for r in sh))
+
+
 def cases():
     from nodes.paris.models import PhongMaterial
 
@@ -135,6 +150,17 @@ def cases():
             {"shadow_map_size": 256, "exposure": 1.5},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "lights": [key],
              "detail": detail, "texture_camera": tex_cam, "ambient": side}),
+        "environment_only_shadows": (
+            {"shadow_map_size": 256, "clamp": False},
+            {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
+        "environment_sh_only": (
+            {"shadow_map_size": 256},
+            {"mesh": floor_and_ball(), "camera": CAM, "material": mat,
+             "environment": environment().model_copy(update={"lights": ()})}),
+        "environment_and_lights_detail_eyes": (
+            {"shadow_map_size": 256, "eye_highlights": "on", "eyes": eyes, "mm_per_unit": 100.0},
+            {"mesh": S, "camera": rot_cam, "material": mat, "lights": [point], "environment": environment(),
+             "detail": detail, "texture_camera": tex_cam}),
         "eye_highlights": (
             {"shadows": False, "clamp": False, "eye_highlights": "on", "eyes": eyes,
              "mm_per_unit": 100.0, "eye_shininess": 60.0},
@@ -181,6 +207,13 @@ def test_cases_exercise_what_they_claim():
     assert (run("shadows_off") - run("shadows_directional_and_point", shadow_map_size=256)).max() > 0.1
     assert np.abs(run("eye_highlights") - run("eye_highlights", eye_highlights="off")).max() > 0.1
     assert (run("exposure_clamp") == 1.0).any() and (run("exposure_no_clamp") > 1.0).any()
+    env = c["environment_only_shadows"]
+    no_sh = environment().model_copy(update={"sh": ((0.0, 0.0, 0.0),) * 9})
+    bands = environment().model_copy(update={"sh": environment().sh[:1] + ((0.0, 0.0, 0.0),) * 8})
+    for other in (no_sh, bands):  # the ambient, and its l ≥ 1 bands, show
+        assert np.abs(run("environment_only_shadows") - node(node.Params.model_validate(env[0])).compute(
+            **{**env[1], "environment": other})["image"].pixels).max() > 0.02
+    assert (run("environment_only_shadows", shadows=False) - run("environment_only_shadows")).max() > 0.1
     assert np.abs(run("detail_texture_other_camera") - node(node.Params.model_validate(c["detail_texture_other_camera"][0])).compute(
         **{k: v for k, v in c["detail_texture_other_camera"][1].items() if k not in ("detail", "texture_camera")})["image"].pixels).max() > 0.1
 
@@ -284,6 +317,8 @@ def test_bad_inputs_match_reference():
     for cls in (node, gl):
         with pytest.raises(BadInput, match="behind the face"):
             cls(node.Params.model_validate(params)).compute(**behind)
+        with pytest.raises(BadInput, match="light 0 .* behind the face"):  # an environment's may be
+            cls(node.Params.model_validate(params)).compute(**behind, environment=environment())
         with pytest.raises(BadInput, match="eyes are unknown"):
             cls(node.Params.model_validate({"eye_highlights": "on"})).compute(**inputs)
 

@@ -15,7 +15,7 @@ from graphkit import BadInput
 from graphkit.contract import compute_checked
 from nodes.io.environment import EnvironmentFrame, LoadEnvironment, local_directions, read_hdr, solid_angles
 from nodes.paris.data import make_envmaps as E
-from nodes.paris.environment import (EnvironmentLighting, EnvironmentLights, map_energy, sh_irradiance)
+from nodes.paris.environment import (EnvironmentLights, map_energy, sh_irradiance)
 
 H = 64
 
@@ -134,16 +134,6 @@ def test_render_takes_an_environment_without_lights_and_refuses_neither():
                           material=PhongMaterial(diffuse=(1.0, 1.0, 1.0), specular=0.0), environment=env)
     cov = out["coverage"].alpha > 0
     np.testing.assert_allclose(out["image"].pixels[cov], 1.0, rtol=1e-3)  # l = 2 terms of the pixel grid
-
-
-def test_opengl_backend_refuses_an_environment():
-    """No silently wrong output: the opengl backend (and the studio's WebGL view, through the
-    same words) refuse the SH ambient they do not draw, before any GL work."""
-    from graphkit_moderngl.render import RenderGL
-
-    with pytest.raises(BadInput) as e:
-        RenderGL().compute(mesh=None, camera=None, material=None, environment=EnvironmentLighting())
-    assert e.value.port == "environment" and "numpy backend" in e.value.message
 
 
 GRAPH = """graphkit: 1

@@ -41,12 +41,26 @@ class EnvironmentLighting(BaseModel):
         return e
 
 
+# the real SH basis (l ≤ 2) is SH_K[k] × a polynomial of the direction, in this order (the
+# polynomials: sh_basis here, env_irradiance in shaders/glsl/shade.frag; the constants only here)
+SH_K = np.array([0.282095, 0.488603, 0.488603, 0.488603, 1.092548, 1.092548, 0.315392,
+                 1.092548, 0.546274])
+
+
 def sh_basis(d: np.ndarray) -> np.ndarray:
     """N×9 real spherical harmonics Y_lm (l ≤ 2) at unit directions d (N×3)."""
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    return np.stack([np.full_like(x, 0.282095), 0.488603 * y, 0.488603 * z, 0.488603 * x,
-                     1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1),
-                     1.092548 * x * z, 0.546274 * (x * x - y * y)], 1)
+    k = SH_K
+    return np.stack([np.full_like(x, k[0]), k[1] * y, k[2] * z, k[3] * x,
+                     k[4] * x * y, k[5] * y * z, k[6] * (3 * z * z - 1),
+                     k[7] * x * z, k[8] * (x * x - y * y)], 1)
+
+
+def sh_irradiance_weights(sh) -> np.ndarray:
+    """9×3: the coefficients that turn sh_basis's polynomials (without SH_K) at a normal into
+    sh_irradiance there (Σ_k weight_k × poly_k(n)): SH_K × Â_l / π × the coefficients; the
+    GL drivers' uniform (shade.frag ENV_SH)."""
+    return np.asarray(sh, np.float64) * (SH_K * SH_A[SH_BAND] / np.pi)[:, None]
 
 
 def sh_irradiance(sh, normals: np.ndarray) -> np.ndarray:

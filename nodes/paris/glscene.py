@@ -31,15 +31,19 @@ _STATIC_LOCK = threading.Lock()  # node threads and the studio's view threads sh
 
 
 def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,
-          key: bytes | None = None):
+          key: bytes | None = None, environment=None):
     """(job, lights in world units, per-light shadow-map errors or None, eyes) for Render's
     params ``p`` and inputs: the job is a dict of arrays and uniforms (see the GL drivers).
+    An ``environment`` (EnvironmentLighting): its lights follow ``lights`` (job["own"] = how
+    many were given on ``lights``: only those must light the face) and its SH ambient is
+    job["env_sh"] (9 RGB weights, environment.sh_irradiance_weights; None without one).
 
     ``key``: a content key of the inputs the set-up depends on besides the lights, material
     and ambient (``p``, ``mesh``, ``camera``, ``detail``, ``texture_camera``; e.g. from their
     cache digests, ``static_key``).  With one, that set-up (holes closed, normals, camera and
     texture geometry, content keys of the GL objects, eyes, screen boxes) is kept between
     calls, so a call that changes only the lights redoes only their part."""
+    from nodes.paris.environment import sh_irradiance_weights
     from nodes.paris.render import check_render_inputs, world_lights
 
     with _STATIC_LOCK:
@@ -47,8 +51,7 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         if hit is not None:
             _STATIC.move_to_end(key)
     if hit is None:
-        static, m, V, F, up = _static_part(p, mesh, camera, lights, detail, texture_camera)
-        lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
+        static, m, V, F, up = _static_part(p, mesh, camera, lights, detail, texture_camera, environment)
         if key is not None:
             with _STATIC_LOCK:
                 _STATIC[key] = (static, m, V, F, up)
@@ -56,11 +59,17 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
                     _STATIC.popitem(last=False)
     else:
         static, m, V, F, up = hit
-        lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera), camera, m)
+    lights = world_lights(check_render_inputs(lights, detail, texture_camera, camera, environment), camera, m)
+    own = len(lights)
+    if environment is not None:
+        lights += world_lights(environment.lights, camera, m, "environment")
     if len(lights) > MAX_LIGHTS:
-        raise BadInput("lights", f"{len(lights)} lights: the opengl backend takes at most "
-                                 f"{MAX_LIGHTS} (the numpy backend any number)")
+        raise BadInput("lights" if own > MAX_LIGHTS else "environment",
+                       f"{len(lights)} lights: the opengl backend takes at most "
+                       f"{MAX_LIGHTS} (the numpy backend any number)")
     job = dict(static)
+    job["own"] = own
+    job["env_sh"] = None if environment is None else sh_irradiance_weights(environment.sh)
     kd = np.asarray(material.diffuse, np.float64)
     amb = np.zeros(3)
     for light in lights:
@@ -92,13 +101,13 @@ def static_key(p, digests: dict, mesh=None, camera=None, detail=None, texture_ca
     return digest("Render.scene/content", p.model_dump_json(), *parts)
 
 
-def _static_part(p, mesh, camera, lights, detail, texture_camera):
+def _static_part(p, mesh, camera, lights, detail, texture_camera, environment=None):
     """(the light-independent part of the job, the drawn mesh, its float64 vertices and
     faces, the camera's up vector) for scene()."""
     from nodes.paris.render import eye_spheres, prepare_render, vertex_normals
 
     eye_mesh = mesh
-    _, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
+    _, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes, environment)
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
     vn = vertex_normals(mesh)
@@ -172,7 +181,7 @@ def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]
     second result) and the drawn mesh's vertices/faces; what a light drag recomputes."""
     part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None}
     sm_errors = [None] * len(lights)
-    if p.shadows:
+    if p.shadows and lights:  # (none: an environment's SH ambient alone, unshadowed)
         sms = []
         for i, light in enumerate(lights):
             try:

@@ -426,6 +426,16 @@ def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_ho
     return world_lights(lights, camera, m), m
 
 
+def _example_environment() -> EnvironmentLighting:
+    """Render.examples()'s environment: a light in front, one behind the mesh (it lights
+    nothing: allowed for an environment's lights) and an SH ambient with every band set."""
+    sh = ((0.3, 0.25, 0.2), (0.05, 0.02, 0.0), (-0.08, -0.05, -0.02), (0.06, 0.07, 0.1),
+          (0.03, 0.0, -0.02), (-0.04, 0.02, 0.03), (0.05, 0.04, 0.02), (0.02, -0.03, 0.0),
+          (-0.05, 0.01, 0.04))
+    return EnvironmentLighting(lights=(Light(direction=(0.4, -0.5, -0.77), intensity=0.7),
+                                       Light(direction=(0.0, 0.0, 1.0), intensity=2.0)), sh=sh)
+
+
 class Render(Node):
     """Paris 2003 §5 rendering engine: Phong (ambient + diffuse + specular, §4) × detail texture.
 
@@ -447,7 +457,8 @@ class Render(Node):
     * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
       shaded and shadowed as the others (they may lie behind the face), its 9 spherical-
       harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
-      Then ``lights`` may be empty.  Only the numpy backend takes it.
+      Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
+      WebGL view does not).
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
@@ -573,7 +584,9 @@ class Render(Node):
                   "texture_camera": cam}),
                 ({"shadow_map_size": 128},
                  {"mesh": m, "camera": cam, "material": mat, "lights": lights[1:], "detail": detail,
-                  "texture_camera": ortho})]
+                  "texture_camera": ortho}),
+                ({"shadow_map_size": 128},
+                 {"mesh": m, "camera": cam, "material": mat, "environment": _example_environment()})]
 
     def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
         """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""

@@ -3,7 +3,8 @@
 // a full-screen pass over the surface pass's buffers (gbuffer.frag), per pixel:
 // * covered: Phong per light, kd·(L (n·l)) + i_s·L·(r·v)^s (phong.lobes/shade; point lights
 //   1/d²), times the shadow-map visibility (raster.ShadowMap.visibility: slope-scaled bias,
-//   3×3 PCF), plus kd × the ambient sum, all times the detail texture factor;
+//   3×3 PCF), plus kd × the ambient sum (ENV_SH: + an environment's SH irradiance at n), all
+//   times the detail texture factor;
 // * else the background;
 // * then the eye highlights (Render._eyes: two specular cornea hemispheres hit by the pixel's
 //   ray, graphkit.Camera.ray_matrices, where they are not behind the eyelids), the exposure
@@ -12,7 +13,7 @@
 // negated where no light has n·l > 0 (one light; LIT_MASKS: per-light masks in o_lit), so that
 // one RGBA read-back gives image, depth, coverage and the "light lights nothing" check.
 // Defines: N_LIGHTS, DIRECTIONAL (lights.glsl), ORTHO, SHADOWS, EYES, LIT_MASKS, SM_WINDOW, SM_BILINEAR, DISPLAY,
-// DETAIL, ALPHA_OUT, VIEW_RAY, NO_DEPTH.  The drivers draw it scissored to the
+// DETAIL, ALPHA_OUT, VIEW_RAY, NO_DEPTH, ENV_SH.  The drivers draw it scissored to the
 // pixels a surface or an eye can cover (nodes/paris/glscene.screen_box), without EYES over the
 // mesh's box and with EYES over the eyes' box, on a target cleared to the background output.
 #include "lights.glsl"
@@ -77,6 +78,22 @@ uniform vec3 ambient;                     // Σ ambient terms × the material's 
 uniform vec3 background;
 uniform float exposure;
 uniform bool clamp01;
+
+#ifndef ENV_SH
+#define ENV_SH 0
+#endif
+#if ENV_SH
+// An environment's unshadowed ambient (nodes/paris/environment.py sh_irradiance, Ramamoorthi–
+// Hanrahan): Σ_k env_sh[k] × the k-th real SH polynomial of the normal (sh_basis's order and
+// polynomials; its constants SH_K, Â_l and 1/π are in the weights: sh_irradiance_weights).
+uniform vec3 env_sh[9];
+
+vec3 env_irradiance(vec3 n) {
+    return env_sh[0] + env_sh[1] * n.y + env_sh[2] * n.z + env_sh[3] * n.x
+         + env_sh[4] * (n.x * n.y) + env_sh[5] * (n.y * n.z) + env_sh[6] * (3.0 * n.z * n.z - 1.0)
+         + env_sh[7] * (n.x * n.z) + env_sh[8] * (n.x * n.x - n.y * n.y);
+}
+#endif
 
 #ifndef SM_WINDOW
 #define SM_WINDOW 0
@@ -278,7 +295,11 @@ void main() {
 #endif
             col += kd * (L * diff) + i_s * L * spec;
         }
+#if ENV_SH
+        col += kd * (ambient + env_irradiance(n));
+#else
         col += kd * ambient;
+#endif
 #if DETAIL
         img = col * texelFetch(g_detail, px, 0).rgb;
 #else

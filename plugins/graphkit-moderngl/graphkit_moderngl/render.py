@@ -21,7 +21,9 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
     bilinear lookup);
   - ``shade.frag`` (+ ``lights.glsl``): Phong lobes of ``nodes/paris/phong.py``, point lights
     (always 1/d², in world units), ambient, shadow visibility (3×3 PCF as
-    ``ShadowMap.visibility``), background, eye highlights (``Render._eyes``), exposure, clamp.
+    ``ShadowMap.visibility``), background, eye highlights (``Render._eyes``), exposure, clamp;
+    an ``environment``'s lights are lights like the others (shadowed; they may light nothing)
+    and its SH ambient is evaluated per pixel normal (``ENV_SH``, environment.py's weights).
 * GL objects persist between calls and nodes (``runtime.GLObjects``): buffers keyed by the
   content of the vertices/faces, the detail texture by its pixels, render targets by size; the
   shadow atlas and the g-buffer remember what they hold, so a call that changes only the
@@ -88,14 +90,12 @@ class RenderGL(Backend):
                 texture_camera: Camera | None = None, ambient: Light | None = None, environment=None):
         from nodes.paris.glscene import scene, static_key
 
-        if environment is not None:
-            raise BadInput("environment", "the opengl backend does not draw an environment's "
-                                          "spherical-harmonic ambient: use the numpy backend")
         p = self.params
         _refuse_sized(p, lights)
         H, W = camera.height, camera.width
         job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient,
-                                             key=static_key(p, self.ctx.inputs, mesh, camera, detail, texture_camera))
+                                             key=static_key(p, self.ctx.inputs, mesh, camera, detail, texture_camera),
+                                             environment=environment)
         if job["shadow"] is not None:
             _check_atlas(len(job["shadow"]), p.shadow_map_size)
 
@@ -116,13 +116,16 @@ class RenderGL(Backend):
             cb = cov0[y:y + h, x:x + w] != 0.0
             m0, m1 = masks[..., 0][cb].astype(np.int64), masks[..., 1][cb].astype(np.int64)
             lit = np.bitwise_or.reduce(m0) | (np.bitwise_or.reduce(m1) << 24)
+        own = job["own"]  # an environment's lights (after these) may light nothing, as in numpy
         for i, light in enumerate(lights):
             if not (lit >> i) & 1:
+                if i >= own:
+                    continue
                 raise BadInput("lights", f"light {i} ({light.kind}, direction {light.direction}, "
                                          f"position {light.position}) is behind the face: it "
                                          f"lights none of the {M} visible pixels")
             if p.shadows and sm_errors[i]:
-                raise BadInput("lights", f"light {i}: {sm_errors[i]}")
+                raise BadInput("lights" if i < own else "environment", f"light {i}: {sm_errors[i]}")
         if eyes is None and p.eye_highlights == "on":
             raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                    "is not a mediapipe face mesh; set the `eyes` param")
@@ -368,7 +371,8 @@ def _gbuffer(rt, job):
 
 
 def _shade_uniforms(prog, job, p, size: int, tiles):
-    """shade.frag's uniforms: g-buffer units 0–2, shadow atlas unit 3, lights, material, eyes."""
+    """shade.frag's uniforms: g-buffer units 0–2, shadow atlas unit 3, lights, material, an
+    environment's SH weights, eyes."""
     lights, eyes = job["lights"], job["eyes"]
     nL = max(len(lights), 1)
     _set(prog, "g_pos", 0)
@@ -400,6 +404,8 @@ def _shade_uniforms(prog, job, p, size: int, tiles):
     _set(prog, "exposure", float(p.exposure))
     _set(prog, "clamp01", bool(p.clamp))
     _set_lights(prog, lights, nL)
+    if job["env_sh"] is not None:
+        _write(prog, "env_sh", np.asarray(job["env_sh"], np.float32).tobytes())
     _write(prog, "ray_dir", _mat(job["ray_dir"]))  # screen.vert VIEW_RAY, the eyes
     _set(prog, "view_size", (float(job["W"]), float(job["H"])))
     if eyes is not None:
@@ -478,7 +484,8 @@ def _render(rt, job):
     defines = {"N_LIGHTS": nL, "ORTHO": int(ortho), "SHADOWS": int(shadows), "EYES": 0,
                "LIT_MASKS": int(masks), "DETAIL": int(job["detail"] is not None),
                "DIRECTIONAL": int(directional), "VIEW_RAY": int(not ortho),
-               "NO_DEPTH": int(not ortho and directional and not shadows and surf is not None)}
+               "NO_DEPTH": int(not ortho and directional and not shadows and surf is not None),
+               "ENV_SH": int(job["env_sh"] is not None)}
     # the image in an RGB32F target (read back as it is stored) and the alpha in its own R32F
     # target (ALPHA_OUT: its location), where the driver renders RGB32F; else one RGBA32F
     split = _split_alpha(rt)
