@@ -60,6 +60,9 @@ EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
 PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
 MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
+MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
+CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
+SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
 
@@ -84,7 +87,9 @@ class BallFit:
     max_gap_deg: float = 360.0
     residual_px: float = float("inf")
     in_frame: float = 0.0
+    sigma_px: float = float("inf")
     candidates: list = field(default_factory=list)
+    rivals: list = field(default_factory=list)
 
     def __iter__(self):  # cx, cy, r, fit = find_ball(...)
         return iter((self.cx, self.cy, self.r, self))
@@ -123,7 +128,7 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
     fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
-    return _choose(fits, clipped, " around the highlight" if spots else "")
+    return _choose(fits, clipped, spots[0] if spots else None)
 
 
 def _candidates(g, seeds, spots) -> list[dict]:
@@ -155,9 +160,10 @@ def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
     return fits
 
 
-def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
-    """Step 5: the ball among the fitted circles, with why it may not be (``where``: said of
-    the outlines looked for, e.g. " around the highlight")."""
+def _choose(fits: list[BallFit], clipped, spot) -> BallFit:
+    """Step 5: the ball among the fitted circles, with why it may not be (``spot``: the
+    flash's highlight (x, y), the largest clipped blob, or None)."""
+    where = " around the highlight" if spot is not None else ""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
     closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
     if not closed:
@@ -175,23 +181,42 @@ def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
     for f in closed:
         if not any(_contains(b, f) for b in balls):
             balls.append(f)
-    balls.sort(key=lambda f: -f.support)
-    best = balls[0]
+    best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, balls[1:], fits, clipped)
+    doubt = _doubt(best, fits, clipped)
+    if rivals and not doubt:
+        # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
+        # directions they give)
+        best.rivals = [(f.cx, f.cy, f.r) for f in rivals] if best.confident else []
+        o = rivals[0]
+        doubt = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
+                 f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
     if doubt:
         best.confident, best.reason = False, doubt
     return best
 
 
-def _doubt(best: BallFit, others: list[BallFit], fits: list[BallFit], clipped) -> str:
-    """Why ``best`` may not be the ball ('' if nothing speaks against it): another closed
-    outline about as well supported (``others``, by support), or — while its own fit is
-    confident — clipped pixels just outside it, or a fainter circle around it."""
-    if others and others[0].support >= best.support - AMBIGUITY:
-        o = others[0]
-        return (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
-                f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
+def _rank(balls: list[BallFit], spot) -> tuple[BallFit, list[BallFit]]:
+    """The ball and its rivals: the best supported, or among those as well supported (within
+    AMBIGUITY) the one whose centre is nearest the flash's highlight (in radii); rivals are
+    those not beaten by CENTRED_MARGIN in that (a flash by the lens lights the ball near its
+    middle, while the ball's shadow on the backdrop, or a round outline of the backdrop, is
+    centred elsewhere)."""
+    balls = sorted(balls, key=lambda f: -f.support)
+    top = [f for f in balls if f.support >= balls[0].support - AMBIGUITY]
+    if spot is None or len(top) < 2:
+        return top[0], top[1:]
+    top.sort(key=lambda f: _off_centre(f, spot))
+    return top[0], [f for f in top[1:] if _off_centre(f, spot) - _off_centre(top[0], spot) < CENTRED_MARGIN]
+
+
+def _off_centre(f: BallFit, spot) -> float:
+    return float(np.hypot(spot[0] - f.cx, spot[1] - f.cy) / max(f.r, 1e-9))
+
+
+def _doubt(best: BallFit, fits: list[BallFit], clipped) -> str:
+    """Why ``best``, while its own fit is confident, may not be the ball ('' if nothing speaks
+    against it): clipped pixels just outside it, or a fainter circle around it."""
     if not best.confident:
         return ""
     ring = _ring_fraction(clipped, best, 1.0, 0.25)
@@ -279,26 +304,28 @@ def _holds(c, spots):
 
 
 def _seeds(g, spots, max_seeds=16):
+    """Circles of any origin from OpenCV's Hough transforms (the accurate HOUGH_GRADIENT_ALT,
+    then HOUGH_GRADIENT for fainter outlines) on the stabilised image brought to at most
+    ``SEED_PX`` pixels and smoothed (noise and fine texture make both slow and blind), those
+    holding a highlight first → [(x, y, r)] in pixels."""
     import cv2
 
     h, w = g.shape
-    m = min(h, w)
-    scale = min(1.0, 640.0 / max(h, w))
+    scale = min(1.0, SEED_PX / max(h, w))
     lo, hi = np.percentile(g, [0.5, 99.5])
     img8 = np.round(np.clip((g - lo) / max(hi - lo, 1e-12), 0, 1) * 255).astype(np.uint8)
     if scale < 1:
         img8 = cv2.resize(img8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    img8 = cv2.GaussianBlur(img8, (5, 5), 1.0)
+    img8 = cv2.GaussianBlur(img8, (0, 0), 1.5)
     ms = min(img8.shape)
+    r_lo, r_hi = max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms), 3), int(0.6 * ms)
     seeds = []
-    for p2 in (40, 25, 15):
-        cs = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=max(4, int(0.04 * ms)), param1=60,
-                              param2=p2, minRadius=max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms)), maxRadius=int(0.6 * ms))
+    for method, p1, p2 in ((cv2.HOUGH_GRADIENT_ALT, 150, 0.5), (cv2.HOUGH_GRADIENT_ALT, 80, 0.3),
+                           (cv2.HOUGH_GRADIENT, 60, 25)):
+        cs = cv2.HoughCircles(img8, method, dp=1, minDist=max(4, int(0.04 * ms)), param1=p1, param2=p2,
+                              minRadius=r_lo, maxRadius=r_hi)
         if cs is not None:
-            for x, y, r in cs[0][:max_seeds]:
-                seeds.append(((x + 0.5) / scale, (y + 0.5) / scale, r / scale))
-        if len(seeds) >= max_seeds:
-            break
+            seeds += [((x + 0.5) / scale, (y + 0.5) / scale, r / scale) for x, y, r in cs[0][:max_seeds]]
     if spots:
         # the highlight is inside the ball: seeds whose circle holds it come first
         seeds.sort(key=lambda s: not _holds({"cx": s[0], "cy": s[1], "r": s[2]}, spots))
@@ -513,7 +540,9 @@ def _subpixel(lum, g, noise, c, fov_deg):
     # support: sectors (inside the frame) whose edge is on the fitted outline and significant
     _, _, on = _support(g, noise, cx, cy, r)
     res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
-    return _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+    fit = _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+    fit.sigma_px = rms * np.sqrt(2.0 / max(int(keep.sum()), 1))
+    return fit
 
 
 def _sector_edges(lum, g, noise, cx, cy, r, it):
@@ -578,7 +607,7 @@ def _verdict(cx, cy, r, ok, inside, rms, w, h) -> BallFit:
         fit.confident, fit.reason = False, f"only {100 * n_in:.0f}% of the ball's outline is inside the image"
     elif sup < MIN_SUPPORT or gap > MAX_GAP_DEG:
         fit.confident, fit.reason = False, f"the outline is not closed ({fit.summary()})"
-    elif rms > 0.75:
+    elif rms > MAX_RMS_PX:
         fit.confident, fit.reason = False, f"the outline is not a circle ({fit.summary()})"
     return fit
 

@@ -151,7 +151,7 @@ class ProbeLight(Node):
             wgt = np.clip(lum[core] - base, 0, None)
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
-                ldir = ref / np.linalg.norm(ref)
+                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s)
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
             raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
@@ -313,6 +313,15 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
     return lab == (1 + int(np.argmax(sizes)))
 
 
+def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float) -> np.ndarray:
+    """The halo-refined direction ``ref`` if it stays well inside the saturated highlight
+    (within half its angular radius ``rho_s`` + 0.25°), else the highlight's own ``ldir``: a
+    halo pulled further is not the flash's alone (the reflection of a lit backdrop, another
+    lamp's glow next to it)."""
+    moved = float(np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1))))
+    return ref if moved <= 0.5 * rho_s + 0.25 else ldir
+
+
 def _halo_edge(delta, lum, unsat, rho_s, base, level):
     """Smallest angle beyond the highlight where the median excess luminance (1° bins) < level."""
     edges = np.arange(rho_s, rho_s + 60.0, 1.0)
@@ -368,6 +377,30 @@ def _hit(d, c):
     return t[..., None] * d
 
 
+#: the most a found ball's uncertainty may move the flash's direction (degrees)
+MAX_DOUBT_DEG = 1.0
+
+
+def _direction_doubt(px: np.ndarray, fit, fov_deg) -> float:
+    """How far (degrees) the flash's direction — the mean reflected direction over the largest
+    clipped blob — moves between the circle found and the circles it cannot rule out: its own
+    fit moved by 2 standard errors (centre and radius, each way) and the rival outlines."""
+    h, w = px.shape[:2]
+    blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+    ys, xs = np.nonzero(blob)
+
+    def direction(cx, cy, r):
+        d = reflected_directions(xs + 0.5, ys + 0.5, cx, cy, r, w, h, fov_deg).mean(0)
+        return d / np.linalg.norm(d)
+
+    d0 = direction(fit.cx, fit.cy, fit.r)
+    s = 2 * fit.sigma_px if np.isfinite(fit.sigma_px) else 0.0
+    others = [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in
+              ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
+    others += list(fit.rivals)
+    return max(float(np.degrees(np.arccos(np.clip(direction(*c) @ d0, -1, 1)))) for c in others)
+
+
 def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) -> tuple[float, float, float]:
     """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
     why it is not sure and which params to give."""
@@ -377,6 +410,15 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) ->
     clipped = px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)   # the plateau of a clipped photo
     share = float(clipped.mean())
     fit = find_ball(px, fov_deg, highlight=highlight)
+    if highlight and (fit.confident or fit.rivals):
+        doubt = _direction_doubt(px, fit, fov_deg)
+        if doubt <= MAX_DOUBT_DEG:
+            return fit.cx, fit.cy, fit.r
+        why = fit.reason if fit.rivals else (
+            f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
+            f"found ({fit.summary()})")
+        raise BadInput(port, f"cannot find the {'mirror ball'} with confidence: {why}; give centre_x, centre_y "
+                             "and radius (pixels)")
     if fit.confident:
         return fit.cx, fit.cy, fit.r
     if highlight and 0.05 < share < 0.98:  # (a flat image is all 'at its maximum')
