@@ -11,8 +11,9 @@ silhouette has:
    differences, robust spread per brightness bin) and the luminance is transformed so that
    the noise has unit σ everywhere (a generalised Anscombe transform): a step's height is then
    its significance, in dark and bright regions alike.
-1. **Candidates**: OpenCV's Hough transform (``HOUGH_GRADIENT``) on that image gives circles of
-   any origin (silhouette, environment edge, shadow, backdrop pattern).
+1. **Candidates**: OpenCV's Hough transforms (``HOUGH_GRADIENT_ALT``, then ``HOUGH_GRADIENT``)
+   on that image brought to ``SEED_PX`` and smoothed give circles of any origin (silhouette,
+   environment edge, shadow, backdrop pattern).
 2. **Edges on rays**: from each candidate's centre, profiles along 180 rays (each averaged
    over a short arc), and every significant local maximum of their radial step → edge points;
    RANSAC circles through edge points of different rays, refined by least squares.
@@ -30,15 +31,18 @@ silhouette has:
 5. **Choice**: among the closed circles (support ≥ ``MIN_SUPPORT``, gap ≤ ``MAX_GAP_DEG``,
    radius ≥ ``MIN_RADIUS_PX``) that hold one of the clipped blobs (the flash's highlight), the
    outermost of each family (circles concentric with it or wholly inside it: edges of its own
-   reflection, the flash's halo) is a ball; the family with the best support wins.
+   reflection, the flash's halo) is a ball; the family with the best support wins, and among
+   families as well supported (within ``AMBIGUITY``) the one centred nearest the highlight
+   (nearer by ``CENTRED_MARGIN`` radii): a flash by the lens lights the ball near its middle,
+   while the ball's shadow on the backdrop is centred elsewhere.  The others are its
+   ``rivals`` (ProbeLight weighs them by the flash directions they give).
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
-when no closed circle is found, when two unrelated closed circles compete (supports within
-``AMBIGUITY``), when a fainter concentric circle surrounds the one found, when the pixels just
+when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
 the ball is mostly outside the frame.  Tuned on the TUNING probes of
-``nodes/paris/data/make_probes.py``; checked on its CHECK probes
-(tests/oracles/test_paris_probe_mitsuba.py).  Units: pixels (pixel centres at +0.5).
+``nodes/paris/data/make_probes.py`` and the tune half of ``varied_probes.py``; checked on their
+CHECK probes (tests/oracles/test_paris_probe_mitsuba.py, test_paris_probe_varied.py).  Units: pixels (pixel centres at +0.5).
 """
 from __future__ import annotations
 
@@ -74,8 +78,10 @@ class BallFit:
     ``fov_deg`` the projected centre of the sphere and ProbeLight's radius).  ``support``:
     fraction of 8° sectors with a silhouette step on the outline; ``max_gap_deg``: the largest
     angular run without one; ``residual_px``: RMS distance of the kept edge points;
-    ``in_frame``: fraction of the outline inside the image; ``candidates``: the circles
-    weighed, after their sub-pixel fit (cx, cy, r, support).
+    ``in_frame``: fraction of the outline inside the image; ``sigma_px``: standard error of
+    the centre (``residual_px`` over the kept edge points); ``candidates``: the circles
+    weighed, after their sub-pixel fit (cx, cy, r, support); ``rivals``: (cx, cy, r) of other
+    closed outlines that may as well be the ball, when only they speak against it.
     """
 
     cx: float

@@ -24,8 +24,9 @@ class ProbeLight(Node):
       outermost closed circular edge around the flash's highlight (not the strongest circle,
       which on a dark backdrop is often the environment's reflection or the cast shadow),
       fitted to sub-pixel edges (with ``fov_deg``: as the cone tangent to the sphere).  When
-      it is not sure (no closed outline, two candidates, a poor fit, the ball cut by the
-      frame) the node refuses and asks for the three params.
+      it is not sure (no closed outline, a poor fit, the ball cut by the frame, or the circle's
+      standard error ×2 or a rival outline moving the flash's direction by more than
+      ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
@@ -125,7 +126,7 @@ class ProbeLight(Node):
         if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
-        sat = _largest_component(sat)
+        sat = _flash_highlight(sat)
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -151,7 +152,7 @@ class ProbeLight(Node):
             wgt = np.clip(lum[core] - base, 0, None)
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
-                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s)
+                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s, r)
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
             raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
@@ -303,6 +304,27 @@ def flash_irradiance(px: np.ndarray, dirs: np.ndarray, core: np.ndarray, ambient
     return e if e > 0 else None
 
 
+def _flash_highlight(sat: np.ndarray) -> np.ndarray:
+    """The flash's highlight: the one clipped blob on the ball, or the largest when the others
+    are specks (under ``OTHER_HIGHLIGHT`` of its size or under 3 px); BadInput when another
+    light (a lamp, a lit backdrop) clips as well, since which one is the flash is then unclear."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(sat)
+    if n <= 1:
+        return sat
+    sizes = np.sort(ndimage.sum(sat, lab, index=np.arange(1, n + 1)))[::-1]
+    if sizes[1] >= max(3, OTHER_HIGHLIGHT * sizes[0]):
+        raise BadInput("probe", f"the ball shows {n} clipped highlights (the largest {int(sizes[0])} and "
+                                f"{int(sizes[1])} px): which one is the flash is unclear; take the probe with "
+                                "the flash as the only light that clips (other lamps off, or a shorter exposure)")
+    return _largest_component(sat)
+
+
+#: a second clipped blob this large (a fraction of the largest) makes the flash's unclear
+OTHER_HIGHLIGHT = 0.2
+
+
 def _largest_component(m: np.ndarray) -> np.ndarray:
     from scipy import ndimage
 
@@ -313,13 +335,13 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
     return lab == (1 + int(np.argmax(sizes)))
 
 
-def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float) -> np.ndarray:
-    """The halo-refined direction ``ref`` if it stays well inside the saturated highlight
-    (within half its angular radius ``rho_s`` + 0.25°), else the highlight's own ``ldir``: a
-    halo pulled further is not the flash's alone (the reflection of a lit backdrop, another
-    lamp's glow next to it)."""
+def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float, r: float) -> np.ndarray:
+    """The halo-refined direction ``ref`` if it stays near the saturated highlight's own
+    ``ldir`` (within a quarter of its angular radius ``rho_s`` plus the direction one pixel
+    spans at the middle of a ball of radius ``r`` px, 2/r rad), else ``ldir``: a halo pulled
+    further is not the flash's alone (a lit backdrop's reflection, another lamp's glow)."""
     moved = float(np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1))))
-    return ref if moved <= 0.5 * rho_s + 0.25 else ldir
+    return ref if moved <= 0.25 * rho_s + np.degrees(2.0 / r) else ldir
 
 
 def _halo_edge(delta, lum, unsat, rho_s, base, level):
@@ -377,8 +399,9 @@ def _hit(d, c):
     return t[..., None] * d
 
 
-#: the most a found ball's uncertainty may move the flash's direction (degrees)
-MAX_DOUBT_DEG = 1.0
+#: the most a found ball's uncertainty may move the flash's direction (degrees): half the 1° the
+#: direction may be off, the other half is the highlight's own (its pixels, its halo)
+MAX_DOUBT_DEG = 0.5
 
 
 def _direction_doubt(px: np.ndarray, fit, fov_deg) -> float:

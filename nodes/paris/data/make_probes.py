@@ -62,6 +62,7 @@ class ProbeSpec:
     texture: str = ""                 # a skimage.data picture printed on the backdrop (mean albedo: backdrop_albedo)
     room: bool = False                # the backdrop is the back wall of a box (floor, ceiling, side walls)
     lamps: tuple = ()                 # other lights: ((x, y, z) m camera frame, radius m, radiance), spheres
+    other_weight: float = 1.0         # how often the environment and lamps are sampled against the flash (noise only)
     env_yaw_deg: float = 0.0
     env_level: float = 0.15           # the HDR is scaled so its 90th percentile radiance is this
     env_clip: float = 0.5             # …and clipped so its reflection stays below this (no sun)
@@ -288,6 +289,9 @@ def scene_dict(spec: ProbeSpec) -> dict:
     for i, (pos, radius, radiance) in enumerate(spec.lamps):
         scene[f"lamp{i}"] = {"type": "sphere", "center": list(pos), "radius": radius,
                              "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [radiance * spec.exposure] * 3}}}
+    if spec.other_weight != 1.0:   # the flash lights the backdrop: sampled more, less noise
+        for e in [scene["env"]] + [scene[k]["emitter"] for k in scene if k.startswith("lamp")]:
+            e["sampling_weight"] = spec.other_weight
     if spec.stick:
         # a grey support rod from the ball's bottom down out of the frame (camera frame: +y down)
         L = 1.0

@@ -62,7 +62,7 @@ def _spec(name, rng, cfg, spp) -> ProbeSpec:
                      env_level=float(rng.uniform(0.04, 0.25)), flash_offset_m=(float(off[0]), float(off[1]), 0.0),
                      flash_power=power, exposure=float(rng.choice([0.5, 1.0, 1.0, 1.5])),
                      roughness=float(rng.uniform(0.015, 0.05)), stick=bool(rng.random() < 0.3), spp=spp,
-                     sensor_noise=float(rng.uniform(0.5, 2.0)), seed=int(rng.integers(1 << 16)))
+                     sensor_noise=float(rng.uniform(0.5, 2.0)), seed=int(rng.integers(1 << 16)), other_weight=0.2)
 
 
 def _lamps(rng, dist) -> tuple:
