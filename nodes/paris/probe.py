@@ -152,7 +152,7 @@ class ProbeLight(Node):
             wgt = np.clip(lum[core] - base, 0, None)
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
-                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s, r)
+                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s, _clipped(px, inside))
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
             raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
@@ -294,8 +294,7 @@ def flash_irradiance(px: np.ndarray, dirs: np.ndarray, core: np.ndarray, ambient
     angle of reflected directions each pixel covers (|∂d/∂x × ∂d/∂y|).  None when the highlight
     is clipped (three or more pixels at the image's peak value: its energy is unknown)."""
     lum = px @ _Y
-    peak = px[inside].max()
-    if int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3:
+    if _clipped(px, inside):
         return None
     gx = np.gradient(dirs, axis=1)
     gy = np.gradient(dirs, axis=0)
@@ -335,13 +334,19 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
     return lab == (1 + int(np.argmax(sizes)))
 
 
-def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float, r: float) -> np.ndarray:
-    """The halo-refined direction ``ref`` if it stays near the saturated highlight's own
-    ``ldir`` (within a quarter of its angular radius ``rho_s`` plus the direction one pixel
-    spans at the middle of a ball of radius ``r`` px, 2/r rad), else ``ldir``: a halo pulled
-    further is not the flash's alone (a lit backdrop's reflection, another lamp's glow)."""
+def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float, clipped: bool) -> np.ndarray:
+    """The halo-refined direction ``ref``; on a clipped highlight only if it stays well inside
+    it (within a quarter of its angular radius ``rho_s`` + 0.25°), else the highlight's own
+    ``ldir``: a halo that pulls further is not the flash's alone (a lit backdrop's reflection,
+    another lamp's glow).  An HDR highlight's halo is its unclipped lobe: always kept."""
     moved = float(np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1))))
-    return ref if moved <= 0.25 * rho_s + np.degrees(2.0 / r) else ldir
+    return ref if not clipped or moved <= 0.25 * rho_s + 0.25 else ldir
+
+
+def _clipped(px: np.ndarray, inside: np.ndarray) -> bool:
+    """The ball's highlight is clipped: three or more pixels at its peak value."""
+    peak = px[inside].max()
+    return int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3
 
 
 def _halo_edge(delta, lum, unsat, rho_s, base, level):
