@@ -59,6 +59,7 @@ MAX_GAP_DEG = 60.0       # largest run of sectors without an edge on a closed ci
 TOL_PX = 1.5             # an edge point is on a circle within this distance
 MIN_IN_FRAME = 0.6       # fraction of the silhouette inside the image
 LOOSE_SUPPORT = 0.5      # circles considered at all
+OUTER_SUPPORT = 0.6      # a concentric edge around the ball found on this much of a circle: doubt
 AMBIGUITY = 0.1          # two balls whose supports are closer than this: refuse
 EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
 PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
@@ -134,7 +135,7 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
     fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
-    return _choose(fits, clipped, spots[0] if spots else None)
+    return _choose(fits, g, clipped, spots[0] if spots else None)
 
 
 def _candidates(g, seeds, spots) -> list[dict]:
@@ -166,7 +167,7 @@ def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
     return fits
 
 
-def _choose(fits: list[BallFit], clipped, spot) -> BallFit:
+def _choose(fits: list[BallFit], g, clipped, spot) -> BallFit:
     """Step 5: the ball among the fitted circles, with why it may not be (``spot``: the
     flash's highlight (x, y), the largest clipped blob, or None)."""
     where = " around the highlight" if spot is not None else ""
@@ -189,7 +190,7 @@ def _choose(fits: list[BallFit], clipped, spot) -> BallFit:
             balls.append(f)
     best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, fits, clipped)
+    doubt = _doubt(best, fits, g, clipped)
     if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
@@ -220,21 +221,36 @@ def _off_centre(f: BallFit, spot) -> float:
     return float(np.hypot(spot[0] - f.cx, spot[1] - f.cy) / max(f.r, 1e-9))
 
 
-def _doubt(best: BallFit, fits: list[BallFit], clipped) -> str:
+def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
     """Why ``best``, while its own fit is confident, may not be the ball ('' if nothing speaks
-    against it): clipped pixels just outside it, or a fainter circle around it."""
+    against it): clipped pixels just outside it, or a fainter circle around it (among the
+    ``fits``, or a concentric edge on the stabilised image ``g`` up to 1.4 radii out: a
+    mirror ball's rim, reflecting the backdrop behind it, can be too faint to be a candidate
+    while an edge of its reflection inside is closed)."""
     if not best.confident:
         return ""
     ring = _ring_fraction(clipped, best, 1.0, 0.25)
     if ring > 0.2:
         return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
                 "are clipped: the ball's silhouette may be lost in them (over-exposed)")
-    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    outer = [(f.r, f.support) for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    outer += _outer_edges(g, best)
     if not outer:
         return ""
-    o = max(outer, key=lambda f: f.support)
-    return (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
+    r, sup = max(outer, key=lambda o: o[1])
+    return (f"a fainter circle of radius {r:.1f} px (edge on {100 * sup:.0f}%) surrounds "
             f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+
+
+def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:
+    """(radius, support) of circles concentric with ``best``, from 3 px to 1.4 radii out, on
+    which an edge runs over OUTER_SUPPORT of the outline."""
+    out = []
+    for r in np.arange(best.r + 3, 1.4 * best.r, TOL_PX):
+        sup, gap, _ = _support(g, _NOISE, best.cx, best.cy, r)
+        if sup >= OUTER_SUPPORT and gap <= MAX_GAP_DEG:
+            out.append((float(r), sup))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -322,12 +338,12 @@ def _seeds(g, spots, max_seeds=16):
     img8 = np.round(np.clip((g - lo) / max(hi - lo, 1e-12), 0, 1) * 255).astype(np.uint8)
     if scale < 1:
         img8 = cv2.resize(img8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    img8 = cv2.GaussianBlur(img8, (0, 0), 1.5)
+    img8 = cv2.GaussianBlur(img8, (5, 5), 1.0)
     ms = min(img8.shape)
     r_lo, r_hi = max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms), 3), int(0.6 * ms)
     seeds = []
     for method, p1, p2 in ((cv2.HOUGH_GRADIENT_ALT, 150, 0.5), (cv2.HOUGH_GRADIENT_ALT, 80, 0.3),
-                           (cv2.HOUGH_GRADIENT, 60, 25)):
+                           (cv2.HOUGH_GRADIENT, 60, 40), (cv2.HOUGH_GRADIENT, 60, 25), (cv2.HOUGH_GRADIENT, 60, 15)):
         cs = cv2.HoughCircles(img8, method, dp=1, minDist=max(4, int(0.04 * ms)), param1=p1, param2=p2,
                               minRadius=r_lo, maxRadius=r_hi)
         if cs is not None:

@@ -152,7 +152,7 @@ class ProbeLight(Node):
             wgt = np.clip(lum[core] - base, 0, None)
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
-                ldir = _refined(ldir, ref / np.linalg.norm(ref), rho_s, _clipped(px, inside))
+                ldir = ref / np.linalg.norm(ref)
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
             raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
@@ -332,15 +332,6 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
         return m
     sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
     return lab == (1 + int(np.argmax(sizes)))
-
-
-def _refined(ldir: np.ndarray, ref: np.ndarray, rho_s: float, clipped: bool) -> np.ndarray:
-    """The halo-refined direction ``ref``; on a clipped highlight only if it stays well inside
-    it (within a quarter of its angular radius ``rho_s`` + 0.25°), else the highlight's own
-    ``ldir``: a halo that pulls further is not the flash's alone (a lit backdrop's reflection,
-    another lamp's glow).  An HDR highlight's halo is its unclipped lobe: always kept."""
-    moved = float(np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1))))
-    return ref if not clipped or moved <= 0.25 * rho_s + 0.25 else ldir
 
 
 def _clipped(px: np.ndarray, inside: np.ndarray) -> bool:

@@ -48,7 +48,8 @@ def test_check_half_found_or_refused(record_property):
     record_property("direction_errors_deg", rows)
     wrong = [(n, e) for n, e in rows if e is not None and e > MAX_ERR_DEG]
     assert not wrong, rows
-    assert any(e is not None for _, e in rows), rows   # not a finder that refuses everything
+    # (that the finder finds balls, ≤ 1° off, is test_paris_probe_mitsuba's
+    # test_ball_found_on_dark_rimmed_probes: at least 12 of its 20 CHECK probes)
 
 
 def test_two_rival_outlines_refused():
