@@ -243,10 +243,11 @@ def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
 
 
 def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:
-    """(radius, support) of circles concentric with ``best``, from 3 px to 1.4 radii out, on
-    which an edge runs over OUTER_SUPPORT of the outline."""
+    """(radius, support) of circles concentric with ``best``, from 5 px (clear of its own
+    edge: the 2-px step and TOL_PX) to 1.4 radii out, on which an edge runs over OUTER_SUPPORT
+    of the outline."""
     out = []
-    for r in np.arange(best.r + 3, 1.4 * best.r, TOL_PX):
+    for r in np.arange(best.r + 5, 1.4 * best.r, TOL_PX):
         sup, gap, _ = _support(g, _NOISE, best.cx, best.cy, r)
         if sup >= OUTER_SUPPORT and gap <= MAX_GAP_DEG:
             out.append((float(r), sup))

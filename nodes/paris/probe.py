@@ -68,7 +68,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),

@@ -5,6 +5,9 @@ back wall of a box (floor, ceiling, side walls), lit by the flash near the lens,
 environment and 0–2 other lamps (soft boxes whose reflection stays below clipping, or small bright
 lamps that clip too), which cast the ball's shadow on the backdrop; exposures ×0.5 to ×1.5 (the flash's power set so that the backdrop is as bright at any distance).
 
+The environment and the lamps are sampled 5× less often than the flash (``other_weight``:
+the same expected image, far less Monte Carlo speckle on the flash-lit backdrop at 4 spp).
+
 The TUNE half (seeds 0…, textures brick, grass, camera, coffee, 384×288 and 448×336 px) is
 what the ball finder was developed on; the CHECK half (seeds 1000…, textures gravel, chelsea,
 rocket, astronaut, moon, 400×300 and 512×384 px) was held apart.  Truth: ``make_probes.truth``.
