@@ -11,8 +11,9 @@ silhouette has:
    differences, robust spread per brightness bin) and the luminance is transformed so that
    the noise has unit σ everywhere (a generalised Anscombe transform): a step's height is then
    its significance, in dark and bright regions alike.
-1. **Candidates**: OpenCV's Hough transform (``HOUGH_GRADIENT``) on that image gives circles of
-   any origin (silhouette, environment edge, shadow, backdrop pattern).
+1. **Candidates**: OpenCV's Hough transforms (``HOUGH_GRADIENT_ALT``, then ``HOUGH_GRADIENT``)
+   on that image brought to ``SEED_PX`` and smoothed give circles of any origin (silhouette,
+   environment edge, shadow, backdrop pattern).
 2. **Edges on rays**: from each candidate's centre, profiles along 180 rays (each averaged
    over a short arc), and every significant local maximum of their radial step → edge points;
    RANSAC circles through edge points of different rays, refined by least squares.
@@ -30,15 +31,18 @@ silhouette has:
 5. **Choice**: among the closed circles (support ≥ ``MIN_SUPPORT``, gap ≤ ``MAX_GAP_DEG``,
    radius ≥ ``MIN_RADIUS_PX``) that hold one of the clipped blobs (the flash's highlight), the
    outermost of each family (circles concentric with it or wholly inside it: edges of its own
-   reflection, the flash's halo) is a ball; the family with the best support wins.
+   reflection, the flash's halo) is a ball; the family with the best support wins, and among
+   families as well supported (within ``AMBIGUITY``) the one centred nearest the highlight
+   (nearer by ``CENTRED_MARGIN`` radii): a flash by the lens lights the ball near its middle,
+   while the ball's shadow on the backdrop is centred elsewhere.  The others are its
+   ``rivals`` (ProbeLight weighs them by the flash directions they give).
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
-when no closed circle is found, when two unrelated closed circles compete (supports within
-``AMBIGUITY``), when a fainter concentric circle surrounds the one found, when the pixels just
+when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
 the ball is mostly outside the frame.  Tuned on the TUNING probes of
-``nodes/paris/data/make_probes.py``; checked on its CHECK probes
-(tests/oracles/test_paris_probe_mitsuba.py).  Units: pixels (pixel centres at +0.5).
+``nodes/paris/data/make_probes.py`` and the tune half of ``varied_probes.py``; checked on their
+CHECK probes (tests/oracles/test_paris_probe_mitsuba.py, test_paris_probe_varied.py).  Units: pixels (pixel centres at +0.5).
 """
 from __future__ import annotations
 
@@ -55,11 +59,15 @@ MAX_GAP_DEG = 60.0       # largest run of sectors without an edge on a closed ci
 TOL_PX = 1.5             # an edge point is on a circle within this distance
 MIN_IN_FRAME = 0.6       # fraction of the silhouette inside the image
 LOOSE_SUPPORT = 0.5      # circles considered at all
+OUTER_SUPPORT = 0.6      # a concentric edge around the ball found on this much of a circle: doubt
 AMBIGUITY = 0.1          # two balls whose supports are closer than this: refuse
 EDGE_SNR = 4.0           # an edge: a 2-pixel step this many noise σ high
 PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
 MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
+MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
+CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
+SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
 
@@ -71,8 +79,10 @@ class BallFit:
     ``fov_deg`` the projected centre of the sphere and ProbeLight's radius).  ``support``:
     fraction of 8° sectors with a silhouette step on the outline; ``max_gap_deg``: the largest
     angular run without one; ``residual_px``: RMS distance of the kept edge points;
-    ``in_frame``: fraction of the outline inside the image; ``candidates``: the circles
-    weighed, after their sub-pixel fit (cx, cy, r, support).
+    ``in_frame``: fraction of the outline inside the image; ``sigma_px``: standard error of
+    the centre (``residual_px`` over the kept edge points); ``candidates``: the circles
+    weighed, after their sub-pixel fit (cx, cy, r, support); ``rivals``: (cx, cy, r) of other
+    closed outlines that may as well be the ball, when only they speak against it.
     """
 
     cx: float
@@ -84,7 +94,9 @@ class BallFit:
     max_gap_deg: float = 360.0
     residual_px: float = float("inf")
     in_frame: float = 0.0
+    sigma_px: float = float("inf")
     candidates: list = field(default_factory=list)
+    rivals: list = field(default_factory=list)
 
     def __iter__(self):  # cx, cy, r, fit = find_ball(...)
         return iter((self.cx, self.cy, self.r, self))
@@ -123,7 +135,7 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
     fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
-    return _choose(fits, clipped, " around the highlight" if spots else "")
+    return _choose(fits, g, clipped, spots[0] if spots else None)
 
 
 def _candidates(g, seeds, spots) -> list[dict]:
@@ -155,9 +167,10 @@ def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
     return fits
 
 
-def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
-    """Step 5: the ball among the fitted circles, with why it may not be (``where``: said of
-    the outlines looked for, e.g. " around the highlight")."""
+def _choose(fits: list[BallFit], g, clipped, spot) -> BallFit:
+    """Step 5: the ball among the fitted circles, with why it may not be (``spot``: the
+    flash's highlight (x, y), the largest clipped blob, or None)."""
+    where = " around the highlight" if spot is not None else ""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
     closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
     if not closed:
@@ -175,35 +188,70 @@ def _choose(fits: list[BallFit], clipped, where: str) -> BallFit:
     for f in closed:
         if not any(_contains(b, f) for b in balls):
             balls.append(f)
-    balls.sort(key=lambda f: -f.support)
-    best = balls[0]
+    best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, balls[1:], fits, clipped)
+    doubt = _doubt(best, fits, g, clipped)
+    if rivals and not doubt:
+        # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
+        # directions they give)
+        best.rivals = [(f.cx, f.cy, f.r) for f in rivals] if best.confident else []
+        o = rivals[0]
+        doubt = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
+                 f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
     if doubt:
         best.confident, best.reason = False, doubt
     return best
 
 
-def _doubt(best: BallFit, others: list[BallFit], fits: list[BallFit], clipped) -> str:
-    """Why ``best`` may not be the ball ('' if nothing speaks against it): another closed
-    outline about as well supported (``others``, by support), or — while its own fit is
-    confident — clipped pixels just outside it, or a fainter circle around it."""
-    if others and others[0].support >= best.support - AMBIGUITY:
-        o = others[0]
-        return (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
-                f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
+def _rank(balls: list[BallFit], spot) -> tuple[BallFit, list[BallFit]]:
+    """The ball and its rivals: the best supported, or among those as well supported (within
+    AMBIGUITY) the one whose centre is nearest the flash's highlight (in radii); rivals are
+    those not beaten by CENTRED_MARGIN in that (a flash by the lens lights the ball near its
+    middle, while the ball's shadow on the backdrop, or a round outline of the backdrop, is
+    centred elsewhere)."""
+    balls = sorted(balls, key=lambda f: -f.support)
+    top = [f for f in balls if f.support >= balls[0].support - AMBIGUITY]
+    if spot is None or len(top) < 2:
+        return top[0], top[1:]
+    top.sort(key=lambda f: _off_centre(f, spot))
+    return top[0], [f for f in top[1:] if _off_centre(f, spot) - _off_centre(top[0], spot) < CENTRED_MARGIN]
+
+
+def _off_centre(f: BallFit, spot) -> float:
+    return float(np.hypot(spot[0] - f.cx, spot[1] - f.cy) / max(f.r, 1e-9))
+
+
+def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
+    """Why ``best``, while its own fit is confident, may not be the ball ('' if nothing speaks
+    against it): clipped pixels just outside it, or a fainter circle around it (among the
+    ``fits``, or a concentric edge on the stabilised image ``g`` up to 1.4 radii out: a
+    mirror ball's rim, reflecting the backdrop behind it, can be too faint to be a candidate
+    while an edge of its reflection inside is closed)."""
     if not best.confident:
         return ""
     ring = _ring_fraction(clipped, best, 1.0, 0.25)
     if ring > 0.2:
         return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
                 "are clipped: the ball's silhouette may be lost in them (over-exposed)")
-    outer = [f for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    outer = [(f.r, f.support) for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
+    outer += _outer_edges(g, best)
     if not outer:
         return ""
-    o = max(outer, key=lambda f: f.support)
-    return (f"a fainter circle of radius {o.r:.1f} px (edge on {100 * o.support:.0f}%) surrounds "
+    r, sup = max(outer, key=lambda o: o[1])
+    return (f"a fainter circle of radius {r:.1f} px (edge on {100 * sup:.0f}%) surrounds "
             f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+
+
+def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:
+    """(radius, support) of circles concentric with ``best``, from 5 px (clear of its own
+    edge: the 2-px step and TOL_PX) to 1.4 radii out, on which an edge runs over OUTER_SUPPORT
+    of the outline."""
+    out = []
+    for r in np.arange(best.r + 5, 1.4 * best.r, TOL_PX):
+        sup, gap, _ = _support(g, _NOISE, best.cx, best.cy, r)
+        if sup >= OUTER_SUPPORT and gap <= MAX_GAP_DEG:
+            out.append((float(r), sup))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -279,26 +327,28 @@ def _holds(c, spots):
 
 
 def _seeds(g, spots, max_seeds=16):
+    """Circles of any origin from OpenCV's Hough transforms (the accurate HOUGH_GRADIENT_ALT,
+    then HOUGH_GRADIENT for fainter outlines) on the stabilised image brought to at most
+    ``SEED_PX`` pixels and smoothed (noise and fine texture make both slow and blind), those
+    holding a highlight first → [(x, y, r)] in pixels."""
     import cv2
 
     h, w = g.shape
-    m = min(h, w)
-    scale = min(1.0, 640.0 / max(h, w))
+    scale = min(1.0, SEED_PX / max(h, w))
     lo, hi = np.percentile(g, [0.5, 99.5])
     img8 = np.round(np.clip((g - lo) / max(hi - lo, 1e-12), 0, 1) * 255).astype(np.uint8)
     if scale < 1:
         img8 = cv2.resize(img8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     img8 = cv2.GaussianBlur(img8, (5, 5), 1.0)
     ms = min(img8.shape)
+    r_lo, r_hi = max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms), 3), int(0.6 * ms)
     seeds = []
-    for p2 in (40, 25, 15):
-        cs = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=max(4, int(0.04 * ms)), param1=60,
-                              param2=p2, minRadius=max(int(MIN_RADIUS_PX * scale * 0.8), int(0.04 * ms)), maxRadius=int(0.6 * ms))
+    for method, p1, p2 in ((cv2.HOUGH_GRADIENT_ALT, 150, 0.5), (cv2.HOUGH_GRADIENT_ALT, 80, 0.3),
+                           (cv2.HOUGH_GRADIENT, 60, 40), (cv2.HOUGH_GRADIENT, 60, 25), (cv2.HOUGH_GRADIENT, 60, 15)):
+        cs = cv2.HoughCircles(img8, method, dp=1, minDist=max(4, int(0.04 * ms)), param1=p1, param2=p2,
+                              minRadius=r_lo, maxRadius=r_hi)
         if cs is not None:
-            for x, y, r in cs[0][:max_seeds]:
-                seeds.append(((x + 0.5) / scale, (y + 0.5) / scale, r / scale))
-        if len(seeds) >= max_seeds:
-            break
+            seeds += [((x + 0.5) / scale, (y + 0.5) / scale, r / scale) for x, y, r in cs[0][:max_seeds]]
     if spots:
         # the highlight is inside the ball: seeds whose circle holds it come first
         seeds.sort(key=lambda s: not _holds({"cx": s[0], "cy": s[1], "r": s[2]}, spots))
@@ -513,7 +563,9 @@ def _subpixel(lum, g, noise, c, fov_deg):
     # support: sectors (inside the frame) whose edge is on the fitted outline and significant
     _, _, on = _support(g, noise, cx, cy, r)
     res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
-    return _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+    fit = _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+    fit.sigma_px = rms * np.sqrt(2.0 / max(int(keep.sum()), 1))
+    return fit
 
 
 def _sector_edges(lum, g, noise, cx, cy, r, it):
@@ -578,7 +630,7 @@ def _verdict(cx, cy, r, ok, inside, rms, w, h) -> BallFit:
         fit.confident, fit.reason = False, f"only {100 * n_in:.0f}% of the ball's outline is inside the image"
     elif sup < MIN_SUPPORT or gap > MAX_GAP_DEG:
         fit.confident, fit.reason = False, f"the outline is not closed ({fit.summary()})"
-    elif rms > 0.75:
+    elif rms > MAX_RMS_PX:
         fit.confident, fit.reason = False, f"the outline is not a circle ({fit.summary()})"
     return fit
 

@@ -24,8 +24,9 @@ class ProbeLight(Node):
       outermost closed circular edge around the flash's highlight (not the strongest circle,
       which on a dark backdrop is often the environment's reflection or the cast shadow),
       fitted to sub-pixel edges (with ``fov_deg``: as the cone tangent to the sphere).  When
-      it is not sure (no closed outline, two candidates, a poor fit, the ball cut by the
-      frame) the node refuses and asks for the three params.
+      it is not sure (no closed outline, a poor fit, the ball cut by the frame, or the circle's
+      standard error ×2 or a rival outline moving the flash's direction by more than
+      ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
@@ -67,7 +68,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),
@@ -125,7 +126,7 @@ class ProbeLight(Node):
         if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
-        sat = _largest_component(sat)
+        sat = _flash_highlight(sat)
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -293,14 +294,34 @@ def flash_irradiance(px: np.ndarray, dirs: np.ndarray, core: np.ndarray, ambient
     angle of reflected directions each pixel covers (|∂d/∂x × ∂d/∂y|).  None when the highlight
     is clipped (three or more pixels at the image's peak value: its energy is unknown)."""
     lum = px @ _Y
-    peak = px[inside].max()
-    if int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3:
+    if _clipped(px, inside):
         return None
     gx = np.gradient(dirs, axis=1)
     gy = np.gradient(dirs, axis=0)
     domega = np.linalg.norm(np.cross(gx, gy), axis=-1)
     e = float(np.sum(np.clip(lum[core] - float(ambient @ _Y), 0, None) * domega[core]))
     return e if e > 0 else None
+
+
+def _flash_highlight(sat: np.ndarray) -> np.ndarray:
+    """The flash's highlight: the one clipped blob on the ball, or the largest when the others
+    are specks (under ``OTHER_HIGHLIGHT`` of its size or under 3 px); BadInput when another
+    light (a lamp, a lit backdrop) clips as well, since which one is the flash is then unclear."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(sat)
+    if n <= 1:
+        return sat
+    sizes = np.sort(ndimage.sum(sat, lab, index=np.arange(1, n + 1)))[::-1]
+    if sizes[1] >= max(3, OTHER_HIGHLIGHT * sizes[0]):
+        raise BadInput("probe", f"the ball shows {n} clipped highlights (the largest {int(sizes[0])} and "
+                                f"{int(sizes[1])} px): which one is the flash is unclear; take the probe with "
+                                "the flash as the only light that clips (other lamps off, or a shorter exposure)")
+    return _largest_component(sat)
+
+
+#: a second clipped blob this large (a fraction of the largest) makes the flash's unclear
+OTHER_HIGHLIGHT = 0.2
 
 
 def _largest_component(m: np.ndarray) -> np.ndarray:
@@ -311,6 +332,12 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
         return m
     sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
     return lab == (1 + int(np.argmax(sizes)))
+
+
+def _clipped(px: np.ndarray, inside: np.ndarray) -> bool:
+    """The ball's highlight is clipped: three or more pixels at its peak value."""
+    peak = px[inside].max()
+    return int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3
 
 
 def _halo_edge(delta, lum, unsat, rho_s, base, level):
@@ -368,6 +395,31 @@ def _hit(d, c):
     return t[..., None] * d
 
 
+#: the most a found ball's uncertainty may move the flash's direction (degrees): half the 1° the
+#: direction may be off, the other half is the highlight's own (its pixels, its halo)
+MAX_DOUBT_DEG = 0.5
+
+
+def _direction_doubt(px: np.ndarray, fit, fov_deg) -> float:
+    """How far (degrees) the flash's direction — the mean reflected direction over the largest
+    clipped blob — moves between the circle found and the circles it cannot rule out: its own
+    fit moved by 2 standard errors (centre and radius, each way) and the rival outlines."""
+    h, w = px.shape[:2]
+    blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+    ys, xs = np.nonzero(blob)
+
+    def direction(cx, cy, r):
+        d = reflected_directions(xs + 0.5, ys + 0.5, cx, cy, r, w, h, fov_deg).mean(0)
+        return d / np.linalg.norm(d)
+
+    d0 = direction(fit.cx, fit.cy, fit.r)
+    s = 2 * fit.sigma_px if np.isfinite(fit.sigma_px) else 0.0
+    others = [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in
+              ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
+    others += list(fit.rivals)
+    return max(float(np.degrees(np.arccos(np.clip(direction(*c) @ d0, -1, 1)))) for c in others)
+
+
 def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) -> tuple[float, float, float]:
     """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
     why it is not sure and which params to give."""
@@ -377,6 +429,15 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) ->
     clipped = px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)   # the plateau of a clipped photo
     share = float(clipped.mean())
     fit = find_ball(px, fov_deg, highlight=highlight)
+    if highlight and (fit.confident or fit.rivals):
+        doubt = _direction_doubt(px, fit, fov_deg)
+        if doubt <= MAX_DOUBT_DEG:
+            return fit.cx, fit.cy, fit.r
+        why = fit.reason if fit.rivals else (
+            f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
+            f"found ({fit.summary()})")
+        raise BadInput(port, f"cannot find the {'mirror ball'} with confidence: {why}; give centre_x, centre_y "
+                             "and radius (pixels)")
     if fit.confident:
         return fit.cx, fit.cy, fit.r
     if highlight and 0.05 < share < 0.98:  # (a flat image is all 'at its maximum')

@@ -59,6 +59,10 @@ class ProbeSpec:
     backdrop_albedo: tuple = (0.04, 0.04, 0.04)
     backdrop_size_m: float = 3.0      # square backdrop side (3 m fills the frame)
     checker: float = 0.0              # contrast of a check pattern on the backdrop (0: plain)
+    texture: str = ""                 # a skimage.data picture printed on the backdrop (mean albedo: backdrop_albedo)
+    room: bool = False                # the backdrop is the back wall of a box (floor, ceiling, side walls)
+    lamps: tuple = ()                 # other lights: ((x, y, z) m camera frame, radius m, radiance), spheres
+    other_weight: float = 1.0         # how often the environment and lamps are sampled against the flash (noise only)
     env_yaw_deg: float = 0.0
     env_level: float = 0.15           # the HDR is scaled so its 90th percentile radiance is this
     env_clip: float = 0.5             # …and clipped so its reflection stays below this (no sun)
@@ -251,6 +255,9 @@ def scene_dict(spec: ProbeSpec) -> dict:
         refl = {"type": "checkerboard", "color0": {"type": "rgb", "value": (a * (1 + spec.checker)).tolist()},
                 "color1": {"type": "rgb", "value": (a * (1 - spec.checker)).tolist()},
                 "to_uv": T().scale([12, 12, 1])}
+    elif spec.texture:
+        refl = {"type": "bitmap", "bitmap": _texture_bitmap(mi, spec), "raw": True,
+                "to_uv": T().scale([2, 2, 1])}
     else:
         refl = {"type": "rgb", "value": list(spec.backdrop_albedo)}
     # rectangle: [-1,1]² in xy facing +z; turned to face the camera (−z), centred behind the ball
@@ -277,6 +284,14 @@ def scene_dict(spec: ProbeSpec) -> dict:
     }
     if not spec.ball:
         del scene["ball"]
+    if spec.room:
+        scene.update(_room(mi, spec, c, zb))
+    for i, (pos, radius, radiance) in enumerate(spec.lamps):
+        scene[f"lamp{i}"] = {"type": "sphere", "center": list(pos), "radius": radius,
+                             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [radiance * spec.exposure] * 3}}}
+    if spec.other_weight != 1.0:   # the flash lights the backdrop: sampled more, less noise
+        for e in [scene["env"]] + [scene[k]["emitter"] for k in scene if k.startswith("lamp")]:
+            e["sampling_weight"] = spec.other_weight
     if spec.stick:
         # a grey support rod from the ball's bottom down out of the frame (camera frame: +y down)
         L = 1.0
@@ -285,6 +300,38 @@ def scene_dict(spec: ProbeSpec) -> dict:
                           "p1": (c + [0, spec.ball_radius_m + L, 0]).tolist(),
                           "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.15, 0.15, 0.15]}}}
     return scene
+
+
+def _texture_bitmap(mi, spec: ProbeSpec):
+    """The skimage.data picture ``spec.texture`` as a linear albedo map of mean ``backdrop_albedo``."""
+    import skimage.data
+
+    img = getattr(skimage.data, spec.texture)().astype(np.float64) / 255.0
+    img = img[..., :3] if img.ndim == 3 else np.repeat(img[..., None], 3, 2)
+    img = img ** 2.2
+    img = img / max(float(img.mean()), 1e-6) * np.asarray(spec.backdrop_albedo, float)
+    return mi.Bitmap(np.ascontiguousarray(np.clip(img, 0, 0.95), np.float32))
+
+
+def _room(mi, spec: ProbeSpec, c, zb) -> dict:
+    """Floor, ceiling and side walls of a box whose back wall is the backdrop (camera frame: +y
+    down); the floor 0.25 m below the ball, the box 1.6 m wide and 1.2 m high, open towards
+    the camera, light grey walls and a darker floor."""
+    T = mi.ScalarTransform4f
+    y_floor, y_ceil, half_w = c[1] + 0.25, c[1] - 0.95, 0.8
+    z0 = -0.3
+    zc, zh = (zb + z0) / 2, (zb - z0) / 2
+
+    def wall(centre, normal, up, sx, sy, albedo):
+        return {"type": "rectangle",
+                "to_world": T().look_at(origin=centre, target=[a + b for a, b in zip(centre, normal)], up=up)
+                @ T().scale([sx, sy, 1]),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}}}
+
+    return {"floor": wall([c[0], y_floor, zc], [0, -1, 0], [0, 0, 1], half_w, zh, 0.12),
+            "ceiling": wall([c[0], y_ceil, zc], [0, 1, 0], [0, 0, 1], half_w, zh, 0.5),
+            "left": wall([c[0] - half_w, (y_floor + y_ceil) / 2, zc], [1, 0, 0], [0, 1, 0], zh, 0.6, 0.35),
+            "right": wall([c[0] + half_w, (y_floor + y_ceil) / 2, zc], [-1, 0, 0], [0, 1, 0], zh, 0.6, 0.3)}
 
 
 def render(spec: ProbeSpec, clip: bool | None = None) -> np.ndarray:
