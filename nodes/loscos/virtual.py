@@ -170,19 +170,33 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
     """Whether each open segment p0→p1 (N,3) crosses one of the triangles (T,3,3) (two-sided,
     t ∈ (T_EPS, 1 − T_EPS) as :func:`nodes.common.rays.occluded`); Embree when that backend is
     selected, else numpy (Möller–Trumbore)."""
+    return packed_hit(ray_pack(p0, p1), tris)
+
+
+def ray_pack(p0: np.ndarray, p1: np.ndarray) -> tuple:
+    """Segments (N,3) as :func:`packed_hit` casts them: Embree's float32 origins (moved T_EPS
+    along) and directions, or numpy's end points.  A drag keeps the packs of its links."""
     from nodes.common import rays
 
+    if rays.backend() != "embree":
+        return ("numpy", p0, p1)
+    d = p1 - p0
+    return ("embree", (p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32))
+
+
+def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
+    from nodes.common import rays
+
+    kind, p0, p1 = pack
     if len(p0) == 0 or len(tris) == 0:
         return np.zeros(len(p0), bool)
-    if rays.backend() == "embree":
+    if kind == "embree":
         from embreex import mesh_construction, rtcore_scene
 
         sc = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(sc, tris.astype(np.float32))
-        d = p1 - p0
         tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
-        return sc.run((p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32),
-                      dists=tfar, query="OCCLUDED") >= 0
+        return sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
     out = np.zeros(len(p0), bool)
     a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     step = max(1, 2_000_000 // len(tris))
@@ -369,7 +383,7 @@ class VirtualSession:
         glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
-        self._rays = (np.zeros(0, np.int64), np.zeros((0, LINK_RAYS ** 2, 3)), np.zeros((0, LINK_RAYS ** 2, 3)))
+        self._rays = (np.zeros(0, np.int64), None, [])
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
@@ -460,7 +474,9 @@ class VirtualSession:
                 q.coo = self._object_links(q)
             return
         idx = shaft_crossed(self.bounds, t.lo - 1e-6, t.hi + 1e-6)
-        p.links, p.vfac = idx, self._object_factor(idx, t.tris)
+        vf = self._object_factor(idx, t.tris)
+        keep = vf < 1.0  # a link the object does not block has no entry in ΔK
+        p.links, p.vfac = idx[keep], vf[keep]
         p.coo = self._object_links(p)
         boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
         for q in self._lights():
@@ -478,29 +494,41 @@ class VirtualSession:
         """V_object of the real links idx: their rays' kernel-weighted unblocked share."""
         if not len(idx):
             return np.zeros(0)
-        h = self.h
-        r, s = h.recv[idx], h.send[idx]
-        p0, p1 = self._link_rays(idx)
-        k = p0.shape[1]
-        b = segments_hit(p0.reshape(-1, 3), p1.reshape(-1, 3), tris).reshape(len(idx), k)
+        k = LINK_RAYS * LINK_RAYS
+        pack, w = self._link_rays(idx)
+        b = packed_hit(pack, tris).reshape(len(idx), k)
         out = np.ones(len(idx))
         m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
-        out[m] = weighted_visible(b[m], ray_weights(h, r[m], s[m], p0[m], p1[m]))
+        out[m] = weighted_visible(b[m], w[m])
         return out
 
     def _link_rays(self, idx: np.ndarray):
-        """link_rays of the links idx (sorted), those of the last call reused: a drag moves
-        the object a little, so most of its links stay the same."""
-        old, o0, o1 = self._rays
+        """The ray pack of the links idx (sorted; LINK_RAYS² rays each, link-major) and the
+        rays' kernel weights (M, LINK_RAYS²), those of the last call reused: a drag moves the
+        object a little, so most of its links stay the same."""
+        from nodes.common import rays
+
+        old, kind, cached = self._rays
+        if kind != ("embree" if rays.backend() == "embree" else "numpy"):
+            old = np.zeros(0, np.int64)  # first call, or the backend changed
+        k = LINK_RAYS * LINK_RAYS
         pos = np.minimum(np.searchsorted(old, idx), max(len(old) - 1, 0))
         have = (old[pos] == idx) if len(old) else np.zeros(len(idx), bool)
-        k = LINK_RAYS * LINK_RAYS
-        p0, p1 = np.empty((len(idx), k, 3)), np.empty((len(idx), k, 3))
-        p0[have], p1[have] = o0[pos[have]], o1[pos[have]]
-        new = ~have
-        p0[new], p1[new] = link_rays(self.h, self.h.recv[idx[new]], self.h.send[idx[new]], LINK_RAYS)
-        self._rays = (idx, p0, p1)
-        return p0, p1
+        new = np.flatnonzero(~have)
+        r, s = self.h.recv[idx[new]], self.h.send[idx[new]]
+        p0, p1 = link_rays(self.h, r, s, LINK_RAYS)
+        kind, *fresh = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
+        fresh.append(ray_weights(self.h, r, s, p0, p1))
+        out = []
+        for j, f in enumerate(fresh):  # (M, k, 3) origins / ends, (M, k) weights
+            f = f.reshape(len(new), *f.shape[1:]) if j == 2 else f.reshape(len(new), k, 3)
+            x = np.empty((len(idx), *f.shape[1:]), f.dtype)
+            if len(old):
+                x[have] = cached[j][pos[have]]
+            x[new] = f
+            out.append(x)
+        self._rays = (idx, kind, out)
+        return (kind, out[0].reshape(-1, 3), out[1].reshape(-1, 3)), out[2]
 
     def _object_links(self, p: _Placed) -> tuple:
         """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
