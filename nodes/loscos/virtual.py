@@ -218,38 +218,41 @@ def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
 
 
 def link_bounds(h: HR.Hierarchy):
-    """Per link what the shaft tests need, once per session: the bounding box (lo, hi: (3, M)
-    float32, axis by axis) of both elements, their centres and half diagonals (float32)."""
+    """Per link what the shaft tests need, once per session (float32, half the memory traffic):
+    the bounding box (lo, hi: (3, M), axis by axis) of both elements, and the tapered capsule
+    around their bounding spheres (c₁, r₁), (c₂, r₂): c₁, the unit axis, its length L, the
+    radius growth per metre k and the slope where the nearest point of the capsule leaves the
+    axis (k/√(1−k²), k clipped below 1: |k| ≥ 1 is monotone, the clip reaches an end)."""
     o1, u1, v1, _, _ = h.geom(h.recv)
     o2, u2, v2, _, _ = h.geom(h.send)
     pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
-    lo, hi = (np.ascontiguousarray(x.T, np.float32) for x in (pts.min(1), pts.max(1)))
-    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731 (half the memory traffic)
+    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
+    lo, hi = f(pts.min(1).T), f(pts.max(1).T)
     r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1) + 1e-5  # (+ float32's rounding, to stay safe)
     r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1) + 1e-5
-    return lo, hi, f(o1 + 0.5 * (u1 + v1)), f(o2 + 0.5 * (u2 + v2)), f(r1), f(r2)
+    c1, c2 = o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2)
+    L = np.maximum(np.linalg.norm(c2 - c1, axis=1), 1e-12)
+    k = (r2 - r1) / L
+    kc = np.clip(k, -0.999999, 0.999999)
+    return lo, hi, f(c1), f((c2 - c1) / L[:, None]), f(L), f(r1), f(k), f(kc / np.sqrt(1 - kc * kc))
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     """Indices of links whose shaft (the convex hull of the two elements) may meet the box
     [lo, hi]: their bounding boxes overlap, and the box's bounding sphere (m, r) meets the
     tapered capsule around the elements' bounding spheres (c₁, r₁), (c₂, r₂) — which holds
-    the hull: min over λ ∈ [0, 1] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
+    the hull: min over λ ∈ [0, L] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
     function of λ, minimised in closed form)."""
-    blo, bhi, c1, c2, r1, r2 = bounds
+    blo, bhi, c1, ax, L, r1, k, slope = bounds
     cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
-    for k in (1, 2):
-        cand = cand[(blo[k][cand] <= hi[k]) & (bhi[k][cand] >= lo[k])]
+    for j in (1, 2):
+        cand = cand[(blo[j][cand] <= hi[j]) & (bhi[j][cand] >= lo[j])]
     m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
-    a1, d = c1[cand], c2[cand] - c1[cand]
-    L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    w = m - a1
-    a = np.einsum("nc,nc->n", w, d) / L  # along the axis
+    w = m - c1[cand]
+    a = np.einsum("nc,nc->n", w, ax[cand])  # along the axis
     hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
-    k = (r2[cand] - r1[cand]) / L  # radius growth per metre
-    kc = np.clip(k, -0.999999, 0.999999)  # |k| ≥ 1: monotone, the clip reaches an end
-    s = np.clip(a + kc * hh / np.sqrt(1 - kc * kc), 0, L)
-    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k * s
+    s = np.clip(a + slope[cand] * hh, 0, L[cand])
+    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k[cand] * s
     return cand[gap <= r]
 
 
@@ -687,16 +690,26 @@ class VirtualSession:
         tris = self._virtual_tris()
         H, W = out.shape[:2]
         g = (np.arange(SUB) + 0.5) / SUB
-        for hd in self.handles():
+        hds = self.handles()
+        first = np.cumsum([0] + [len(p.thing.tris) for p in self.things.values()])
+        cam = self.camera
+        front = [np.all((p.thing.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
+                 for p in self.things.values()]
+        for hd in hds:
             x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
             x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
             if x1 <= x0 or y1 <= y0:
                 continue
+            # the things that may show here: screen boxes overlapping (wholly in front), in order
+            sel = np.concatenate([np.arange(first[j], first[j + 1]) for j, q in enumerate(hds)
+                                  if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
+                                                      and q["box"][1] <= y1 and q["box"][3] >= y0)])
             ys, xs = np.mgrid[y0:y1, x0:x1]
             X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
             Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
-            o, d = rays_at(self.camera, X, Y)
-            tri, t_v = _first_triangle(o, d, tris)
+            o, d = rays_at(cam, X, Y)
+            tri, t_v = _first_triangle(o, d, tris[sel])
+            tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
             hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
             L = np.zeros((len(X), 3))
             if hit.any():
