@@ -45,6 +45,7 @@ NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflect
 TOL = 1e-4  # relative change of B at which the update stops
 MAX_ITER = 60
 EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
+REACH = 0.1  # m: a moved object's links are sought among those its bounds grown by this cross
 
 
 # ------------------------------------------------------------------------------------------
@@ -178,10 +179,16 @@ def ray_pack(p0: np.ndarray, p1: np.ndarray) -> tuple:
     along) and directions, or numpy's end points.  A drag keeps the packs of its links."""
     from nodes.common import rays
 
-    if rays.backend() != "embree":
+    if _ray_kind() == "numpy":
         return ("numpy", p0, p1)
     d = p1 - p0
     return ("embree", (p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32))
+
+
+def _ray_kind() -> str:
+    from nodes.common import rays
+
+    return "embree" if rays.backend() == "embree" else "numpy"
 
 
 def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
@@ -354,8 +361,30 @@ class _Placed:
     links: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coo: tuple = ()
+    reach: "_Reach | None" = None
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
+
+
+@dataclass(eq=False)
+class _Reach:
+    """The real links whose shafts the box [lo, hi] (an object's bounds grown by REACH)
+    crosses, with their shaft bounds, ray pack (M·LINK_RAYS² rays) and rays' kernel weights
+    (M, LINK_RAYS²): while the object's bounds and their bounding sphere stay inside this
+    box's, every link its shaft test finds is one of these, so a drag tests only these."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    links: np.ndarray
+    bounds: tuple
+    pack: tuple
+    w: np.ndarray
+
+    def holds(self, lo, hi) -> bool:
+        m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+        big = 0.5 * np.linalg.norm(self.hi - self.lo) - 1e-3  # (1 mm: float32's rounding)
+        return bool(np.all(lo >= self.lo) and np.all(hi <= self.hi)
+                    and np.linalg.norm(m - 0.5 * (self.lo + self.hi)) + r <= big)
 
 
 class VirtualSession:
@@ -386,7 +415,6 @@ class VirtualSession:
         glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
-        self._rays = (np.zeros(0, np.int64), None, [])
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
@@ -476,8 +504,14 @@ class VirtualSession:
             for q in self._objects():
                 q.coo = self._object_links(q)
             return
-        idx = shaft_crossed(self.bounds, t.lo - 1e-6, t.hi + 1e-6)
-        vf = self._object_factor(idx, t.tris)
+        lo, hi = t.lo - 1e-6, t.hi + 1e-6
+        R = p.reach
+        if R is None or not R.holds(lo, hi) or R.pack[0] != _ray_kind():
+            R = p.reach = self._reach(lo - REACH, hi + REACH)
+        sel = shaft_crossed(R.bounds, lo, hi)
+        idx = R.links[sel]
+        vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
+                                 R.w[sel], t.tris)
         keep = vf < 1.0  # a link the object does not block has no entry in ΔK
         p.links, p.vfac = idx[keep], vf[keep]
         p.coo = self._object_links(p)
@@ -493,45 +527,26 @@ class VirtualSession:
     def _lights(self):
         return [p for p in self.things.values() if p.thing.light]
 
-    def _object_factor(self, idx: np.ndarray, tris: np.ndarray) -> np.ndarray:
-        """V_object of the real links idx: their rays' kernel-weighted unblocked share."""
-        if not len(idx):
-            return np.zeros(0)
-        k = LINK_RAYS * LINK_RAYS
-        pack, w = self._link_rays(idx)
-        b = packed_hit(pack, tris).reshape(len(idx), k)
-        out = np.ones(len(idx))
+    def _object_factor(self, pack: tuple, w: np.ndarray, tris: np.ndarray) -> np.ndarray:
+        """V_object of real links from their rays (pack, weights w (M, LINK_RAYS²)): the
+        rays' kernel-weighted unblocked share."""
+        b = packed_hit(pack, tris).reshape(w.shape)
+        out = np.ones(len(w))
         m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
         out[m] = weighted_visible(b[m], w[m])
         return out
 
-    def _link_rays(self, idx: np.ndarray):
-        """The ray pack of the links idx (sorted; LINK_RAYS² rays each, link-major) and the
-        rays' kernel weights (M, LINK_RAYS²), those of the last call reused: a drag moves the
-        object a little, so most of its links stay the same."""
-        from nodes.common import rays
-
-        old, kind, cached = self._rays
-        if kind != ("embree" if rays.backend() == "embree" else "numpy"):
-            old = np.zeros(0, np.int64)  # first call, or the backend changed
+    def _reach(self, lo, hi) -> _Reach:
+        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights."""
+        links = shaft_crossed(self.bounds, lo, hi)
+        h = self.h
+        r, s = h.recv[links], h.send[links]
+        p0, p1 = link_rays(h, r, s, LINK_RAYS)
+        kind, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
         k = LINK_RAYS * LINK_RAYS
-        pos = np.minimum(np.searchsorted(old, idx), max(len(old) - 1, 0))
-        have = (old[pos] == idx) if len(old) else np.zeros(len(idx), bool)
-        new = np.flatnonzero(~have)
-        r, s = self.h.recv[idx[new]], self.h.send[idx[new]]
-        p0, p1 = link_rays(self.h, r, s, LINK_RAYS)
-        kind, *fresh = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
-        fresh.append(ray_weights(self.h, r, s, p0, p1))
-        out = []
-        for j, f in enumerate(fresh):  # (M, k, 3) origins / ends, (M, k) weights
-            f = f.reshape(len(new), *f.shape[1:]) if j == 2 else f.reshape(len(new), k, 3)
-            x = np.empty((len(idx), *f.shape[1:]), f.dtype)
-            if len(old):
-                x[have] = cached[j][pos[have]]
-            x[new] = f
-            out.append(x)
-        self._rays = (idx, kind, out)
-        return (kind, out[0].reshape(-1, 3), out[1].reshape(-1, 3)), out[2]
+        sub = tuple(x[:, links] if j < 2 else x[links] for j, x in enumerate(self.bounds))
+        return _Reach(lo, hi, links, sub, (kind, o.reshape(-1, k, 3), d.reshape(-1, k, 3)),
+                      ray_weights(h, r, s, p0, p1))
 
     def _object_links(self, p: _Placed) -> tuple:
         """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
