@@ -507,7 +507,7 @@ class VirtualSession:
         lo, hi = t.lo - 1e-6, t.hi + 1e-6
         R = p.reach
         if R is None or not R.holds(lo, hi) or R.pack[0] != _ray_kind():
-            R = p.reach = self._reach(lo - REACH, hi + REACH)
+            R = p.reach = self._reach(lo - REACH, hi + REACH, R)
         sel = shaft_crossed(R.bounds, lo, hi)
         idx = R.links[sel]
         vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
@@ -536,17 +536,30 @@ class VirtualSession:
         out[m] = weighted_visible(b[m], w[m])
         return out
 
-    def _reach(self, lo, hi) -> _Reach:
-        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights."""
+    def _reach(self, lo, hi, old: _Reach | None) -> _Reach:
+        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights (those of
+        the ``old`` reach's links kept: a drag leaves one reach for the next)."""
         links = shaft_crossed(self.bounds, lo, hi)
+        kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
+        have = np.zeros(len(links), bool)
+        if old is not None and old.pack[0] == kind and len(old.links):
+            pos = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
+            have = old.links[pos] == links
+        new = np.flatnonzero(~have)
         h = self.h
-        r, s = h.recv[links], h.send[links]
+        r, s = h.recv[links[new]], h.send[links[new]]
         p0, p1 = link_rays(h, r, s, LINK_RAYS)
-        kind, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
-        k = LINK_RAYS * LINK_RAYS
+        _, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
+        fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
+        out = []
+        for j, f in enumerate(fresh):
+            x = np.empty((len(links), *f.shape[1:]), f.dtype)
+            if have.any():
+                x[have] = (old.pack[1:] + (old.w,))[j][pos[have]]
+            x[new] = f
+            out.append(x)
         sub = tuple(x[:, links] if j < 2 else x[links] for j, x in enumerate(self.bounds))
-        return _Reach(lo, hi, links, sub, (kind, o.reshape(-1, k, 3), d.reshape(-1, k, 3)),
-                      ray_weights(h, r, s, p0, p1))
+        return _Reach(lo, hi, links, sub, (kind, out[0], out[1]), out[2])
 
     def _object_links(self, p: _Placed) -> tuple:
         """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
