@@ -180,3 +180,24 @@ def test_cli_box_in_a_wall_exits_2_naming_it(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
     cached = " ".join(p.read_text() for p in (tmp_path / "cache").rglob("*.json"))
     assert "Relight" not in cached and "SaveImage" not in cached
+
+
+def test_a_drag_through_embree_blocks_what_numpy_blocks():
+    """The Embree ray packs (float32 origins and directions, kept across a drag) find the
+    links and V factors of the numpy reference, and the same image."""
+    from nodes.common import rays
+
+    S = session()
+    S.insert(box())
+    for _ in range(2):
+        S.move("v", offset=(0.02, 0, -0.01))
+    with rays.using("embree"):
+        E = session()
+        E.insert(box())
+        for _ in range(2):
+            E.move("v", offset=(0.02, 0, -0.01))
+    p, q = S.things["v"], E.things["v"]
+    assert q.reach.pack[0] == "embree" and p.reach.pack[0] == "numpy"
+    np.testing.assert_array_equal(p.links, q.links)
+    np.testing.assert_allclose(p.vfac, q.vfac, atol=1e-6)
+    assert np.abs(S.image() - E.image()).max() < 1e-6
