@@ -77,6 +77,28 @@ def test_insert_move_remove_are_incremental_and_consistent():
     assert np.abs(i4 - i0).max() < SOLVER
 
 
+def test_a_drag_within_reach_finds_what_the_full_shaft_test_finds():
+    """Small steps keep the links found once around the object (virtual.REACH): each step
+    re-evaluates exactly the links the shaft test over all links finds, and the last step's
+    links, their factors and the image are a fresh insert's at that place."""
+    from nodes.loscos import virtual as VV
+
+    S = session()
+    S.insert(box())
+    reach = S.things["v"].reach
+    for _ in range(3):
+        S.move("v", offset=(0.02, 0, -0.01))
+        t = S.things["v"].thing
+        assert S.things["v"].reach is reach
+        assert S.stats["links_reevaluated"] == len(VV.shaft_crossed(S.bounds, t.lo - 1e-6, t.hi + 1e-6))
+    fresh = session()
+    fresh.insert(box(center=(0.46, -0.85, 0.17)))
+    p, q = S.things["v"], fresh.things["v"]
+    np.testing.assert_array_equal(p.links, q.links)
+    np.testing.assert_allclose(p.vfac, q.vfac, atol=1e-9)
+    assert np.abs(S.image() - fresh.image()).max() < SOLVER
+
+
 def test_virtual_light_and_a_mesh_file(tmp_path):
     import trimesh
 
@@ -158,3 +180,24 @@ def test_cli_box_in_a_wall_exits_2_naming_it(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()
     cached = " ".join(p.read_text() for p in (tmp_path / "cache").rglob("*.json"))
     assert "Relight" not in cached and "SaveImage" not in cached
+
+
+def test_a_drag_through_embree_blocks_what_numpy_blocks():
+    """The Embree ray packs (float32 origins and directions, kept across a drag) find the
+    links and V factors of the numpy reference, and the same image."""
+    from nodes.common import rays
+
+    S = session()
+    S.insert(box())
+    for _ in range(2):
+        S.move("v", offset=(0.02, 0, -0.01))
+    with rays.using("embree"):
+        E = session()
+        E.insert(box())
+        for _ in range(2):
+            E.move("v", offset=(0.02, 0, -0.01))
+    p, q = S.things["v"], E.things["v"]
+    assert q.reach.pack[0] == "embree" and p.reach.pack[0] == "numpy"
+    np.testing.assert_array_equal(p.links, q.links)
+    np.testing.assert_allclose(p.vfac, q.vfac, atol=1e-6)
+    assert np.abs(S.image() - E.image()).max() < 1e-6

@@ -45,6 +45,7 @@ NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflect
 TOL = 1e-4  # relative change of B at which the update stops
 MAX_ITER = 60
 EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
+REACH = 0.1  # m: a moved object's links are sought among those its bounds grown by this cross
 
 
 # ------------------------------------------------------------------------------------------
@@ -170,19 +171,39 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
     """Whether each open segment p0→p1 (N,3) crosses one of the triangles (T,3,3) (two-sided,
     t ∈ (T_EPS, 1 − T_EPS) as :func:`nodes.common.rays.occluded`); Embree when that backend is
     selected, else numpy (Möller–Trumbore)."""
+    return packed_hit(ray_pack(p0, p1), tris)
+
+
+def ray_pack(p0: np.ndarray, p1: np.ndarray) -> tuple:
+    """Segments (N,3) as :func:`packed_hit` casts them: Embree's float32 origins (moved T_EPS
+    along) and directions, or numpy's end points.  A drag keeps the packs of its links."""
     from nodes.common import rays
 
+    if _ray_kind() == "numpy":
+        return ("numpy", p0, p1)
+    d = p1 - p0
+    return ("embree", (p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32))
+
+
+def _ray_kind() -> str:
+    from nodes.common import rays
+
+    return "embree" if rays.backend() == "embree" else "numpy"
+
+
+def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
+    from nodes.common import rays
+
+    kind, p0, p1 = pack
     if len(p0) == 0 or len(tris) == 0:
         return np.zeros(len(p0), bool)
-    if rays.backend() == "embree":
+    if kind == "embree":
         from embreex import mesh_construction, rtcore_scene
 
         sc = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(sc, tris.astype(np.float32))
-        d = p1 - p0
         tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
-        return sc.run((p0 + rays.T_EPS * d).astype(np.float32), d.astype(np.float32),
-                      dists=tfar, query="OCCLUDED") >= 0
+        return sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
     out = np.zeros(len(p0), bool)
     a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     step = max(1, 2_000_000 // len(tris))
@@ -204,38 +225,41 @@ def segments_hit(p0: np.ndarray, p1: np.ndarray, tris: np.ndarray) -> np.ndarray
 
 
 def link_bounds(h: HR.Hierarchy):
-    """Per link what the shaft tests need, once per session: the bounding box (lo, hi: (3, M)
-    float32, axis by axis) of both elements, their centres and half diagonals (float32)."""
+    """Per link what the shaft tests need, once per session (float32, half the memory traffic):
+    the bounding box (lo, hi: (3, M), axis by axis) of both elements, and the tapered capsule
+    around their bounding spheres (c₁, r₁), (c₂, r₂): c₁, the unit axis, its length L, the
+    radius growth per metre k and the slope where the nearest point of the capsule leaves the
+    axis (k/√(1−k²), k clipped below 1: |k| ≥ 1 is monotone, the clip reaches an end)."""
     o1, u1, v1, _, _ = h.geom(h.recv)
     o2, u2, v2, _, _ = h.geom(h.send)
     pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
-    lo, hi = (np.ascontiguousarray(x.T, np.float32) for x in (pts.min(1), pts.max(1)))
-    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731 (half the memory traffic)
+    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
+    lo, hi = f(pts.min(1).T), f(pts.max(1).T)
     r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1) + 1e-5  # (+ float32's rounding, to stay safe)
     r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1) + 1e-5
-    return lo, hi, f(o1 + 0.5 * (u1 + v1)), f(o2 + 0.5 * (u2 + v2)), f(r1), f(r2)
+    c1, c2 = o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2)
+    L = np.maximum(np.linalg.norm(c2 - c1, axis=1), 1e-12)
+    k = (r2 - r1) / L
+    kc = np.clip(k, -0.999999, 0.999999)
+    return lo, hi, f(c1), f((c2 - c1) / L[:, None]), f(L), f(r1), f(k), f(kc / np.sqrt(1 - kc * kc))
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     """Indices of links whose shaft (the convex hull of the two elements) may meet the box
     [lo, hi]: their bounding boxes overlap, and the box's bounding sphere (m, r) meets the
     tapered capsule around the elements' bounding spheres (c₁, r₁), (c₂, r₂) — which holds
-    the hull: min over λ ∈ [0, 1] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
+    the hull: min over λ ∈ [0, L] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
     function of λ, minimised in closed form)."""
-    blo, bhi, c1, c2, r1, r2 = bounds
+    blo, bhi, c1, ax, L, r1, k, slope = bounds
     cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
-    for k in (1, 2):
-        cand = cand[(blo[k][cand] <= hi[k]) & (bhi[k][cand] >= lo[k])]
+    for j in (1, 2):
+        cand = cand[(blo[j][cand] <= hi[j]) & (bhi[j][cand] >= lo[j])]
     m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
-    a1, d = c1[cand], c2[cand] - c1[cand]
-    L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    w = m - a1
-    a = np.einsum("nc,nc->n", w, d) / L  # along the axis
+    w = m - c1[cand]
+    a = np.einsum("nc,nc->n", w, ax[cand])  # along the axis
     hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
-    k = (r2[cand] - r1[cand]) / L  # radius growth per metre
-    kc = np.clip(k, -0.999999, 0.999999)  # |k| ≥ 1: monotone, the clip reaches an end
-    s = np.clip(a + kc * hh / np.sqrt(1 - kc * kc), 0, L)
-    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k * s
+    s = np.clip(a + slope[cand] * hh, 0, L[cand])
+    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k[cand] * s
     return cand[gap <= r]
 
 
@@ -337,8 +361,30 @@ class _Placed:
     links: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coo: tuple = ()
+    reach: "_Reach | None" = None
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
+
+
+@dataclass(eq=False)
+class _Reach:
+    """The real links whose shafts the box [lo, hi] (an object's bounds grown by REACH)
+    crosses, with their shaft bounds, ray pack (M·LINK_RAYS² rays) and rays' kernel weights
+    (M, LINK_RAYS²): while the object's bounds and their bounding sphere stay inside this
+    box's, every link its shaft test finds is one of these, so a drag tests only these."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    links: np.ndarray
+    bounds: tuple
+    pack: tuple
+    w: np.ndarray
+
+    def holds(self, lo, hi) -> bool:
+        m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+        big = 0.5 * np.linalg.norm(self.hi - self.lo) - 1e-3  # (1 mm: float32's rounding)
+        return bool(np.all(lo >= self.lo) and np.all(hi <= self.hi)
+                    and np.linalg.norm(m - 0.5 * (self.lo + self.hi)) + r <= big)
 
 
 class VirtualSession:
@@ -369,7 +415,6 @@ class VirtualSession:
         glow = np.einsum("lsc,sc->lc", fixture_glow(sol, np.asarray(rho_fix, float)), self.e)
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
-        self._rays = (np.zeros(0, np.int64), np.zeros((0, LINK_RAYS ** 2, 3)), np.zeros((0, LINK_RAYS ** 2, 3)))
         self.things: dict[str, _Placed] = {}
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
@@ -459,8 +504,16 @@ class VirtualSession:
             for q in self._objects():
                 q.coo = self._object_links(q)
             return
-        idx = shaft_crossed(self.bounds, t.lo - 1e-6, t.hi + 1e-6)
-        p.links, p.vfac = idx, self._object_factor(idx, t.tris)
+        lo, hi = t.lo - 1e-6, t.hi + 1e-6
+        R = p.reach
+        if R is None or not R.holds(lo, hi) or R.pack[0] != _ray_kind():
+            R = p.reach = self._reach(lo - REACH, hi + REACH, R)
+        sel = shaft_crossed(R.bounds, lo, hi)
+        idx = R.links[sel]
+        vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
+                                 R.w[sel], t.tris)
+        keep = vf < 1.0  # a link the object does not block has no entry in ΔK
+        p.links, p.vfac = idx[keep], vf[keep]
         p.coo = self._object_links(p)
         boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
         for q in self._lights():
@@ -474,33 +527,39 @@ class VirtualSession:
     def _lights(self):
         return [p for p in self.things.values() if p.thing.light]
 
-    def _object_factor(self, idx: np.ndarray, tris: np.ndarray) -> np.ndarray:
-        """V_object of the real links idx: their rays' kernel-weighted unblocked share."""
-        if not len(idx):
-            return np.zeros(0)
-        h = self.h
-        r, s = h.recv[idx], h.send[idx]
-        p0, p1 = self._link_rays(idx)
-        k = p0.shape[1]
-        b = segments_hit(p0.reshape(-1, 3), p1.reshape(-1, 3), tris).reshape(len(idx), k)
-        out = np.ones(len(idx))
+    def _object_factor(self, pack: tuple, w: np.ndarray, tris: np.ndarray) -> np.ndarray:
+        """V_object of real links from their rays (pack, weights w (M, LINK_RAYS²)): the
+        rays' kernel-weighted unblocked share."""
+        b = packed_hit(pack, tris).reshape(w.shape)
+        out = np.ones(len(w))
         m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
-        out[m] = weighted_visible(b[m], ray_weights(h, r[m], s[m], p0[m], p1[m]))
+        out[m] = weighted_visible(b[m], w[m])
         return out
 
-    def _link_rays(self, idx: np.ndarray):
-        """link_rays of the links idx (sorted), those of the last call reused: a drag moves
-        the object a little, so most of its links stay the same."""
-        old, o0, o1 = self._rays
-        pos = np.minimum(np.searchsorted(old, idx), max(len(old) - 1, 0))
-        have = (old[pos] == idx) if len(old) else np.zeros(len(idx), bool)
-        k = LINK_RAYS * LINK_RAYS
-        p0, p1 = np.empty((len(idx), k, 3)), np.empty((len(idx), k, 3))
-        p0[have], p1[have] = o0[pos[have]], o1[pos[have]]
-        new = ~have
-        p0[new], p1[new] = link_rays(self.h, self.h.recv[idx[new]], self.h.send[idx[new]], LINK_RAYS)
-        self._rays = (idx, p0, p1)
-        return p0, p1
+    def _reach(self, lo, hi, old: _Reach | None) -> _Reach:
+        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights (those of
+        the ``old`` reach's links kept: a drag leaves one reach for the next)."""
+        links = shaft_crossed(self.bounds, lo, hi)
+        kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
+        have = np.zeros(len(links), bool)
+        if old is not None and old.pack[0] == kind and len(old.links):
+            pos = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
+            have = old.links[pos] == links
+        new = np.flatnonzero(~have)
+        h = self.h
+        r, s = h.recv[links[new]], h.send[links[new]]
+        p0, p1 = link_rays(h, r, s, LINK_RAYS)
+        _, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
+        fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
+        out = []
+        for j, f in enumerate(fresh):
+            x = np.empty((len(links), *f.shape[1:]), f.dtype)
+            if have.any():
+                x[have] = (old.pack[1:] + (old.w,))[j][pos[have]]
+            x[new] = f
+            out.append(x)
+        sub = tuple(x[:, links] if j < 2 else x[links] for j, x in enumerate(self.bounds))
+        return _Reach(lo, hi, links, sub, (kind, out[0], out[1]), out[2])
 
     def _object_links(self, p: _Placed) -> tuple:
         """ΔK entries (rows, cols, F·V) of an object's patches: gathering from every real
@@ -659,16 +718,26 @@ class VirtualSession:
         tris = self._virtual_tris()
         H, W = out.shape[:2]
         g = (np.arange(SUB) + 0.5) / SUB
-        for hd in self.handles():
+        hds = self.handles()
+        first = np.cumsum([0] + [len(p.thing.tris) for p in self.things.values()])
+        cam = self.camera
+        front = [np.all((p.thing.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
+                 for p in self.things.values()]
+        for hd in hds:
             x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
             x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
             if x1 <= x0 or y1 <= y0:
                 continue
+            # the things that may show here: screen boxes overlapping (wholly in front), in order
+            sel = np.concatenate([np.arange(first[j], first[j + 1]) for j, q in enumerate(hds)
+                                  if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
+                                                      and q["box"][1] <= y1 and q["box"][3] >= y0)])
             ys, xs = np.mgrid[y0:y1, x0:x1]
             X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
             Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
-            o, d = rays_at(self.camera, X, Y)
-            tri, t_v = _first_triangle(o, d, tris)
+            o, d = rays_at(cam, X, Y)
+            tri, t_v = _first_triangle(o, d, tris[sel])
+            tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
             hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
             L = np.zeros((len(X), 3))
             if hit.any():
