@@ -12,12 +12,16 @@ metres (:func:`world_lights` converts them to world units once).
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import Literal, NamedTuple, Optional
 
 import numpy as np
+import xxhash
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
+from graphkit.hashing import canonical
+from graphkit.store import value_parts
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .models import PhongMaterial
@@ -28,6 +32,11 @@ MP_EYES = (
     (33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173),
 )
 INTEROCULAR_MM = 63.0  # mean adult distance between the eye centres (mm)
+#: mediapipe face-mesh outer lip contour (the larger loop of FACEMESH_LIPS)
+MP_LIPS_OUTER = (0, 37, 39, 40, 185, 61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 267)
+#: the mouth region reaches this fraction of the mouth's height beyond the outer lip contour
+#: (a fitted mesh's lips miss the photo's by about that much: the astronaut's by 2–4 px of 17)
+MOUTH_MARGIN = 0.3
 
 
 # ----------------------------------------------------------------------------------------------
@@ -323,6 +332,50 @@ def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
     return centres, axes, R
 
 
+def mouth_region(mesh, camera: Camera) -> tuple[np.ndarray, float] | None:
+    """(alpha H×W: 1 inside the outer lip contour, falling smoothly to 0 at ``MOUTH_MARGIN`` ×
+    the mouth's height outside it; the mouth's height in pixels) through ``camera``, from the
+    mediapipe landmark ids of ``mesh`` (FaceMesh's, or SmoothMesh's of it); None without them."""
+    import cv2
+
+    from nodes.common.blend import feather
+
+    ids = _mediapipe_ids(mesh)
+    if ids is None:
+        return None
+    xy, _ = camera.project(np.asarray(mesh.vertices, np.float64)[ids[list(MP_LIPS_OUTER)]])
+    inside = np.zeros((camera.height, camera.width), np.uint8)
+    cv2.fillPoly(inside, [np.round((xy - 0.5) * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    height = max(float(np.ptp(xy[:, 1])), 1.0)
+    return 1.0 - feather(inside == 0, MOUTH_MARGIN * height), height
+
+
+def smooth_over(shade: np.ndarray, covered: np.ndarray, alpha: np.ndarray, scale_px: float) -> np.ndarray:
+    """The per-pixel shading ``shade`` (M×3, the ``covered`` pixels in row-major order) with
+    the region ``alpha`` > 0 taken over by the shading around it, smoothed to ``scale_px`` and
+    carried in (``blend.smooth_fill``), blended by ``alpha``: where the mesh does not follow the
+    photo (lips, teeth) the light changes smoothly, as on the skin around it."""
+    from nodes.common.blend import smooth_fill
+
+    a = np.where(covered, alpha, 0.0).astype(np.float32)
+    known = covered & (alpha <= 0)
+    if not (a > 0).any() or not known.any():
+        return shade
+    ys, xs = np.nonzero(a > 0)
+    pad = int(np.ceil(3 * scale_px))
+    H, W = covered.shape
+    box = (slice(max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)),
+           slice(max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)))
+    img = np.zeros((H, W, shade.shape[1]), np.float64)
+    img[covered] = shade
+    if not known[box].any():
+        return shade
+    fill = smooth_fill(img[box], known[box], scale_px)
+    ab = a[box][:, :, None]
+    img[box] = img[box] * (1.0 - ab) + fill * ab
+    return img[covered]
+
+
 # ----------------------------------------------------------------------------------------------
 
 
@@ -436,7 +489,7 @@ class Render(Node):
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "2"
+    version = "3"  # 3: mouth from the photo's detail under smooth shading; antialias
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
@@ -469,18 +522,23 @@ class Render(Node):
         mm_per_unit: Optional[float] = Field(None, gt=0, description="mesh unit in mm; default from a 63 mm interocular distance")
         fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) so the detail texture covers them")
         ambient_gain: float = Field(1.0, ge=0, description="multiplier on the ambient of the `ambient` input")
+        mouth: Literal["photo", "skin"] = Field(
+            "photo", description="photo: the mouth (lips, teeth; known on a mediapipe mesh) keeps the photo's "
+                                 "detail under the smooth shading of the skin around it, for the fitted mesh "
+                                 "does not follow the photo's lips; skin: shaded as skin like the rest")
+        antialias: bool = Field(False, description="fractional coverage along the silhouette (0.5 ± the "
+                                                   "distance to the mesh's outline): no staircase border")
 
     def compute(self, mesh, camera: Camera, material: PhongMaterial, lights,
                 detail: Image | None = None, texture_camera: Camera | None = None,
                 ambient: Light | None = None):
-        from nodes.common import raster
-
         from . import phong
 
         p = self.params
         eye_mesh = mesh
         lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
-        s = surface(mesh, camera, min_pixels=1)
+        g = self._geometry(eye_mesh, mesh, camera, detail, texture_camera)
+        s = g.surface
         H, W = camera.height, camera.width
         M = len(s.points)
         kd = np.asarray(material.diffuse, np.float64)
@@ -492,32 +550,80 @@ class Render(Node):
             check_lit(diff, "lights", f"light {i} ({light.kind}, direction {light.direction}, "
                                       f"position {light.position})", f"{M} visible pixels")
             if p.shadows:
-                try:
-                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
-                                           up=camera.rotation[1])
-                    vis = sm.visibility(s.points, s.normals)
-                except ValueError as e:
-                    raise BadInput("lights", f"light {i}: {e}") from None
+                vis = self._visibility(mesh, light, camera, s, i)
                 diff, spec = diff * vis, spec * vis
             col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
         if ambient is not None:
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
         col += kd * amb
-        if detail is not None:
-            col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
+        if g.mouth is not None:
+            col = smooth_over(col, s.coverage, g.mouth[0], 0.5 * g.mouth[1])
+        if g.texture is not None:
+            col = col * g.texture
         img = np.empty((H, W, 3))
         img[:] = np.asarray(p.background)
         img[s.coverage] = col
-        if p.eye_highlights != "off":
-            img += self._eyes(eye_mesh, camera, s, lights, H, W).reshape(H, W, 3)
+        cover = s.coverage.astype(np.float32)
+        if g.edges is not None:
+            cover, src = g.edges
+            img = cover[:, :, None] * img.reshape(-1, 3)[src].reshape(H, W, 3) \
+                + (1.0 - cover[:, :, None]) * np.asarray(p.background)
+        if g.eyes is not None:
+            img += self._eyes(g.eyes, lights, H, W).reshape(H, W, 3)
         img *= p.exposure
         if p.clamp:
             img = np.clip(img, 0.0, 1.0)
         depth = np.where(s.coverage, s.raster.depth, 0.0)
         return {"image": Image(img.astype(np.float32)),
                 "depth": Image(depth.astype(np.float32)),
-                "coverage": Mask(s.coverage.astype(np.float32))}
+                "coverage": Mask(cover)}
+
+    def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int) -> np.ndarray:
+        """Shadow-map visibility of the surface's points from light ``i``."""
+        from nodes.common import raster
+
+        try:
+            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, self.params.shadow_map_size,
+                                   up=camera.rotation[1])
+            return sm.visibility(s.points, s.normals)
+        except ValueError as e:
+            raise BadInput("lights", f"light {i}: {e}") from None
+
+    def _geometry(self, eye_mesh, mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+        """What does not depend on the lights or the material (the surface, its detail texture,
+        the eyes' ray hits, the mouth, the silhouette's coverage): memoised on the inputs and
+        params it comes from, so that a new light re-shades without it (a live view's drag)."""
+        p = self.params
+        given = {"mesh": eye_mesh, "camera": camera, "detail": detail, "texture_camera": texture_camera}
+        key = xxhash.xxh3_128(canonical([
+            {k: None if v is None else value_parts(self.in_ports[k].type, v)[2] for k, v in given.items()},
+            p.fill_holes, p.eye_highlights, p.eyes, p.cornea_radius_mm, p.eye_protrusion_mm, p.mm_per_unit,
+            p.mouth, p.antialias])).hexdigest()
+        got = _GEOMETRY.get(key)
+        if got is None:
+            got = self._make_geometry(eye_mesh, mesh, camera, detail, texture_camera)
+            with _GEOMETRY_LOCK:  # nodes may run on several threads (graphkit run --jobs)
+                while len(_GEOMETRY) >= 4:
+                    _GEOMETRY.pop(next(iter(_GEOMETRY)))
+                _GEOMETRY[key] = got
+        return got
+
+    def _make_geometry(self, eye_mesh, mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+        from nodes.common import raster
+
+        p = self.params
+        s = surface(mesh, camera, min_pixels=1)
+        tex = None
+        if detail is not None:
+            tex = projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
+        eyes = None if p.eye_highlights == "off" else self._eye_hits(eye_mesh, camera, s)
+        mouth = mouth_region(eye_mesh, camera) if p.mouth == "photo" else None
+        edges = None
+        if p.antialias:
+            xy, _ = camera.project(np.asarray(mesh.vertices, np.float64))
+            edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
+        return _Geometry(s, tex, eyes, mouth, edges)
 
     @classmethod
     def examples(cls):
@@ -547,10 +653,10 @@ class Render(Node):
                  {"mesh": m, "camera": cam, "material": mat, "lights": lights[1:], "detail": detail,
                   "texture_camera": ortho})]
 
-    def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
-        """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
-        from . import phong
-
+    def _eye_hits(self, mesh, camera, s: Surface) -> list | None:
+        """Where the rays of the pixels meet the two cornea hemispheres: per eye (flat pixel
+        indices, points, unit normals, directions towards the viewer); None when the eyes are
+        unknown (refused when ``eye_highlights`` is 'on')."""
         p = self.params
         info = eye_spheres(mesh, p.eyes, p.cornea_radius_mm, p.mm_per_unit,
                            p.eye_protrusion_mm, camera.position)
@@ -558,14 +664,15 @@ class Render(Node):
             if p.eye_highlights == "on":
                 raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                        "is not a mediapipe face mesh; set the `eyes` param")
-            return np.zeros((H * W, 3))
+            return None
         centres, axes, R = info
-        out = np.zeros((H * W, 3))
+        H, W = camera.height, camera.width
         # rays through every pixel centre (perspective or orthographic)
         yy, xx = np.divmod(np.arange(H * W), W)
         o, d = camera.rays(np.stack([xx + 0.5, yy + 0.5], 1))
         depth = s.raster.depth.ravel()
         C, fwd = camera.position, camera.forward
+        hits = []
         for c, a in zip(centres, axes):
             oc = o - c
             bq = np.sum(d * oc, 1)
@@ -576,15 +683,37 @@ class Render(Node):
             hit &= (t > 0) & (np.sum((X - c) * a, 1) >= 0)
             zc = (X - C) @ fwd
             hit &= zc <= depth + R * 0.35  # the cap shows where it is not behind the eyelids
-            if not hit.any():
-                continue
-            n = (X[hit] - c) / R
-            v = -d[hit]
+            if hit.any():
+                hits.append((np.nonzero(hit)[0], X[hit], (X[hit] - c) / R, -d[hit]))
+        return hits
+
+    def _eyes(self, hits: list, lights, H, W) -> np.ndarray:
+        """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
+        from . import phong
+
+        p = self.params
+        out = np.zeros((H * W, 3))
+        for idx, X, n, v in hits:
             for light in lights:
-                ldir, L = light_vectors(light, X[hit])
+                ldir, L = light_vectors(light, X)
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
-                out[hit] += p.eye_specular * L * spec[:, None]
+                out[idx] += p.eye_specular * L * spec[:, None]
         return out
+
+
+class _Geometry(NamedTuple):
+    """Render's work that does not depend on the lights or the material."""
+    surface: Surface
+    texture: np.ndarray | None  # M×3 detail texture at the covered pixels
+    eyes: list | None  # Render._eye_hits
+    mouth: tuple[np.ndarray, float] | None  # mouth_region
+    edges: tuple[np.ndarray, np.ndarray] | None  # raster.edge_coverage
+
+
+#: the last _Geometry values by the digest of what they come from (a live view's face, a
+#: benchmark's; ~60 MB for a 1024² face, mostly the raster's per-pixel arrays)
+_GEOMETRY: dict = {}
+_GEOMETRY_LOCK = threading.Lock()
 
 
 class MakeLight(Node):
