@@ -74,12 +74,14 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "n
 
 def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
                      *, perspective: bool = True, cull: str = "none",
-                     near: float | None = NEAR) -> Raster:
+                     near: float | None = NEAR, depth_only: bool = False) -> Raster:
     """Rasterise triangles given vertex screen positions (pixels) and depths.
 
     With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
     (linear in 1/z); without it (orthographic views) linearly in screen space.  Triangles with
     a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
+    ``depth_only`` (shadow maps): only the depth is resolved; the triangle ids, coverage and
+    barycentrics are left empty.
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -144,7 +146,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     A, B, C = ([np.ascontiguousarray(M[:, i]) for i in range(3)] for M in (A, B, C))
     for a, b in zip(starts[:-1], starts[1:]):
         t, px, py = _spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
-        _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary)
+        _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, None if depth_only else (tri, bary))
     cov = tri >= 0
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
@@ -194,8 +196,9 @@ def _spans(ids, bh, xmin, xmax, ymin, A, B, C, own):
     return t[row], px, yc[row]
 
 
-def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary):
-    """Barycentrics, depth and the z-buffer test of inside pixels."""
+def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
+    """Barycentrics, depth and the z-buffer test of inside pixels; the winners' triangle ids
+    and barycentrics into ``ids`` = (tri, bary) unless it is None."""
     if len(t) == 0:
         return
     e0, e1, e2 = (A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3))
@@ -213,6 +216,9 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary):
     pix = (py[k] - 0.5).astype(np.int64) * W + (px[k] - 0.5).astype(np.int64)
     # z-buffer: scatter-min of the depths, then the winners (ties: lowest triangle id)
     np.minimum.at(depth, pix, zk)
+    if ids is None:
+        return
+    tri, bary = ids
     wi = np.nonzero(zk == depth[pix])[0]
     tk = t[k][wi]
     best = np.full(len(depth), np.iinfo(np.int64).max)
@@ -403,7 +409,8 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
     fr = shadow_frame(vertices, light, size, margin, up)
     xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
     r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
-                         perspective=fr.perspective, near=NEAR if fr.perspective else None)
+                         perspective=fr.perspective, near=NEAR if fr.perspective else None,
+                         depth_only=True)
     sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist
