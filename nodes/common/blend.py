@@ -65,8 +65,13 @@ class SmoothFill:
         level = np.log2(1.0 + dist / s)  # 0 at the supported region, +1 each time the distance doubles
         self.w, self.s, self.iy, self.ix = w, s, iy, ix
         self.den = np.maximum(den, 1e-12)[:, :, None]
-        # σ = s·2^k takes over from σ/2 along level k−1…k
-        self.steps = [np.clip(level - (k - 1), 0.0, 1.0)[:, :, None] for k in range(int(np.ceil(level.max())) + 1)]
+        # σ = s·2^k takes over from σ/2 along level k−1…k: per step, the pixels it takes whole
+        # and those it blends in (their flat indices and weights)
+        self.steps = []
+        for k in range(int(np.ceil(level.max())) + 1):
+            a = np.clip(level - (k - 1), 0.0, 1.0)
+            part = np.flatnonzero((a > 0) & (a < 1))
+            self.steps.append(((a == 1)[:, :, None], part, a.ravel()[part][:, None]))
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         import cv2
@@ -81,8 +86,13 @@ class SmoothFill:
         est = num / self.den
         ext = est[self.iy, self.ix]
         out = ext
-        for k, a in enumerate(self.steps):
-            out = out * (1.0 - a) + _blur(ext, self.s * 2.0 ** k) * a
+        for k, (whole, part, a) in enumerate(self.steps):  # out·(1 − a) + blur·a, where a ≠ 0
+            b = _blur(ext, self.s * 2.0 ** k)
+            nxt = out.astype(np.float64)
+            np.copyto(nxt, b, where=whole)
+            c = out.shape[2]
+            nxt.reshape(-1, c)[part] = out.reshape(-1, c)[part] * (1.0 - a) + b.reshape(-1, c)[part] * a
+            out = nxt
         if self.f > 1:
             h, w = self.shape
             out = cv2.resize(out.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, -1)

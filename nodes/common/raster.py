@@ -202,6 +202,16 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
     if len(t) == 0:
         return
     e0, e1, e2 = (A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3))
+    pix = (py - 0.5).astype(np.int64) * W + (px - 0.5).astype(np.int64)
+    if ids is None:  # depth only: the same sums as below, without the barycentric arrays
+        absa = np.abs(area[t])
+        Z = fz[t]
+        if perspective:
+            zk = 1.0 / (e0 / absa / Z[:, 0] + e1 / absa / Z[:, 1] + e2 / absa / Z[:, 2])
+        else:
+            zk = e0 / absa * Z[:, 0] + e1 / absa * Z[:, 1] + e2 / absa * Z[:, 2]
+        np.minimum.at(depth, pix, zk)
+        return
     k = slice(None)
     absa = np.abs(area[t[k]])
     b = np.stack([e0[k], e1[k], e2[k]], 1) / absa[:, None]  # screen-space barycentrics
@@ -213,11 +223,8 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
         b = bz * zk[:, None]
     else:
         zk = (b * Z).sum(1)
-    pix = (py[k] - 0.5).astype(np.int64) * W + (px[k] - 0.5).astype(np.int64)
     # z-buffer: scatter-min of the depths, then the winners (ties: lowest triangle id)
     np.minimum.at(depth, pix, zk)
-    if ids is None:
-        return
     tri, bary = ids
     wi = np.nonzero(zk == depth[pix])[0]
     tk = t[k][wi]
