@@ -85,14 +85,13 @@ class SmoothFill:
         num = _blur(vw, self.s)
         est = num / self.den
         ext = est[self.iy, self.ix]
-        out = ext
+        out = ext.astype(np.float64)
+        flat = out.reshape(-1, out.shape[2])
         for k, (whole, part, a) in enumerate(self.steps):  # out·(1 − a) + blur·a, where a ≠ 0
             b = _blur(ext, self.s * 2.0 ** k)
-            nxt = out.astype(np.float64)
-            np.copyto(nxt, b, where=whole)
-            c = out.shape[2]
-            nxt.reshape(-1, c)[part] = out.reshape(-1, c)[part] * (1.0 - a) + b.reshape(-1, c)[part] * a
-            out = nxt
+            ring = flat[part] * (1.0 - a) + b.reshape(flat.shape)[part] * a
+            np.copyto(out, b, where=whole)
+            flat[part] = ring
         if self.f > 1:
             h, w = self.shape
             out = cv2.resize(out.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, -1)

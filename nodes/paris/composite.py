@@ -58,7 +58,7 @@ def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px
 
     pr = prepared or prepare(photo, covered, band_px, scale_px)
     photo, alpha = pr.photo, pr.alpha
-    relit = relit.astype(np.float32)
+    relit = np.asarray(relit, np.float32)
     log_ratio = np.zeros(photo.shape, np.float32)  # measured where the fill weighs it: the face's box
     box = pr.box
     log_ratio[box] = np.clip(np.log(np.maximum(relit[box], 1e-6) / np.maximum(photo[box], 1e-6)),

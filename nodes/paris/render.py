@@ -569,14 +569,15 @@ class Render(Node):
             cover, src = g.edges
             img = cover[:, :, None] * img.reshape(-1, 3)[src].reshape(H, W, 3) \
                 + (1.0 - cover[:, :, None]) * np.asarray(p.background)
-        if g.eyes is not None:
-            img += self._eyes(g.eyes, lights, H, W).reshape(H, W, 3)
+        if g.eyes:
+            flat = img.reshape(-1, 3)
+            idx = np.unique(np.concatenate([h[0] for h in g.eyes]))
+            flat[idx] += self._eyes(g.eyes, lights, H, W)[idx]
         img *= p.exposure
         if p.clamp:
-            img = np.clip(img, 0.0, 1.0)
-        depth = np.where(s.coverage, s.raster.depth, 0.0)
+            img = np.clip(img, 0.0, 1.0, out=img)
         return {"image": Image(img.astype(np.float32)),
-                "depth": Image(depth.astype(np.float32)),
+                "depth": Image(g.depth.copy()),
                 "coverage": Mask(cover)}
 
     def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int) -> np.ndarray:
@@ -623,7 +624,8 @@ class Render(Node):
         if p.antialias:
             xy, _ = camera.project(np.asarray(mesh.vertices, np.float64))
             edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
-        return _Geometry(s, tex, eyes, mouth, edges)
+        depth = np.where(s.coverage, s.raster.depth, 0.0).astype(np.float32)
+        return _Geometry(s, tex, eyes, mouth, edges, depth)
 
     @classmethod
     def examples(cls):
@@ -708,6 +710,7 @@ class _Geometry(NamedTuple):
     eyes: list | None  # Render._eye_hits
     mouth: tuple[np.ndarray, float] | None  # mouth_region
     edges: tuple[np.ndarray, np.ndarray] | None  # raster.edge_coverage
+    depth: np.ndarray  # the depth output (float32, 0 where uncovered)
 
 
 #: the last _Geometry values by the digest of what they come from (a live view's face, a
