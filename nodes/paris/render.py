@@ -485,6 +485,15 @@ class Render(Node):
     * Cast shadows by shadow maps (§5, Williams 1978), toggled by ``shadows``.
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
+    * The mouth (``mouth: photo``, on a mediapipe mesh): a fitted mesh's lips miss the photo's,
+      so the mouth region (the outer lip contour, widened by 30 % of its height, feathered) takes
+      the smooth shading of the skin around it, and the photo's lips and teeth come from the
+      detail texture under it (no streak where the mesh's lip normals are wrong).
+    * ``antialias``: each pixel the silhouette crosses is covered by 0.5 ± the distance from its
+      centre to the mesh's outline (``raster.edge_coverage``), the colour blended with the
+      background by it; the ``coverage`` output is that fraction.
+    * What does not depend on the lights or the material (the surface, detail texture, eye
+      hits, mouth, silhouette) is kept between calls on the same inputs: a new light re-shades.
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
