@@ -1,7 +1,8 @@
-"""Issue 26, bad input of the portrait path through the CLI: a photo whose face is not found, and
+"""Issue 26, the portrait path: its bad input through the CLI: a photo whose face is not found, and
 a mesh that does not overlap the photo (beside it, or only its corner) exit 2 with one message
 naming the node, the port and what to do, no traceback, nothing in the output folder and no
-entry in the cache for the refused node or anything after it."""
+entry in the cache for the refused node or anything after it.  And the studio's live view of
+CompositeFace (a slider moves the light, the whole photo relit) on the same small capture."""
 from __future__ import annotations
 
 import os
@@ -95,3 +96,50 @@ def test_a_mesh_that_does_not_overlap_the_photo(tmp_path, case):
     r = _run(["run", "g.yaml", "--out", "out"], tmp_path)
     listed = _refused(r, tmp_path, *expect)
     assert "LoadMesh" in listed and "CompositeFace" not in listed and "SaveImage" not in listed, listed
+
+
+def test_composite_live_view_moves_the_light(tmp_path):
+    """CompositeView: a slider move re-renders the Render feeding `relit` with its first light at
+    the new angles and composites it (the frame is Render + CompositeFace on that light); letting
+    go sets that MakeLight's angles; a `relit` not from a Render is refused naming the port."""
+    from graphkit import BadInput
+    from graphkit.api import run_graph
+    from nodes.paris.composite import CompositeFace
+    from nodes.paris.render import MakeLight, Render
+    from nodes.paris.studio_view import CompositeView
+
+    for f in DATA.iterdir():
+        shutil.copy(f, tmp_path / f.name)
+    shutil.copy(tmp_path / "mesh.ply", tmp_path / "moved.ply")
+    (tmp_path / "g.yaml").write_text(PORTRAIT)
+    run = run_graph(tmp_path / "g.yaml", cache=tmp_path / "cache", outputs=["portrait"])
+
+    class Studio:  # what a live view reads of the studio
+        graph = run.graph
+
+        @staticmethod
+        def input_values(node):
+            return run.graph.nodes[node].map_inputs(lambda s, p: run.value(f"{s}.{p}"))
+
+        class doc:  # the graph file as written
+            @staticmethod
+            def data():
+                import yaml
+
+                return yaml.safe_load(PORTRAIT)
+
+    view = CompositeView(Studio, "portrait")
+    assert [s["value"] for s in view.data()["sliders"]] == [30.0, 0.0]
+    got = view.frame({"azimuth": -20.0, "elevation": 15.0}).pixels
+    given = Studio.input_values("relit")
+    lamp = MakeLight(MakeLight.Params(azimuth_deg=-20.0, elevation_deg=15.0)).compute(camera=given["camera"])
+    r = Render(run.graph.nodes["relit"].params).compute(**{**given, "lights": [lamp]})
+    want = CompositeFace(CompositeFace.Params()).compute(photo=run.value("photo.image"), relit=r["image"],
+                                                         coverage=r["coverage"])["image"].pixels
+    assert np.array_equal(got, want) and not np.array_equal(got, run.value("portrait.image").pixels)
+    assert view.commit({"azimuth": -20.0, "elevation": 15.0}) == [
+        {"node": "lamp", "param": "azimuth_deg", "value": -20.0},
+        {"node": "lamp", "param": "elevation_deg", "value": 15.0}]
+    run.graph.nodes["portrait"].inputs["relit"] = ("photo", "image")
+    with pytest.raises(BadInput, match="relit"):
+        view.frame({"azimuth": 0.0})

@@ -98,6 +98,7 @@ class CompositeFace(Node):
     its pixel area).  Outputs the image and the ratio applied outside the face.
     """
 
+    studio_view = "nodes.paris.studio_view:CompositeView"  # graphkit serve: move the light, see the photo
     version = "2"  # 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
     inputs = {"photo": In(Image, "the input photograph (linear RGB)", channels=3),
               "relit": In(Image, "the relit face rendered through the photo camera (Render.image)",
