@@ -99,6 +99,8 @@ class FaceView(LiveView):
     def data(self) -> dict:
         from graphkit.glsl import source
 
+        from .glscene import not_drawn
+
         job, lights, _, eyes = self._scene({})
         p = self.params
         cam = self.inputs()["camera"]
@@ -116,7 +118,9 @@ class FaceView(LiveView):
              "ray_org": _mat(job["ray_org"]), "ray_dir": _mat(job["ray_dir"]),  # each pixel's world ray
              "boxes": [[int(x) for x in b] for b in job["boxes"]],  # eyes: _eye_boxes
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
-             **self._light_part(job, p, len(job["mesh_faces"]))}
+             **self._light_part(job, p, len(job["mesh_faces"])),
+             # what the page does not draw (glscene.not_drawn): said above the picture, never silent
+             "not_drawn": not_drawn(p, self.inputs()["mesh"])}
         if det is not None:
             tc = det["cam"]
             d["detail"] = {"pixels": _arr(det["pixels"]), "size": [int(tc.width), int(tc.height)],
