@@ -63,15 +63,19 @@ class SmoothFill:
         known = den >= 0.5 * den.max()
         dist, (iy, ix) = distance_transform_edt(~known, return_indices=True)
         level = np.log2(1.0 + dist / s)  # 0 at the supported region, +1 each time the distance doubles
-        self.w, self.s, self.iy, self.ix = w, s, iy, ix
+        self.w, self.s = w, s
+        self.near = (iy * iy.shape[1] + ix).ravel()  # each pixel's nearest supported pixel (flat)
         self.den = np.maximum(den, 1e-12)[:, :, None]
-        # σ = s·2^k takes over from σ/2 along level k−1…k: per step, the pixels it takes whole
-        # and those it blends in (their flat indices and weights)
+        # σ = s·2^k takes over from σ/2 along level k−1…k: each pixel is the blur at σ·2^⌈level⌉,
+        # blended with the one at half that σ where the level is not whole.  Per step k: the
+        # pixels it gives whole (level = k) and those it blends in (k − 1 < level < k: their
+        # flat indices and weights)
         self.steps = []
+        flat_level = level.ravel()
         for k in range(int(np.ceil(level.max())) + 1):
-            a = np.clip(level - (k - 1), 0.0, 1.0)
+            a = np.clip(flat_level - (k - 1), 0.0, 1.0)
             part = np.flatnonzero((a > 0) & (a < 1))
-            self.steps.append(((a == 1)[:, :, None], part, a.ravel()[part][:, None]))
+            self.steps.append((np.flatnonzero(flat_level == k), part, a[part][:, None]))
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         import cv2
@@ -84,14 +88,16 @@ class SmoothFill:
             vw = cv2.resize(vw, self.small, interpolation=cv2.INTER_AREA).reshape(self.small[1], self.small[0], -1)
         num = _blur(vw, self.s)
         est = num / self.den
-        ext = est[self.iy, self.ix]
-        out = ext.astype(np.float64)
-        flat = out.reshape(-1, out.shape[2])
-        for k, (whole, part, a) in enumerate(self.steps):  # out·(1 − a) + blur·a, where a ≠ 0
-            b = _blur(ext, self.s * 2.0 ** k)
-            ring = flat[part] * (1.0 - a) + b.reshape(flat.shape)[part] * a
-            np.copyto(out, b, where=whole)
-            flat[part] = ring
+        c = est.shape[2]
+        ext = est.reshape(-1, c)[self.near].reshape(est.shape)
+        out = np.empty(ext.shape, np.float64)
+        flat = out.reshape(-1, c)
+        prev = None
+        for k, (whole, part, a) in enumerate(self.steps):  # blur·a + the previous blur·(1 − a)
+            b = _blur(ext, self.s * 2.0 ** k).reshape(-1, c)
+            flat[whole] = b[whole]
+            flat[part] = prev[part] * (1.0 - a) + b[part] * a if len(part) else 0.0
+            prev = b
         if self.f > 1:
             h, w = self.shape
             out = cv2.resize(out.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, -1)
