@@ -25,6 +25,24 @@ class Prepared(NamedTuple):
     alpha: np.ndarray
     fill: object  # blend.SmoothFill
     box: tuple[slice, slice]  # the trusted pixels' bounding box
+    blend_box: tuple[slice, slice]  # where the pyramid blends: blend_region()
+    levels: int  # the pyramid's levels there
+
+
+def blend_region(covered: np.ndarray) -> tuple[tuple[slice, slice], int]:
+    """(the box the Laplacian pyramid blends the face in, its number of levels): the face's
+    bounding box with levels down to ~16 px of it, widened on each side by 2^(levels + 1) px
+    (the reach of the coarsest level's mask, so the blend is the photo's again at the box's
+    border), within the photo.  Outside the box the face and its surround are the same image:
+    the whole photo's pyramid would only reconstruct it."""
+    from nodes.common.blend import _pyramid_sizes
+
+    ys, xs = np.nonzero(covered)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    levels = max(1, sum(1 for s in _pyramid_sizes(y1 - y0, x1 - x0) if min(s) >= 16))
+    pad = 2 ** (levels + 1)
+    H, W = covered.shape
+    return (slice(max(0, y0 - pad), min(H, y1 + pad)), slice(max(0, x0 - pad), min(W, x1 + pad))), levels
 
 
 def prepare(photo: np.ndarray, covered: np.ndarray, band_px: float, scale_px: float) -> Prepared:
@@ -40,7 +58,7 @@ def prepare(photo: np.ndarray, covered: np.ndarray, band_px: float, scale_px: fl
         raise ValueError("no face pixel is lit and unclipped in the photo")
     ys, xs = np.nonzero(trust > 0)
     box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-    return Prepared(photo, covered, alpha, SmoothFill(trust, scale_px), box)
+    return Prepared(photo, covered, alpha, SmoothFill(trust, scale_px), box, *blend_region(covered))
 
 
 def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px: float,
@@ -65,10 +83,14 @@ def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px
                              -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
     ratio = np.exp(pr.fill(log_ratio)).astype(np.float32)
     around = photo * ratio
+    if method == "pyramid":  # on the face's box (blend_region); the photo × ratio around it
+        bb = pr.blend_box
+        face = np.where(covered[bb][:, :, None], relit[bb], around[bb])
+        out = around
+        out[bb] = laplacian_blend(face, around[bb], alpha[bb], pr.levels)
+        return np.clip(out, 0.0, None, out=out), ratio
     face = np.where(covered[:, :, None], relit, around)
-    if method == "pyramid":
-        out = laplacian_blend(face, around, alpha)
-    elif method == "seamless":
+    if method == "seamless":
         out = seamless_clone(face, around, alpha > 0.5)
     else:
         out = alpha[:, :, None] * face + (1.0 - alpha[:, :, None]) * around
@@ -99,7 +121,8 @@ class CompositeFace(Node):
     """
 
     studio_view = "nodes.paris.studio_view:CompositeView"  # graphkit serve: move the light, see the photo
-    version = "2"  # 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
+    version = "3"  # 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
+    # 3: the pyramid blends on the face's box widened by its coarsest level's reach (blend_region)
     inputs = {"photo": In(Image, "the input photograph (linear RGB)", channels=3),
               "relit": In(Image, "the relit face rendered through the photo camera (Render.image)",
                           channels=3, same_size_as="photo"),
