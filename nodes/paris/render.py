@@ -350,30 +350,43 @@ def mouth_region(mesh, camera: Camera) -> tuple[np.ndarray, float] | None:
     return 1.0 - feather(inside == 0, MOUTH_MARGIN * height), height
 
 
-def smooth_over(shade: np.ndarray, covered: np.ndarray, alpha: np.ndarray, scale_px: float) -> np.ndarray:
-    """The per-pixel shading ``shade`` (M×3, the ``covered`` pixels in row-major order) with
-    the region ``alpha`` > 0 taken over by the shading around it, smoothed to ``scale_px`` and
-    carried in (``blend.smooth_fill``), blended by ``alpha``: where the mesh does not follow the
-    photo (lips, teeth) the light changes smoothly, as on the skin around it."""
-    from nodes.common.blend import smooth_fill
+class SmoothOver:
+    """The per-pixel shading (M×3, the ``covered`` pixels in row-major order) with the region
+    ``alpha`` > 0 taken over by the shading around it, smoothed to ``scale_px`` and carried in
+    (``blend.SmoothFill``), blended by ``alpha``: where the mesh does not follow the photo
+    (lips, teeth) the light changes smoothly, as on the skin around it.  What depends on the
+    region only (its box, the fill's plan) is prepared here; calling it with a shading fills."""
 
-    a = np.where(covered, alpha, 0.0).astype(np.float32)
-    known = covered & (alpha <= 0)
-    if not (a > 0).any() or not known.any():
-        return shade
-    ys, xs = np.nonzero(a > 0)
-    pad = int(np.ceil(3 * scale_px))
-    H, W = covered.shape
-    box = (slice(max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)),
-           slice(max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)))
-    img = np.zeros((H, W, shade.shape[1]), np.float64)
-    img[covered] = shade
-    if not known[box].any():
-        return shade
-    fill = smooth_fill(img[box], known[box], scale_px)
-    ab = a[box][:, :, None]
-    img[box] = img[box] * (1.0 - ab) + fill * ab
-    return img[covered]
+    def __init__(self, covered: np.ndarray, alpha: np.ndarray, scale_px: float):
+        from nodes.common.blend import SmoothFill
+
+        self.fill = None
+        a = np.where(covered, alpha, 0.0).astype(np.float32)
+        known = covered & (alpha <= 0)
+        if not (a > 0).any() or not known.any():
+            return
+        ys, xs = np.nonzero(a > 0)
+        pad = int(np.ceil(3 * scale_px))
+        H, W = covered.shape
+        box = (slice(max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)),
+               slice(max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)))
+        if not known[box].any():
+            return
+        self.fill = SmoothFill(known[box], scale_px)
+        self.inside = covered[box]  # the covered pixels of the box …
+        rank = np.cumsum(covered.ravel()).reshape(H, W) - 1
+        self.rows = rank[box][self.inside]  # … and their rows in the shading
+        self.ab = a[box][:, :, None]
+
+    def __call__(self, shade: np.ndarray) -> np.ndarray:
+        if self.fill is None:
+            return shade
+        img = np.zeros(self.inside.shape + (shade.shape[1],), np.float64)
+        img[self.inside] = shade[self.rows]
+        fill = self.fill(img)
+        out = shade.copy()
+        out[self.rows] = (img * (1.0 - self.ab) + fill * self.ab)[self.inside]
+        return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -567,27 +580,36 @@ class Render(Node):
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
         col += kd * amb
         if g.mouth is not None:
-            col = smooth_over(col, s.coverage, g.mouth[0], 0.5 * g.mouth[1])
+            col = g.mouth(col)
         if g.texture is not None:
             col = col * g.texture
-        img = np.empty((H, W, 3))
-        img[:] = np.asarray(p.background)
-        img[s.coverage] = col
+        # the image over g.box (every pixel outside it is the background)
+        bg = np.asarray(p.background, np.float64)
+        box = g.box
+        img = np.empty((box[0].stop - box[0].start, box[1].stop - box[1].start, 3))
+        img[:] = bg
+        img[s.coverage[box]] = col
         cover = s.coverage.astype(np.float32)
-        if g.edges is not None:
+        if g.edges is not None:  # (the box is the whole image)
             cover, src = g.edges
             img = cover[:, :, None] * img.reshape(-1, 3)[src].reshape(H, W, 3) \
-                + (1.0 - cover[:, :, None]) * np.asarray(p.background)
+                + (1.0 - cover[:, :, None]) * bg
         if g.eyes:
-            flat = img.reshape(-1, 3)
-            idx = np.unique(np.concatenate([h[0] for h in g.eyes]))
-            flat[idx] += self._eyes(g.eyes, lights, H, W)[idx]
-        img *= p.exposure
-        if p.clamp:
-            img = np.clip(img, 0.0, 1.0, out=img)
-        return {"image": Image(img.astype(np.float32)),
+            idx, add = self._eyes(g.eyes, lights)
+            img.reshape(-1, 3)[idx] += add
+        out = np.empty((H, W, 3), np.float32)
+        out[:] = self._exposed(bg)
+        out[box] = self._exposed(img)
+        return {"image": Image(out),
                 "depth": Image(g.depth.copy()),
                 "coverage": Mask(cover)}
+
+    def _exposed(self, img: np.ndarray) -> np.ndarray:
+        """``img`` × exposure, clamped to [0, 1] with ``clamp``, as float32."""
+        img = img * self.params.exposure
+        if self.params.clamp:
+            img = np.clip(img, 0.0, 1.0, out=img)
+        return img.astype(np.float32)
 
     def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int) -> np.ndarray:
         """Shadow-map visibility of the surface's points from light ``i``."""
@@ -629,12 +651,15 @@ class Render(Node):
             tex = projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
         eyes = None if p.eye_highlights == "off" else self._eye_hits(eye_mesh, camera, s)
         mouth = mouth_region(eye_mesh, camera) if p.mouth == "photo" else None
+        if mouth is not None:
+            mouth = SmoothOver(s.coverage, mouth[0], 0.5 * mouth[1])
         edges = None
         if p.antialias:
             xy, _ = camera.project(np.asarray(mesh.vertices, np.float64))
             edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
         depth = np.where(s.coverage, s.raster.depth, 0.0).astype(np.float32)
-        return _Geometry(s, tex, eyes, mouth, edges, depth)
+        box, eyes = _image_box(s.coverage, eyes, whole=edges is not None)
+        return _Geometry(s, tex, eyes, mouth, edges, depth, box)
 
     @classmethod
     def examples(cls):
@@ -698,18 +723,21 @@ class Render(Node):
                 hits.append((np.nonzero(hit)[0], X[hit], (X[hit] - c) / R, -d[hit]))
         return hits
 
-    def _eyes(self, hits: list, lights, H, W) -> np.ndarray:
-        """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
+    def _eyes(self, hits: list, lights) -> tuple[np.ndarray, np.ndarray]:
+        """Additive specular of the two cornea hemispheres: (the pixels it lights, flat
+        indices as in ``hits``, sorted; its value there, K×3)."""
         from . import phong
 
         p = self.params
-        out = np.zeros((H * W, 3))
-        for idx, X, n, v in hits:
+        idx = np.unique(np.concatenate([h[0] for h in hits]))
+        out = np.zeros((len(idx), 3))
+        for hit, X, n, v in hits:
+            at = np.searchsorted(idx, hit)
             for light in lights:
                 ldir, L = light_vectors(light, X)
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
-                out[idx] += p.eye_specular * L * spec[:, None]
-        return out
+                out[at] += p.eye_specular * L * spec[:, None]
+        return idx, out
 
 
 class _Geometry(NamedTuple):
@@ -717,9 +745,28 @@ class _Geometry(NamedTuple):
     surface: Surface
     texture: np.ndarray | None  # M×3 detail texture at the covered pixels
     eyes: list | None  # Render._eye_hits
-    mouth: tuple[np.ndarray, float] | None  # mouth_region
+    mouth: SmoothOver | None  # over mouth_region
     edges: tuple[np.ndarray, np.ndarray] | None  # raster.edge_coverage
     depth: np.ndarray  # the depth output (float32, 0 where uncovered)
+    box: tuple[slice, slice]  # _image_box: the pixels that are not the background
+
+
+def _image_box(coverage: np.ndarray, eyes: list | None, whole: bool) -> tuple[tuple[slice, slice], list | None]:
+    """(the box of the pixels Render shades: the covered ones and the eyes' hits; the whole
+    image when ``whole``, the eyes' hits with their pixels' flat indices in that box)."""
+    H, W = coverage.shape
+    if whole:
+        return (slice(0, H), slice(0, W)), eyes
+    ys, xs = np.nonzero(coverage)
+    if eyes:
+        ey, ex = np.divmod(np.concatenate([h[0] for h in eyes]), W)
+        ys, xs = np.concatenate([ys, ey]), np.concatenate([xs, ex])
+    y0, x0 = int(ys.min()), int(xs.min())
+    box = (slice(y0, int(ys.max()) + 1), slice(x0, int(xs.max()) + 1))
+    if eyes:
+        bw = box[1].stop - x0
+        eyes = [((i // W - y0) * bw + i % W - x0, X, n, v) for i, X, n, v in eyes]
+    return box, eyes
 
 
 #: the last _Geometry values by the digest of what they come from (a live view's face, a
