@@ -39,12 +39,13 @@ def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
 
 
 class SmoothFill:
-    """:func:`smooth_fill` for one ``weight`` and ``scale_px``: what depends only on them (the
+    """:func:`smooth_fill` for one ``weight`` and ``scale_px`` (on a grid where σ is at least
+    ``grid_sigma`` pixels): what depends only on them (the
     blurred weights, the supported region, each pixel's nearest supported pixel, the blend
     weights of the outward blurs) is prepared once, and calling it with values fills them
     (a new light on the same face and photo: CompositeFace)."""
 
-    def __init__(self, weight: np.ndarray, scale_px: float):
+    def __init__(self, weight: np.ndarray, scale_px: float, grid_sigma: float = 4.0):
         import cv2
         from scipy.ndimage import distance_transform_edt
 
@@ -52,9 +53,9 @@ class SmoothFill:
         if not (w > 0).any():
             raise ValueError("smooth_fill: no pixel has weight")
         s = max(float(scale_px), 0.5)
-        # the field is smooth at σ = s: it is computed on a grid f times coarser (σ ≥ 4 px there)
-        # and enlarged bilinearly
-        self.f = f = max(1, int(s // 4))
+        # the field is smooth at σ = s: it is computed on a grid f times coarser (σ ≥ grid_sigma
+        # px there) and enlarged bilinearly
+        self.f = f = max(1, int(s // grid_sigma))
         self.shape = w.shape
         self.small = (max(1, w.shape[1] // f), max(1, w.shape[0] // f))
         ws = w if f == 1 else cv2.resize(w, self.small, interpolation=cv2.INTER_AREA)

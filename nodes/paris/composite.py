@@ -14,6 +14,7 @@ from graphkit.store import value_parts
 LOG_RATIO_LIMIT = float(np.log(32.0))  # a change of light beyond ×32 / ÷32 is not trusted
 DARK = 0.01  # photo pixels darker than this (linear) carry no usable ratio (pupils, black hair)
 CLIPPED = 0.999  # photo pixels at the sensor's top carry no usable ratio either
+FILL_GRID_SIGMA = 2.0  # the change of light is filled on a grid where its σ is ≥ 2 px (SmoothFill)
 
 
 class Prepared(NamedTuple):
@@ -58,7 +59,7 @@ def prepare(photo: np.ndarray, covered: np.ndarray, band_px: float, scale_px: fl
         raise ValueError("no face pixel is lit and unclipped in the photo")
     ys, xs = np.nonzero(trust > 0)
     box = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-    return Prepared(photo, covered, alpha, SmoothFill(trust, scale_px), box, *blend_region(covered))
+    return Prepared(photo, covered, alpha, SmoothFill(trust, scale_px, FILL_GRID_SIGMA), box, *blend_region(covered))
 
 
 def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px: float,
@@ -122,7 +123,8 @@ class CompositeFace(Node):
 
     studio_view = "nodes.paris.studio_view:CompositeView"  # graphkit serve: move the light, see the photo
     version = "3"  # 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
-    # 3: the pyramid blends on the face's box widened by its coarsest level's reach (blend_region)
+    # 3: the pyramid blends on the face's box widened by its coarsest level's reach (blend_region);
+    #    the change of light filled on a grid coarser by σ // 2
     inputs = {"photo": In(Image, "the input photograph (linear RGB)", channels=3),
               "relit": In(Image, "the relit face rendered through the photo camera (Render.image)",
                           channels=3, same_size_as="photo"),
