@@ -112,7 +112,7 @@ class CompositeFace(Node):
       (Laplacian pyramid, the default), OpenCV's Poisson ``seamless`` clone, or a plain
       ``alpha`` feather.  On benchmarks/bench_composite.py's seam figure (log gradient on the
       border, composite / photo; goal ≤ 1.5, the naive paste 1.37–1.70) all three meet it:
-      pyramid 0.90–0.99, seamless 1.01–1.02 (the closest to the photo's own 1, but it clones
+      pyramid 0.97–0.99, seamless 1.01–1.02 (the closest to the photo's own 1, but it clones
       8-bit sRGB, so the whole linear photo comes back quantised and clipped to 1), alpha
       0.98–1.03 (its border step 0.86–1.05 against the pyramid's 0.88–1.03).  The pyramid
       stays the default: float throughout, within 10 % of the photo's own gradient.
