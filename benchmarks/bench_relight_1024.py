@@ -86,15 +86,17 @@ def main() -> int:
 
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, {args.size}², n={args.n}")
     results = {}
-    for name, fn in (("Render alone", relight), ("Render + CompositeFace", relight_composite),
-                     ("Render + CompositeFace + PNG", preview)):
-        walls, cpus = [], []
-        for i in range(args.n + args.warmup):
+    runs = (("Render alone", relight), ("Render + CompositeFace", relight_composite),
+            ("Render + CompositeFace + PNG", preview))
+    times = {name: ([], []) for name, _ in runs}
+    for i in range(args.n + args.warmup):  # interleaved: the three see the same load
+        for name, fn in runs:
             c0, t0 = time.process_time(), time.perf_counter()
             fn(i)
             if i >= args.warmup:
-                walls.append((time.perf_counter() - t0) * 1e3)
-                cpus.append((time.process_time() - c0) * 1e3)
+                times[name][0].append((time.perf_counter() - t0) * 1e3)
+                times[name][1].append((time.process_time() - c0) * 1e3)
+    for name, (walls, cpus) in times.items():
         results[name] = statistics.median(walls), statistics.median(cpus)
         print(f"{name:<30} wall median {results[name][0]:7.1f} ms (best {min(walls):6.1f}), "
               f"CPU median {results[name][1]:7.1f} ms", flush=True)
