@@ -474,12 +474,19 @@ def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_ho
     """Render's checks and set-up shared by every backend: (lights in world units, the mesh
     to draw (inner holes closed when asked))."""
     lights = check_render_inputs(lights, detail, texture_camera, camera)
+    m = prepare_mesh(mesh, camera, texture_camera, fill_holes)
+    return world_lights(lights, camera, m), m
+
+
+def prepare_mesh(mesh, camera: Camera, texture_camera, fill_holes: bool):
+    """The light-independent part of :func:`prepare_render`: the mesh checked, its inner holes
+    closed when asked, and seen by the camera(s)."""
     check_mesh(mesh)
     m = close_holes(mesh) if fill_holes else mesh
     check_in_view(m, camera)
     if texture_camera is not None:
         check_in_view(m, texture_camera, "mesh", "texture_camera")
-    return world_lights(lights, camera, m), m
+    return m
 
 
 class Render(Node):
@@ -557,9 +564,10 @@ class Render(Node):
         from . import phong
 
         p = self.params
-        eye_mesh = mesh
-        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes)
-        g = self._geometry(eye_mesh, mesh, camera, detail, texture_camera)
+        lights = check_render_inputs(lights, detail, texture_camera, camera)  # prepare_render, the
+        g = self._geometry(mesh, camera, detail, texture_camera)  # mesh's part kept with the geometry
+        eye_mesh, mesh = mesh, g.mesh
+        lights = world_lights(lights, camera, mesh)
         s = g.surface
         H, W = camera.height, camera.width
         M = len(s.points)
@@ -622,7 +630,7 @@ class Render(Node):
         except ValueError as e:
             raise BadInput("lights", f"light {i}: {e}") from None
 
-    def _geometry(self, eye_mesh, mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+    def _geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
         """What does not depend on the lights or the material (the surface, its detail texture,
         the eyes' ray hits, the mouth, the silhouette's coverage): memoised on the inputs and
         params it comes from, so that a new light re-shades without it (a live view's drag)."""
@@ -634,17 +642,18 @@ class Render(Node):
             p.mouth, p.antialias])).hexdigest()
         got = _GEOMETRY.get(key)
         if got is None:
-            got = self._make_geometry(eye_mesh, mesh, camera, detail, texture_camera)
+            got = self._make_geometry(eye_mesh, camera, detail, texture_camera)
             with _GEOMETRY_LOCK:  # nodes may run on several threads (graphkit run --jobs)
                 while len(_GEOMETRY) >= 4:
                     _GEOMETRY.pop(next(iter(_GEOMETRY)))
                 _GEOMETRY[key] = got
         return got
 
-    def _make_geometry(self, eye_mesh, mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+    def _make_geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
         from nodes.common import raster
 
         p = self.params
+        mesh = prepare_mesh(eye_mesh, camera, texture_camera, p.fill_holes)
         s = surface(mesh, camera, min_pixels=1)
         tex = None
         if detail is not None:
@@ -659,7 +668,7 @@ class Render(Node):
             edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
         depth = np.where(s.coverage, s.raster.depth, 0.0).astype(np.float32)
         box, eyes = _image_box(s.coverage, eyes, whole=edges is not None)
-        return _Geometry(s, tex, eyes, mouth, edges, depth, box)
+        return _Geometry(mesh, s, tex, eyes, mouth, edges, depth, box)
 
     @classmethod
     def examples(cls):
@@ -742,6 +751,7 @@ class Render(Node):
 
 class _Geometry(NamedTuple):
     """Render's work that does not depend on the lights or the material."""
+    mesh: object  # prepare_mesh: the mesh drawn
     surface: Surface
     texture: np.ndarray | None  # M×3 detail texture at the covered pixels
     eyes: list | None  # Render._eye_hits
