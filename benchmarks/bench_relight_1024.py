@@ -10,8 +10,9 @@ fill plan — is kept between calls, as a studio drag or a re-run of one light w
 the first ``--warmup`` calls, which prepare it, are left out.  Printed: the median and best wall
 time, and the median CPU time of the process (all threads; on a shared machine other jobs
 inflate the wall time, not that), of Render alone and of Render + CompositeFace, and their
-ratio; and the same + the 8-bit sRGB PNG of the composite (``--png``: what a composited
-preview sends).
+ratio; and the same + the 8-bit sRGB PNG of the composite as the studio encodes a live view's
+frame (``graphkit.studio.imaging``: display_rgb's LUT, PNG level 1).  The three are interleaved
+call by call, so they see the same load.
 
     .venv/bin/python benchmarks/bench_relight_1024.py [--n 15] [--size 1024] [--profile]
 """
@@ -57,10 +58,9 @@ def main() -> int:
     ap.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", str(ROOT / ".graphkit-cache")))
     ap.add_argument("--profile", action="store_true", help="cProfile one Render + CompositeFace call")
     args = ap.parse_args()
-    import cv2
     import numpy as np
 
-    from nodes.common.color import linear_to_srgb
+    from graphkit.studio.imaging import display_rgb, png
     from nodes.paris.composite import CompositeFace
     from nodes.paris.render import Render
 
@@ -79,10 +79,8 @@ def main() -> int:
         out = render.compute(**lit(i))
         return comp.compute(photo=photo, relit=out["image"], coverage=out["coverage"])
 
-    def preview(i):
-        img = relight_composite(i)["image"].pixels
-        srgb = np.round(np.clip(linear_to_srgb(np.clip(img, 0, 1)), 0, 1) * 255).astype(np.uint8)
-        return cv2.imencode(".png", srgb[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 0])
+    def preview(i):  # as the studio sends a live view's frame (graphkit.studio.live)
+        return png(display_rgb(relight_composite(i)["image"].pixels))
 
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}, {args.size}², n={args.n}")
     results = {}
