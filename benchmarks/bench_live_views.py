@@ -1,5 +1,5 @@
-"""The makeup and blush live views (issue 28): slider → the view's next frame, on the whole photo
-at 1024².
+"""The makeup, blush (issue 28) and composite (issue 26) live views: slider → the view's next
+frame, on the whole photo at 1024².
 
 The studio's own frame path, ``graphkit.studio.live.frame_bytes`` (the view's ``frame``, then
 the PNG at level 0 as sent to a page on the loopback), of ``MakeupView`` on ``made_up``
@@ -8,12 +8,13 @@ ApplyHemoglobin, graphs/blush.yaml).  The graphs run first (cached in ``--cache`
 views then read their node's inputs, the astronaut's 512² ones resized to 1024² (images and
 masks of the photo's size bilinearly, the camera's intrinsics × 2: the same face, 4× the
 pixels).  Each move sets a slider to a value not used before (CosmeticShade builds that
-thickness's spectral table); the first ``--warmup`` moves (the view's first frame prepares the
+thickness's spectral table; the composite view relights `full_top` at a new azimuth and
+composites it, ``CompositeView`` on graphs/face_relight.yaml's ``portrait_top``); the first ``--warmup`` moves (the view's first frame prepares the
 surface, SSS plan and specular terms) are left out.  The browser's websocket and decode are not
 included (see benchmarks/bench_studio.py for those).  The CPU time of the process per move (all
 threads) is printed too: on a shared machine other jobs inflate the wall time, not that.
 
-    .venv/bin/python benchmarks/bench_live_views.py [--n 20] [--size 1024]
+    .venv/bin/python benchmarks/bench_live_views.py [--n 20] [--size 1024] [--views makeup,blush,composite]
 """
 from __future__ import annotations
 
@@ -85,18 +86,29 @@ def main() -> int:
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", str(ROOT / ".graphkit-cache")))
+    ap.add_argument("--views", default="makeup,blush,composite", help="which views, comma-separated")
     args = ap.parse_args()
+    views = args.views.split(",")
     from graphkit.api import run_graph
     from nodes.huang.studio_view import MakeupView
     from nodes.jimenez.studio_view import BlushView
 
     print(f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     steps = [1.0 + 0.013 * (i + 1) * (-1) ** i for i in range(args.n + args.warmup)]
-    makeup = Studio(run_graph(ROOT / "graphs" / "makeup.yaml", cache=args.cache), args.size)
-    bench("makeup (CosmeticShade 'made_up')", MakeupView(makeup, "made_up"), "layer0", steps, args.n, args.warmup)
-    blush = Studio(run_graph(ROOT / "graphs" / "blush.yaml", cache=args.cache), args.size)
-    bench("blush (AppearanceRig 'rig' → 'recolor')", BlushView(blush, "rig"), "w1",
-          [min(1.0, 0.5 * s) for s in steps], args.n, args.warmup)
+    if "makeup" in views:
+        makeup = Studio(run_graph(ROOT / "graphs" / "makeup.yaml", cache=args.cache), args.size)
+        bench("makeup (CosmeticShade 'made_up')", MakeupView(makeup, "made_up"), "layer0", steps, args.n, args.warmup)
+    if "blush" in views:
+        blush = Studio(run_graph(ROOT / "graphs" / "blush.yaml", cache=args.cache), args.size)
+        bench("blush (AppearanceRig 'rig' → 'recolor')", BlushView(blush, "rig"), "w1",
+              [min(1.0, 0.5 * s) for s in steps], args.n, args.warmup)
+    if "composite" in views:  # the light of `full_top` moved, the whole photo relit
+        from nodes.paris.studio_view import CompositeView
+
+        face = Studio(run_graph(ROOT / "graphs" / "face_relight.yaml", cache=args.cache, outputs=["portrait_top"]),
+                      args.size)
+        bench("composite (CompositeFace 'portrait_top', Render 'full_top')", CompositeView(face, "portrait_top"),
+              "azimuth", [-40.0 + 3.7 * i for i in range(args.n + args.warmup)], args.n, args.warmup)
     return 0
 
 

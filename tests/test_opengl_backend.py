@@ -323,6 +323,29 @@ def test_bad_inputs_match_reference():
             cls(node.Params.model_validate({"eye_highlights": "on"})).compute(**inputs)
 
 
+def test_what_gl_does_not_draw_is_refused():
+    """antialias and mouth: photo (on a mediapipe mesh) are the numpy reference's only: the
+    backend refuses them (BackendCannotRun: numpy instead, or exit 2 where pinned), never a
+    silently different image; mouth: photo on a mesh that is not a mediapipe face draws."""
+    from graphkit import BackendCannotRun
+
+    node, gl = _classes()
+    params, inputs = cases()["exposure_clamp"]
+    with pytest.raises(BackendCannotRun, match="antialias"):
+        gl(node.Params.model_validate({**params, "antialias": True})).compute(**inputs)
+    face = inputs["mesh"].copy()
+    src = np.full(len(face.vertices), -1)
+    src[:468] = np.arange(468)  # a SmoothMesh of a FaceMesh keeps the 468 landmark ids
+    face.vertex_attributes["source_vertex"] = src
+    mp = {**inputs, "mesh": face}
+    with pytest.raises(BackendCannotRun, match="mouth: photo"):
+        gl(node.Params.model_validate(params)).compute(**mp)
+    got = arrays(gl(node.Params.model_validate({**params, "mouth": "skin"})).compute(**mp))
+    ref = arrays(node(node.Params.model_validate({**params, "mouth": "skin"})).compute(**mp))
+    assert psnr(ref["image"], got["image"]) > 45
+    arrays(gl(node.Params.model_validate(params)).compute(**inputs))  # no mediapipe ids: drawn
+
+
 def test_threads_share_one_context():
     from concurrent.futures import ThreadPoolExecutor
 
@@ -423,6 +446,28 @@ def test_cli_uses_opengl(graph_dir, numpy_exr, tmp_path, graph, args):
     got = read_exr(tmp_path / "out" / "render.exr")
     close = np.isclose(got, numpy_exr, rtol=1e-3, atol=2e-3)
     assert got.shape == numpy_exr.shape and 1 - close.mean() <= 0.01
+
+
+def test_cli_not_drawn(graph_dir, tmp_path):
+    """antialias through the CLI: pinned to opengl, exit 2 naming the node, the backend and
+    why; preferred, one notice and the numpy reference's bytes."""
+    d = graph_dir
+    for tag in ("pinned", "free"):
+        text = (d / f"{tag}.yaml").read_text().replace("shadow_map_size: 128}", "shadow_map_size: 128, antialias: true}")
+        (d / f"aa_{tag}.yaml").write_text(text)
+    p = run_cli(d, "aa_pinned.yaml", tmp_path / "pinned")
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "Traceback" not in p.stderr + p.stdout
+    assert "'render'" in p.stderr and "opengl" in p.stderr and "antialias" in p.stderr, p.stderr
+    assert not (tmp_path / "pinned" / "render.exr").exists()
+    p = run_cli(d, "aa_free.yaml", tmp_path / "pref", "--backend", "opengl")
+    assert p.returncode == 0, p.stderr
+    notices = [ln for ln in p.stderr.splitlines() if "notice" in ln.lower()]
+    assert len(notices) == 1 and "antialias" in notices[0] and "numpy" in notices[0], p.stderr
+    assert backend_of(tmp_path / "pref") == "numpy"
+    q = run_cli(d, "aa_free.yaml", tmp_path / "ref")
+    assert q.returncode == 0, q.stderr
+    np.testing.assert_array_equal(read_exr(tmp_path / "pref" / "render.exr"), read_exr(tmp_path / "ref" / "render.exr"))
 
 
 def test_cli_disabled(graph_dir, numpy_exr, tmp_path):

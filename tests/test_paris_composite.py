@@ -119,3 +119,32 @@ def test_mesh_not_on_the_photo_is_refused(scene):
         compute_checked(CompositeFace(), photo=Image(photo), relit=Image(relit[:100]),
                         coverage=Mask(face.astype(np.float32)))
     assert e.value.port == "relit"
+
+
+def test_pyramid_on_the_face_box_is_the_whole_photo_pyramid():
+    """CompositeFace 3 blends on the face's box widened by the coarsest level's reach
+    (blend_region): within 1 % of the whole photo's pyramid, and the photo × ratio again at the
+    box's border (no step where the box ends)."""
+    import cv2
+
+    from nodes.paris.composite import composite, prepare
+
+    rng = np.random.default_rng(0)
+    H = W = 300
+    photo = cv2.GaussianBlur(rng.uniform(0.2, 0.8, (H, W, 3)).astype(np.float32), (0, 0), 3)
+    yy, xx = np.mgrid[:H, :W]
+    cov = (yy - 120) ** 2 + (xx - 170) ** 2 < 50 ** 2
+    relit = photo * (1.2 + 0.7 * xx / W)[..., None].astype(np.float32)
+    pr = prepare(photo, cov, 6.0, 6.0)
+    out, ratio = composite(photo, relit, cov, 6.0, 6.0, prepared=pr)
+    around = photo * ratio
+    whole = laplacian_blend(np.where(cov[..., None], relit, around), around, pr.alpha)
+    assert np.abs(out / whole - 1).max() < 0.01
+    ys, xs = pr.blend_box
+    assert (ys.stop - ys.start) * (xs.stop - xs.start) < H * W / 4
+    inner = np.zeros((H, W), bool)
+    inner[ys.start + 2:ys.stop - 2, xs.start + 2:xs.stop - 2] = True
+    edge = ~inner
+    edge[:ys.start] = edge[ys.stop:] = False
+    edge[:, :xs.start] = edge[:, xs.stop:] = False
+    assert np.abs(out[edge] / around[edge] - 1).max() < 1e-3

@@ -25,6 +25,86 @@ def _pyramid_sizes(h: int, w: int) -> list[tuple[int, int]]:
     return sizes
 
 
+def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur; a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
+    import cv2
+
+    f = max(1, int(sigma // 4))
+    if f == 1:
+        return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
+    h, w = x.shape[:2]
+    small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(x.shape)
+
+
+class SmoothFill:
+    """:func:`smooth_fill` for one ``weight`` and ``scale_px`` (on a grid where σ is at least
+    ``grid_sigma`` pixels): what depends only on them (the
+    blurred weights, the supported region, each pixel's nearest supported pixel, the blend
+    weights of the outward blurs) is prepared once, and calling it with values fills them
+    (a new light on the same face and photo: CompositeFace)."""
+
+    def __init__(self, weight: np.ndarray, scale_px: float, grid_sigma: float = 4.0):
+        import cv2
+        from scipy.ndimage import distance_transform_edt
+
+        w = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)
+        if not (w > 0).any():
+            raise ValueError("smooth_fill: no pixel has weight")
+        s = max(float(scale_px), 0.5)
+        # the field is smooth at σ = s: it is computed on a grid f times coarser (σ ≥ grid_sigma
+        # px there) and enlarged bilinearly
+        self.f = f = max(1, int(s // grid_sigma))
+        self.shape = w.shape
+        self.small = (max(1, w.shape[1] // f), max(1, w.shape[0] // f))
+        ws = w if f == 1 else cv2.resize(w, self.small, interpolation=cv2.INTER_AREA)
+        s = s / f
+        den = _blur(ws, s)
+        known = den >= 0.5 * den.max()
+        dist, (iy, ix) = distance_transform_edt(~known, return_indices=True)
+        level = np.log2(1.0 + dist / s)  # 0 at the supported region, +1 each time the distance doubles
+        self.w, self.s = w, s
+        self.near = (iy * iy.shape[1] + ix).ravel()  # each pixel's nearest supported pixel (flat)
+        self.den = np.maximum(den, 1e-12)[:, :, None]
+        # σ = s·2^k takes over from σ/2 along level k−1…k: each pixel is the blur at σ·2^⌈level⌉,
+        # blended with the one at half that σ where the level is not whole.  Per step k: the
+        # pixels it gives whole (level = k) and those it blends in (k − 1 < level < k: their
+        # flat indices and weights)
+        self.steps = []
+        flat_level = level.ravel()
+        for k in range(int(np.ceil(level.max())) + 1):
+            a = np.clip(flat_level - (k - 1), 0.0, 1.0)
+            part = np.flatnonzero((a > 0) & (a < 1))
+            self.steps.append((np.flatnonzero(flat_level == k), part, a[part][:, None]))
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        import cv2
+
+        v = np.asarray(values, np.float32)
+        squeeze = v.ndim == 2
+        v = v[:, :, None] if squeeze else v
+        vw = v * self.w[:, :, None]
+        if self.f > 1:
+            vw = cv2.resize(vw, self.small, interpolation=cv2.INTER_AREA).reshape(self.small[1], self.small[0], -1)
+        num = _blur(vw, self.s)
+        est = num / self.den
+        c = est.shape[2]
+        ext = est.reshape(-1, c)[self.near].reshape(est.shape)
+        out = np.empty(ext.shape, np.float64)
+        flat = out.reshape(-1, c)
+        prev = None
+        for k, (whole, part, a) in enumerate(self.steps):  # blur·a + the previous blur·(1 − a)
+            b = _blur(ext, self.s * 2.0 ** k).reshape(-1, c)
+            flat[whole] = b[whole]
+            flat[part] = prev[part] * (1.0 - a) + b[part] * a if len(part) else 0.0
+            prev = b
+        if self.f > 1:
+            h, w = self.shape
+            out = cv2.resize(out.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR).reshape(h, w, -1)
+        return out[:, :, 0] if squeeze else out
+
+
 def smooth_fill(values: np.ndarray, weight: np.ndarray, scale_px: float) -> np.ndarray:
     """A smooth field that follows ``values`` where ``weight`` (in [0, 1]) is high, at the
     resolution of ``scale_px`` pixels, and extends them outward everywhere else.
@@ -34,40 +114,9 @@ def smooth_fill(values: np.ndarray, weight: np.ndarray, scale_px: float) -> np.n
     nearest supported pixel, blurred more the farther it is from them (σ doubling with the
     distance, so the ridges between regions that extend different values stay smooth): the
     field keeps its value at the border and carries it outward, it does not relax towards the
-    mean of the whole region nor extrapolate a slope."""
-    import cv2
-    from scipy.ndimage import distance_transform_edt
-
-    v = np.asarray(values, np.float32)
-    squeeze = v.ndim == 2
-    v = v[:, :, None] if squeeze else v
-    w = np.clip(np.asarray(weight, np.float32), 0.0, 1.0)
-    if not (w > 0).any():
-        raise ValueError("smooth_fill: no pixel has weight")
-    s = max(float(scale_px), 0.5)
-
-    def blur(x, sigma):
-        """Gaussian blur; a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
-        f = max(1, int(sigma // 4))
-        if f == 1:
-            return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
-        h, w = x.shape[:2]
-        small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
-        small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT)
-        return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(x.shape)
-
-    den = blur(w, s)
-    num = blur(v * w[:, :, None], s)
-    known = den >= 0.5 * den.max()
-    est = num / np.maximum(den, 1e-12)[:, :, None]
-    dist, (iy, ix) = distance_transform_edt(~known, return_indices=True)
-    ext = est[iy, ix]
-    out = ext
-    level = np.log2(1.0 + dist / s)  # 0 at the supported region, +1 each time the distance doubles
-    for k in range(int(np.ceil(level.max())) + 1):
-        a = np.clip(level - (k - 1), 0.0, 1.0)[:, :, None]  # σ = s·2^k takes over from σ/2 along level k−1…k
-        out = out * (1.0 - a) + blur(ext, s * 2.0 ** k) * a
-    return out[:, :, 0] if squeeze else out
+    mean of the whole region nor extrapolate a slope.  (:class:`SmoothFill` keeps the work
+    that depends on the weights only, for several fields.)"""
+    return SmoothFill(weight, scale_px)(values)
 
 
 def laplacian_blend(a: np.ndarray, b: np.ndarray, alpha: np.ndarray, levels: int | None = None) -> np.ndarray:

@@ -75,12 +75,14 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "n
 
 def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
                      *, perspective: bool = True, cull: str = "none",
-                     near: float | None = NEAR) -> Raster:
+                     near: float | None = NEAR, depth_only: bool = False) -> Raster:
     """Rasterise triangles given vertex screen positions (pixels) and depths.
 
     With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
     (linear in 1/z); without it (orthographic views) linearly in screen space.  Triangles with
     a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
+    ``depth_only`` (shadow maps): only the depth is resolved; the triangle ids, coverage and
+    barycentrics are left empty.
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -145,7 +147,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     A, B, C = ([np.ascontiguousarray(M[:, i]) for i in range(3)] for M in (A, B, C))
     for a, b in zip(starts[:-1], starts[1:]):
         t, px, py = _spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
-        _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary)
+        _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, None if depth_only else (tri, bary))
     cov = tri >= 0
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
@@ -195,11 +197,22 @@ def _spans(ids, bh, xmin, xmax, ymin, A, B, C, own):
     return t[row], px, yc[row]
 
 
-def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary):
-    """Barycentrics, depth and the z-buffer test of inside pixels."""
+def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
+    """Barycentrics, depth and the z-buffer test of inside pixels; the winners' triangle ids
+    and barycentrics into ``ids`` = (tri, bary) unless it is None."""
     if len(t) == 0:
         return
     e0, e1, e2 = (A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3))
+    pix = (py - 0.5).astype(np.int64) * W + (px - 0.5).astype(np.int64)
+    if ids is None:  # depth only: the same sums as below, without the barycentric arrays
+        absa = np.abs(area[t])
+        Z = fz[t]
+        if perspective:
+            zk = 1.0 / (e0 / absa / Z[:, 0] + e1 / absa / Z[:, 1] + e2 / absa / Z[:, 2])
+        else:
+            zk = e0 / absa * Z[:, 0] + e1 / absa * Z[:, 1] + e2 / absa * Z[:, 2]
+        np.minimum.at(depth, pix, zk)
+        return
     k = slice(None)
     absa = np.abs(area[t[k]])
     b = np.stack([e0[k], e1[k], e2[k]], 1) / absa[:, None]  # screen-space barycentrics
@@ -211,9 +224,9 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, tri, bary):
         b = bz * zk[:, None]
     else:
         zk = (b * Z).sum(1)
-    pix = (py[k] - 0.5).astype(np.int64) * W + (px[k] - 0.5).astype(np.int64)
     # z-buffer: scatter-min of the depths, then the winners (ties: lowest triangle id)
     np.minimum.at(depth, pix, zk)
+    tri, bary = ids
     wi = np.nonzero(zk == depth[pix])[0]
     tk = t[k][wi]
     best = np.full(len(depth), np.iinfo(np.int64).max)
@@ -404,8 +417,72 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
     fr = shadow_frame(vertices, light, size, margin, up)
     xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
     r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
-                         perspective=fr.perspective, near=NEAR if fr.perspective else None)
+                         perspective=fr.perspective, near=NEAR if fr.perspective else None,
+                         depth_only=True)
     sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist
     return sm
+
+
+def edge_coverage(xy: np.ndarray, faces: np.ndarray, coverage: np.ndarray,
+                  step: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """Fractional coverage of the pixels along a mesh's silhouette (anti-aliasing), from the
+    binary ``coverage`` of :func:`rasterize` and the vertices' screen positions ``xy``.
+
+    The silhouette is the mesh's boundary edges and its contour edges (the two triangles on
+    either side face opposite ways on screen) that lie next to a coverage change; each pixel
+    with a 4-neighbour of the other coverage gets 0.5 ± the distance from its centre to the
+    nearest such edge (+ covered, − not), clipped to [0, 1]: a box filter across a straight
+    edge.  Other pixels keep 0 or 1.  Returns (the H×W float32 coverage, for every pixel the
+    flat index of the nearest covered pixel: where an uncovered pixel takes its colour from)."""
+    import cv2
+    from scipy.ndimage import distance_transform_edt
+    from scipy.spatial import cKDTree
+
+    cov = np.asarray(coverage, bool)
+    frac = cov.astype(np.float32)
+    _, (iy, ix) = distance_transform_edt(~cov, return_indices=True)
+    src = (iy * cov.shape[1] + ix).ravel()
+    u8 = cov.astype(np.uint8)
+    k = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+    band = cv2.dilate(u8, k) != cv2.erode(u8, k)
+    seg = _silhouette_edges(np.asarray(xy, np.float64), np.asarray(faces, np.int64).reshape(-1, 3))
+    if not band.any() or len(seg) == 0:
+        return frac, src
+    near = cv2.dilate(band.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    mid = np.floor(seg.mean(1)).astype(np.int64)
+    H, W = cov.shape
+    inside = (mid[:, 0] >= 0) & (mid[:, 0] < W) & (mid[:, 1] >= 0) & (mid[:, 1] < H)
+    seg = seg[inside]
+    seg = seg[near[mid[inside, 1], mid[inside, 0]]]
+    if len(seg) == 0:
+        return frac, src
+    n = np.maximum(np.ceil(np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1) / step), 1).astype(np.int64)
+    t = np.concatenate([np.arange(m + 1) / m for m in n])
+    s = np.repeat(np.arange(len(seg)), n + 1)
+    pts = seg[s, 0] + (seg[s, 1] - seg[s, 0]) * t[:, None]
+    by, bx = np.nonzero(band)
+    d, _ = cKDTree(pts).query(np.stack([bx + 0.5, by + 0.5], 1))
+    frac[by, bx] = np.clip(0.5 + np.where(cov[by, bx], d, -d), 0.0, 1.0)
+    return frac, src
+
+
+def _silhouette_edges(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The screen segments (K×2×2) of the mesh's boundary edges and contour edges (the two
+    faces on either side wound opposite ways on screen); degenerate faces are left out."""
+    p = xy[faces]
+    area = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1])
+    keep = np.isfinite(area) & (area != 0)
+    f, sg = faces[keep], np.sign(area[keep])
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    es = np.concatenate([sg, sg, sg])
+    key = np.sort(e, axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    pos = np.zeros(len(cnt))
+    np.add.at(pos, inv, es > 0)
+    sil = (cnt == 1) | ((pos > 0) & (pos < cnt))  # boundary, or faces of both windings
+    first = np.full(len(cnt), -1, np.int64)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    return xy[e[first[sil]]]

@@ -30,6 +30,23 @@ _STATIC_KEEP = 4
 _STATIC_LOCK = threading.Lock()  # node threads and the studio's view threads share it
 
 
+def not_drawn(p, mesh) -> str | None:
+    """What Render's params ``p`` ask of ``mesh`` that the GL programs (the opengl backend, the
+    studio's WebGL face view) do not draw, as a sentence, or None: ``antialias``, and
+    ``mouth: photo`` on a mediapipe mesh (where the numpy reference keeps the photo's mouth)."""
+    from nodes.paris.render import _mediapipe_ids
+
+    missing = []
+    if p.mouth == "photo" and _mediapipe_ids(mesh) is not None:
+        missing.append("mouth: photo (the mesh is a mediapipe face)")
+    if p.antialias:
+        missing.append("antialias: true")
+    if not missing:
+        return None
+    return (f"{' and '.join(missing)} are drawn by the numpy reference only; set mouth: skin and "
+            f"antialias: false to use the GL programs")
+
+
 def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,
           key: bytes | None = None, environment=None):
     """(job, lights in world units, per-light shadow-map errors or None, eyes) for Render's

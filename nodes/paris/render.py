@@ -12,12 +12,16 @@ metres (:func:`world_lights` converts them to world units once).
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import Literal, NamedTuple, Optional
 
 import numpy as np
+import xxhash
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
+from graphkit.hashing import canonical
+from graphkit.store import value_parts
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .environment import EnvironmentLighting, sh_irradiance
@@ -29,6 +33,11 @@ MP_EYES = (
     (33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173),
 )
 INTEROCULAR_MM = 63.0  # mean adult distance between the eye centres (mm)
+#: mediapipe face-mesh outer lip contour (the larger loop of FACEMESH_LIPS)
+MP_LIPS_OUTER = (0, 37, 39, 40, 185, 61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 267)
+#: the mouth region reaches this fraction of the mouth's height beyond the outer lip contour
+#: (a fitted mesh's lips miss the photo's by about that much: the astronaut's by 2–4 px of 17)
+MOUTH_MARGIN = 0.3
 
 
 # ----------------------------------------------------------------------------------------------
@@ -329,6 +338,63 @@ def eye_spheres(mesh, eyes, cornea_mm: float, mm_per_unit: float | None,
     return centres, axes, R
 
 
+def mouth_region(mesh, camera: Camera) -> tuple[np.ndarray, float] | None:
+    """(alpha H×W: 1 inside the outer lip contour, falling smoothly to 0 at ``MOUTH_MARGIN`` ×
+    the mouth's height outside it; the mouth's height in pixels) through ``camera``, from the
+    mediapipe landmark ids of ``mesh`` (FaceMesh's, or SmoothMesh's of it); None without them."""
+    import cv2
+
+    from nodes.common.blend import feather
+
+    ids = _mediapipe_ids(mesh)
+    if ids is None:
+        return None
+    xy, _ = camera.project(np.asarray(mesh.vertices, np.float64)[ids[list(MP_LIPS_OUTER)]])
+    inside = np.zeros((camera.height, camera.width), np.uint8)
+    cv2.fillPoly(inside, [np.round((xy - 0.5) * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    height = max(float(np.ptp(xy[:, 1])), 1.0)
+    return 1.0 - feather(inside == 0, MOUTH_MARGIN * height), height
+
+
+class SmoothOver:
+    """The per-pixel shading (M×3, the ``covered`` pixels in row-major order) with the region
+    ``alpha`` > 0 taken over by the shading around it, smoothed to ``scale_px`` and carried in
+    (``blend.SmoothFill``), blended by ``alpha``: where the mesh does not follow the photo
+    (lips, teeth) the light changes smoothly, as on the skin around it.  What depends on the
+    region only (its box, the fill's plan) is prepared here; calling it with a shading fills."""
+
+    def __init__(self, covered: np.ndarray, alpha: np.ndarray, scale_px: float):
+        from nodes.common.blend import SmoothFill
+
+        self.fill = None
+        a = np.where(covered, alpha, 0.0).astype(np.float32)
+        known = covered & (alpha <= 0)
+        if not (a > 0).any() or not known.any():
+            return
+        ys, xs = np.nonzero(a > 0)
+        pad = int(np.ceil(3 * scale_px))
+        H, W = covered.shape
+        box = (slice(max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)),
+               slice(max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)))
+        if not known[box].any():
+            return
+        self.fill = SmoothFill(known[box], scale_px)
+        self.inside = covered[box]  # the covered pixels of the box …
+        rank = np.cumsum(covered.ravel()).reshape(H, W) - 1
+        self.rows = rank[box][self.inside]  # … and their rows in the shading
+        self.ab = a[box][:, :, None]
+
+    def __call__(self, shade: np.ndarray) -> np.ndarray:
+        if self.fill is None:
+            return shade
+        img = np.zeros(self.inside.shape + (shade.shape[1],), np.float64)
+        img[self.inside] = shade[self.rows]
+        fill = self.fill(img)
+        out = shade.copy()
+        out[self.rows] = (img * (1.0 - self.ab) + fill * self.ab)[self.inside]
+        return out
+
+
 # ----------------------------------------------------------------------------------------------
 
 
@@ -418,12 +484,19 @@ def prepare_render(mesh, camera: Camera, lights, detail, texture_camera, fill_ho
     """Render's checks and set-up shared by every backend: (lights in world units, the mesh
     to draw (inner holes closed when asked))."""
     lights = check_render_inputs(lights, detail, texture_camera, camera, environment)
+    m = prepare_mesh(mesh, camera, texture_camera, fill_holes)
+    return world_lights(lights, camera, m), m
+
+
+def prepare_mesh(mesh, camera: Camera, texture_camera, fill_holes: bool):
+    """The light-independent part of :func:`prepare_render`: the mesh checked, its inner holes
+    closed when asked, and seen by the camera(s)."""
     check_mesh(mesh)
     m = close_holes(mesh) if fill_holes else mesh
     check_in_view(m, camera)
     if texture_camera is not None:
         check_in_view(m, texture_camera, "mesh", "texture_camera")
-    return world_lights(lights, camera, m), m
+    return m
 
 
 def _example_environment() -> EnvironmentLighting:
@@ -459,11 +532,20 @@ class Render(Node):
       harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
       Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
       WebGL view does not).
+    * The mouth (``mouth: photo``, on a mediapipe mesh): a fitted mesh's lips miss the photo's,
+      so the mouth region (the outer lip contour, widened by 30 % of its height, feathered) takes
+      the smooth shading of the skin around it, and the photo's lips and teeth come from the
+      detail texture under it (no streak where the mesh's lip normals are wrong).
+    * ``antialias``: each pixel the silhouette crosses is covered by 0.5 ± the distance from its
+      centre to the mesh's outline (``raster.edge_coverage``), the colour blended with the
+      background by it; the ``coverage`` output is that fraction.
+    * What does not depend on the lights or the material (the surface, detail texture, eye
+      hits, mouth, silhouette) is kept between calls on the same inputs: a new light re-shades.
     Outputs the image, the camera-space depth (mesh units, 0 where empty) and the coverage.
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "2"
+    version = "3"  # 3: mouth from the photo's detail under smooth shading; antialias
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
@@ -498,23 +580,28 @@ class Render(Node):
         mm_per_unit: Optional[float] = Field(None, gt=0, description="mesh unit in mm; default from a 63 mm interocular distance")
         fill_holes: bool = Field(True, description="close inner holes (eyes, mouth) so the detail texture covers them")
         ambient_gain: float = Field(1.0, ge=0, description="multiplier on the ambient of the `ambient` input")
+        mouth: Literal["photo", "skin"] = Field(
+            "photo", description="photo: the mouth (lips, teeth; known on a mediapipe mesh) keeps the photo's "
+                                 "detail under the smooth shading of the skin around it, for the fitted mesh "
+                                 "does not follow the photo's lips; skin: shaded as skin like the rest")
+        antialias: bool = Field(False, description="fractional coverage along the silhouette (0.5 ± the "
+                                                   "distance to the mesh's outline): no staircase border")
 
     def compute(self, mesh, camera: Camera, material: PhongMaterial, lights=None,
                 detail: Image | None = None, texture_camera: Camera | None = None,
                 ambient: Light | None = None, environment: EnvironmentLighting | None = None):
-        from nodes.common import raster
-        from nodes.common.shadows import light_visibility
-
         from . import phong
 
         p = self.params
-        eye_mesh = mesh
-        lights, mesh = prepare_render(mesh, camera, lights, detail, texture_camera, p.fill_holes,
-                                      environment)
+        # prepare_render's checks; the mesh's part is kept with the geometry
+        lights = check_render_inputs(lights, detail, texture_camera, camera, environment)
+        g = self._geometry(mesh, camera, detail, texture_camera)
+        eye_mesh, mesh = mesh, g.mesh
+        lights = world_lights(lights, camera, mesh)
         own = len(lights)  # the lights given on `lights`: each must light the face
         if environment is not None:
             lights += world_lights(environment.lights, camera, mesh, "environment")
-        s = surface(mesh, camera, min_pixels=1)
+        s = g.surface
         H, W = camera.height, camera.width
         M = len(s.points)
         kd = np.asarray(material.diffuse, np.float64)
@@ -529,12 +616,7 @@ class Render(Node):
             elif not (diff > 0).any():
                 continue
             if p.shadows:
-                try:
-                    sm = raster.shadow_map(mesh.vertices, mesh.faces, light, p.shadow_map_size,
-                                           up=camera.rotation[1])
-                    vis = light_visibility(sm, light, s.points, s.normals)
-                except ValueError as e:
-                    raise BadInput("lights" if i < own else "environment", f"light {i}: {e}") from None
+                vis = self._visibility(mesh, light, camera, s, i, "lights" if i < own else "environment")
                 diff, spec = diff * vis, spec * vis
             col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
@@ -543,20 +625,90 @@ class Render(Node):
         col += kd * amb
         if environment is not None:
             col += kd * sh_irradiance(environment.sh, s.normals)
+        if g.mouth is not None:
+            col = g.mouth(col)
+        if g.texture is not None:
+            col = col * g.texture
+        # the image over g.box (every pixel outside it is the background)
+        bg = np.asarray(p.background, np.float64)
+        box = g.box
+        img = np.empty((box[0].stop - box[0].start, box[1].stop - box[1].start, 3))
+        img[:] = bg
+        img[s.coverage[box]] = col
+        cover = s.coverage.astype(np.float32)
+        if g.edges is not None:  # (the box is the whole image)
+            cover, src = g.edges
+            img = cover[:, :, None] * img.reshape(-1, 3)[src].reshape(H, W, 3) \
+                + (1.0 - cover[:, :, None]) * bg
+        if g.eyes:
+            idx, add = self._eyes(g.eyes, lights)
+            img.reshape(-1, 3)[idx] += add
+        out = np.empty((H, W, 3), np.float32)
+        out[:] = self._exposed(bg)
+        out[box] = self._exposed(img)
+        return {"image": Image(out),
+                "depth": Image(g.depth.copy()),
+                "coverage": Mask(cover)}
+
+    def _exposed(self, img: np.ndarray) -> np.ndarray:
+        """``img`` × exposure, clamped to [0, 1] with ``clamp``, as float32."""
+        img = img * self.params.exposure
+        if self.params.clamp:
+            img = np.clip(img, 0.0, 1.0, out=img)
+        return img.astype(np.float32)
+
+    def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int, port: str) -> np.ndarray:
+        """Shadow-map visibility of the surface's points from light ``i`` (soft for a light with
+        a size); a shadow-map failure is bad input on ``port``."""
+        from nodes.common import raster
+        from nodes.common.shadows import light_visibility
+
+        try:
+            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, self.params.shadow_map_size,
+                                   up=camera.rotation[1])
+            return light_visibility(sm, light, s.points, s.normals)
+        except ValueError as e:
+            raise BadInput(port, f"light {i}: {e}") from None
+
+    def _geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+        """What does not depend on the lights or the material (the surface, its detail texture,
+        the eyes' ray hits, the mouth, the silhouette's coverage): memoised on the inputs and
+        params it comes from, so that a new light re-shades without it (a live view's drag)."""
+        p = self.params
+        given = {"mesh": eye_mesh, "camera": camera, "detail": detail, "texture_camera": texture_camera}
+        key = xxhash.xxh3_128(canonical([
+            {k: None if v is None else value_parts(self.in_ports[k].type, v)[2] for k, v in given.items()},
+            p.fill_holes, p.eye_highlights, p.eyes, p.cornea_radius_mm, p.eye_protrusion_mm, p.mm_per_unit,
+            p.mouth, p.antialias])).hexdigest()
+        got = _GEOMETRY.get(key)
+        if got is None:
+            got = self._make_geometry(eye_mesh, camera, detail, texture_camera)
+            with _GEOMETRY_LOCK:  # nodes may run on several threads (graphkit run --jobs)
+                while len(_GEOMETRY) >= 4:
+                    _GEOMETRY.pop(next(iter(_GEOMETRY)))
+                _GEOMETRY[key] = got
+        return got
+
+    def _make_geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
+        from nodes.common import raster
+
+        p = self.params
+        mesh = prepare_mesh(eye_mesh, camera, texture_camera, p.fill_holes)
+        s = surface(mesh, camera, min_pixels=1)
+        tex = None
         if detail is not None:
-            col = col * projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
-        img = np.empty((H, W, 3))
-        img[:] = np.asarray(p.background)
-        img[s.coverage] = col
-        if p.eye_highlights != "off":
-            img += self._eyes(eye_mesh, camera, s, lights, H, W).reshape(H, W, 3)
-        img *= p.exposure
-        if p.clamp:
-            img = np.clip(img, 0.0, 1.0)
-        depth = np.where(s.coverage, s.raster.depth, 0.0)
-        return {"image": Image(img.astype(np.float32)),
-                "depth": Image(depth.astype(np.float32)),
-                "coverage": Mask(s.coverage.astype(np.float32))}
+            tex = projective_texture(detail, texture_camera, mesh, s.points)[:, :3]
+        eyes = None if p.eye_highlights == "off" else self._eye_hits(eye_mesh, camera, s)
+        mouth = mouth_region(eye_mesh, camera) if p.mouth == "photo" else None
+        if mouth is not None:
+            mouth = SmoothOver(s.coverage, mouth[0], 0.5 * mouth[1])
+        edges = None
+        if p.antialias:
+            xy, _ = camera.project(np.asarray(mesh.vertices, np.float64))
+            edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
+        depth = np.where(s.coverage, s.raster.depth, 0.0).astype(np.float32)
+        box, eyes = _image_box(s.coverage, eyes, whole=edges is not None)
+        return _Geometry(mesh, s, tex, eyes, mouth, edges, depth, box)
 
     @classmethod
     def examples(cls):
@@ -588,10 +740,10 @@ class Render(Node):
                 ({"shadow_map_size": 128},
                  {"mesh": m, "camera": cam, "material": mat, "environment": _example_environment()})]
 
-    def _eyes(self, mesh, camera, s: Surface, lights, H, W) -> np.ndarray:
-        """Additive specular of the two cornea hemispheres, per pixel (H·W×3)."""
-        from . import phong
-
+    def _eye_hits(self, mesh, camera, s: Surface) -> list | None:
+        """Where the rays of the pixels meet the two cornea hemispheres: per eye (flat pixel
+        indices, points, unit normals, directions towards the viewer); None when the eyes are
+        unknown (refused when ``eye_highlights`` is 'on')."""
         p = self.params
         info = eye_spheres(mesh, p.eyes, p.cornea_radius_mm, p.mm_per_unit,
                            p.eye_protrusion_mm, camera.position)
@@ -599,14 +751,15 @@ class Render(Node):
             if p.eye_highlights == "on":
                 raise BadInput("mesh", "eye_highlights is 'on' but the eyes are unknown: the mesh "
                                        "is not a mediapipe face mesh; set the `eyes` param")
-            return np.zeros((H * W, 3))
+            return None
         centres, axes, R = info
-        out = np.zeros((H * W, 3))
+        H, W = camera.height, camera.width
         # rays through every pixel centre (perspective or orthographic)
         yy, xx = np.divmod(np.arange(H * W), W)
         o, d = camera.rays(np.stack([xx + 0.5, yy + 0.5], 1))
         depth = s.raster.depth.ravel()
         C, fwd = camera.position, camera.forward
+        hits = []
         for c, a in zip(centres, axes):
             oc = o - c
             bq = np.sum(d * oc, 1)
@@ -617,15 +770,61 @@ class Render(Node):
             hit &= (t > 0) & (np.sum((X - c) * a, 1) >= 0)
             zc = (X - C) @ fwd
             hit &= zc <= depth + R * 0.35  # the cap shows where it is not behind the eyelids
-            if not hit.any():
-                continue
-            n = (X[hit] - c) / R
-            v = -d[hit]
+            if hit.any():
+                hits.append((np.nonzero(hit)[0], X[hit], (X[hit] - c) / R, -d[hit]))
+        return hits
+
+    def _eyes(self, hits: list, lights) -> tuple[np.ndarray, np.ndarray]:
+        """Additive specular of the two cornea hemispheres: (the pixels it lights, flat
+        indices as in ``hits``, sorted; its value there, K×3)."""
+        from . import phong
+
+        p = self.params
+        idx = np.unique(np.concatenate([h[0] for h in hits]))
+        out = np.zeros((len(idx), 3))
+        for hit, X, n, v in hits:
+            at = np.searchsorted(idx, hit)
             for light in lights:
-                ldir, L = light_vectors(light, X[hit])
+                ldir, L = light_vectors(light, X)
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
-                out[hit] += p.eye_specular * L * spec[:, None]
-        return out
+                out[at] += p.eye_specular * L * spec[:, None]
+        return idx, out
+
+
+class _Geometry(NamedTuple):
+    """Render's work that does not depend on the lights or the material."""
+    mesh: object  # prepare_mesh: the mesh drawn
+    surface: Surface
+    texture: np.ndarray | None  # M×3 detail texture at the covered pixels
+    eyes: list | None  # Render._eye_hits
+    mouth: SmoothOver | None  # over mouth_region
+    edges: tuple[np.ndarray, np.ndarray] | None  # raster.edge_coverage
+    depth: np.ndarray  # the depth output (float32, 0 where uncovered)
+    box: tuple[slice, slice]  # _image_box: the pixels that are not the background
+
+
+def _image_box(coverage: np.ndarray, eyes: list | None, whole: bool) -> tuple[tuple[slice, slice], list | None]:
+    """(the box of the pixels Render shades: the covered ones and the eyes' hits; the whole
+    image when ``whole``, the eyes' hits with their pixels' flat indices in that box)."""
+    H, W = coverage.shape
+    if whole:
+        return (slice(0, H), slice(0, W)), eyes
+    ys, xs = np.nonzero(coverage)
+    if eyes:
+        ey, ex = np.divmod(np.concatenate([h[0] for h in eyes]), W)
+        ys, xs = np.concatenate([ys, ey]), np.concatenate([xs, ex])
+    y0, x0 = int(ys.min()), int(xs.min())
+    box = (slice(y0, int(ys.max()) + 1), slice(x0, int(xs.max()) + 1))
+    if eyes:
+        bw = box[1].stop - x0
+        eyes = [((i // W - y0) * bw + i % W - x0, X, n, v) for i, X, n, v in eyes]
+    return box, eyes
+
+
+#: the last _Geometry values by the digest of what they come from (a live view's face, a
+#: benchmark's; ~60 MB for a 1024² face, mostly the raster's per-pixel arrays)
+_GEOMETRY: dict = {}
+_GEOMETRY_LOCK = threading.Lock()
 
 
 class MakeLight(Node):

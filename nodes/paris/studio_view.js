@@ -557,6 +557,12 @@ export function mount(el, api) {
   const info = document.createElement('div');
   info.className = 'dim view-info';
   let r;
+  if (d.not_drawn) {  // the page differs from the node's output there: say so (glscene.not_drawn)
+    const warn = document.createElement('div');
+    warn.className = 'view-info face-not-drawn';
+    warn.textContent = `Not as Render's output: ${d.not_drawn} (the numpy reference draws it).`;
+    wrap.append(warn);
+  }
   try { r = createFaceRenderer(canvas, d); } catch (e) { info.textContent = `WebGL2 face view unavailable: ${e.message}`; wrap.append(info); el.append(wrap); return; }
   const light = { direction: d.light.direction, intensity: d.light.intensity, color: d.light.color };
   // the sphere widget: a point on the visible hemisphere = the light direction (camera frame:

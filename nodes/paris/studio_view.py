@@ -103,6 +103,8 @@ class FaceView(LiveView):
     def data(self) -> dict:
         from graphkit.glsl import source
 
+        from .glscene import not_drawn
+
         job, lights, _, eyes = self._scene({})
         p = self.params
         cam = self.inputs()["camera"]
@@ -120,7 +122,9 @@ class FaceView(LiveView):
              "ray_org": _mat(job["ray_org"]), "ray_dir": _mat(job["ray_dir"]),  # each pixel's world ray
              "boxes": [[int(x) for x in b] for b in job["boxes"]],  # eyes: _eye_boxes
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
-             **self._light_part(job, p, len(job["mesh_faces"]))}
+             **self._light_part(job, p, len(job["mesh_faces"])),
+             # what the page does not draw (glscene.not_drawn): said above the picture, never silent
+             "not_drawn": not_drawn(p, self.inputs()["mesh"])}
         if det is not None:
             tc = det["cam"]
             d["detail"] = {"pixels": _arr(det["pixels"]), "size": [int(tc.width), int(tc.height)],
@@ -233,3 +237,67 @@ class FaceView(LiveView):
         lights = world_lights(check_render_inputs(self._lights(values, given), None, None), camera, m)
         part, _ = light_part(self.params, V, F, lights, camera.rotation[1])
         return {"image": np.zeros((1, 1, 3), np.float32), "scene": self._light_part(part, self.params, len(F))}
+
+
+class CompositeView(LiveView):
+    """The studio's live view of CompositeFace: the whole photograph relit as the first light of
+    the Render that feeds ``relit`` is moved (azimuth and elevation about the photo camera's
+    axis, MakeLight's convention).  Each move re-renders the face with that light (Render keeps
+    its light-independent work between calls) and composites it (CompositeFace keeps its
+    feather and fill plan), on the server: the frame is the node's own output.  Letting go sets
+    the angles of the MakeLight that gives that light, when one does."""
+
+    title = "the whole photograph relit"
+    js = "composite_view.js"
+
+    def _source(self):
+        """(the Render node feeding ``relit``, its first light's node) — BadInput otherwise."""
+        g = self.studio.graph
+        src = self.gnode.inputs.get("relit")
+        if not src or g.nodes[src[0]].type != "Render":
+            raise BadInput("relit", "the live view moves the light of the Render that gives `relit`; "
+                                    "connect a Render's image there")
+        lights = g.nodes[src[0]].inputs.get("lights") or []
+        return src[0], (lights[0][0] if lights else None)
+
+    def _angles(self) -> tuple[float, float]:
+        _, light = self._source()
+        if light is not None and self.studio.graph.nodes[light].type == "MakeLight":
+            p = self.studio.graph.nodes[light].params
+            return float(p.azimuth_deg), float(p.elevation_deg)
+        return 0.0, 0.0
+
+    def data(self) -> dict:
+        az, el = self._angles()
+        return {"sliders": [
+            {"key": "azimuth", "label": "light azimuth (°)", "min": -90.0, "max": 90.0, "step": 1.0, "value": az,
+             "description": "towards the image's right, about the photo camera's axis"},
+            {"key": "elevation", "label": "light elevation (°)", "min": -60.0, "max": 80.0, "step": 1.0,
+             "value": el, "description": "up, about the photo camera's axis"}],
+            "note": "preview: Render with the first light moved, then this node, on the whole photo"}
+
+    def frame(self, values: dict):
+        from .render import MakeLight, Render
+
+        render, _ = self._source()
+        given = self.studio.input_values(render)
+        if given is None:
+            raise BadInput("relit", f"node '{render}': its inputs are not computed yet (run the graph first)")
+        az, el = self._angles()
+        old = given["lights"][0]
+        light = MakeLight(MakeLight.Params(azimuth_deg=float(values.get("azimuth", az)),
+                                           elevation_deg=float(values.get("elevation", el)),
+                                           color=old.color, intensity=old.intensity, ambient=old.ambient)
+                          ).compute(camera=given["camera"])
+        r = Render(self.studio.graph.nodes[render].params).compute(
+            **{**{k: v for k, v in given.items() if v is not None}, "lights": [light, *given["lights"][1:]]})
+        photo = self.inputs()["photo"]
+        return self.compute(photo=photo, relit=r["image"], coverage=r["coverage"])["image"]
+
+    def commit(self, values: dict) -> list[dict]:
+        _, light = self._source()
+        if light is None or self.studio.graph.nodes[light].type != "MakeLight":
+            return []
+        az, el = self._angles()
+        return (self.change(light, "azimuth_deg", float(values.get("azimuth", az)))
+                + self.change(light, "elevation_deg", float(values.get("elevation", el))))

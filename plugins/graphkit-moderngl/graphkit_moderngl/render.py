@@ -48,12 +48,15 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
 texture-occlusion-edge pixels (see ``tolerance``); at most 32 lights (BadInput beyond); lights
 with a size (``LightSize``: soft shadows) are refused while shadows are on (BadInput, exit 2).
+Not drawn: ``antialias`` and ``mouth: photo`` on a mediapipe mesh (``glscene.not_drawn``):
+``BackendCannotRun``, so the engine computes the node with numpy (one notice) or, where the
+graph pins ``backend: opengl``, exits 2 saying why.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from graphkit import BadInput, Backend, Camera, Image, Light, Mask
+from graphkit import BackendCannotRun, BadInput, Backend, Camera, Image, Light, Mask
 
 from .runtime import Unavailable, runtime
 
@@ -88,10 +91,13 @@ class RenderGL(Backend):
 
     def compute(self, mesh, camera: Camera, material, lights=None, detail: Image | None = None,
                 texture_camera: Camera | None = None, ambient: Light | None = None, environment=None):
-        from nodes.paris.glscene import scene, static_key
+        from nodes.paris.glscene import not_drawn, scene, static_key
 
         p = self.params
         _refuse_sized(p, lights)
+        why = not_drawn(p, mesh)
+        if why:  # never a silently different image: the engine falls back to numpy, or refuses if pinned
+            raise BackendCannotRun(why)
         H, W = camera.height, camera.width
         job, lights, sm_errors, eyes = scene(p, mesh, camera, material, lights, detail, texture_camera, ambient,
                                              key=static_key(p, self.ctx.inputs, mesh, camera, detail, texture_camera),
@@ -175,8 +181,6 @@ def _refuse_sized(p, lights) -> None:
 def _check_atlas(n: int, size: int):
     """The shadow maps share one texture (shaders/glsl/shade.frag): refuse (the engine then
     uses numpy unless the graph pins opengl) what exceeds the GL implementation's limit."""
-    from graphkit import BackendCannotRun
-
     why = check_atlas_fits(n, size, runtime().max_texture_size)
     if why:
         raise BackendCannotRun(f"{why} ({runtime().describe()})")
