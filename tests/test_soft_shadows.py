@@ -125,16 +125,18 @@ def test_render_soft_shadows_and_size_zero_keeps_bytes():
 
 
 def test_opengl_backend_refuses_sized_lights():
-    """The opengl backend draws hard shadows only: it refuses a sized light (never silently
-    hard), and accepts it with shadows off.  (The check runs before any GL call.)"""
-    from graphkit_moderngl.render import _refuse_sized
+    """The GL programs draw hard shadows only: a sized light is named as not drawn (the opengl
+    backend then raises BackendCannotRun: numpy computes the node, or exit 2 where a graph pins
+    opengl; never silently hard), and drawn with shadows off."""
+    from nodes.paris.glscene import not_drawn
 
+    params, inputs = Render.examples()[0]
+    p = Render.Params(**{**params, "mouth": "skin"})
     sized = Light(angular_radius_deg=3.0)
-    with pytest.raises(BadInput) as e:
-        _refuse_sized(Render.Params(), [Light(), sized])
-    assert e.value.port == "lights" and "light 1" in e.value.message and "numpy" in e.value.message
-    _refuse_sized(Render.Params(shadows=False), [sized])
-    _refuse_sized(Render.Params(), [Light()])
+    why = not_drawn(p, inputs["mesh"], [Light(), sized])
+    assert "light 1" in why and "numpy" in why
+    assert not_drawn(p.model_copy(update={"shadows": False}), inputs["mesh"], [sized]) is None
+    assert not_drawn(p, inputs["mesh"], [Light()]) is None
 
 
 def test_a_sphere_light_reaching_the_mesh_is_refused():

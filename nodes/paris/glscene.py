@@ -30,10 +30,11 @@ _STATIC_KEEP = 4
 _STATIC_LOCK = threading.Lock()  # node threads and the studio's view threads share it
 
 
-def not_drawn(p, mesh) -> str | None:
-    """What Render's params ``p`` ask of ``mesh`` that the GL programs (the opengl backend, the
-    studio's WebGL face view) do not draw, as a sentence, or None: ``antialias``, and
-    ``mouth: photo`` on a mediapipe mesh (where the numpy reference keeps the photo's mouth)."""
+def not_drawn(p, mesh, lights=()) -> str | None:
+    """What Render's params ``p`` ask of ``mesh`` and ``lights`` that the GL programs (the opengl
+    backend, the studio's WebGL face view) do not draw, as a sentence, or None: ``antialias``,
+    ``mouth: photo`` on a mediapipe mesh (where the numpy reference keeps the photo's mouth), and
+    the soft shadows of a light with a size (LightSize; the GL programs draw hard shadow maps)."""
     from nodes.paris.render import _mediapipe_ids
 
     missing = []
@@ -41,10 +42,14 @@ def not_drawn(p, mesh) -> str | None:
         missing.append("mouth: photo (the mesh is a mediapipe face)")
     if p.antialias:
         missing.append("antialias: true")
+    lights = lights if isinstance(lights, (list, tuple)) else [lights]
+    sized = [i for i, light in enumerate(lights) if light is not None and light.has_size]
+    if p.shadows and sized:
+        missing.append(f"the soft shadows of light {sized[0]} (it has a size)")
     if not missing:
         return None
-    return (f"{' and '.join(missing)} are drawn by the numpy reference only; set mouth: skin and "
-            f"antialias: false to use the GL programs")
+    return (f"{' and '.join(missing)} are drawn by the numpy reference only; set mouth: skin, "
+            f"antialias: false and lights without a size (or shadows: false) to use the GL programs")
 
 
 def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,

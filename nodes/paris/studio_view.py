@@ -124,7 +124,7 @@ class FaceView(LiveView):
              "mesh_faces": _arr(job["mesh_faces"], "u4"),
              **self._light_part(job, p, len(job["mesh_faces"])),
              # what the page does not draw (glscene.not_drawn): said above the picture, never silent
-             "not_drawn": not_drawn(p, self.inputs()["mesh"])}
+             "not_drawn": not_drawn(p, self.inputs()["mesh"], self.inputs().get("lights") or ())}
         if det is not None:
             tc = det["cam"]
             d["detail"] = {"pixels": _arr(det["pixels"]), "size": [int(tc.width), int(tc.height)],

@@ -46,11 +46,11 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
 * float32 everywhere on the GL side (RGBA32F targets, read back as float32).
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
-texture-occlusion-edge pixels (see ``tolerance``); at most 32 lights (BadInput beyond); lights
-with a size (``LightSize``: soft shadows) are refused while shadows are on (BadInput, exit 2).
-Not drawn: ``antialias`` and ``mouth: photo`` on a mediapipe mesh (``glscene.not_drawn``):
-``BackendCannotRun``, so the engine computes the node with numpy (one notice) or, where the
-graph pins ``backend: opengl``, exits 2 saying why.
+texture-occlusion-edge pixels (see ``tolerance``); at most 32 lights (BadInput beyond).
+Not drawn: ``antialias``, ``mouth: photo`` on a mediapipe mesh, and the soft shadows of lights
+with a size (``LightSize``) while shadows are on (``glscene.not_drawn``): ``BackendCannotRun``,
+so the engine computes the node with numpy (one notice) or, where the graph pins
+``backend: opengl``, exits 2 saying why.
 """
 from __future__ import annotations
 
@@ -94,8 +94,7 @@ class RenderGL(Backend):
         from nodes.paris.glscene import not_drawn, scene, static_key
 
         p = self.params
-        _refuse_sized(p, lights)
-        why = not_drawn(p, mesh)
+        why = not_drawn(p, mesh, lights or ())
         if why:  # never a silently different image: the engine falls back to numpy, or refuses if pinned
             raise BackendCannotRun(why)
         H, W = camera.height, camera.width
@@ -164,18 +163,6 @@ def _drop_surfaces(rt) -> None:
     """Forget every kept depth and coverage (GL thread; tests)."""
     for k in [k for k in rt.objects._d if isinstance(k, tuple) and k[:1] == ("surface",)]:
         rt.objects.drop(k)
-
-
-def _refuse_sized(p, lights) -> None:
-    """BadInput for a light with a size while shadows are on: this backend draws hard shadow
-    maps only; the numpy backend filters them to the light's penumbra (never hard shadows in
-    their place)."""
-    lights = lights if isinstance(lights, (list, tuple)) else [lights]
-    sized = [i for i, light in enumerate(lights) if light.has_size]
-    if p.shadows and sized:
-        raise BadInput("lights", f"light {sized[0]} has a size (soft shadows): the opengl backend draws "
-                                 "hard shadows only; run Render with the numpy backend (--backend numpy), "
-                                 "or give the light no size (LightSize 0), or turn shadows off")
 
 
 def _check_atlas(n: int, size: int):
