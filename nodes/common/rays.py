@@ -68,6 +68,28 @@ def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = No
     return _occluded_numpy(p0, p1, *occ[:4], tri=_tri(occ), ignore=ignore)
 
 
+def boxes_meet(lo: np.ndarray, hi: np.ndarray, occ, ignore: np.ndarray | None = None,
+               chunk: int = 200_000, max_occluders: int = 4096) -> np.ndarray:
+    """(M,) bool: the box [lo, hi] (M,3) meets the bounding box of an occluder of ``occ`` (as
+    :func:`occluded`'s) other than the two in ``ignore`` (M,2).  A segment inside a box that
+    meets none is blocked by none: its rays need no casting.  Over ``max_occluders`` all True
+    (the M × P test would cost more than it saves)."""
+    o, u, v = (np.asarray(a, np.float64) for a in occ[:3])
+    if len(o) > max_occluders:
+        return np.ones(len(lo), bool)
+    c = np.stack([o, o + u, o + u + v, o + v], 1)
+    olo, ohi = c.min(1), c.max(1)
+    pid = np.arange(len(o))
+    out = np.empty(len(lo), bool)
+    for a in range(0, len(lo), chunk):
+        b = min(len(lo), a + chunk)
+        meet = ((lo[a:b, None] <= ohi[None]) & (hi[a:b, None] >= olo[None])).all(2)
+        if ignore is not None:
+            meet &= (pid[None] != ignore[a:b, 0:1]) & (pid[None] != ignore[a:b, 1:2])
+        out[a:b] = meet.any(1)
+    return out
+
+
 def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Dual basis of parallelogram edge pairs (P, 3): (x − o)·du, (x − o)·dv are the in-plane
     coordinates (s, t) of a point x on the plane o + s·u + t·v."""
