@@ -29,9 +29,8 @@ import numpy as np
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, ROOT)
 
-SETTINGS = {"RadiositySolve": dict(eps_bf=0.3, eps_bfv=0.03, min_area=0.01, max_level=4,
-                                   ff_smooth=0.1),
-            "TextureRefine": dict(max_level=4, min_area=0.005, max_rounds=1, ff_smooth=0.1)}
+SETTINGS = {"RadiositySolve": dict(eps_bf=0.3, eps_bfv=0.03, min_area=0.01, max_level=4),
+            "TextureRefine": dict(max_level=4, min_area=0.005, max_rounds=1)}
 
 
 def room_parts(n_tri: int, seed: int = 0) -> dict:

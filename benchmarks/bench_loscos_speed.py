@@ -1,12 +1,11 @@
 """builtin:room preprocess CPU time with Embree, its accuracy against Mitsuba, and Mitsuba's
 path-tracing time to the same PSNR (issue 27 item 3).
 
-    nice .venv/bin/python benchmarks/bench_loscos_speed.py [--scene room] [--smooth 0 0.1]
-                                                         [--peer] [--cache /tmp/loscos-scenes]
+    nice .venv/bin/python benchmarks/bench_loscos_speed.py [--scene room] [--peer]
+                                                         [--cache /tmp/loscos-scenes]
 
-For each ``--smooth`` (RadiositySolve / TextureRefine ``ff_smooth``; 0 is the full
-ff_points² rule on every link) it runs the preprocess at graphs/room_relight.yaml's settings
-with ``--backend embree`` ray casting — ProjectTextures, RadiositySolve, TextureRefine,
+It runs the preprocess at graphs/room_relight.yaml's settings with ``--backend embree`` ray
+casting — ProjectTextures, RadiositySolve, TextureRefine,
 Unocclude — and prints each stage's CPU seconds (this process, time.process_time: on a
 shared machine the CPU time stands for a quiet machine's wall time), the links, the load
 average, and the PSNR of "A off" and "B ×2" against Mitsuba references (512 spp, cached under
@@ -37,8 +36,8 @@ from nodes.loscos.scene import LoadScene  # noqa: E402
 from nodes.loscos.textures import ProjectTextures  # noqa: E402
 
 
-def preprocess(name: str, smooth: float):
-    """(outputs, {stage: CPU s}) of the Embree preprocess with ``ff_smooth`` = smooth."""
+def preprocess(name: str):
+    """(outputs, {stage: CPU s}) of the Embree preprocess."""
     t = {}
 
     def clock(key, cls, params, **kw):
@@ -51,9 +50,9 @@ def preprocess(name: str, smooth: float):
         s = LS.run(LoadScene, {"path": f"builtin:{name}"})
         pr = clock("ProjectTextures", ProjectTextures, {}, scene=s["scene"], camera=s["camera"],
                    photo=s["photo"])
-        sol = clock("RadiositySolve", RadiositySolve, dict(LS.RADIOSITY, ff_smooth=smooth),
+        sol = clock("RadiositySolve", RadiositySolve, LS.RADIOSITY,
                     scene=s["scene"], projection=pr)["solution"]
-        ref = clock("TextureRefine", TextureRefine, dict(LS.REFINE, ff_smooth=smooth),
+        ref = clock("TextureRefine", TextureRefine, LS.REFINE,
                     scene=s["scene"], solution=sol, projection=pr)
         un = clock("Unocclude", Unocclude, {}, solution=ref, projection=pr,
                    photo=s["photo"])["unoccluded"]
@@ -91,29 +90,27 @@ def peer(name, img, ms, cache, inside):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="room")
-    ap.add_argument("--smooth", nargs="+", type=float, default=[0.0, 0.1])
     ap.add_argument("--peer", action="store_true")
     ap.add_argument("--cache", default="/tmp/loscos-scenes")
     a = ap.parse_args()
     os.makedirs(a.cache, exist_ok=True)
     ms = LS.make_scenes()
     A, B, _ = LS.cases(a.scene, ms)
-    for sm in a.smooth:
-        p, t = preprocess(a.scene, sm)
-        total = sum(t.values())
-        print(f"{a.scene} --backend embree, ff_smooth={sm}: preprocess {total:.1f} s CPU ("
-              + ", ".join(f"{k} {v:.1f}" for k, v in t.items())
-              + f"); {len(p['solution'].recv)} links; load {os.getloadavg()[0]:.1f}", flush=True)
-        pr = p["projection"]
-        inside = pr.pix_poly >= 0
-        for case, prm in (("A off", {"light_scale": {A: 0.0}}), ("B x2", {"light_scale": {B: 2.0}})):
-            ref = LS.reference(a.scene, case, ms, a.cache)
-            img = relit(p, prm)
-            print(f"  {case}: PSNR vs Mitsuba 512 spp {LS.psnr(img, ref, inside):.2f} dB inside, "
-                  f"{LS.psnr(img, ref):.2f} whole", flush=True)
-        if a.peer and sm == a.smooth[-1]:
-            spp, dt = peer(a.scene, relit(p, {"light_scale": {A: 0.0}}), ms, a.cache, inside)
-            print(f"  peer: Mitsuba reaches it at {spp} spp in {dt} s CPU; Relight took one call")
+    p, t = preprocess(a.scene)
+    total = sum(t.values())
+    print(f"{a.scene} --backend embree: preprocess {total:.1f} s CPU ("
+          + ", ".join(f"{k} {v:.1f}" for k, v in t.items())
+          + f"); {len(p['solution'].recv)} links; load {os.getloadavg()[0]:.1f}", flush=True)
+    pr = p["projection"]
+    inside = pr.pix_poly >= 0
+    for case, prm in (("A off", {"light_scale": {A: 0.0}}), ("B x2", {"light_scale": {B: 2.0}})):
+        ref = LS.reference(a.scene, case, ms, a.cache)
+        img = relit(p, prm)
+        print(f"  {case}: PSNR vs Mitsuba 512 spp {LS.psnr(img, ref, inside):.2f} dB inside, "
+              f"{LS.psnr(img, ref):.2f} whole", flush=True)
+    if a.peer:
+        spp, dt = peer(a.scene, relit(p, {"light_scale": {A: 0.0}}), ms, a.cache, inside)
+        print(f"  peer: Mitsuba reaches it at {spp} spp in {dt} s CPU; Relight took one call")
 
 
 if __name__ == "__main__":

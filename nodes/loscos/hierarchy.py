@@ -347,9 +347,7 @@ def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int) -> n
 
 def ff_spread(h: Hierarchy, r, s):
     """Min, centre and max of the point-to-polygon F_{dx→s} over r's centre and corners
-    (moved 1 % inwards), the refinement oracle; and a 5-point estimate of F_rs from the same
-    values, ⅔ centre + ⅓ corners' mean (the midpoint and trapezoid rules combined, as Simpson's:
-    exact for a quadratic integrand), good where the spread is small."""
+    (moved 1 % inwards), the refinement oracle."""
     ro, ru, rv, rn, _ = h.geom(r)
     so, su, sv, sn, _ = h.geom(s)
     P = G.corners(so, su, sv, h.tri(s))
@@ -363,7 +361,7 @@ def ff_spread(h: Hierarchy, r, s):
         f = G.ff_point_polygon(x, rn, P)
         F.append(np.where(np.einsum("nc,nc->n", x - so, sn) > 0, f, 0.0))
     F = np.stack(F, 1)
-    return F.min(1), F[:, 0], F.max(1), (2 * F[:, 0] + F[:, 1:].mean(1)) / 3
+    return F.min(1), F[:, 0], F.max(1)
 
 
 @dataclass
@@ -376,9 +374,6 @@ class RefineParams:
     n_ff: int = 3  # n_ff² receiver points for F
     seed: int = 0
     max_link_area: float = np.inf  # m²: larger elements never carry a link
-    #: accepted links whose point-to-polygon F varies over the receiver by at most this
-    #: fraction of its centre value take :func:`ff_spread`'s 5-point F (0: always the full rule)
-    ff_smooth: float = 0.0
 
 
 def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
@@ -399,7 +394,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         r, s = r[m], s[m]
         if not len(r):
             break
-        Fmin, Fc, Fmax, F5 = ff_spread(h, r, s)
+        Fmin, Fc, Fmax = ff_spread(h, r, s)
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
         ar, as_ = h.area(r), h.area(s)
@@ -427,10 +422,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            smooth = ((Fmax - Fmin)[acc] <= prm.ff_smooth * Fc[acc]) if prm.ff_smooth > 0 \
-                else np.zeros(len(ra), bool)
-            F = F5[acc].copy()
-            F[~smooth] = element_links_ff(h, ra[~smooth], sa[~smooth], prm.n_ff)
+            F = element_links_ff(h, ra, sa, prm.n_ff)
             keep = F > 0
             out_r.append(ra[keep]); out_s.append(sa[keep])
             out_F.append(F[keep]); out_V.append(V[acc][keep]); out_C.append(C[acc][keep])

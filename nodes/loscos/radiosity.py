@@ -410,9 +410,6 @@ class RefineParamsMixin(Node.Params):
     tol: float = Field(1e-6, gt=0, description="relative convergence threshold of gathering")
     max_link_area: float = Field(0.5, gt=0, description="m²: larger elements are split before "
                                  "they carry a link (BF misses how B curves over them)")
-    ff_smooth: float = Field(0.0, ge=0, le=1, description="a link whose point form factor "
-                             "varies over the receiver by at most this fraction takes the "
-                             "5-point F of the refinement oracle (0: ff_points² always)")
 
 
 class RadiositySolve(Node):
@@ -460,7 +457,7 @@ class RadiositySolve(Node):
     def refine_params(self):
         p = self.params
         return HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
-                               p.ff_points, p.seed, p.max_link_area, p.ff_smooth)
+                               p.ff_points, p.seed, p.max_link_area)
 
     def compute(self, scene: RoomScene, projection: Projection):
         p = self.params
@@ -678,7 +675,7 @@ class TextureRefine(Node):
         p = self.params
         h = solution.hierarchy().copy()
         prm = HR.RefineParams(p.eps_bf, p.eps_bfv, p.min_area, p.max_level, p.rays,
-                              p.ff_points, p.seed, p.max_link_area, p.ff_smooth)
+                              p.ff_points, p.seed, p.max_link_area)
         rng = np.random.default_rng(p.seed + 1)
         stats = texture_refine(scene, h, projection, prm, p.color_threshold,
                                p.visibility_threshold, p.max_rounds, rng, self.ctx.progress)
