@@ -191,7 +191,14 @@ def test_bad_meshes_are_refused_by_name(tmp_path, parts, light, message):
 def test_non_finite_vertex_names_the_face(tmp_path):
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 2 4\nf 1 2 3\n")
     with pytest.raises(BadInput, match=r"vertex 2 is not finite \(face 1\)"):
-        parse_scene(mesh_doc([{"file": "m.obj", "material": "w"}], []), base_dir=str(tmp_path))
+        parse_scene(mesh_doc([{"file": "m.obj", "material": "w"}], [{"name": "m"}]),
+                    base_dir=str(tmp_path))
+
+
+def test_a_mesh_scene_without_lights_is_refused(tmp_path):
+    write_glb(tmp_path / "m.glb", {"floor": FLOOR, "lamp": LAMP})
+    with pytest.raises(BadInput, match=r"no light: .*\(mesh parts: .*floor"):
+        parse_scene(mesh_doc([{"file": "m.glb", "material": "w"}], []), base_dir=str(tmp_path))
 
 
 def test_cli_refuses_a_mesh_light_the_file_lacks_with_exit_2(tmp_path):

@@ -172,6 +172,9 @@ def _parse_scene(doc: dict, port: str, base_dir: str):
             add(f"{item['name']}.{k}", f, albedo(item))
     parts = mesh_parts_of(doc, port, base_dir, mats, albedo)
     lights = doc.get("lights", []) or []
+    if parts and not lights:
+        raise BadInput(port, "the scene has no light: name the mesh parts that emit under "
+                             f"'lights:' (mesh parts: {', '.join(p[0] for p in parts)})")
     light_parts = {str(item.get("name")) for item in lights if "vertices" not in item}
     for pname, polys, rho in parts:
         if pname not in light_parts:
