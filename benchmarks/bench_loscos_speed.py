@@ -11,6 +11,8 @@ shared machine the CPU time stands for a quiet machine's wall time), the links, 
 average, and the PSNR of "A off" and "B ×2" against Mitsuba references (512 spp, cached under
 --cache; loscos_scenes.py's), inside the room and over the whole image.
 
+``--mesh``: the same scene loaded from its triangle-mesh file (``builtin:<scene>_mesh``).
+
 ``--peer``: Mitsuba's path tracer on the "A off" image, at 1, 2, 4, … spp against a 1024-spp
 reference (seed 23, cached): the spp and CPU seconds at which it first reaches the relit
 image's PSNR against that same reference.  Relighting a preprocessed scene costs one Relight
@@ -36,8 +38,8 @@ from nodes.loscos.scene import LoadScene  # noqa: E402
 from nodes.loscos.textures import ProjectTextures  # noqa: E402
 
 
-def preprocess(name: str):
-    """(outputs, {stage: CPU s}) of the Embree preprocess."""
+def preprocess(name: str, builtin: str):
+    """(outputs, {stage: CPU s}) of the Embree preprocess of ``builtin:<builtin>``."""
     t = {}
 
     def clock(key, cls, params, **kw):
@@ -47,7 +49,7 @@ def preprocess(name: str):
         return out
 
     with rays.using("embree"):
-        s = LS.run(LoadScene, {"path": f"builtin:{name}"})
+        s = LS.run(LoadScene, {"path": f"builtin:{builtin}"})
         pr = clock("ProjectTextures", ProjectTextures, {}, scene=s["scene"], camera=s["camera"],
                    photo=s["photo"])
         sol = clock("RadiositySolve", RadiositySolve, LS.RADIOSITY,
@@ -91,14 +93,16 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="room")
     ap.add_argument("--peer", action="store_true")
+    ap.add_argument("--mesh", action="store_true", help="load builtin:<scene>_mesh, the same "
+                    "scene from its mesh file (data/make_mesh_scenes.py)")
     ap.add_argument("--cache", default="/tmp/loscos-scenes")
     a = ap.parse_args()
     os.makedirs(a.cache, exist_ok=True)
     ms = LS.make_scenes()
     A, B, _ = LS.cases(a.scene, ms)
-    p, t = preprocess(a.scene)
+    p, t = preprocess(a.scene, a.scene + ("_mesh" if a.mesh else ""))
     total = sum(t.values())
-    print(f"{a.scene} --backend embree: preprocess {total:.1f} s CPU ("
+    print(f"{a.scene}{' (mesh file)' if a.mesh else ''} --backend embree: preprocess {total:.1f} s CPU ("
           + ", ".join(f"{k} {v:.1f}" for k, v in t.items())
           + f"); {len(p['solution'].recv)} links; load {os.getloadavg()[0]:.1f}", flush=True)
     pr = p["projection"]
