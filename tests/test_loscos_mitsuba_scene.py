@@ -7,7 +7,8 @@ mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is the outside reference f
 
 from nodes.loscos import geometry as G  # noqa: E402
 from nodes.loscos.mitsuba_ref import set_variant  # noqa: E402
-from nodes.loscos.mitsuba_scene import MitsubaSceneError, mesh_parallelograms, scene_file  # noqa: E402
+from nodes.loscos.meshes import mesh_polygons  # noqa: E402
+from nodes.loscos.mitsuba_scene import MitsubaSceneError, scene_file  # noqa: E402
 from nodes.loscos.scene import parse_scene  # noqa: E402
 from nodes.loscos.textures import rays_at  # noqa: E402
 
@@ -98,14 +99,18 @@ def test_meshes_flipped_shapes_and_fov_axes(tmp_path):
     assert check_against_mitsuba(d, doc) > 100
 
 
-def test_mesh_pairing_refuses_lone_triangles():
+def test_mesh_pairing_keeps_lone_triangles():
+    """Pairs become parallelograms; a triangle with no partner stays a triangle (a, b, c, c)
+    (triangles are first-class since issue 27; they were refused before)."""
     V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float)
-    quads = mesh_parallelograms(V, np.array([[0, 1, 2], [0, 2, 3]]), "m")
+    quads = mesh_polygons(V, np.array([[0, 1, 2], [0, 2, 3]]), "m")
     assert quads.shape == (1, 4, 3)
     n = np.cross(quads[0, 1] - quads[0, 0], quads[0, 3] - quads[0, 0])
     assert n[2] > 0 and np.allclose(quads[0, 2], quads[0, 1] + quads[0, 3] - quads[0, 0])
-    with pytest.raises(MitsubaSceneError, match="m: 1 of 3 triangles"):
-        mesh_parallelograms(V, np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]]), "m")
+    polys = mesh_polygons(V, np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]]), "m")
+    assert polys.shape == (2, 4, 3)
+    assert np.array_equal(polys[1], V[[1, 4, 2, 2]])
+    assert mesh_polygons(V, np.array([[0, 1, 2], [0, 2, 3]]), "m", merge=False).shape == (2, 4, 3)
 
 
 @pytest.mark.parametrize("entry,match", [

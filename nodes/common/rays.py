@@ -54,7 +54,8 @@ def embree_missing() -> str | None:
 
 def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = None) -> np.ndarray:
     """Whether each segment p0→p1 (N,3) crosses one of the parallelograms ``occ`` = (o, u, v, n)
-    (each (P,3); two-sided), end points excluded (t ∈ (T_EPS, 1 − T_EPS)).
+    (each (P,3); two-sided), end points excluded (t ∈ (T_EPS, 1 − T_EPS)).  A fifth entry
+    ``tri`` (P,) bool, if given, makes those occluders the triangles (o, o+u, o+v).
 
     ``ignore`` (N,2) int: parallelogram indices not tested for each segment (its own sender and
     receiver; -1 for none)."""
@@ -64,7 +65,29 @@ def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = No
         return np.zeros(len(p0), bool)
     if _backend.get() == "embree":
         return _occluded_embree(p0, p1, occ, ignore)
-    return _occluded_numpy(p0, p1, *occ, ignore=ignore)
+    return _occluded_numpy(p0, p1, *occ[:4], tri=_tri(occ), ignore=ignore)
+
+
+def boxes_meet(lo: np.ndarray, hi: np.ndarray, occ, ignore: np.ndarray | None = None,
+               chunk: int = 200_000, max_occluders: int = 4096) -> np.ndarray:
+    """(M,) bool: the box [lo, hi] (M,3) meets the bounding box of an occluder of ``occ`` (as
+    :func:`occluded`'s) other than the two in ``ignore`` (M,2).  A segment inside a box that
+    meets none is blocked by none: its rays need no casting.  Over ``max_occluders`` all True
+    (the M × P test would cost more than it saves)."""
+    o, u, v = (np.asarray(a, np.float64) for a in occ[:3])
+    if len(o) > max_occluders:
+        return np.ones(len(lo), bool)
+    c = np.stack([o, o + u, o + u + v, o + v], 1)
+    olo, ohi = c.min(1), c.max(1)
+    pid = np.arange(len(o))
+    out = np.empty(len(lo), bool)
+    for a in range(0, len(lo), chunk):
+        b = min(len(lo), a + chunk)
+        meet = ((lo[a:b, None] <= ohi[None]) & (hi[a:b, None] >= olo[None])).all(2)
+        if ignore is not None:
+            meet &= (pid[None] != ignore[a:b, 0:1]) & (pid[None] != ignore[a:b, 1:2])
+        out[a:b] = meet.any(1)
+    return out
 
 
 def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,7 +102,8 @@ def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return du, dv
 
 
-def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, ignore=None, chunk: int = 100_000):
+def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
+                    chunk: int = 100_000):
     N = len(p0)
     out = np.zeros(N, bool)
     du, dv = dual_basis(occ_u, occ_v)
@@ -98,6 +122,8 @@ def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, ignore=None, chunk: int 
         s = np.einsum("npc,pc->np", q, du)
         tt = np.einsum("npc,pc->np", q, dv)
         hit = ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1)
+        if tri is not None and np.any(tri):
+            hit &= ~tri[None, :] | (s + tt <= 1)
         if ignore is not None:
             ig = ignore[a:b]
             hit &= (pid[None, :] != ig[:, 0:1]) & (pid[None, :] != ig[:, 1:2])
@@ -110,28 +136,36 @@ _MAX_SCENES = 8
 
 
 def scene(occ):
-    """The Embree scene of parallelograms (o, u, v, n): triangles (o, o+u, o+u+v) and
-    (o, o+u+v, o+v), so primitive k belongs to parallelogram k // 2.  Built once per set of
-    occluders and kept (the last few sets)."""
+    """The Embree scene of parallelograms (o, u, v, n[, tri]): triangles (o, o+u, o+u+v) and
+    (o, o+u+v, o+v), or the one triangle (o, o+u, o+v) of a triangle occluder; with the
+    occluder of each primitive.  Built once per set of occluders and kept (the last few)."""
     import xxhash
     from embreex import mesh_construction, rtcore_scene
 
     o, u, v = (np.ascontiguousarray(a, np.float64) for a in occ[:3])
-    key = xxhash.xxh3_128_digest(o.tobytes() + u.tobytes() + v.tobytes())
+    tri = _tri(occ)
+    key = xxhash.xxh3_128_digest(o.tobytes() + u.tobytes() + v.tobytes() + tri.tobytes())
     sc = _SCENES.get(key)
     if sc is None:
         c = np.stack([o, o + u, o + u + v, o + v], 1)
-        tri = np.stack([c[:, [0, 1, 2]], c[:, [0, 2, 3]]], 1).reshape(-1, 3, 3)
-        sc = rtcore_scene.EmbreeScene(robust=True)
-        mesh_construction.TriangleMesh(sc, tri.astype(np.float32))
+        tris = np.stack([np.where(tri[:, None, None], c[:, [0, 1, 3]], c[:, [0, 1, 2]]),
+                         c[:, [0, 2, 3]]], 1)
+        keep = np.stack([np.ones(len(o), bool), ~tri], 1).reshape(-1)
+        emb = rtcore_scene.EmbreeScene(robust=True)
+        mesh_construction.TriangleMesh(emb, tris.reshape(-1, 3, 3)[keep].astype(np.float32))
+        sc = (emb, np.repeat(np.arange(len(o)), 2)[keep])
         if len(_SCENES) >= _MAX_SCENES:
             _SCENES.pop(next(iter(_SCENES)))
         _SCENES[key] = sc
     return sc
 
 
+def _tri(occ) -> np.ndarray:
+    return np.asarray(occ[4], bool) if len(occ) > 4 else np.zeros(len(occ[0]), bool)
+
+
 def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
-    sc = scene(occ)
+    sc, prim_poly = scene(occ)
     d = p1 - p0
     org = (p0 + T_EPS * d).astype(np.float32)
     dirs = d.astype(np.float32)
@@ -147,12 +181,12 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
     for _ in range(rounds):
         r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
                    dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
-        prim = r["primID"] // 2
+        prim = prim_poly[np.maximum(r["primID"], 0)]
         own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
         hit[todo[r["primID"] < 0]] = False
         t0[todo[own]] += r["tfar"][own] + T_EPS
         todo = todo[own]
         if len(todo) == 0:
             return hit
-    hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ, ignore=ignore[todo])
+    hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ[:4], tri=_tri(occ), ignore=ignore[todo])
     return hit

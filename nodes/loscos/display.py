@@ -5,7 +5,8 @@ constant patches they show every leaf as a tile and every shadow edge as a stair
 paper draws the leaves with per-vertex colours (Gouraud).  Here a leaf value is spread to the
 leaf's corners — each vertex takes the mean of the leaves of its polygon that touch it, one
 vote per quarter around the vertex — and a point of the leaf takes the bilinear
-interpolation of its four corners (:func:`interpolation`).
+interpolation of its four corners (:func:`interpolation`); a triangle leaf, the barycentric
+interpolation of its three (one vote per triangle around the vertex).
 
 Pixels that see more than one polygon (ProjectTextures' k×k subsamples) are drawn by
 coverage.  The part of the pixel that sees an emitter is c; the photograph's pixel is
@@ -33,7 +34,8 @@ LUM = np.array([0.2126, 0.7152, 0.0722])
 class Interpolation:
     """Per-vertex interpolation of leaf values over a hierarchy's leaves.
 
-    corner (L,4) vertex ids of each leaf's corners in the order (0,0), (1,0), (1,1), (0,1);
+    corner (L,4) vertex ids of each leaf's corners in the order (0,0), (1,0), (1,1), (0,1)
+    (a triangle's o, o + u, o + v and o + v again, weighted 0);
     average (V × L) sparse, vertex value = mean of the leaves around it; grid/pos: leaf
     lookup (Hierarchy.leaf_grid) and element id → leaf position.
     """
@@ -51,6 +53,12 @@ class Interpolation:
         a = np.clip(s * n - h.ij[e, 0], 0, 1)
         b = np.clip(t * n - h.ij[e, 1], 0, 1)
         w = np.stack([(1 - a) * (1 - b), a * (1 - b), a * b, (1 - a) * b], 1)
+        tri = h.tri(e)
+        if tri.any():
+            f = h.flipped[e][tri]
+            at, bt = np.where(f, 1 - a[tri], a[tri]), np.where(f, 1 - b[tri], b[tri])
+            wt = np.clip(np.stack([1 - at - bt, at, bt, np.zeros_like(at)], 1), 0, None)
+            w[tri] = wt / wt.sum(1, keepdims=True)
         return self.corner[k], w
 
 
@@ -66,6 +74,12 @@ def interpolation(h: Hierarchy) -> Interpolation:
     X0, Y0 = h.ij[lv, 0] * b, h.ij[lv, 1] * b
     X = np.stack([X0, X0 + b, X0 + b, X0], 1)
     Y = np.stack([Y0, Y0, Y0 + b, Y0 + b], 1)
+    tri = h.tri(lv)
+    if tri.any():  # o, o + u, o + v, o + v (a flipped one from its cell's far corner)
+        f = h.flipped[lv][tri][:, None]
+        x0, y0, bb = X0[tri][:, None], Y0[tri][:, None], b[tri][:, None]
+        X[tri] = np.where(f, x0 + bb - bb * np.array([0, 1, 0, 0]), x0 + bb * np.array([0, 1, 0, 0]))
+        Y[tri] = np.where(f, y0 + bb - bb * np.array([0, 0, 1, 1]), y0 + bb * np.array([0, 0, 1, 1]))
     key = (h.poly[lv][:, None] * n1 + X) * n1 + Y
     uniq, corner = np.unique(key, return_inverse=True)
     corner = corner.reshape(-1, 4)
@@ -75,15 +89,20 @@ def interpolation(h: Hierarchy) -> Interpolation:
     pos = np.full(h.n_elems, -1)
     pos[lv] = np.arange(len(lv))
     rows, cols = [], []
+    vtri = h.tri_poly[vp]
     for dx in (-1, 0):
         for dy in (-1, 0):
             cx, cy = vx + dx, vy + dy
             ok = (cx >= 0) & (cx < n) & (cy >= 0) & (cy < n)
-            v = np.flatnonzero(ok)
-            leaf = pos[grid[vp[v], cx[v], cy[v]]]
-            good = leaf >= 0
-            rows.append(v[good])
-            cols.append(leaf[good])
+            # the cell's halves that touch the vertex (a parallelogram's are one leaf: one vote)
+            halves = {(-1, -1): (1,), (0, 0): (0,)}.get((dx, dy), (0, 1))
+            for k in halves:
+                v = np.flatnonzero(ok & (vtri | (k == halves[0])))
+                g = grid[vp[v], cx[v], cy[v], k]
+                leaf = np.where(g >= 0, pos[g], -1)
+                good = leaf >= 0
+                rows.append(v[good])
+                cols.append(leaf[good])
     rows, cols = np.concatenate(rows), np.concatenate(cols)
     cnt = np.bincount(rows, minlength=len(uniq)).astype(float)
     avg = sp.csr_matrix((1.0 / cnt[rows], (rows, cols)), shape=(len(uniq), len(lv)))
@@ -117,8 +136,7 @@ def nearest_seen(h: Hierarchy, seen: np.ndarray) -> np.ndarray:
     from scipy.spatial import cKDTree
 
     lv = h.leaves
-    o, u, v, _, _ = h.geom(lv)
-    c = o + 0.5 * (u + v)
+    c = h.centre(lv)
     poly = h.poly[lv]
     out = np.arange(len(lv))
     for p in np.unique(poly[~seen]):

@@ -9,7 +9,8 @@
 
 All lengths are in scene units (metres for builtin:cornell2); form factors are unitless.
 Polygons are planar parallelograms given by origin o, edges u, v: x(s, t) = o + s·u + t·v,
-s, t ∈ [0, 1], front normal n = u × v / |u × v|.
+s, t ∈ [0, 1], front normal n = u × v / |u × v|; or triangles (o, o + u, o + v): the same with
+s + t ≤ 1, written as the 4 vertices (a, b, c, c) — the last two equal (:func:`is_triangle`).
 """
 from __future__ import annotations
 
@@ -18,20 +19,37 @@ import numpy as np
 from nodes.common.rays import dual_basis  # noqa: F401  (in-plane coordinates, one place)
 
 
+def is_triangle(verts: np.ndarray) -> np.ndarray:
+    """(…,4,3) polygon vertices → (…) bool: a triangle (a, b, c, c), not a parallelogram."""
+    return np.all(verts[..., 2, :] == verts[..., 3, :], axis=-1)
+
+
 def frame(verts: np.ndarray):
-    """(…,4,3) parallelogram vertices → origin, u, v, unit normal, area."""
+    """(…,4,3) parallelogram or triangle vertices → origin, u, v, unit normal, area."""
     o = verts[..., 0, :]
     u = verts[..., 1, :] - o
     v = verts[..., 3, :] - o
     c = np.cross(u, v)
     area = np.linalg.norm(c, axis=-1)
     n = c / np.maximum(area, 1e-300)[..., None]
-    return o, u, v, n, area
+    return o, u, v, n, np.where(is_triangle(verts), 0.5, 1.0) * area
 
 
-def corners(o, u, v):
-    """origin/edges (…,3) → the 4 vertices (…,4,3) in order o, o+u, o+u+v, o+v."""
-    return np.stack([o, o + u, o + u + v, o + v], axis=-2)
+def corners(o, u, v, tri=None):
+    """origin/edges (…,3) → the 4 vertices (…,4,3) in order o, o+u, o+u+v, o+v; where ``tri``
+    (…) is True the triangle's (o, o+u, o+v, o+v)."""
+    c = np.stack([o, o + u, o + u + v, o + v], axis=-2)
+    if tri is not None and np.any(tri):
+        c[..., 2, :] = np.where(np.asarray(tri)[..., None], o + v, c[..., 2, :])
+    return c
+
+
+def fold(st: np.ndarray, tri) -> np.ndarray:
+    """Points (…,2) of the unit square → of the triangle s + t ≤ 1 where ``tri`` (…): a point
+    past the diagonal is mirrored through (½, ½), so uniform (stratified) points stay so."""
+    st = np.asarray(st, np.float64)
+    out = np.where((st.sum(-1) > 1)[..., None], 1.0 - st, st)
+    return np.where(np.asarray(tri)[..., None], out, st)
 
 
 def grid_st(n: int) -> np.ndarray:
@@ -39,6 +57,17 @@ def grid_st(n: int) -> np.ndarray:
     g = (np.arange(n) + 0.5) / n
     s, t = np.meshgrid(g, g, indexing="ij")
     return np.stack([s.ravel(), t.ravel()], 1)
+
+
+def tri_st(n: int) -> np.ndarray:
+    """The centroids of a triangle's n² equal sub-triangles (n per edge), in (s, t) with
+    s + t ≤ 1 → (n², 2): an equal-weight midpoint rule, as :func:`grid_st` for the square."""
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    up = i + j <= n - 1
+    dn = i + j <= n - 2
+    return np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], 1),
+                           np.stack([i[dn] + 2 / 3, j[dn] + 2 / 3], 1)]) / n
 
 
 def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray,
@@ -121,24 +150,27 @@ def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
 
 
 def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int = 3,
-                         chunk: int = 200_000) -> np.ndarray:
-    """F_ij for M element pairs: receiver i, sender j (parallelograms, (M,3) each).
+                         chunk: int = 200_000, tri_i=None, tri_j=None) -> np.ndarray:
+    """F_ij for M element pairs: receiver i, sender j (parallelograms, (M,3) each; triangles
+    where ``tri_i`` / ``tri_j`` (M,) say so).
 
-    F_ij = (1/A_i) ∫_{A_i} F_{dA→j} dA, by an n_samples² midpoint rule over i with the exact
-    contour integral for the inner integral (so rows of a closed enclosure sum to 1 up to
-    round-off).  Unitless.
+    F_ij = (1/A_i) ∫_{A_i} F_{dA→j} dA, by an n_samples² midpoint rule over i (folded into a
+    triangle receiver: :func:`tri_st`) with the exact contour integral for the inner integral
+    (so rows of a closed enclosure sum to 1 up to round-off).  Unitless.
     """
     M = len(o_i)
     st = grid_st(n_samples)
     S = len(st)
     out = np.zeros(M)
-    P = corners(o_j, u_j, v_j)
+    P = corners(o_j, u_j, v_j, tri_j)
     step = max(1, chunk // S)
     for a in range(0, M, step):
         b = min(M, a + step)
         m = b - a
-        x = (o_i[a:b, None, :] + st[None, :, 0:1] * u_i[a:b, None, :]
-             + st[None, :, 1:2] * v_i[a:b, None, :]).reshape(-1, 3)
+        sti = st[None] if tri_i is None else np.where(np.asarray(tri_i)[a:b, None, None],
+                                                       tri_st(n_samples)[None], st[None])
+        x = (o_i[a:b, None, :] + sti[..., 0:1] * u_i[a:b, None, :]
+             + sti[..., 1:2] * v_i[a:b, None, :]).reshape(-1, 3)
         nx = np.repeat(n_i[a:b], S, axis=0)
         poly = np.repeat(P[a:b], S, axis=0)
         f = ff_point_polygon(x, nx, poly)
@@ -150,8 +182,8 @@ def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int 
 
 
 def ray_first_hit(o: np.ndarray, d: np.ndarray, occ_o, occ_u, occ_v, occ_n,
-                  two_sided: bool = False, chunk: int = 50_000):
-    """Nearest parallelogram hit along rays o + t·d, t > 0.
+                  two_sided: bool = False, chunk: int = 50_000, tri=None):
+    """Nearest parallelogram (or triangle, where ``tri`` (P,)) hit along rays o + t·d, t > 0.
 
     Returns (poly index or -1, t, s, tt) per ray; s, tt are the in-polygon coordinates.
     With ``two_sided=False`` only front faces (d·n < 0) are hit.
@@ -179,6 +211,8 @@ def ray_first_hit(o: np.ndarray, d: np.ndarray, occ_o, occ_u, occ_v, occ_n,
         tt = np.einsum("npc,pc->np", q, dv)
         e = 1e-9
         hit = ok & (s >= -e) & (s <= 1 + e) & (tt >= -e) & (tt <= 1 + e)
+        if tri is not None and np.any(tri):
+            hit &= ~tri[None, :] | (s + tt <= 1 + e)
         tm = np.where(hit, t, np.inf)
         k = np.argmin(tm, axis=1)
         r = np.arange(b - a)

@@ -1,10 +1,16 @@
 """Hierarchical radiosity (Loscos 2000 §2.3, after Hanrahan et al. 1991 and Sillion 1995).
 
-One place for the hierarchy: quadtree elements over the scene's parallelograms, links carrying
-form factor F and attenuation V, BF / BFV refinement, and the gather + push-pull solver.
+One place for the hierarchy: quadtree elements over the scene's parallelograms and triangles,
+links carrying form factor F and attenuation V, BF / BFV refinement, and the gather + push-pull
+solver.
 
 * Elements live in flat arrays (:class:`Hierarchy`): polygon, level, quadtree cell (i, j),
   parent, first child (children are 4 consecutive ids), area.
+* A triangle polygon (o, u, v) (``P_tri``) splits 1-to-4: three corner triangles (o, u/2, v/2),
+  (o + u/2, u/2, v/2), (o + v/2, u/2, v/2) and the flipped middle one (o + u/2 + v/2, −u/2,
+  −v/2).  In the polygon's (s, t) its elements are the halves of the level's cells cut by the
+  anti-diagonal: cell (i, j) and ``flip`` False is the half towards (i, j), flip True the half
+  towards (i + 1, j + 1) (origin there, edges −u, −v).
 * A link (receiver r ← sender s) carries F_rs (unitless, :func:`geometry.element_form_factors`)
   and V_rs ∈ [0, 1], the fraction of unblocked rays; VISIBLE (V = 1), INVISIBLE (V = 0) or
   PARTIAL otherwise (§2.3).
@@ -33,6 +39,13 @@ from nodes.common import rays
 from . import geometry as G
 
 DEAD = -2  # parent id of elements removed by an undone subdivision
+#: children's cell offsets of an upright triangle (corner, corner, corner, middle) and a flipped one
+TRI_OFF = np.array([[[0, 0], [1, 0], [0, 1], [0, 0]], [[1, 1], [0, 1], [1, 0], [1, 1]]])
+
+
+def _padded(a: np.ndarray, n: int) -> np.ndarray:
+    a = np.asarray(a, bool)
+    return a if len(a) == n else np.concatenate([a, np.zeros(n - len(a), bool)])[:n]
 
 
 @dataclass(eq=False)
@@ -52,20 +65,52 @@ class Hierarchy:
     F: np.ndarray = field(default_factory=lambda: np.zeros(0))
     V: np.ndarray = field(default_factory=lambda: np.zeros(0))
     C: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    #: (P,) bool: triangle polygons; (N,) bool: flipped triangle elements.  Shorter arrays
+    #: (a scene of parallelograms has them empty) read as False past their end.
+    P_tri: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    flip: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     ARRAYS = ("P_o", "P_u", "P_v", "poly", "level", "ij", "parent", "child0",
               "recv", "send", "F", "V", "C")
+    TRI_ARRAYS = ("P_tri", "flip")  # kept (in a solution) only where the scene has triangles
 
     @classmethod
     def roots(cls, verts: np.ndarray) -> "Hierarchy":
-        o, u, v, n, a = G.frame(np.asarray(verts, np.float64))
+        verts = np.asarray(verts, np.float64)
+        o, u, v, n, a = G.frame(verts)
         P = len(o)
+        tri = G.is_triangle(verts)
         return cls(o, u, v, poly=np.arange(P), level=np.zeros(P, np.int64),
                    ij=np.zeros((P, 2), np.int64), parent=np.full(P, -1),
-                   child0=np.full(P, -1))
+                   child0=np.full(P, -1), P_tri=tri if tri.any() else np.zeros(0, bool))
 
     def copy(self) -> "Hierarchy":
-        return Hierarchy(**{k: getattr(self, k).copy() for k in self.ARRAYS})
+        return Hierarchy(**{k: getattr(self, k).copy() for k in self.ARRAYS + self.TRI_ARRAYS})
+
+    def tri_arrays(self) -> dict:
+        """{"P_tri", "flip"} at full length where there are triangles, else {}."""
+        if not self.tri_poly.any():
+            return {}
+        return {"P_tri": self.tri_poly, "flip": self.flipped}
+
+    @property
+    def tri_poly(self) -> np.ndarray:
+        """(P,) bool: the polygon is a triangle."""
+        return _padded(self.P_tri, len(self.P_o))
+
+    @property
+    def flipped(self) -> np.ndarray:
+        """(N,) bool: the element is a flipped (middle-type) triangle."""
+        return _padded(self.flip, self.n_elems)
+
+    def tri(self, e: np.ndarray) -> np.ndarray:
+        """(len(e),) bool: elements e are triangles."""
+        return self.tri_poly[self.poly[e]]
+
+    def occluders(self, n_poly: int | None = None):
+        """(o, u, v, n, tri) of the first n_poly polygons (all), for rays.occluded."""
+        k = slice(None, n_poly)
+        return self.P_o[k], self.P_u[k], self.P_v[k], self.P_n[k], self.tri_poly[k]
 
     # -- element geometry -----------------------------------------------------------------
     @property
@@ -78,17 +123,34 @@ class Hierarchy:
         return c / np.linalg.norm(c, axis=1, keepdims=True)
 
     @property
-    def P_area(self):
+    def P_jac(self):
+        """(P,) |u × v|: the area of a unit of (s, t), the parallelogram's area."""
         return np.linalg.norm(np.cross(self.P_u, self.P_v), axis=1)
 
+    @property
+    def P_area(self):
+        a = self.P_jac
+        return np.where(self.tri_poly, 0.5 * a, a) if self.tri_poly.any() else a
+
     def geom(self, e: np.ndarray):
-        """origin, u, v, n, area of elements e."""
+        """origin, u, v, n, area of elements e (a flipped triangle: origin at its cell's far
+        corner, edges −u, −v)."""
         p = self.poly[e]
         sc = 0.5 ** self.level[e]
         u = self.P_u[p] * sc[:, None]
         v = self.P_v[p] * sc[:, None]
         o = self.P_o[p] + self.ij[e, 0:1] * u + self.ij[e, 1:2] * v
+        f = self.flipped[e]
+        if f.any():
+            o = o + f[:, None] * (u + v)
+            sg = np.where(f, -1.0, 1.0)[:, None]
+            u, v = u * sg, v * sg
         return o, u, v, self.P_n[p], self.P_area[p] * sc * sc
+
+    def centre(self, e: np.ndarray) -> np.ndarray:
+        """(len(e), 3) centroids of elements e."""
+        o, u, v, _, _ = self.geom(e)
+        return o + np.where(self.tri(e), 1 / 3, 0.5)[:, None] * (u + v)
 
     def area(self, e=None):
         e = np.arange(self.n_elems) if e is None else e
@@ -106,10 +168,22 @@ class Hierarchy:
         n0 = self.n_elems
         k = len(e)
         ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+        tri = self.tri(e)
+        flip0 = self.flipped  # before the new elements (their flips are appended below)
         self.child0[e] = n0 + 4 * np.arange(k)
         self.poly = np.concatenate([self.poly, np.repeat(self.poly[e], 4)])
         self.level = np.concatenate([self.level, np.repeat(self.level[e] + 1, 4)])
-        cij = (2 * self.ij[e])[:, None, :] + ab[None]
+        off = np.broadcast_to(ab, (k, 4, 2)).copy()
+        if tri.any():  # corner, corner, corner, middle (see the module docstring)
+            f = flip0[e]
+            off[tri] = np.where(f[tri, None, None], TRI_OFF[1], TRI_OFF[0])
+            cf = np.zeros((k, 4), bool)
+            cf[tri] = np.where(f[tri, None], [True, True, True, False],
+                               [False, False, False, True])
+            self.flip = np.concatenate([flip0, cf.reshape(-1)])
+        elif len(self.flip):
+            self.flip = np.concatenate([flip0, np.zeros(4 * k, bool)])
+        cij = (2 * self.ij[e])[:, None, :] + off
         self.ij = np.concatenate([self.ij, cij.reshape(-1, 2)])
         self.parent = np.concatenate([self.parent, np.repeat(e, 4)])
         self.child0 = np.concatenate([self.child0, np.full(4 * k, -1)])
@@ -138,27 +212,43 @@ class Hierarchy:
         return np.concatenate(rows), np.concatenate(cols)
 
     def leaf_grid(self, max_level: int | None = None):
-        """Per polygon a (2^L × 2^L) array of leaf ids (L = deepest level) → (P, 2^L, 2^L)."""
+        """Per polygon a (2^L × 2^L) array of leaf ids (L = deepest level) over each cell's two
+        halves (the anti-diagonal's sides, :attr:`flip`) → (P, 2^L, 2^L, 2); a parallelogram's
+        halves hold the same leaf, a triangle's cells past its diagonal -1."""
         lv = self.leaves
         L = int(self.level[lv].max()) if max_level is None else max_level
         n = 1 << L
-        grid = np.full((len(self.P_o), n, n), -1, np.int64)
+        grid = np.full((len(self.P_o), n, n, 2), -1, np.int64)
+        tri, flip = self.tri(lv), self.flipped[lv]
         for l in np.unique(self.level[lv]):
-            e = lv[self.level[lv] == l]
+            m = self.level[lv] == l
             b = 1 << (L - l)
             r = np.arange(b)
-            I = (self.ij[e, 0] * b)[:, None, None] + r[None, :, None]
-            J = (self.ij[e, 1] * b)[:, None, None] + r[None, None, :]
-            grid[self.poly[e][:, None, None], I, J] = e[:, None, None]
+            a = r[:, None] + r[None, :]  # fine cell (a, b) inside the element's cell: a + b
+            for sel, halves in ((~tri, (a >= 0, a >= 0)), (tri & ~flip, (a <= b - 1, a < b - 1)),
+                                (tri & flip, (a > b - 1, a >= b - 1))):
+                e = lv[m & sel]
+                if not len(e):
+                    continue
+                shp = (len(e), b, b)
+                I = np.broadcast_to((self.ij[e, 0] * b)[:, None, None] + r[None, :, None], shp)
+                J = np.broadcast_to((self.ij[e, 1] * b)[:, None, None] + r[None, None, :], shp)
+                P = np.broadcast_to(self.poly[e][:, None, None], shp)
+                E = np.broadcast_to(e[:, None, None], shp)
+                for k, ok in enumerate(halves):
+                    ok = np.broadcast_to(ok, shp)
+                    grid[P[ok], I[ok], J[ok], k] = E[ok]
         return grid
 
     def locate(self, poly: np.ndarray, s: np.ndarray, t: np.ndarray, grid=None):
-        """Leaf id under polygon coordinates (s, t) ∈ [0,1]²."""
+        """Leaf id under polygon coordinates (s, t) ∈ [0,1]² (-1 past a triangle's diagonal)."""
         grid = self.leaf_grid() if grid is None else grid
         n = grid.shape[1]
         i = np.clip((s * n).astype(np.int64), 0, n - 1)
         j = np.clip((t * n).astype(np.int64), 0, n - 1)
-        return grid[poly, i, j]
+        half = (s * n - i) + (t * n - j) > 1
+        out = grid[poly, i, j, half.astype(np.int64)]
+        return np.where(out < 0, grid[poly, i, j, 0], out)  # on a triangle's diagonal
 
 
 # ------------------------------------------------------------------------------------------
@@ -175,7 +265,7 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     """
     if len(r) == 0:
         return (np.zeros(0), np.zeros((0, 4))) if centroid else np.zeros(0)
-    occ = occ if occ is not None else (h.P_o, h.P_u, h.P_v, h.P_n)
+    occ = occ if occ is not None else h.occluders()
     ro, ru, rv, _, _ = h.geom(r)
     so, su, sv, _, _ = h.geom(s)
     st = G.grid_st(n_rays)
@@ -184,10 +274,19 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     ja = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
     jb = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
     jb = jb[:, rng.permutation(k)]
+    if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
+        ja = G.fold(ja, h.tri(r)[:, None])
+        jb = G.fold(jb, h.tri(s)[:, None])
     p0 = ro[:, None] + ja[..., 0:1] * ru[:, None] + ja[..., 1:2] * rv[:, None]
     p1 = so[:, None] + jb[..., 0:1] * su[:, None] + jb[..., 1:2] * sv[:, None]
-    ign = np.repeat(np.stack([h.poly[r], h.poly[s]], 1), k, axis=0)
-    blocked = rays.occluded(p0.reshape(-1, 3), p1.reshape(-1, 3), occ, ignore=ign)
+    own = np.stack([h.poly[r], h.poly[s]], 1)
+    # only links whose rays' bounding box meets an occluder's (other than their own two
+    # polygons) can be blocked: the rest are cast by no backend (the same answers)
+    cast = rays.boxes_meet(np.minimum(p0, p1).min(1), np.maximum(p0, p1).max(1), occ, own)
+    blocked = np.zeros((M, k), bool)
+    if cast.any():
+        blocked[cast] = rays.occluded(p0[cast].reshape(-1, 3), p1[cast].reshape(-1, 3), occ,
+                                      ignore=np.repeat(own[cast], k, axis=0)).reshape(-1, k)
     # weight each ray by the point-to-point kernel cos·cos/r², so that F·V estimates the
     # occluded form factor even where visibility correlates with distance
     d = p1 - p0
@@ -213,26 +312,37 @@ def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
     """False where one element lies wholly behind the other's plane (no exchange)."""
     ro, ru, rv, rn, _ = h.geom(r)
     so, su, sv, sn, _ = h.geom(s)
-    cr = G.corners(ro, ru, rv)
-    cs = G.corners(so, su, sv)
+    cr = G.corners(ro, ru, rv, h.tri(r))
+    cs = G.corners(so, su, sv, h.tri(s))
     ds = np.einsum("nkc,nc->nk", cs - ro[:, None], rn)
     dr = np.einsum("nkc,nc->nk", cr - so[:, None], sn)
     return (ds > 1e-9).any(1) & (dr > 1e-9).any(1) & (h.poly[r] != h.poly[s])
 
 
-def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int):
+def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2=None):
     """F for links, with 4× more receiver points for near pairs (the integrand peaks at a
-    shared edge, where a coarse midpoint rule underestimates it)."""
+    shared edge, where a coarse midpoint rule underestimates it).  tri1 / tri2 (M,): the
+    receiver / sender is a triangle."""
     c1 = o1 + 0.5 * (u1 + v1)
     c2 = o2 + 0.5 * (u2 + v2)
     size = np.linalg.norm(u1 + v1, axis=1) + np.linalg.norm(u2 + v2, axis=1)
     near = np.linalg.norm(c1 - c2, axis=1) < 1.0 * size
     F = np.zeros(len(o1))
+    sel = lambda t, m: None if t is None else np.asarray(t)[m]  # noqa: E731
     for m, n in ((~near, n_ff), (near, 4 * n_ff)):
         if m.any():
             F[m] = G.element_form_factors(o1[m], u1[m], v1[m], n1[m], o2[m], u2[m], v2[m],
-                                          n2[m], n)
+                                          n2[m], n, tri_i=sel(tri1, m), tri_j=sel(tri2, m))
     return F
+
+
+def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int) -> np.ndarray:
+    """:func:`link_form_factors` of links r ← s of h."""
+    o1, u1, v1, n1, _ = h.geom(r)
+    o2, u2, v2, n2, _ = h.geom(s)
+    tri = h.tri_poly.any()
+    return link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff,
+                             h.tri(r) if tri else None, h.tri(s) if tri else None)
 
 
 def ff_spread(h: Hierarchy, r, s):
@@ -240,11 +350,14 @@ def ff_spread(h: Hierarchy, r, s):
     (moved 1 % inwards), the refinement oracle."""
     ro, ru, rv, rn, _ = h.geom(r)
     so, su, sv, sn, _ = h.geom(s)
-    P = G.corners(so, su, sv)
+    P = G.corners(so, su, sv, h.tri(s))
     st = np.array([[0.5, 0.5], [0.01, 0.01], [0.99, 0.01], [0.99, 0.99], [0.01, 0.99]])
+    # a triangle's centre, corners (1 % in) and its long edge's midpoint
+    st_tri = np.array([[1 / 3, 1 / 3], [0.01, 0.01], [0.98, 0.01], [0.49, 0.49], [0.01, 0.98]])
+    tri_r = h.tri(r)[:, None]
     F = []
-    for a, b in st:
-        x = ro + a * ru + b * rv
+    for (a, b), (at, bt) in zip(st, st_tri):
+        x = ro + np.where(tri_r, at, a) * ru + np.where(tri_r, bt, b) * rv
         f = G.ff_point_polygon(x, rn, P)
         F.append(np.where(np.einsum("nc,nc->n", x - so, sn) > 0, f, 0.0))
     F = np.stack(F, 1)
@@ -309,9 +422,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            o1, u1, v1, n1, _ = h.geom(ra)
-            o2, u2, v2, n2, _ = h.geom(sa)
-            F = link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+            F = element_links_ff(h, ra, sa, prm.n_ff)
             keep = F > 0
             out_r.append(ra[keep]); out_s.append(sa[keep])
             out_F.append(F[keep]); out_V.append(V[acc][keep]); out_C.append(C[acc][keep])
@@ -404,11 +515,32 @@ def link_entries(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
     has = h.child0[s] >= 0
     d = np.clip(np.asarray(cen, float)[has] - 0.5, -0.25, 0.25)
     rows, cols, vals = [r[~has]], [s[~has]], [weight[~has]]
-    for c, (a, b) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):  # order of subdivide()
+    w = np.stack([0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]
+                  for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))], 1)  # order of subdivide()
+    tri = h.tri(s[has])
+    if tri.any():
+        w[tri] = tri_child_weights(np.asarray(cen, float)[has][tri])
+    for c in range(4):
         rows.append(r[has])
         cols.append(h.child0[s[has]] + c)
-        vals.append(weight[has] * (0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]))
+        vals.append(weight[has] * w[:, c])
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+
+
+#: a triangle's children's centroids in its (s, t): three corners, then the middle one
+_TRI_CHILD = np.array([[1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3], [1 / 3, 1 / 3]])
+
+
+def tri_child_weights(cen: np.ndarray) -> np.ndarray:
+    """(M,4) weights of a triangle sender's children for B at (s̄, t̄) = ``cen`` (M,2): the
+    least-squares plane through the children's means at their centroids (¼ each at the
+    triangle's centroid), negative weights cut and the rest renormalised (a convex
+    combination, as the parallelogram's clamp)."""
+    X = np.column_stack([np.ones(4), _TRI_CHILD])
+    A = np.linalg.pinv(X)  # (3,4): plane coefficients from the children's values
+    q = np.column_stack([np.ones(len(cen)), np.clip(cen, 0, 1)])
+    w = np.clip(q @ A, 0, None)
+    return w / w.sum(1, keepdims=True)
 
 
 def solve(ops: Operators, E: np.ndarray, rho: np.ndarray, tol: float = 1e-7,

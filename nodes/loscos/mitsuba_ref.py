@@ -1,10 +1,14 @@
 """Mitsuba 3 versions of a RoomScene: the photograph of builtin:cornell2 and test oracles.
 
-Each parallelogram becomes a ``rectangle`` (one-sided diffuse BSDF, front = u × v); emitters
-get an ``area`` emitter with radiance = emittance / π.  Imported only by the data script and
+Each parallelogram becomes a ``rectangle`` (one-sided diffuse BSDF, front = u × v); the
+triangles (a, b, c, c) of one reflectance and light become one ``ply`` mesh (written to a
+temporary folder kept for the process); emitters get an ``area`` emitter with radiance =
+emittance / π.  Imported only by the data script and
 the oracle tests (mitsuba is an optional, heavy import).
 """
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -65,18 +69,35 @@ def scene_dict(scene, camera=None, spp: int = 64, emit_scale: dict | None = None
                                 "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
     emit_scale = emit_scale or {}
     sensors_on = sensors_on or {}
+    from .geometry import is_triangle
+
+    tri = is_triangle(scene.verts)
+    tri[list(sensors_on)] = False
+    groups = {}
+    for p in np.flatnonzero(tri):
+        key = (tuple(scene.reflectance[p]), scene.light[p], tuple(scene.emittance[p]))
+        groups.setdefault(key, []).append(p)
+    for g, (key, ps) in enumerate(groups.items()):
+        p = ps[0]
+        sh = {"type": "ply", "filename": _ply(scene.verts[ps, :3]), "face_normals": True,
+              "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb",
+                                                          "value": list(key[0])}}}
+        e = _radiance(scene, p, emit_scale)
+        if e is not None:
+            sh["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": e.tolist()}}
+        d[f"tri{g}"] = sh
     for p, v in enumerate(scene.verts):
+        if tri[p]:
+            continue
         bsdf = {"type": "diffuse", "reflectance": {"type": "rgb",
                                                    "value": scene.reflectance[p].tolist()}}
         parts = tiles(v, sensors_on[p]) if p in sensors_on else [v]
         for k, tv in enumerate(parts):
             sh = {"type": "rectangle", "to_world": T(rect_to_world(tv).tolist()),
                   "bsdf": dict(bsdf, reflectance=dict(bsdf["reflectance"]))}
-            if scene.light[p]:
-                e = scene.emittance[p] * emit_scale.get(scene.light[p], 1.0) / np.pi
-                if np.any(e > 0):
-                    sh["emitter"] = {"type": "area", "radiance": {"type": "rgb",
-                                                                  "value": e.tolist()}}
+            e = _radiance(scene, p, emit_scale)
+            if e is not None:
+                sh["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": e.tolist()}}
             if p in sensors_on:
                 sh[f"irr_{p}_{k}"] = {"type": "irradiancemeter",
                                 "sampler": {"type": "independent", "sample_count": spp,
@@ -85,6 +106,31 @@ def scene_dict(scene, camera=None, spp: int = 64, emit_scale: dict | None = None
                                          "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
             d[f"p{p}_{k}"] = sh
     return d
+
+
+def _radiance(scene, p, emit_scale):
+    """Polygon p's emitted radiance (emittance / π, scaled), or None if it emits nothing."""
+    if not scene.light[p]:
+        return None
+    e = scene.emittance[p] * emit_scale.get(scene.light[p], 1.0) / np.pi
+    return e if np.any(e > 0) else None
+
+
+_TMP: list = []
+
+
+def _ply(tris: np.ndarray) -> str:
+    """Triangles (K,3,3) as a binary PLY in this process's temporary folder → its path."""
+    import tempfile
+
+    import trimesh
+
+    if not _TMP:
+        _TMP.append(tempfile.TemporaryDirectory(prefix="loscos-mitsuba-"))
+    path = os.path.join(_TMP[0].name, f"t{len(os.listdir(_TMP[0].name))}.ply")
+    V = np.asarray(tris, float).reshape(-1, 3)
+    trimesh.Trimesh(V, np.arange(len(V)).reshape(-1, 3), process=False).export(path)
+    return path
 
 
 def render_photo(scene, lookat, fov_deg, width, height, spp, seed=0, emit_scale=None):

@@ -7,8 +7,8 @@
 What it takes (anything else raises :class:`MitsubaSceneError`, naming the entry):
 
 * shapes ``rectangle`` ([-1,1]² in z = 0, normal +z), ``cube`` ([-1,1]³, outward), ``obj`` and
-  ``ply`` meshes (read with trimesh; triangles are paired into the parallelograms the
-  radiosity needs — a mesh exported from quads pairs up), each with ``to_world`` (a Mitsuba
+  ``ply`` meshes (read with trimesh; coplanar triangle pairs that form a parallelogram are
+  merged — a mesh exported from quads pairs up —, the rest stay triangles: meshes.py), each with ``to_world`` (a Mitsuba
   transform, a 4×4 array or nested lists) and ``flip_normals``;
 * BSDFs ``diffuse`` (rgb or uniform reflectance), also inside ``twosided``, inline or by
   ``{"type": "ref", "id": …}``; a shape without a BSDF is Mitsuba's default grey 0.5;
@@ -82,54 +82,6 @@ def _albedo(bsdf, defs: dict, where: str) -> list[float]:
     return _rgb(bsdf.get("reflectance", 0.5), f"{where}.bsdf.reflectance")
 
 
-def mesh_parallelograms(vertices: np.ndarray, faces: np.ndarray, where: str,
-                        rel_tol: float = 1e-5) -> np.ndarray:
-    """Pair a triangle mesh's faces into planar parallelograms (K,4,3), counter-clockwise
-    as the triangles are (front = their winding).  Pairs are two triangles sharing an edge,
-    coplanar, whose four corners form a parallelogram; a maximum matching (networkx) picks
-    them, preferring consecutive faces (a quad split into two triangles)."""
-    import networkx as nx
-
-    V = np.asarray(vertices, float)
-    F = np.asarray(faces, np.int64)
-    tri = V[F]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    nn = np.linalg.norm(n, axis=1)
-    if np.any(nn <= 1e-14):
-        raise MitsubaSceneError(f"{where}: the mesh has degenerate (zero-area) triangles")
-    n = n / nn[:, None]
-    size = float(np.ptp(V, axis=0).max()) or 1.0
-    edges = {}
-    for f, (a, b, c) in enumerate(F):
-        for u, w in ((a, b), (b, c), (c, a)):
-            edges.setdefault((min(u, w), max(u, w)), []).append(f)
-    g = nx.Graph()
-    g.add_nodes_from(range(len(F)))
-    for (u, w), fs in edges.items():
-        if len(fs) != 2:
-            continue
-        f1, f2 = fs
-        if np.dot(n[f1], n[f2]) < 1 - 1e-6:
-            continue
-        p = [x for x in F[f1] if x not in (u, w)][0]
-        q = [x for x in F[f2] if x not in (u, w)][0]
-        if np.linalg.norm(V[p] + V[q] - V[u] - V[w]) <= rel_tol * size:
-            g.add_edge(f1, f2, weight=2.0 if abs(f1 - f2) == 1 else 1.0, quad=(p, u, q, w))
-    match = nx.max_weight_matching(g, maxcardinality=True)
-    if 2 * len(match) != len(F):
-        left = len(F) - 2 * len(match)
-        raise MitsubaSceneError(f"{where}: {left} of {len(F)} triangles pair with no neighbour "
-                                "into a parallelogram (the scene file takes parallelograms; "
-                                "export quads, or split the mesh into rectangles)")
-    out = []
-    for f1, f2 in sorted(tuple(sorted(m)) for m in match):
-        q = V[list(g.edges[f1, f2]["quad"])]
-        if np.dot(np.cross(q[1] - q[0], q[3] - q[0]), n[f1]) < 0:
-            q = q[[0, 3, 2, 1]]
-        out.append(q)
-    return np.array(out)
-
-
 def _shape_polygons(key: str, sh: dict, base_dir: str) -> np.ndarray:
     kind = sh["type"]
     M = matrix(sh.get("to_world"), key)
@@ -148,9 +100,14 @@ def _shape_polygons(key: str, sh: dict, base_dir: str) -> np.ndarray:
         path = fn if os.path.isabs(fn) else os.path.join(base_dir, fn)
         if not os.path.exists(path):
             raise MitsubaSceneError(f"{key}: mesh file not found: {path}")
+        from .meshes import MeshError, mesh_polygons
+
         mesh = trimesh.load(path, force="mesh", process=False)
-        polys = mesh_parallelograms(_apply(M, np.asarray(mesh.vertices, float)),
-                                    np.asarray(mesh.faces), key)
+        try:
+            polys = mesh_polygons(_apply(M, np.asarray(mesh.vertices, float)),
+                                  np.asarray(mesh.faces), key)
+        except MeshError as e:
+            raise MitsubaSceneError(str(e)) from None
     if sh.get("flip_normals"):
         polys = polys[:, [0, 3, 2, 1]]
     return polys

@@ -19,10 +19,14 @@ def dataclass_port(cls, doc: str = "") -> PortType:
     def check(v):
         return None if isinstance(v, cls) else f"expected {cls.__name__}, got {type(v).__name__}"
 
+    optional = {f.name for f in dataclasses.fields(cls) if f.default is None}
+
     def to_parts(v):
         arrays, meta = [], {"arrays": [], "json": {}}
         for n in names:
             x = getattr(v, n)
+            if x is None and n in optional:
+                continue  # a field left at its None default is not stored (older values' bytes)
             if isinstance(x, np.ndarray):
                 meta["arrays"].append(n)
                 arrays.append(np.ascontiguousarray(x))
@@ -41,9 +45,10 @@ def dataclass_port(cls, doc: str = "") -> PortType:
 
 @dataclass(eq=False)
 class RoomScene:
-    """Polygons (planar parallelograms) of a real scene with reflectances and emitters.
+    """Polygons (planar parallelograms, or triangles) of a real scene with reflectances and emitters.
 
-    verts (P,4,3) in metres, vertices counter-clockwise seen from the front side;
+    verts (P,4,3) in metres, vertices counter-clockwise seen from the front side; a triangle
+    (a, b, c) is written (a, b, c, c) (geometry.is_triangle);
     reflectance (P,3) diffuse albedo (linear RGB, unitless); emittance (P,3) exitant
     radiosity of emitters in W/m² (= π × radiance); light (P,) name of the light a polygon
     belongs to ("" if none); virtual (P,) bool — inserted, not in the photograph;
@@ -150,11 +155,14 @@ class RadiositySolution:
     emit: np.ndarray
     lights: list
     info: dict = field(default_factory=dict)
+    P_tri: np.ndarray | None = None  # (P,) bool triangle polygons, (N,) bool flipped
+    flip: np.ndarray | None = None  # elements: None where the scene has no triangle
 
     def hierarchy(self):
         from .hierarchy import Hierarchy
 
-        return Hierarchy(**{k: getattr(self, k) for k in Hierarchy.ARRAYS})
+        tri = {k: getattr(self, k) for k in Hierarchy.TRI_ARRAYS if getattr(self, k) is not None}
+        return Hierarchy(**{k: getattr(self, k) for k in Hierarchy.ARRAYS}, **tri)
 
     @property
     def leaves(self):

@@ -67,7 +67,7 @@ def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection, seen_ar
     leaf = h.locate(pid, np.tile(S.ravel(), P), np.tile(T.ravel(), P), grid)
     pos = np.full(h.n_elems, -1)
     pos[leaves] = np.arange(len(leaves))
-    k = pos[leaf]
+    k = np.where(leaf >= 0, pos[leaf], -1)  # -1: past a triangle's diagonal
     w = proj.coverage.reshape(-1).astype(float)
     m = (k >= 0) & (w > 0)
     cnt = np.bincount(k[m], w[m], minlength=len(leaves))
@@ -77,7 +77,7 @@ def leaf_textures(h: HR.Hierarchy, leaves: np.ndarray, proj: Projection, seen_ar
         s = np.bincount(k[m], w[m] * tex[m, c], minlength=len(leaves))
         out[:, c] = np.where(cnt > 0, s / np.maximum(cnt, 1e-300), np.nan)
     if seen_area:
-        return out, cnt * h.P_area[h.poly[leaves]] / (R * R)
+        return out, cnt * h.P_jac[h.poly[leaves]] / (R * R)
     return out
 
 
@@ -362,7 +362,8 @@ def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol
     info = dict(info, leaves=int(len(leaves)), links=int(len(h.recv)), elements=int(h.n_elems),
                 iterations=int(it))
     return RadiositySolution(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS}, rho=rho, T=T,
-                             resp=R, resp_H=RH, resp_Hu=RHu, emit=emit, lights=lights, info=info)
+                             resp=R, resp_H=RH, resp_Hu=RHu, emit=emit, lights=lights, info=info,
+                             **h.tri_arrays())
 
 
 def initial_radiosity(scene: RoomScene, h: HR.Hierarchy) -> np.ndarray:
@@ -531,9 +532,7 @@ def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng
     r, s = np.concatenate(nr), np.concatenate(ns)
     f = HR.facing(h, r, s)
     r, s = r[f], s[f]
-    o1, u1, v1, n1, _ = h.geom(r)
-    o2, u2, v2, n2, _ = h.geom(s)
-    F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+    F = HR.element_links_ff(h, r, s, prm.n_ff)
     V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
     m = F > 0
     h.recv = np.concatenate([h.recv[keep], r[m]])
@@ -556,9 +555,11 @@ def leaf_neighbours(h: HR.Hierarchy, leaves) -> tuple[np.ndarray, np.ndarray]:
     grid = h.leaf_grid()
     pos = np.full(h.n_elems, -1)
     pos[leaves] = np.arange(len(leaves))
-    g = pos[grid]
-    a = np.concatenate([g[:, :-1, :].ravel(), g[:, :, :-1].ravel()])
-    b = np.concatenate([g[:, 1:, :].ravel(), g[:, :, 1:].ravel()])
+    g = np.where(grid >= 0, pos[grid], -1)
+    # across cell edges (a cell's lower half meets the left/below neighbours' upper halves),
+    # and between a cell's two halves (the same leaf on a parallelogram)
+    a = np.concatenate([g[:, :-1, :, 1].ravel(), g[:, :, :-1, 1].ravel(), g[..., 0].ravel()])
+    b = np.concatenate([g[:, 1:, :, 0].ravel(), g[:, :, 1:, 0].ravel(), g[..., 1].ravel()])
     m = (a != b) & (a >= 0) & (b >= 0)
     pr = np.unique(np.stack([a[m], b[m]], 1), axis=0)
     return pr[:, 0], pr[:, 1]
@@ -617,9 +618,7 @@ def texture_refine(scene, h: HR.Hierarchy, proj, prm: HR.RefineParams, color_thr
             key = np.unique(np.stack([pr, ps], 1), axis=0)
             h.recv, h.send, h.F, h.V, h.C = (x[~gone] for x in (h.recv, h.send, h.F, h.V, h.C))
             h.unsubdivide(undo)
-            o1, u1, v1, n1, _ = h.geom(key[:, 0])
-            o2, u2, v2, n2, _ = h.geom(key[:, 1])
-            F = HR.link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, prm.n_ff)
+            F = HR.element_links_ff(h, key[:, 0], key[:, 1], prm.n_ff)
             V, C = HR.link_visibility(h, key[:, 0], key[:, 1], prm.n_rays, rng, centroid=True)
             h.recv = np.concatenate([h.recv, key[:, 0]])
             h.send = np.concatenate([h.send, key[:, 1]])

@@ -133,8 +133,8 @@ class Unocclude(Node):
         front &= seen
         rho_n = np.where(seen[:, None], np.pi * T_inter / np.maximum(Hu, 1e-12), 0.0)
         C = lab(rho_n)
-        o, u, v, _, area = h.geom(lv)
-        cen = o + 0.5 * (u + v)
+        area = h.area(lv)
+        cen = h.centre(lv)
         poly = h.poly[lv]
         ref = np.full(len(lv), -1)
         for p in np.unique(poly[occl]):
@@ -513,7 +513,7 @@ def real_reference(h: HR.Hierarchy, kept: Links, added: Links, P0: int, n_rays: 
     recomputed without them): Loscos §2.4, only *changes* of B matter, so the real pixels
     are scaled by B / B_ref computed on one mesh."""
     rr = (h.poly[added.recv] < P0) & (h.poly[added.send] < P0)
-    occ = (h.P_o[:P0], h.P_u[:P0], h.P_v[:P0], h.P_n[:P0])
+    occ = h.occluders(P0)
     V, C = HR.link_visibility(h, added.recv[rr], added.send[rr], n_rays,
                               np.random.default_rng(seed), occ=occ, centroid=True)
     ref = h.copy()
@@ -582,7 +582,8 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
     glow[real_emit] = (E[real_emit] + rho_fix * H[real_emit]) / np.pi
     emit_poly = np.zeros(len(h.P_o), bool)
     emit_poly[:P0] = emitter_polygons(sol.hierarchy(), lv0, emits0)
-    allv = np.concatenate([corners(h.P_o[:P0], h.P_u[:P0], h.P_v[:P0]), vp.quads])
+    allv = np.concatenate([corners(h.P_o[:P0], h.P_u[:P0], h.P_v[:P0], h.tri_poly[:P0]),
+                           vp.quads])
     pp, _ = pixel_map(allv, camera)
     sub = edge_subsamples(allv, camera, pp)
     inserted = emitter_coverage(allv, range(P0, len(allv)), camera, pp, *sub[:2])

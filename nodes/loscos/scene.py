@@ -15,6 +15,14 @@ Scene file (YAML, ``loscos_scene: 1``)::
       - {name: B, vertices: [...]}          # no emittance (or `emittance: estimate`): from the photo
     boxes:                                               # expanded to 5 or 6 parallelograms
       - {name: tall, material: white, to_world: [[4×4]], bottom: false}  # of the cube [-1,1]³
+    meshes:                                              # triangle meshes (meshes.py), relative
+      - file: room.obj                                   # OBJ (parts = its materials), PLY (one
+        material: white                                  # part, ``name``), glTF/GLB (its meshes);
+        parts: {red_wall: red, lamp: [0.8, 0.8, 0.8]}    # albedo per part (default: ``material``,
+        merge: true                                      # else the file's colour); coplanar
+                                                         # triangle pairs → parallelograms
+    lights:
+      - {name: lamp, emittance: [10, 10, 10]}            # no vertices: the mesh part so named
 
 Emittance is the emitted radiosity in W/m² (π × the radiance).  A light without one is
 estimated from the photograph by RadiositySolve.  ``mitsuba_scene.scene_file`` writes this
@@ -31,7 +39,10 @@ from graphkit import BadInput, Camera, Field, Image, InputFile, Node
 from . import checks
 from .ports import ROOM_SCENE, RoomScene
 
-BUILTIN = {"cornell2": "cornell2.yaml", "room": "room.yaml", "cornell3": "cornell3.yaml"}
+BUILTIN = {"cornell2": "cornell2.yaml", "room": "room.yaml", "cornell3": "cornell3.yaml",
+           # the same scenes as triangle meshes (data/make_mesh_scenes.py)
+           "room_mesh": "room_mesh.yaml", "cornell2_mesh": "cornell2_mesh.yaml",
+           "cornell3_mesh": "cornell3_mesh.yaml"}
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
 
@@ -89,9 +100,10 @@ def check_polygons(verts: np.ndarray, names, port: str, rel_tol: float = 1e-6):
             raise BadInput(port, f"polygon '{name}' is not planar (4th vertex is {dev:.3g} "
                                  "off the plane of the other three)")
         gap = np.linalg.norm(v[2] - (v[1] + w))
-        if gap > 1e-4 * size:
+        if gap > 1e-4 * size and not np.array_equal(v[2], v[3]):  # (a, b, c, c): a triangle
             raise BadInput(port, f"polygon '{name}' is not a parallelogram (v2 must equal "
-                                 f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms")
+                                 f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms "
+                                 "or triangles (3 vertices)")
 
 
 def example_room(box: list | None = None) -> tuple[RoomScene, Camera, Image]:
@@ -125,17 +137,23 @@ def example_doc(box: list | None = None) -> dict:
     return doc
 
 
-def parse_scene(doc: dict, port: str = "path") -> tuple[RoomScene, Camera, str | None]:
-    """Scene YAML document → (RoomScene, Camera, photo file name or None)."""
+def parse_scene(doc: dict, port: str = "path",
+                base_dir: str = ".") -> tuple[RoomScene, Camera, str | None]:
+    """Scene YAML document → (RoomScene, Camera, photo file name or None); mesh files are
+    read relative to ``base_dir``."""
+    from .meshes import MeshError
+
     try:
-        return _parse_scene(doc, port)
+        return _parse_scene(doc, port, base_dir)
+    except MeshError as e:
+        raise BadInput(port, str(e)) from None
     except KeyError as e:
         raise BadInput(port, f"scene file: an entry lacks the key {e}") from None
     except (TypeError, ValueError) as e:
         raise BadInput(port, f"scene file: a value has the wrong shape or type ({e})") from None
 
 
-def _parse_scene(doc: dict, port: str):
+def _parse_scene(doc: dict, port: str, base_dir: str):
     if not isinstance(doc, dict) or doc.get("loscos_scene") != 1:
         raise BadInput(port, "not a scene file (expected a mapping with 'loscos_scene: 1')")
     mats = doc.get("materials", {}) or {}
@@ -149,23 +167,44 @@ def _parse_scene(doc: dict, port: str):
             m = mats[m]
         return checks.reflectance(m, port, f"'{item.get('name')}'")
 
-    names, verts, refl, emit, light = [], [], [], [], []
+    names, verts, refl, emit, light, given = [], [], [], [], [], []
+
+    def add(name, v, rho, e=np.zeros(3), lname="", known=True):
+        if v.shape == (3, 3):  # a triangle (a, b, c) → (a, b, c, c)
+            v = v[[0, 1, 2, 2]]
+        names.append(name); verts.append(v); refl.append(rho); emit.append(e)
+        light.append(lname); given.append(known)
+
     for item in doc.get("polygons", []) or []:
-        names.append(str(item["name"])); verts.append(np.asarray(item["vertices"], float))
-        refl.append(albedo(item)); emit.append(np.zeros(3)); light.append("")
+        add(str(item["name"]), np.asarray(item["vertices"], float), albedo(item))
     for item in doc.get("boxes", []) or []:
         for k, f in enumerate(box_faces(item["to_world"], item.get("bottom", True))):
-            names.append(f"{item['name']}.{k}"); verts.append(f)
-            refl.append(albedo(item)); emit.append(np.zeros(3)); light.append("")
-    given = []
-    for item in doc.get("lights", []) or []:
-        e, known = light_emittance_of(item, port)
-        names.append(str(item["name"])); verts.append(np.asarray(item["vertices"], float))
-        refl.append(albedo(item)); emit.append(e); light.append(str(item["name"]))
-        given.append(known)
+            add(f"{item['name']}.{k}", f, albedo(item))
+    parts = mesh_parts_of(doc, port, base_dir, mats, albedo)
+    lights = doc.get("lights", []) or []
+    if parts and not lights:
+        raise BadInput(port, "the scene has no light: name the mesh parts that emit under "
+                             f"'lights:' (mesh parts: {', '.join(p[0] for p in parts)})")
+    light_parts = {str(item.get("name")) for item in lights if "vertices" not in item}
+    for pname, polys, rho in parts:
+        if pname not in light_parts:
+            for k, f in enumerate(polys):
+                add(f"{pname}.{k}", f, rho)
+    by_name = {p[0]: p for p in parts}
+    for item in lights:
+        e, known = light_emittance_of(item, port, by_name)
+        lname = str(item["name"])
+        if "vertices" in item:
+            add(lname, np.asarray(item["vertices"], float), albedo(item), e, lname, known)
+            continue
+        _, polys, rho = by_name[lname]
+        rho = albedo(item) if ("material" in item or "reflectance" in item) else rho
+        for k, f in enumerate(polys):
+            add(f"{lname}.{k}" if len(polys) > 1 else lname, f, rho, e, lname, known)
     for n, v in zip(names, verts):
         if v.shape != (4, 3):
-            raise BadInput(port, f"polygon '{n}' needs 4 vertices of 3 coordinates, got {v.shape}")
+            raise BadInput(port, f"polygon '{n}' needs 4 (or 3) vertices of 3 coordinates, got "
+                                 f"{v.shape}")
     if not names:
         raise BadInput(port, "the scene has no polygons")
     verts = np.array(verts)
@@ -176,17 +215,55 @@ def _parse_scene(doc: dict, port: str):
         raise BadInput(port, "the scene has no camera")
     cam = camera_from_lookat(int(c["width"]), int(c["height"]), float(c["fov_deg"]),
                              c["position"], c["look_at"], c.get("up", [0, 1, 0]))
-    emit_given = np.ones(len(names), bool)
-    emit_given[len(names) - len(given):] = given
     return (RoomScene(names, verts, np.array(refl), np.array(emit), light,
-                      emit_given=emit_given), cam, doc.get("photo"))
+                      emit_given=np.array(given, bool)), cam, doc.get("photo"))
 
 
-def light_emittance_of(item: dict, port: str) -> tuple[np.ndarray, bool]:
-    """A light's emittance (W/m²) and whether the file gives it (no value / "estimate": no)."""
+def mesh_files(doc: dict, base_dir: str) -> list[str]:
+    """The paths of the mesh files a scene document names (relative to ``base_dir``)."""
+    items = doc.get("meshes", []) if isinstance(doc, dict) else []
+    return [os.path.join(base_dir, str(m["file"])) for m in items or []
+            if isinstance(m, dict) and "file" in m]
+
+
+def mesh_parts_of(doc: dict, port: str, base_dir: str, mats: dict, albedo):
+    """[(part name, polygons (K,4,3), albedo (3,))] of the scene's ``meshes`` entries."""
+    from .meshes import mesh_parts, mesh_polygons
+
+    out = []
+    for item, path in zip(doc.get("meshes", []) or [], mesh_files(doc, base_dir)):
+        if not os.path.exists(path):
+            raise BadInput(port, f"mesh file not found: {path}")
+        chosen = item.get("parts", {}) or {}
+        for pname, V, F, file_rho in mesh_parts(path, item.get("name")):
+            if pname in chosen:
+                rho = albedo({"name": pname, "material": chosen[pname]})
+            elif "material" in item or file_rho is None:
+                if "material" not in item:
+                    raise BadInput(port, f"mesh {item['file']}: part '{pname}' has no colour in "
+                                         "the file: give it a material (parts: or material:)")
+                rho = albedo({"name": pname, "material": item["material"]})
+            else:
+                rho = checks.reflectance(file_rho, port, f"mesh part '{pname}'")
+            where = f"mesh {item['file']}, part '{pname}'"
+            out.append((pname, mesh_polygons(V, F, where, bool(item.get("merge", True))), rho))
+        unknown = set(chosen) - {p[0] for p in out}
+        if unknown:
+            raise BadInput(port, f"mesh {item['file']} has no part " + ", ".join(
+                f"'{u}'" for u in sorted(unknown)) + f" (its parts: {', '.join(p[0] for p in out)})")
+    return out
+
+
+def light_emittance_of(item: dict, port: str, parts: dict | None = None) -> tuple[np.ndarray, bool]:
+    """A light's emittance (W/m²) and whether the file gives it (no value / "estimate": no).
+
+    A light without vertices is the mesh part of its name (``parts``: name → part)."""
     name = item.get("name")
-    if "name" not in item or "vertices" not in item:
-        raise BadInput(port, f"a light needs a name and 4 vertices (got keys {sorted(item)})")
+    if "name" not in item or ("vertices" not in item and not parts):
+        raise BadInput(port, f"a light needs a name and vertices (got keys {sorted(item)})")
+    if "vertices" not in item and str(name) not in parts:
+        raise BadInput(port, f"light '{name}' has no vertices and no mesh part of that name "
+                             f"(mesh parts: {', '.join(parts)})")
     v = item.get("emittance")
     if v is None or (isinstance(v, str) and v == "estimate"):
         return np.zeros(3), False
@@ -200,6 +277,7 @@ def check_emitters(verts, emit, names, port):
     for n, a, e in zip(names, area, emit):
         if np.any(e > 0) and a <= 1e-12:
             raise BadInput(port, f"emitter '{n}' has zero area")
+
 
 
 def check_camera_sees(scene: RoomScene, cam: Camera, port: str):
@@ -218,7 +296,8 @@ class LoadScene(Node):
     Cornell box with Mitsuba's ``cornell_box()`` geometry and colours plus a second area
     light, photographed (rendered) by Mitsuba 3 (nodes/loscos/data/make_cornell2.py) —,
     ``builtin:room`` (a room with a table, a window-like light and a lamp) or
-    ``builtin:cornell3`` (two other lights), both from Mitsuba scene dicts (make_scenes.py).
+    ``builtin:cornell3`` (two other lights), both from Mitsuba scene dicts (make_scenes.py);
+    ``builtin:room_mesh``, ``cornell2_mesh``, ``cornell3_mesh``: the same as mesh files.
     A light may leave its emittance out (RadiositySolve estimates it from the photograph).
     Units: metres, W/m² (emittance = π × radiance), photograph in linear radiance.
     """
@@ -247,9 +326,10 @@ class LoadScene(Node):
                 doc = yaml.safe_load(f)
         except (OSError, yaml.YAMLError):
             return {}  # compute reports the problem with the scene file itself
+        out = {f"mesh{k}": m for k, m in enumerate(mesh_files(doc, os.path.dirname(path)))}
         if isinstance(doc, dict) and isinstance(doc.get("photo"), str):
-            return {"photo": os.path.join(os.path.dirname(path), doc["photo"])}
-        return {}
+            out["photo"] = os.path.join(os.path.dirname(path), doc["photo"])
+        return out
 
     def compute(self):
         import yaml
@@ -264,7 +344,7 @@ class LoadScene(Node):
                 doc = yaml.safe_load(f)
             except yaml.YAMLError as e:
                 raise BadInput("path", f"{path}: not valid YAML: {e}") from None
-        scene, cam, photo = parse_scene(doc)
+        scene, cam, photo = parse_scene(doc, base_dir=os.path.dirname(path))
         if not photo:
             unknown = [s for s, g in zip(scene.light_names, scene.light_given()) if not g]
             if unknown:

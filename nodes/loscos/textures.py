@@ -34,7 +34,8 @@ def camera_rays(cam: Camera, step: int = 1):
 def first_polygon(verts: np.ndarray, o: np.ndarray, d: np.ndarray):
     """Polygon index (-1: none or a back face) and (s, t) first hit along each ray."""
     po, pu, pv, pn, _ = G.frame(verts)
-    idx, t, s, tt = G.ray_first_hit(o, d, po, pu, pv, pn, two_sided=True)
+    idx, t, s, tt = G.ray_first_hit(o, d, po, pu, pv, pn, two_sided=True,
+                                    tri=G.is_triangle(verts))
     m = idx >= 0
     back = np.zeros(len(idx), bool)
     back[m] = np.einsum("nc,nc->n", d[m], pn[idx[m]]) > 0
@@ -233,12 +234,15 @@ def project(scene: RoomScene, cam: Camera, photo: np.ndarray, res: int) -> Proje
     inside = (z > 1e-6) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) \
         & (uv[:, 1] < cam.height)
     inside &= np.repeat(front, res * res)
+    tri = G.is_triangle(verts)
+    if tri.any():  # a triangle's texels past its diagonal are not on it
+        inside &= ~np.repeat(tri, res * res) | np.tile((S + T).ravel() <= 1, P)
     # occlusion: segment texel → camera blocked by another polygon
     cand = np.flatnonzero(inside)
     pid = np.repeat(np.arange(P), res * res)
     ign = np.stack([pid[cand], np.full(len(cand), -1)], 1)
-    blocked = rays.occluded(pts[cand], np.broadcast_to(c, (len(cand), 3)), (po, pu, pv, pn),
-                            ignore=ign)
+    blocked = rays.occluded(pts[cand], np.broadcast_to(c, (len(cand), 3)),
+                            (po, pu, pv, pn, tri), ignore=ign)
     cov = np.zeros(len(pts), bool)
     cov[cand[~blocked]] = True
     pp, pst = pixel_map(verts, cam)
