@@ -45,7 +45,8 @@ class CosmeticShade(Node):
     # 4: world-frame lights (turned into the camera frame), orthographic cameras
     # 5: the SSS runs on the skin's box grown by the widest kernel and the diffuse on the box of
     #    the layers and the skin (same formula; the filters' float rounding moves ≤ 1.2e-7)
-    version = "5"
+    # 6: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py)
+    version = "6"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",

@@ -31,7 +31,9 @@ class SkinShade(Node):
     Maps are volume fractions (table 1 ranges).
     """
 
-    version = "3"  # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
+    # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
+    # 4: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py)
+    version = "4"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
               "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
                                finite=True, ge=0),

@@ -25,8 +25,8 @@ V_CPU, V_GPU = 16, 1
 
 
 def axis_blur(planes: list[np.ndarray], sigma, axis: int, valid: np.ndarray | None) -> list[np.ndarray]:
-    """nodes.common.sss._blur_planes_axis on the device: float32 (H, W) planes blurred along
-    ``axis`` with σ px (a float, or the reference's per-pixel plan whose ``sigma`` is the map)."""
+    """The one-axis blur of nodes.common.sss.sss_blur (the gather _blur_axis) on the device:
+    float32 (H, W) planes blurred along ``axis`` with σ px (a float, or the reference's per-pixel plan whose ``sigma`` is the map)."""
     from nodes.common.sss import TRUNCATE, gaussian_kernel
 
     rt = runtime()
