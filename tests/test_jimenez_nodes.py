@@ -259,7 +259,7 @@ def test_sss_depth_gradient_levels_against_the_per_pixel_gather():
     """sss_blur evaluates a per-pixel kernel width (depth gradient) as uniform cv2 blurs at σ
     levels a factor 2 apart (nodes.common.sss.LEVEL_RATIO), interpolated linearly in σ; the
     exact per-pixel gather is the reference (the oracle, at a small size).  A sphere: σ falls
-    from its centre to 0 at the silhouette (σ < 1/8 px and the level ends are exact, the rest
+    from its centre to 0 at the silhouette (σ < IDENTITY_SIGMA ≈ 0.17 px and the level ends are exact, the rest
     interpolated).  Tolerances, stated in nodes/jimenez/README.md: white noise with a bright
     square (the worst case: every pixel differs from its neighbours; values 0…6) max ≤ 1.5 % of
     the range (measured 1.1 %, at the square's edges: ~1 % of a step, as for the analytic step

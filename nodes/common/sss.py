@@ -19,7 +19,7 @@ is the Gaussian of that pixel's σ (the gather :func:`_blur_axis`, kept as the r
 evaluated as a few uniform blurs at σ levels a factor ``LEVEL_RATIO`` = 2 apart (a small stack
 of widths, as a mip stack), each pixel's kernel interpolated linearly in σ between the two
 levels around its σ, with per-pixel weights made once per surface (:func:`_axis_terms`): exact
-on the levels (the extremes, two-valued footprints, σ < 1/8 px), elsewhere within ~1 % of a
+on the levels (the extremes, two-valued footprints, σ < IDENTITY_SIGMA ≈ 0.17 px), elsewhere within ~1 % of a
 step edge's height and ≥ 55 dB PSNR on a photo (measured against the gather and against the
 sum of erfs of a step in tests/test_jimenez_nodes.py and tests/test_sss.py).  At a pixel the standard deviation in
 pixels along an image axis is
@@ -76,11 +76,16 @@ def _pixel_step_mm(mm_per_pixel, depth, shape) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(mpp ** 2 + gx ** 2), np.sqrt(mpp ** 2 + gy ** 2)
 
 
-@functools.lru_cache(maxsize=64)
+#: below this σ (px) a Gaussian's first side tap exp(−1/2σ²) is < 2⁻²⁴ of its centre tap,
+#: under float32's rounding: its kernel is the identity
+IDENTITY_SIGMA = float((48 * np.log(2)) ** -0.5)
+
+
+@functools.lru_cache(maxsize=256)
 def gaussian_kernel(sigma: float) -> np.ndarray:
     """scipy.ndimage's Gaussian: taps exp(−k²/2σ²) for |k| ≤ int(4σ + 0.5), normalised to
-    sum 1 (float32, read-only)."""
-    R = int(TRUNCATE * sigma + 0.5)
+    sum 1 (float32, read-only); one tap below IDENTITY_SIGMA."""
+    R = int(TRUNCATE * sigma + 0.5) if sigma >= IDENTITY_SIGMA else 0
     k = np.arange(-R, R + 1, dtype=np.float64)
     g = np.exp(-0.5 * k * k / (sigma * sigma)) if sigma > 0 else (k == 0).astype(np.float64)
     g = (g / g.sum()).astype(np.float32)
@@ -103,12 +108,12 @@ def _blur_1d(plane: np.ndarray, sigma: float, axis: int) -> np.ndarray:
 
 class _Levels:
     """Levels for a per-pixel σ map, and per pixel the lower level j and the fraction t ∈ [0, 1]
-    towards level j + 1.  Level 0 is σ = 0 (the identity: every σ < 1/8 px has a one-tap
-    kernel, so those pixels are exact); then σ_lo … σ_max in geometric steps (both ends exact)
+    towards level j + 1.  Level 0 is σ = 0 (the identity: every σ < IDENTITY_SIGMA has a
+    one-tap kernel, so those pixels are exact); then σ_lo … σ_max in geometric steps (both ends exact)
     of at most LEVEL_RATIO.  ``scaled``
     gives the levels of k·σ with the same j, t (the six Gaussians share one plan per axis)."""
 
-    SMALL = 0.5 / TRUNCATE  # int(4σ + 0.5) = 0 below it
+    SMALL = IDENTITY_SIGMA  # one-tap kernels below it
 
     def __init__(self, sigma: np.ndarray):
         lo, hi = float(sigma.min()), float(sigma.max())
@@ -136,7 +141,7 @@ class _Levels:
         self.j, self.t = j.ravel(), t.ravel()
 
     def scaled(self, k: float) -> "_Levels":
-        """The plan of k·σ: the same pixels per level unless k·σ crosses 1/8 px somewhere."""
+        """The plan of k·σ: the same pixels per level unless k·σ crosses IDENTITY_SIGMA somewhere."""
         if self.exact_identity and k * self.lo >= self.SMALL:
             other = object.__new__(_Levels)
             other.__dict__.update(self.__dict__)
@@ -183,7 +188,7 @@ def _axis_terms(sigma, axis: int, valid: np.ndarray | None, shape) -> list[_Term
     A per-pixel σ is a blur whose kernel at a pixel is the Gaussian of that pixel's σ (the
     gather of :func:`_blur_axis`, the reference).  It is evaluated as uniform blurs at the σ
     levels, the kernel of a pixel between two levels being interpolated linearly in σ between
-    theirs: exact for pixels on a level (σ maps with two values, the extremes, σ < 1/8 px),
+    theirs: exact for pixels on a level (σ maps with two values, the extremes, σ < IDENTITY_SIGMA),
     within the interpolation error of the level ratio elsewhere (measured in
     tests/test_jimenez_nodes.py).  Only the maps of weights depend on the surface, so they are
     made once per surface (:class:`Scatter`)."""
@@ -214,9 +219,14 @@ def _apply_terms(src: np.ndarray, terms: list[_Term], axis: int) -> np.ndarray:
 
     if len(terms) == 1 and terms[0].weight is None:
         return _blur_1d(src, terms[0].sigma, axis)
-    acc = np.zeros(src.shape, np.float32)
+    acc = None
     for s, wt, (y0, y1, x0, x1) in terms:
         b = _blur_1d(src, s, axis)
+        if acc is None and wt is not None and wt.shape == src.shape:
+            acc = cv2.multiply(b, wt)  # the first term over the whole plane: no zeroed buffer
+            continue
+        if acc is None:
+            acc = np.zeros(src.shape, np.float32)
         if wt is None:
             acc += b
         else:
@@ -409,10 +419,18 @@ class Scatter:
         squeeze = img.ndim == 2
         if squeeze:
             img = img[:, :, None]
-        sub = img
-        if self.box is not None:
+        if self.box is None:
+            res = self.on_box(img)
+        else:
             y0, y1, x0, x1 = self.box
-            sub = img[y0:y1, x0:x1]
+            res = img.copy()
+            res[y0:y1, x0:x1] = self.on_box(img[y0:y1, x0:x1])
+        return res[:, :, 0] if squeeze else res
+
+    def on_box(self, sub: np.ndarray) -> np.ndarray:
+        """The scattered irradiance on :attr:`box` (the whole frame when None) from the
+        irradiance there, (h, w, C) float32: what ``self(irradiance)`` puts in the box (outside
+        it the irradiance is returned unchanged)."""
         valid, axis_blur = self.valid, self.axis_blur
         planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
         if axis_blur is not None:
@@ -429,13 +447,7 @@ class Scatter:
             for ch, wt, b in zip(chans, wts, blurred):
                 out[ch] += wt * b
         res = np.stack(out, axis=-1)
-        if valid is not None:
-            res = np.where(valid[..., None] > 0, res, sub)
-        if self.box is not None:
-            full = img.copy()
-            full[y0:y1, x0:x1] = res
-            res = full
-        return res[:, :, 0] if squeeze else res
+        return res if valid is None else np.where(valid[..., None] > 0, res, sub)
 
 
 def _scatter_plane(src: np.ndarray, ty: list[_Term], tx: list[_Term]) -> np.ndarray:
