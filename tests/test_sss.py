@@ -144,3 +144,16 @@ def test_step_edge_is_a_sum_of_erfs(per_pixel):
     err = np.abs(sss_blur(img, mpp, depth) - ref[None])
     print(f"step edge, {'per-pixel' if per_pixel else 'flat'} σ: max {err.max():.2e}, mean {err.mean():.2e}")
     assert err.max() <= (1.5e-2 if per_pixel else 2e-3) and err.mean() <= 5e-4
+
+
+def test_sss_blur_keeps_each_surface_apart():
+    """sss_blur memoises the prepared Scatter of the last surfaces by their digest: another
+    depth, footprint or mask (same shape) gets its own."""
+    from nodes.common.sss import Scatter
+
+    img, depth, mask = _face()
+    cases = [(1.0, depth, mask), (1.0, depth + 5.0 * np.arange(img.shape[1])[None, :] / img.shape[1], mask),
+             (0.5, depth, mask), (1.0, depth, None), (1.0, depth, 1.0 - mask)]
+    for _ in range(2):
+        for mpp, d, m in cases:
+            assert np.array_equal(sss_blur(img, mpp, d, mask=m), Scatter(img.shape, mpp, d, mask=m)(img))

@@ -315,13 +315,14 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
     img = np.asarray(irradiance, dtype=np.float32)
     if img.ndim not in (2, 3):
         raise ValueError(f"irradiance must be H×W×C, got shape {img.shape}")
-    if axis_blur is not None:
+    if axis_blur is not None or (depth is None and mask is None and np.ndim(mm_per_pixel) == 0):
+        # (one σ per Gaussian and no mask: nothing per surface to keep)
         return Scatter(img.shape, mm_per_pixel, depth, profile, mask, axis_blur)(img)
     return _prepared(img.shape, mm_per_pixel, depth, profile, mask)(img)
 
 
 #: the last Scatters by the digest of their surface (a live view re-shading one face, a
-#: benchmark); ≤ ~40 MB each at 1280×720
+#: benchmark): their per-pixel weight maps, ~100–200 MB for a whole 1280×720 frame
 _SCATTERS: dict = {}
 _SCATTERS_LOCK = threading.Lock()
 
