@@ -14,14 +14,15 @@ foreshortened skin and stops at silhouettes.
 
 Here each Gaussian is applied separably (y then x), in float32, to the colour channels whose
 weight is not zero, with ``cv2.filter2D`` and scipy's truncated, normalised kernel and
-``reflect`` boundary (:func:`gaussian_kernel`, :func:`_blur_1d`).  Where σ varies per pixel, the kernel at a pixel
-is the Gaussian of that pixel's σ (the gather :func:`_blur_axis`, kept as the reference); it is
-evaluated as a few uniform blurs at σ levels a factor ``LEVEL_RATIO`` = 2 apart (a small stack
-of widths, as a mip stack), each pixel's kernel interpolated linearly in σ between the two
-levels around its σ, with per-pixel weights made once per surface (:func:`_axis_terms`): exact
-on the levels (the extremes, two-valued footprints, σ < IDENTITY_SIGMA ≈ 0.17 px), elsewhere within ~1 % of a
-step edge's height and ≥ 55 dB PSNR on a photo (measured against the gather and against the
-sum of erfs of a step in tests/test_jimenez_nodes.py and tests/test_sss.py).  At a pixel the standard deviation in
+``reflect`` boundary (:func:`gaussian_kernel`, :func:`_blur_1d`).  Where σ varies per pixel,
+the kernel at a pixel is the Gaussian of that pixel's σ (the gather :func:`_blur_axis`, kept as
+the reference); it is evaluated as a few uniform blurs at σ levels a factor ``LEVEL_RATIO`` = 2
+apart (a small stack of widths, as a mip stack), each pixel's kernel interpolated linearly in σ
+between the two levels around its σ, with per-pixel weights made once per surface
+(:func:`_axis_terms`): exact on the levels (the extremes, two-valued footprints,
+σ < IDENTITY_SIGMA ≈ 0.17 px), elsewhere within ~1 % of a step edge's height and ≥ 55 dB PSNR
+on a photo (measured against the gather and against the sum of erfs of a step in
+tests/test_jimenez_nodes.py and tests/test_sss.py).  At a pixel the standard deviation in
 pixels along an image axis is
 
     σ_px = √v_i / ℓ,     ℓ = √(mm_per_pixel² + (∂depth/∂axis)²)   [mm per pixel step on the surface]
