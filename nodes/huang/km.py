@@ -292,20 +292,36 @@ def stack_rgb_table(S, K, wl, grids, illuminant, bg):
     n = S.shape[0]
     shape = tuple(len(g) for g in grids)
     # each layer on its own 1-D grid (axis i), broadcast together by compose: eqs. 1–2 run on
-    # n × lut_size × n_λ values, eqs. 3–4 on the product grid.
-    Xs = [g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)) for i, g in enumerate(grids)]
-    Rt, Rb, T = stack(list(S), list(K), Xs)
-    full = shape + (wl.size,)
-    Rt, Rb, T = (np.broadcast_to(a, full) for a in (Rt, Rb, T))
+    # n × lut_size × n_λ values, eqs. 3–4 on the product grid, in blocks of the longest axis on
+    # the cores (element-wise work and one matrix product per row: the same values as at once)
+    lays = [layer_R0_T(S[i], K[i], g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)))
+            for i, g in enumerate(grids)]
     W = rgb_weights(wl, illuminant)
     # quantities that multiply light (T, T², Rb·Rg) are RGB filters: divided by the RGB of the
     # spectrally flat 1, so that no layer gives exactly 1 (the white's RGB is 1 ± 1e-4)
     Wf = W / W.sum(axis=0)
-    if bg is not None:
-        tab = [over_background(Rt, Rb, T, bg) @ W, T @ Wf]
-    else:
-        tab = [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
-    tab = Tables(np.ascontiguousarray(x, np.float32) for x in tab)
+    tab = [np.empty(shape + (3,), np.float32) for _ in range(2 if bg is not None else 4)]
+    ax = int(np.argmax(shape)) if n else 0
+    step = -(-shape[ax] // 2) if n else 0
+    starts = range(0, shape[ax], step) if n else [None]
+
+    def block(k0):
+        cut = () if k0 is None else (slice(None),) * ax + (slice(k0, k0 + step),)
+        acc = None
+        for i, (R0, T) in enumerate(lays):
+            lay = (R0[cut], R0[cut], T[cut]) if i == ax else (R0, R0, T)
+            acc = lay if acc is None else compose(lay, acc)
+        sub = tab[0][cut].shape[:-1] + (wl.size,)
+        if acc is None:  # no layer: vacuum
+            acc = (np.zeros(1), np.zeros(1), np.ones(1))
+        Rt, Rb, T = (np.broadcast_to(a, sub) for a in acc)
+        parts = [over_background(Rt, Rb, T, bg) @ W, T @ Wf] if bg is not None else \
+            [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
+        for out, x in zip(tab, parts):
+            out[cut] = x
+
+    run_tasks([functools.partial(block, k0) for k0 in starts])
+    tab = Tables(tab)
     if len(_TABLES) > 64:
         _TABLES.clear()
     _TABLES[key] = tab
@@ -320,6 +336,8 @@ SNAP = np.float32(1.0 / 2048)
 _REMAP_MAX = 32767
 #: pixels per row when a list of pixels is gathered by cv2.remap
 _ROW = 1024
+#: the zeros of :meth:`_Plan.zeros` (never written)
+_ZEROS = [np.zeros(0, np.float32)]
 
 
 class Tables(list):
@@ -375,7 +393,6 @@ class _Plan:
         self._corners = None
         self._flat = None
         self._tiles = (np.zeros(0, np.float32), np.zeros(0, np.float32))
-        self._zero = np.zeros(0, np.float32)
         self._sxy = None
 
     def tiles(self, B):
@@ -426,13 +443,14 @@ class _Plan:
             return x, None
         return x, np.matmul(k, sy.astype(k.dtype), out=y)
 
-    def zeros(self, M):
-        """M float32 zeros (a view of one cached array: the y map of a one-row table image;
-        cv2.remap misreads the same array passed as both maps)."""
-        z = self._zero
-        if z.size < M:
-            z = self._zero = np.zeros(M, np.float32)
-        return z[:M]
+    @staticmethod
+    def zeros(M):
+        """M float32 zeros (a view of one array shared by all plans, so that a new table does not
+        fault in fresh pages: the y map of a one-row table image; cv2.remap misreads the same
+        array passed as both maps)."""
+        if _ZEROS[0].size < M:
+            _ZEROS[0] = np.zeros(M, np.float32)
+        return _ZEROS[0][:M]
 
     def gather(self, img, x, y, out=None, shape=None):
         """img at the whole-number coordinates (x, y) (M,) (y None: row 0): (M, C), written into
