@@ -424,16 +424,11 @@ class _Plan:
         if self._flat is None:
             ctot = sum(self.chans)
             cpad = -(-ctot // 4) * 4
-            per = [_corner_tables(tb, self.live) for tb in self.tables]
-            flat = []
-            for b in range(1 << len(self.live)):
-                m = np.zeros((self.ny * self.nx, cpad), np.float32)
-                c0 = 0
-                for ti, c in enumerate(self.chans):
-                    m[:, c0:c0 + c] = per[ti][b].reshape(-1, c)
-                    c0 += c
-                flat.append(m)
-            self._flat = flat
+            side = [tb.reshape(self.sizes + [c]) for tb, c in zip(self.tables, self.chans)]
+            if cpad > ctot:
+                side.append(np.zeros(self.sizes + [cpad - ctot], np.float32))
+            # the differences are per channel: all tables side by side at once
+            self._flat = [c.reshape(-1, cpad) for c in _corner_tables(np.concatenate(side, axis=-1), self.live)]
         return self._flat
 
     def corners(self):
