@@ -287,6 +287,8 @@ def thickness_grid(maxima, size: int) -> list[np.ndarray]:
 
 
 _TABLES: dict = {}
+#: values (thickness nodes × wavelengths) of the product grid per block in stack_rgb_table
+TABLE_BLOCK = 1 << 17
 
 
 def stack_rgb_table(S, K, wl, grids, illuminant, bg):
@@ -306,8 +308,9 @@ def stack_rgb_table(S, K, wl, grids, illuminant, bg):
     n = S.shape[0]
     shape = tuple(len(g) for g in grids)
     # each layer on its own 1-D grid (axis i), broadcast together by compose: eqs. 1–2 run on
-    # n × lut_size × n_λ values, eqs. 3–4 on the product grid, in blocks of the longest axis on
-    # the cores (element-wise work and one matrix product per row: the same values as at once)
+    # n × lut_size × n_λ values, eqs. 3–4 on the product grid, in blocks of TABLE_BLOCK values
+    # along the longest axis on the cores (element-wise work and one matrix product per row:
+    # the same values as at once; blocks whose temporaries stay in the cache, ~2× faster)
     lays = [layer_R0_T(S[i], K[i], g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)))
             for i, g in enumerate(grids)]
     W = rgb_weights(wl, illuminant)
@@ -316,7 +319,7 @@ def stack_rgb_table(S, K, wl, grids, illuminant, bg):
     Wf = W / W.sum(axis=0)
     tab = [np.empty(shape + (3,), np.float32) for _ in range(2 if bg is not None else 4)]
     ax = int(np.argmax(shape)) if n else 0
-    step = -(-shape[ax] // 2) if n else 0
+    step = max(1, TABLE_BLOCK * shape[ax] // (int(np.prod(shape)) * wl.size)) if n else 0
     starts = range(0, shape[ax], step) if n else [None]
 
     def block(k0):
