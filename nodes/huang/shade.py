@@ -12,6 +12,7 @@ from graphkit.hashing import canonical
 from graphkit.store import value_parts
 
 from nodes.common.checks import connected_together, require_directional
+from nodes.common.parallel import run_bands
 from nodes.common.sss import Scatter, sss_blur
 
 from . import km
@@ -156,7 +157,14 @@ class CosmeticShade(Node):
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        pre = T * E_b / (1.0 - Rb * rho_b)
+        rows = max(1, km.LOOKUP_BLOCK // max(T.shape[1], 1))  # bands whose temporaries stay in the cache
+        pre = np.empty(T.shape, np.result_type(T, E_b, Rb, rho_b))
+
+        def entering(r0, r1):  # T·E / (1 − Rb·ρ)
+            den = Rb[r0:r1] * rho_b[r0:r1]
+            np.divide(T[r0:r1] * E_b[r0:r1], np.subtract(1.0, den, out=den), out=pre[r0:r1])
+
+        run_bands(entering, T.shape[0], rows)
         if fixed.scatter is not None and box is None:
             pre = fixed.scatter(pre)
         elif fixed.scatter is not None:  # the scatter's box lies in this box
@@ -167,13 +175,15 @@ class CosmeticShade(Node):
                 pre[here] = fixed.scatter.on_box(pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_exit = np.where(T > 1e-12, T2 / T, 0.0)
-        inner = (Rt * E_b + t_exit * rho_b * pre).astype(np.float32)
-        if box is None:
-            return inner
-        out = np.multiply(rho, E, dtype=np.float32)
-        out[y0:y1, x0:x1] = inner
+        out = np.empty(T.shape, np.float32) if box is None else np.multiply(rho, E, dtype=np.float32)
+        inner = out if box is None else out[y0:y1, x0:x1]
+
+        def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_exit = np.where(T[r0:r1] > 1e-12, T2[r0:r1] / T[r0:r1], 0.0)
+            inner[r0:r1] = Rt[r0:r1] * E_b[r0:r1] + t_exit * rho_b[r0:r1] * pre[r0:r1]
+
+        run_bands(leaving, T.shape[0], rows)
         return out
 
     @classmethod
