@@ -651,6 +651,7 @@ def _lookup(plan: _Plan, t, outs, h, w):
     pending = []
     if some:
         idx, ts = (np.concatenate(c) for c in zip(*some))
+        plan.corners_flat()  # built here once, not by each task of the pool at the same time
         pool = parallel.pool()
         step = min(LOOKUP_BLOCK, max(4096, -(-idx.size // 2)))
         for i0 in range(0, idx.size, step):
