@@ -48,7 +48,8 @@ class CosmeticShade(Node):
     #    the layers and the skin (same formula; the filters' float rounding moves ≤ 1.2e-7)
     # 6: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py);
     #    the layered specular in float32
-    version = "6"
+    # 7: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (nodes/common/sss.py)
+    version = "7"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",

@@ -40,7 +40,8 @@ class SkinShade(Node):
 
     # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
     # 4: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py)
-    version = "4"
+    # 5: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (its geometric mean)
+    version = "5"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
               "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
                                finite=True, ge=0),
