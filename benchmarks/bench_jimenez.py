@@ -33,20 +33,24 @@ sys.path.insert(0, str(ROOT))
 
 
 def timeit(fns: dict, runs: int) -> dict:
-    """{name: (median ms, min ms)}: one warm-up each, then ``runs`` interleaved rounds."""
+    """{name: (median ms, min ms, median CPU ms)}: one warm-up each, then ``runs`` interleaved
+    rounds.  CPU: this process's time on all its threads per call (what a call costs the
+    cores; other jobs on a shared machine do not inflate it)."""
     for fn in fns.values():
         fn()  # warm-up (FFT plans, kernel caches)
     ts = {k: [] for k in fns}
+    cs = {k: [] for k in fns}
     for _ in range(runs):
         for k, fn in fns.items():
-            t = time.perf_counter()
+            c, t = time.process_time(), time.perf_counter()
             fn()
             ts[k].append(time.perf_counter() - t)
-    return {k: (statistics.median(v) * 1e3, min(v) * 1e3) for k, v in ts.items()}
+            cs[k].append(time.process_time() - c)
+    return {k: (statistics.median(v) * 1e3, min(v) * 1e3, statistics.median(cs[k]) * 1e3) for k, v in ts.items()}
 
 
 def fmt(t):
-    return f"{t[0]:7.1f} ms ({t[1]:.1f})"
+    return f"{t[0]:7.1f} ms ({t[1]:.1f}; CPU {t[2]:.1f})"
 
 
 def main():
@@ -116,6 +120,7 @@ def skinshade(a):
     from graphkit import Image, Light
     from graphkit.contract import compute_checked
     from nodes.common.microfacet import kelemen_specular
+    from nodes.common import sss
     from nodes.common.sss import sss_blur
     from nodes.jimenez.shade import SkinShade
     from nodes.jimenez.skinlut import CHD_MAX, CM_MAX, SkinColorLUT, lut_corners, lut_lookup
@@ -130,17 +135,34 @@ def skinshade(a):
     mel = Image((0.01 + 0.01 * rng.random((H, W, 1))).astype(np.float32))
     hem = Image((0.02 + 0.05 * rng.random((H, W, 1))).astype(np.float32))
     light = Light(direction=(0.4, -0.3, -1.0), ambient=(0.05, 0.05, 0.05))
-    print(f"(b) SkinShade on {W}×{H}, median (min) of {a.runs} runs")
+    print(f"(b) SkinShade on {W}×{H}, median (min; median CPU) of {a.runs} runs, load average "
+          f"{os.getloadavg()[0]:.1f}; peer: cv2.GaussianBlur of a {W}×{H} RGB float32 image at the "
+          f"largest Gaussian's σ, in the same rounds")
     fns = {}
     maps = dict(melanin=mel, hemoglobin=hem, lut=lut, light=light, normals=nrm)
+    rgb = rng.random((H, W, 3), dtype=np.float32)
     for mpp in (0.5, 0.25):
         node = SkinShade(SkinShade.Params(mm_per_pixel=mpp))
         fns[("depth", mpp)] = lambda node=node: compute_checked(node, **maps, depth=depth)
         fns[("flat", mpp)] = lambda node=node: compute_checked(node, **maps)
+        fns[("peer", mpp)] = lambda s=np.sqrt(7.41) / mpp: cv2.GaussianBlur(rgb, (0, 0), s)
     t = timeit(fns, a.runs)
     for mpp in (0.5, 0.25):
+        pr = t[("peer", mpp)]
         print(f"  {mpp} mm/px (largest Gaussian σ = {np.sqrt(7.41) / mpp:.1f} px): with depth gradient "
-              f"{fmt(t[('depth', mpp)])}, flat depth {fmt(t[('flat', mpp)])}")
+              f"{fmt(t[('depth', mpp)])}, flat depth {fmt(t[('flat', mpp)])}, peer {fmt(pr)}; × peer "
+              f"(median, CPU): depth {t[('depth', mpp)][0] / pr[0]:.2f}, {t[('depth', mpp)][2] / pr[2]:.2f}; "
+              f"flat {t[('flat', mpp)][0] / pr[0]:.2f}, {t[('flat', mpp)][2] / pr[2]:.2f}")
+    # a new face every frame: the SSS's per-surface weights made again (sss_blur keeps the last two)
+    node = SkinShade(SkinShade.Params(mm_per_pixel=0.5))
+
+    def new_face():
+        sss._SCATTERS.clear()
+        compute_checked(node, **maps, depth=depth)
+
+    t = timeit({"new": new_face, "same": lambda: compute_checked(node, **maps, depth=depth)}, max(3, a.runs // 2))
+    print(f"  0.5 mm/px with depth gradient: a new light on the same face {fmt(t['same'])}, "
+          f"a new face (depth) every call {fmt(t['new'])}")
 
     # the parts, each called once on the whole image (the node calls lookup and specular per
     # 48-row band on all cores; cv2 calls inside them and the peer use cv2's own threads)

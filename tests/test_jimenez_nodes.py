@@ -248,32 +248,50 @@ def _gather_sss(img, mpp, depth=None, mask=None):
     return out if valid is None else np.where(valid[..., None] > 0, out, img)
 
 
-def test_sss_depth_gradient_levels_equal_the_per_pixel_gather():
+def _sphere(H, W, r_mm, mm_per_px_xy=1.0):
+    """Depth (mm) of a sphere of radius r_mm seen from 500 mm, and its mask away from the rim."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    z2 = r_mm ** 2 - ((xx - W / 2) * mm_per_px_xy) ** 2 - ((yy - H / 2) * mm_per_px_xy) ** 2
+    return 500.0 - np.sqrt(np.maximum(z2, 1.0)), (z2 > 100).astype(np.float64)
+
+
+def test_sss_depth_gradient_levels_against_the_per_pixel_gather():
     """sss_blur evaluates a per-pixel kernel width (depth gradient) as uniform cv2 blurs at σ
-    levels ≤ 2% apart, interpolated in σ; the exact per-pixel gather is the reference.  A
-    sphere: σ falls from its centre to 0 at the silhouette (σ < 1/8 px and the level ends are
-    exact, the rest interpolated)."""
+    levels a factor 2 apart (nodes.common.sss.LEVEL_RATIO), interpolated linearly in σ; the
+    exact per-pixel gather is the reference (the oracle, at a small size).  A sphere: σ falls
+    from its centre to 0 at the silhouette (σ < IDENTITY_SIGMA ≈ 0.17 px and the level ends are exact, the rest
+    interpolated).  Tolerances, stated in nodes/jimenez/README.md: white noise with a bright
+    square (the worst case: every pixel differs from its neighbours; values 0…6) max ≤ 1.5 % of
+    the range (measured 1.1 %, at the square's edges: ~1 % of a step, as for the analytic step
+    in tests/test_sss.py), mean ≤ 0.05 % (measured 0.03 %); the astronaut as a linear irradiance
+    (values 0…1) max ≤ 1.5e-2, PSNR ≥ 55 dB (measured ≤ 1.13e-2, 60.2–64.4 dB)."""
+    from skimage import data, transform
+
     from nodes.common.sss import sss_blur
 
     rng = np.random.default_rng(10)
     H, W = 90, 120
-    img = rng.random((H, W, 3)).astype(np.float32)
-    img[40:48, 55:63] = 6.0
-    yy, xx = np.mgrid[0:H, 0:W]
-    z2 = 55.0 ** 2 - ((xx - 60) * 0.5) ** 2 - ((yy - 45) * 0.5) ** 2
-    depth = 500.0 - np.sqrt(np.maximum(z2, 1.0))
-    mask = (z2 > 100).astype(np.float64)
+    noise = rng.random((H, W, 3)).astype(np.float32)
+    noise[40:48, 55:63] = 6.0
+    depth, mask = _sphere(H, W, 42.0)
     for m in (None, mask):
         for mpp in (0.3, 0.12):
-            got = sss_blur(img, mpp, depth, mask=m)
-            ref = _gather_sss(img, mpp, depth, m)
-            err = np.abs(got - ref)
-            print(f"levels vs gather, sphere depth, mpp {mpp}, mask {m is not None}: max {err.max():.2e}, "
+            err = np.abs(sss_blur(noise, mpp, depth, mask=m) - _gather_sss(noise, mpp, depth, m))
+            print(f"levels vs gather, noise on a sphere, mpp {mpp}, mask {m is not None}: max {err.max():.2e}, "
                   f"mean {err.mean():.2e} (values 0…6)")
-            assert err.max() <= 1e-3 and err.mean() <= 5e-5
+            assert err.max() <= 0.09 and err.mean() <= 3e-3
+    photo = (transform.resize(data.astronaut(), (96, 128), anti_aliasing=True) ** 2.2).astype(np.float32)
+    depth, mask = _sphere(96, 128, 46.0)
+    for m in (None, mask):
+        for mpp in (0.3, 0.12):
+            err = np.abs(sss_blur(photo, mpp, depth, mask=m) - _gather_sss(photo, mpp, depth, m))
+            psnr = 10 * np.log10(1.0 / np.mean(err ** 2))
+            print(f"levels vs gather, astronaut on a sphere, mpp {mpp}, mask {m is not None}: max {err.max():.2e}, "
+                  f"PSNR {psnr:.1f} dB")
+            assert err.max() <= 1.5e-2 and psnr >= 55.0
     # two pixel footprints (σ takes two values per Gaussian): exact
-    mpp = np.where(xx < 60, 0.2, 0.45).astype(np.float64)
-    np.testing.assert_allclose(sss_blur(img, mpp), _gather_sss(img, mpp), atol=1e-5)
+    mpp = np.where(np.arange(W)[None, :] < 60, 0.2, 0.45) * np.ones((H, 1))
+    np.testing.assert_allclose(sss_blur(noise, mpp), _gather_sss(noise, mpp), atol=1e-5)
 
 
 def test_blush_view_shows_the_whole_photo():

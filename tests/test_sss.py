@@ -114,3 +114,65 @@ def test_scatter_without_skin_changes_nothing():
     img, depth, _ = _face()
     out = Scatter(img.shape, 1.0, depth, mask=np.zeros(img.shape[:2]), crop=True)(img)
     assert np.array_equal(out, img)
+
+
+def _erf_step(x, x0, sigmas):
+    """A unit step at x0 (pixels ≥ x0 are 1) blurred by the d'Eon profile with the continuous
+    Gaussians of standard deviations ``sigmas[i]`` (pixels, per pixel or scalar): Σ w_i Φ."""
+    from scipy.special import erf
+
+    out = np.zeros(np.shape(x) + (3,))
+    for (var, rgb), s in zip(SKIN_PROFILE, sigmas):
+        out += np.multiply.outer(0.5 * (1 + erf((x - x0 + 0.5) / (np.sqrt(2) * s))), rgb)
+    return out
+
+
+@pytest.mark.parametrize("per_pixel", [False, True])
+def test_step_edge_is_a_sum_of_erfs(per_pixel):
+    """Analytic reference: a step edge blurred by the sum of Gaussians is a sum of erfs, also
+    where σ varies per pixel (depth a parabola in x: the gather's kernel at x is the Gaussian of
+    σ(x), so the blurred step is Σ w_i Φ((x − x0 + ½)/σ_i(x))).  0.04 mm/px: σ ≥ 1 px at the
+    edge (sampled kernels ≈ continuous ones).  Tolerance: flat 2e-3 (kernel sampling and the
+    4σ truncation), per pixel 1.5e-2 of the step (the σ levels a factor LEVEL_RATIO = 2 apart;
+    levels 2 % apart give 5e-3 here, the continuous/sampled difference)."""
+    H, W, mpp, a, x0 = 4, 640, 0.04, 0.0015, 240
+    x = np.arange(W, dtype=np.float64)
+    depth = np.broadcast_to(400 + 0.5 * a * (x - 200) ** 2 if per_pixel else np.full(W, 400.0), (H, W))
+    img = np.broadcast_to((x >= x0).astype(np.float32)[None, :, None], (H, W, 3))
+    step = np.sqrt(mpp ** 2 + np.gradient(depth[0]) ** 2)
+    ref = _erf_step(x, x0, [np.sqrt(var) / step for var, _ in SKIN_PROFILE])
+    err = np.abs(sss_blur(img, mpp, depth) - ref[None])
+    print(f"step edge, {'per-pixel' if per_pixel else 'flat'} σ: max {err.max():.2e}, mean {err.mean():.2e}")
+    assert err.max() <= (1.5e-2 if per_pixel else 2e-3) and err.mean() <= 5e-4
+
+
+def test_sss_blur_keeps_each_surface_apart():
+    """sss_blur memoises the prepared Scatter of the last surfaces by their digest: another
+    depth, footprint or mask (same shape) gets its own."""
+    from nodes.common.sss import Scatter
+
+    img, depth, mask = _face()
+    cases = [(1.0, depth, mask), (1.0, depth + 5.0 * np.arange(img.shape[1])[None, :] / img.shape[1], mask),
+             (0.5, depth, mask), (1.0, depth, None), (1.0, depth, 1.0 - mask)]
+    for _ in range(2):
+        for mpp, d, m in cases:
+            assert np.array_equal(sss_blur(img, mpp, d, mask=m), Scatter(img.shape, mpp, d, mask=m)(img))
+
+
+def test_a_nearly_uniform_step_is_blurred_as_uniform():
+    """A pixel footprint that varies by less than NEAR_UNIFORM (here 1.5 % across the image: a
+    distant face) is blurred at one σ per Gaussian (the geometric mean) instead of two levels per
+    pixel: one uniform blur per pass, and a step edge within the flat tolerance of the test
+    above plus 0.25 % of the step of the analytic per-pixel reference (Σ w_i Φ((x − x0 + ½)/σ_i(x)))."""
+    from nodes.common import sss
+
+    H, W, x0 = 4, 640, 240
+    x = np.arange(W, dtype=np.float64)
+    mpp = np.broadcast_to(0.04 * (1 + 0.015 * x / W), (H, W))
+    img = np.broadcast_to((x >= x0).astype(np.float32)[None, :, None], (H, W, 3))
+    plan = sss.Scatter((H, W, 3), mpp)
+    assert all(len(terms) == 1 and terms[0].weight is None for p in plan.passes for terms in p[2:])
+    ref = _erf_step(x, x0, [np.sqrt(var) / mpp[0] for var, _ in SKIN_PROFILE])
+    err = np.abs(plan(img) - ref[None])
+    print(f"nearly uniform footprint: max {err.max():.2e}, mean {err.mean():.2e} of the step")
+    assert err.max() <= 2e-3 + 2.5e-3 and err.mean() <= 5e-4

@@ -12,6 +12,7 @@ from graphkit.hashing import canonical
 from graphkit.store import value_parts
 
 from nodes.common.checks import connected_together, require_directional
+from nodes.common.parallel import run_bands
 from nodes.common.sss import Scatter, sss_blur
 
 from . import km
@@ -45,7 +46,10 @@ class CosmeticShade(Node):
     # 4: world-frame lights (turned into the camera frame), orthographic cameras
     # 5: the SSS runs on the skin's box grown by the widest kernel and the diffuse on the box of
     #    the layers and the skin (same formula; the filters' float rounding moves ≤ 1.2e-7)
-    version = "5"
+    # 6: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py);
+    #    the layered specular in float32
+    # 7: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (nodes/common/sss.py)
+    version = "7"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -154,22 +158,33 @@ class CosmeticShade(Node):
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        pre = T * E_b / (1.0 - Rb * rho_b)
+        rows = max(1, km.LOOKUP_BLOCK // max(T.shape[1], 1))  # bands whose temporaries stay in the cache
+        pre = np.empty(T.shape, np.result_type(T, E_b, Rb, rho_b))
+
+        def entering(r0, r1):  # T·E / (1 − Rb·ρ)
+            den = Rb[r0:r1] * rho_b[r0:r1]
+            np.divide(T[r0:r1] * E_b[r0:r1], np.subtract(1.0, den, out=den), out=pre[r0:r1])
+
+        run_bands(entering, T.shape[0], rows)
         if fixed.scatter is not None and box is None:
             pre = fixed.scatter(pre)
-        elif fixed.scatter is not None:
-            full = np.array(E, np.float32)
-            full[y0:y1, x0:x1] = pre
-            pre = fixed.scatter(full)[y0:y1, x0:x1]
+        elif fixed.scatter is not None:  # the scatter's box lies in this box
+            sy0, sy1, sx0, sx1 = fixed.scatter.box
+            pre = np.asarray(pre, np.float32)
+            if sy0 < sy1:
+                here = (slice(sy0 - y0, sy1 - y0), slice(sx0 - x0, sx1 - x0))
+                pre[here] = fixed.scatter.on_box(pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_exit = np.where(T > 1e-12, T2 / T, 0.0)
-        inner = (Rt * E_b + t_exit * rho_b * pre).astype(np.float32)
-        if box is None:
-            return inner
-        out = np.multiply(rho, E, dtype=np.float32)
-        out[y0:y1, x0:x1] = inner
+        out = np.empty(T.shape, np.float32) if box is None else np.multiply(rho, E, dtype=np.float32)
+        inner = out if box is None else out[y0:y1, x0:x1]
+
+        def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_exit = np.where(T[r0:r1] > 1e-12, T2[r0:r1] / T[r0:r1], 0.0)
+            inner[r0:r1] = Rt[r0:r1] * E_b[r0:r1] + t_exit * rho_b[r0:r1] * pre[r0:r1]
+
+        run_bands(leaving, T.shape[0], rows)
         return out
 
     @classmethod
@@ -203,8 +218,8 @@ class _Surface(NamedTuple):
 
 class _Specular(NamedTuple):
     """The specular terms before the layers' transmittance, in ``box`` (zero outside)."""
-    skin: np.ndarray    # (h, w, 3) float64
-    layers: list        # per layer (h, w, 1) float64
+    skin: np.ndarray    # (h, w, 3) float32
+    layers: list        # per layer (h, w, 1) float32
     box: tuple
     lcol: np.ndarray    # light colour × intensity
 
@@ -274,8 +289,8 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     if v is None:
         v = np.asarray(p.view, np.float64)
         v = v / max(np.linalg.norm(v), 1e-12)
-    skin = kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)
-    layers = [kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None] for L in specs]
+    skin = (kelemen_specular(n, ldir, v, p.skin_m, p.skin_rho_s, p.skin_f0)[..., None] * np.ones(3)).astype(np.float32)
+    layers = [kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None].astype(np.float32) for L in specs]
     box = _nonzero_box(np.any(skin != 0, axis=2) | np.any([k[..., 0] != 0 for k in layers], axis=0))
     y0, y1, x0, x1 = box
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol)
@@ -298,8 +313,8 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
         grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
         ti = t[b0:b1, c0:c1, i:i + 1]
-        Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float64)
-        cover = np.clip(ti[..., 0] / p.cover_mm, 0.0, 1.0)[..., None]
+        Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float32)
+        cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)[..., None]
         here = (slice(b0 - y0, b1 - y0), slice(c0 - x0, c1 - x0))
         s[here] = s[here] * Ti + cover * k[here]
     out = np.zeros(t.shape[:2] + (3,), np.float32)

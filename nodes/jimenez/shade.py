@@ -8,14 +8,21 @@ chromophore maps (already blurred by acquisition, §3) are not blurred twice.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
+from graphkit.store import value_parts
 from nodes.common.checks import require_directional
 from nodes.common.parallel import run_bands
 from nodes.common.sss import sss_blur
 
 BAND_ROWS = 48  # rows per band of the per-pixel terms (a band's temporaries stay in the cache)
+#: the last albedos (LUT lookups) by the digest of the maps and LUT they come from (a live view's
+#: face, a benchmark's; 11 MB each at 1280×720)
+_ALBEDO: dict = {}
+_ALBEDO_LOCK = threading.Lock()
 
 
 class SkinShade(Node):
@@ -31,7 +38,10 @@ class SkinShade(Node):
     Maps are volume fractions (table 1 ranges).
     """
 
-    version = "3"  # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
+    # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
+    # 4: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py)
+    # 5: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (its geometric mean)
+    version = "5"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
               "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
                                finite=True, ge=0),
@@ -93,11 +103,15 @@ class SkinShade(Node):
             n0 = np.array([0.0, 0.0, -1.0])
             ndotl_0 = np.float32(max(float(n0 @ ldir), 0.0))
             spec_0 = np.float32(kelemen_specular(n0, ldir, vdir, p.roughness, p.specular, p.f0))
-        lut32 = np.ascontiguousarray(lut.pixels, np.float32)
-        corners = lut_corners(lut32)
         l32, v32 = ldir.astype(np.float32), vdir.astype(np.float32)
         H, W = shp
-        albedo = np.empty((H, W, 3), np.float32)
+        key = self._albedo_key(melanin, hemoglobin, lut)
+        albedo = _ALBEDO.get(key)  # a new light on the same face: the LUT lookup is not redone
+        looked_up = albedo is None
+        if looked_up:
+            albedo = np.empty((H, W, 3), np.float32)
+            lut32 = np.ascontiguousarray(lut.pixels, np.float32)
+            corners = lut_corners(lut32)
         irr = np.empty((H, W, 3), np.float32)
         spec = np.empty((H, W), np.float32)
 
@@ -105,7 +119,8 @@ class SkinShade(Node):
         # times slower on (…, 3) arrays broadcast against (…, 1) ones than on flat arrays, so
         # 3-channel results are assembled from planes by cv2.merge.
         def per_pixel(y0, y1):  # the pixel-local terms of one band of rows (cache-sized)
-            albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1], corners)
+            if looked_up:
+                albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1], corners)
             if normals is None:
                 irr[y0:y1] = ndotl_0 * col + amb
                 spec[y0:y1] = spec_0
@@ -120,6 +135,11 @@ class SkinShade(Node):
             cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
 
         run_bands(per_pixel, H, BAND_ROWS)
+        if looked_up:
+            with _ALBEDO_LOCK:  # nodes may run on several threads (graphkit run --jobs)
+                while len(_ALBEDO) >= 2:
+                    _ALBEDO.pop(next(iter(_ALBEDO)))
+                _ALBEDO[key] = albedo
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
             irr = np.ascontiguousarray(
@@ -132,7 +152,13 @@ class SkinShade(Node):
             img[y0:y1] += albedo[y0:y1] * irr[y0:y1]
 
         run_bands(combine, H, BAND_ROWS)
-        return {"image": Image(img), "albedo": Image(albedo), "diffuse": Image(irr), "specular": Image(spec)}
+        return {"image": Image(img), "albedo": Image(albedo.copy()), "diffuse": Image(irr), "specular": Image(spec)}
+
+    def _albedo_key(self, melanin: Image, hemoglobin: Image, lut: Image) -> str:
+        """The digest of what the albedo comes from (the two maps and the LUT)."""
+        parts = [value_parts(self.in_ports[k].type, v)[2] for k, v in
+                 (("melanin", melanin), ("hemoglobin", hemoglobin), ("lut", lut))]
+        return "/".join(parts)
 
     @classmethod
     def examples(cls):
