@@ -93,9 +93,12 @@ class Store:
         if self.fs.exists(FORMAT_FILE):
             return
         try:
-            others = sorted(n for n in self.fs.root_names() if n.startswith(FORMAT_PREFIX))
+            names = set(self.fs.root_names())
         except FileNotFoundError:
-            others = []
+            names = set()
+        if FORMAT_FILE in names:  # written by another client since the first look
+            return
+        others = sorted(n for n in names if n.startswith(FORMAT_PREFIX))
         if others:
             found = others[0][len(FORMAT_PREFIX):]
             newer = found.isdigit() and int(found) > FORMAT_VERSION
