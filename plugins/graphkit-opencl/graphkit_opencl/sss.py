@@ -75,8 +75,10 @@ def sss_blur(irradiance, mm_per_pixel, depth=None, profile=None, mask=None):
                         mask, axis_blur=axis_blur)
 
 
-#: per-pixel σ: the exact gather vs the reference's σ levels (see the module docstring)
-SSS_TOLERANCE = {"rtol": 1e-3, "atol": 1e-4}
+#: per-pixel σ: the exact gather vs the reference's σ levels (see the module docstring); at a
+#: sharp edge a few pixels differ by more (the makeup graphs on the astronaut: ≤ 7e-4, under
+#: 0.01 % of the values; the reference's stated bound is 1.5 % of a step's height)
+SSS_TOLERANCE = {"rtol": 1e-3, "atol": 1e-4, "bad_fraction": 1e-3}
 #: benchmarks/bench_opencl.py, 1280×720, pocl on 2 cores: cv2.filter2D's separable passes win
 SSS_CPU_NOTE = "slower than numpy's cv2.filter2D blur (benchmarks/bench_opencl.py)"
 
