@@ -205,23 +205,29 @@ def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
         tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
         return sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
     out = np.zeros(len(p0), bool)
-    a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
     step = max(1, 2_000_000 // len(tris))
     for s in range(0, len(p0), step):
         o, d = p0[s:s + step], p1[s:s + step] - p0[s:s + step]
-        pv = np.cross(d[:, None], e2[None])
-        det = np.einsum("ntc,tc->nt", pv, e1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / det
-            tv = o[:, None] - a[None]
-            u = np.einsum("ntc,ntc->nt", tv, pv) * inv
-            qv = np.cross(tv, e1[None])
-            v = np.einsum("ntc,nc->nt", qv, d) * inv
-            t = np.einsum("ntc,tc->nt", qv, e2) * inv
-            hit = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) \
-                & (t > rays.T_EPS) & (t < 1 - rays.T_EPS)
-        out[s:s + step] = hit.any(1)
+        t = _triangle_t(o, d, tris)
+        out[s:s + step] = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
     return out
+
+
+def _triangle_t(o: np.ndarray, d: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(N, T) ray parameter t where rays o + t·d meet triangles ``tris`` (T, 3, 3), two-sided
+    (Möller–Trumbore); NaN where a ray misses a triangle or runs parallel to it."""
+    a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
+    pv = np.cross(d[:, None], e2[None])
+    det = np.einsum("ntc,tc->nt", pv, e1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv = 1.0 / det
+        tv = o[:, None] - a[None]
+        u = np.einsum("ntc,ntc->nt", tv, pv) * inv
+        qv = np.cross(tv, e1[None])
+        v = np.einsum("ntc,nc->nt", qv, d) * inv
+        t = np.einsum("ntc,tc->nt", qv, e2) * inv
+        ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1)
+    return np.where(ok, t, np.nan)
 
 
 def link_bounds(h: HR.Hierarchy):
@@ -831,18 +837,9 @@ def _point_kernel(x, n, y, m, area):
 
 def _first_triangle(o, d, tris):
     """Nearest triangle hit along rays (two-sided): index (-1 none), t."""
-    a, e1, e2 = tris[:, 0], tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]
-    pv = np.cross(d[:, None], e2[None])
-    det = np.einsum("ntc,tc->nt", pv, e1)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        inv = 1.0 / det
-        tv = o[:, None] - a[None]
-        u = np.einsum("ntc,ntc->nt", tv, pv) * inv
-        qv = np.cross(tv, e1[None])
-        v = np.einsum("ntc,nc->nt", qv, d) * inv
-        t = np.einsum("ntc,tc->nt", qv, e2) * inv
-        ok = (np.abs(det) > 1e-14) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
-    t = np.where(ok, t, np.inf)
+    t = _triangle_t(o, d, tris)
+    with np.errstate(invalid="ignore"):
+        t = np.where(t > 1e-9, t, np.inf)  # (NaN compares False: a miss)
     k = np.argmin(t, 1)
     tk = t[np.arange(len(o)), k]
     return np.where(np.isfinite(tk), k, -1), tk
