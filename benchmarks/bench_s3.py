@@ -22,6 +22,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.parse
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,12 +48,22 @@ class Counter:
         return out
 
 
+#: the cache's top-level parts, as the request breakdown names them (what each request is for)
+AREAS = {"locks": "lease", "active": "run-lease", "store.lock": "gc-lease", "keys": "record",
+         "objects": "object", "journal": "journal", "runs": "run"}
+
+
 def kind_of(method: str, path: str) -> str:
+    """``METHOD area``: the HTTP verb and the part of the cache it touches (``/bench/cache/<part>/…``)."""
     if method == "GET" and ("list-type" in path or path.rstrip("/").count("/") <= 1):
-        return "LIST"
-    if method == "POST" and "delete" in path:
-        return "DELETE(batch)"
-    return method
+        method = "LIST"
+    elif method == "POST" and "delete" in path:
+        method = "DELETE(batch)"
+    where, _, query = path.partition("?")
+    prefix = urllib.parse.parse_qs(query).get("prefix", [""])[0]
+    parts = f"{where.strip('/')}/{prefix}".strip("/").split("/")
+    area = AREAS.get(parts[2], parts[2]) if len(parts) > 2 else "bucket"
+    return f"{method} {area}"
 
 
 def make_proxy(upstream_port: int, counter: Counter, delay_s: float):

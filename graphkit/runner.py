@@ -99,6 +99,8 @@ class Session:
         if store.on_notice is None:
             store.on_notice = notice
         self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
+        #: the notes of the last run of this graph, when read at the start of this one (executor.read_ahead)
+        self.last_notes: dict | None = None
         self._producers: dict[str, tuple[str, str]] = {}  # value digest -> (node, port)
         self.memo: dict[str, Any] = {}  # digest -> value, for values made or loaded in this process
         self._memo_lock = threading.Lock()

@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterable
 from ..errors import CacheError, UsageError
 from ..types import BUILTIN_PORT_TYPES, PortType
 from . import maintenance
-from .codec import CorruptObject, check_object, encode_header, iter_chunks, object_rel, value_parts
+from .codec import DIGEST, CorruptObject, check_object, encode_header, iter_chunks, object_rel, value_parts
 from .fs import FORMAT_FILE, FORMAT_PREFIX, FORMAT_VERSION, FileSystem
 from .localfs import LocalFS
 from .objectfs import FsspecFS
@@ -166,6 +166,10 @@ class Store:
         rels = [r for r in dict.fromkeys(rels) if r not in self._ahead]
         if len(rels) > 1:
             self._ahead.update(self.fs.read_many(rels))
+
+    def prefetch_records(self, keys: Iterable[str]) -> None:
+        """:meth:`prefetch` the records of these keys (text not of a key's hex form names none)."""
+        self.prefetch(record_rel(k) for k in keys if isinstance(k, str) and DIGEST.fullmatch(k))
 
     def prefetch_values(self, digests: Iterable[str]) -> None:
         """:meth:`prefetch` the objects of these digests (values about to be loaded)."""
