@@ -148,7 +148,7 @@ class _Pool:
         while self.misses and self.error is None and len(self.running) < self.jobs:
             n = self.misses.popleft()
             self.progress.running(n, session.graph.nodes[n].type)
-            self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes))] = n
+            self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes), True)] = n
 
     def _finished(self, fut) -> None:
         n = self.running.pop(fut)
@@ -175,7 +175,7 @@ def read_ahead(session: Session, nodes: list[str]) -> None:
     reads that go unused, never a wrong hit.  (Run under the run lock: what is read ahead is
     dropped when it is released.)"""
     store = session.store
-    if store.fs.local:
+    if not store.reads_together:
         return
     notes = session.last_notes = store.last_run(graph_id(session.graph)) or {}
     store.prefetch_records((notes.get(n) or {}).get("key") for n in nodes if isinstance(notes.get(n), dict))

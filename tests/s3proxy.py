@@ -84,7 +84,10 @@ def make_proxy(upstream_port: int, counter: Counter, delay_s: float = 0.0):
 
         do_GET = do_PUT = do_POST = do_DELETE = do_HEAD = _forward
 
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", free_port()), Proxy)
+    class Server(http.server.ThreadingHTTPServer):
+        request_queue_size = 128  # (the default 5 drops a batch's connections: a 1 s SYN retry)
+
+    srv = Server(("127.0.0.1", free_port()), Proxy)
     srv.daemon_threads = True
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     return srv

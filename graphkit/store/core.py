@@ -129,6 +129,11 @@ class Store:
                         "are not stored")
 
     @property
+    def reads_together(self) -> bool:
+        """Whether reads sent together cost one round trip (an object store), not one each."""
+        return not self.fs.local
+
+    @property
     def memo_file(self) -> Path | None:
         return self.fs.memo_file
 
@@ -243,6 +248,25 @@ class Store:
                 self._dirty = True
         self._seen_whole(digest)
         return digest
+
+    def put_values(self, items: list[tuple[PortType, Any, Any]]) -> list[str]:
+        """:meth:`put_value` of each (port type, value, parts): where a PUT is atomic (an object
+        store), the objects go out in one batch; their digests, in order."""
+        if not self.fs.atomic_put or self.read_only or len(items) < 2:
+            return [self.put_value(*item) for item in items]
+        todo, digests = {}, []
+        for ptype, value, parts in items:
+            meta, arrays, digest = parts or value_parts(ptype, value)
+            digests.append(digest)
+            if digest not in self._present:
+                head, offsets = encode_header(ptype.name, meta, arrays, digest)
+                todo[object_rel(digest)] = list(iter_chunks(head, offsets, arrays))
+        with self._errors("write a cache object"):
+            self.fs.write_many(todo)
+        self._dirty = self._dirty or bool(todo)
+        for d in digests:
+            self._seen_whole(d)
+        return digests
 
     def _seen_whole(self, digest: str) -> None:
         """Object ``digest`` is in place, whole: while the run lock is held (gc and verify
