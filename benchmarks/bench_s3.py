@@ -11,87 +11,20 @@ Run:  .venv/bin/python benchmarks/bench_s3.py [--graph graphs/face_relight.yaml]
 from __future__ import annotations
 
 import argparse
-import collections
-import http.client
-import http.server
 import json
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from s3server import S3Server, free_port  # noqa: E402
-
-TRACE = os.environ.get("BENCH_S3_TRACE") == "1"  # print every request (method and path)
-
-
-class Counter:
-    def __init__(self):
-        self.lock = threading.Lock()
-        self.kinds: collections.Counter = collections.Counter()
-
-    def add(self, kind: str) -> None:
-        with self.lock:
-            self.kinds[kind] += 1
-
-    def take(self) -> collections.Counter:
-        with self.lock:
-            out, self.kinds = self.kinds, collections.Counter()
-        return out
-
-
-def kind_of(method: str, path: str) -> str:
-    if method == "GET" and ("list-type" in path or path.rstrip("/").count("/") <= 1):
-        return "LIST"
-    if method == "POST" and "delete" in path:
-        return "DELETE(batch)"
-    return method
-
-
-def make_proxy(upstream_port: int, counter: Counter, delay_s: float):
-    class Proxy(http.server.BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-
-        def log_message(self, *a):
-            pass
-
-        def _forward(self):
-            counter.add(kind_of(self.command, self.path))
-            if TRACE:
-                print(self.command, self.path, file=sys.stderr)
-            if delay_s:
-                time.sleep(delay_s)
-            n = int(self.headers.get("Content-Length") or 0)
-            body = self.rfile.read(n) if n else None
-            conn = http.client.HTTPConnection("127.0.0.1", upstream_port, timeout=60)
-            headers = {k: v for k, v in self.headers.items() if k.lower() not in ("connection",)}
-            conn.request(self.command, self.path, body=body, headers=headers)
-            r = conn.getresponse()
-            data = r.read()
-            self.send_response(r.status, r.reason)
-            for k, v in r.getheaders():
-                if k.lower() not in ("content-length", "connection", "transfer-encoding"):
-                    self.send_header(k, v)
-            self.send_header("Content-Length", str(len(data)))
-            self.end_headers()
-            if self.command != "HEAD":
-                self.wfile.write(data)
-            conn.close()
-
-        do_GET = do_PUT = do_POST = do_DELETE = do_HEAD = _forward
-
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", free_port()), Proxy)
-    srv.daemon_threads = True
-    threading.Thread(target=srv.serve_forever, daemon=True).start()
-    return srv
-
+from s3proxy import Counter, make_proxy  # noqa: E402
+from s3server import S3Server  # noqa: E402
 
 def run(graph: str, cache: str, out: Path, env: dict, jobs: int) -> tuple[float, dict]:
     exe = ROOT / ".venv" / "bin" / "graphkit"
@@ -105,7 +38,7 @@ def run(graph: str, cache: str, out: Path, env: dict, jobs: int) -> tuple[float,
     return took, json.loads((out / "manifest.json").read_text())
 
 
-def per_node(counts: collections.Counter, n: int) -> str:
+def per_node(counts: dict, n: int) -> str:
     total = sum(counts.values())
     kinds = ", ".join(f"{k} {v / max(n, 1):.2f}" for k, v in sorted(counts.items()))
     return f"{total / max(n, 1):5.2f} requests/node ({kinds})"

@@ -76,10 +76,13 @@ def run_local(session: Session, targets: list[str], jobs: int = 1,
     result = RunResult(plan.graph.name)
     t0 = time.perf_counter()
     progress.start(len(plan.order))
-    if jobs <= 1:
-        locked_run(session.store, lambda: _run_serial(session, plan, progress, result))
-    else:
-        locked_run(session.store, lambda: _Pool(session, plan, jobs, progress, result).run())
+    def work() -> None:
+        read_ahead(session, plan.order)
+        if jobs <= 1:
+            _run_serial(session, plan, progress, result)
+        else:
+            _Pool(session, plan, jobs, progress, result).run()
+    locked_run(session.store, work)
     result.seconds = time.perf_counter() - t0
     return result
 
@@ -145,7 +148,7 @@ class _Pool:
         while self.misses and self.error is None and len(self.running) < self.jobs:
             n = self.misses.popleft()
             self.progress.running(n, session.graph.nodes[n].type)
-            self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes))] = n
+            self.running[pool.submit(session.run_node, n, input_digests(session, n, outcomes), True)] = n
 
     def _finished(self, fut) -> None:
         n = self.running.pop(fut)
@@ -164,13 +167,29 @@ class _Pool:
                 self.ready.append(d)
 
 
+def read_ahead(session: Session, nodes: list[str]) -> None:
+    """On a store that reads in batches (an object store): the records that the last run of this
+    graph (its notes, see :func:`record_last_run`) found for ``nodes``, read now in one batch, so
+    that a warm run does not wait a round trip per level of the graph to learn each next key.
+    Each record is still checked as ever when its key comes up; notes that no longer match cost
+    reads that go unused, never a wrong hit.  (Run under the run lock: what is read ahead is
+    dropped when it is released.)"""
+    store = session.store
+    if not store.reads_together:
+        return
+    notes = session.last_notes = store.last_run(graph_id(session.graph)) or {}
+    store.prefetch_records((notes.get(n) or {}).get("key") for n in nodes if isinstance(notes.get(n), dict))
+
+
 def record_last_run(session: Session, result: RunResult) -> None:
-    """Remember each node's key parts so `graphkit explain` can say what changed."""
+    """Remember each node's key parts so `graphkit explain` can say what changed (not written
+    again when the same as the notes this run read ahead from)."""
     data = {}
     for n, o in result.outcomes.items():
         data[n] = {"key": o.key, "parts": session.readable_parts(session.graph.nodes[n], o.parts),
                    "outputs": o.outputs}
-    session.store.save_run(graph_id(session.graph), data)
+    if data != session.last_notes:
+        session.store.save_run(graph_id(session.graph), data)
 
 
 def graph_id(graph) -> str:

@@ -9,7 +9,10 @@ processes, Dask workers on other machines) compute each key once and ``cache gc`
 * object stores (``s3://``, ``gs://``, …) have no locks: a **lease** is an object created with
   the store's atomic primitive, an exclusive create (``open(path, "xb")``: a conditional PUT,
   ``If-None-Match: *``, on S3 and GCS), holding its owner and an expiry time.  A thread renews it
-  every ``ttl/5`` seconds while it is held; release deletes it.  A lease whose expiry has passed
+  every ``ttl/5`` seconds while it is held (a node done sooner never renews); release deletes it.
+  Renewal and release are one request each (a PUT, a DELETE) while the lease is far from its
+  expiry: nobody breaks an unexpired lease, so it is still the owner's; only an owner that could
+  not renew for half a ttl reads the lease back first (someone may have broken it).  A lease whose expiry has passed
   (its owner died, or lost the store for a whole ttl) is broken by the next run that wants it,
   which says once what it waits for.  Where a file system has no exclusive create, the lease is
   written and read back after a pause (a documented weaker mode: two runs may then both win and
@@ -89,12 +92,27 @@ class Lease:
         self._stop = threading.Event()
         self._renewer: threading.Thread | None = None
         self._unreadable_since: float | None = None
+        self._expires = 0.0  # the expiry this lease last wrote
         #: whether acquire found the lease held (the key may have been computed meanwhile)
         self.waited = False
 
     def _body(self) -> bytes:
+        self._expires = time.time() + self.ttl
         return json.dumps({"token": self.token, "host": socket.gethostname(), "pid": os.getpid(),
-                           "expires": time.time() + self.ttl}).encode()
+                           "expires": self._expires}).encode()
+
+    def _surely_mine(self) -> bool:
+        """Whether the lease as last written is still far from its expiry: nobody breaks a lease
+        before it expires, so it is still this one's (with half a ttl for the clocks to disagree),
+        and renewing or releasing it needs no read first."""
+        return time.time() < self._expires - self.ttl / 2
+
+    def _mine(self) -> bool:
+        """Whether the lease is still this one's: by time (:meth:`_surely_mine`), else read back."""
+        if self._surely_mine():
+            return True
+        cur = self._read()
+        return bool(cur) and cur.get("token") == self.token
 
     def _read(self) -> dict | None:
         return read_lease(self.fs, self.path)
@@ -163,8 +181,7 @@ class Lease:
         last_ok = time.monotonic()
         while not self._stop.wait(self.ttl / RENEWALS_PER_TTL):
             try:
-                cur = self._read()
-                if not cur or cur.get("token") != self.token:
+                if not self._mine():
                     return  # broken by someone else: nothing to renew
                 self.fs.pipe_file(self.path, self._body())
                 last_ok = time.monotonic()
@@ -179,8 +196,7 @@ class Lease:
             self._renewer.join()
         if self.error is not None:
             raise LeaseLost(f"{type(self.error).__name__}: {self.error}")
-        cur = self._read()
-        if cur and cur.get("token") == self.token:
+        if self._mine():
             with contextlib.suppress(FileNotFoundError, OSError):
                 self.fs.rm_file(self.path)
 

@@ -97,28 +97,39 @@ def thumbnail_key(digest: str) -> str:
 
 def thumbnail(session, digest: str, ptype, rec: Any = ...) -> bytes | None:
     """JPEG bytes of a thumbnail of the image value ``digest``, from the cache when there
-    (``rec``: its record, when already looked up)."""
+    (``rec``: its record, when already looked up); one made is kept in the cache."""
     from .types import File, port_type
 
     store = session.store
     key = thumbnail_key(digest)
     rec = store.get_record(key) if rec is ... else rec
-    ftype = port_type(File)
     if rec is not None:
         try:
-            return store.load_value(rec["outputs"]["jpeg"]["digest"], ftype).data
+            return store.load_value(rec["outputs"]["jpeg"]["digest"], port_type(File)).data
         except Exception:  # noqa: BLE001 - a damaged thumbnail entry: make it again
             pass
-    value = session.value(digest, ptype)
-    jpeg = _jpeg(_file_rgb(value) if ptype.name == "File" else _display_rgb(ptype.name, value))
-    try:  # keep it for the next report; a read-only cache simply does not keep it
-        d = store.put_value(ftype, File("thumbnail.jpg", jpeg))
+    jpeg = _thumbnail_of(ptype, session.value(digest, ptype))
+    keep_thumbnail(store, digest, jpeg)
+    return jpeg
+
+
+def _thumbnail_of(ptype, value) -> bytes:
+    return _jpeg(_file_rgb(value) if ptype.name == "File" else _display_rgb(ptype.name, value))
+
+
+def keep_thumbnail(store, digest: str, jpeg: bytes) -> None:
+    """Keep the thumbnail of ``digest`` alone (an object and a record) for the next report; a
+    read-only cache simply does not keep it."""
+    from .types import File, port_type
+
+    key = thumbnail_key(digest)
+    try:
+        d = store.put_value(port_type(File), File("thumbnail.jpg", jpeg))
         store.put_record(key, {"key": key, "node": "(report thumbnail)",
                                "parts": {"node_type": "report-thumbnail", "value": digest, "px": THUMB_PX},
                                "outputs": {"jpeg": {"digest": d, "type": "File"}}, "seconds": 0.0})
     except Exception:  # noqa: BLE001
         pass
-    return jpeg
 
 
 def _sheet(store, key: str) -> dict[str, bytes] | None:
@@ -267,6 +278,7 @@ class _Thumbnails:
         self.records: dict[str, Any] = {}  # digest -> its thumbnail's record (looked up together)
         self.sheet: dict[str, bytes] | None = None  # the thumbnails read as one sheet
         self.made: dict[str, bytes] = {}  # the thumbnails this report shows
+        self.unkept: dict[str, bytes] = {}  # those made from values in memory, not kept yet
         self.sheet_key = ""
 
     @staticmethod
@@ -288,8 +300,9 @@ class _Thumbnails:
         self.sheet_key = key_digest({"thumbnails": THUMB_VERSION, "px": THUMB_PX, "values": values})
         try:
             self.sheet = _sheet(store, self.sheet_key) if cands else None
-            if self.sheet is None:
-                digests = [d for _, d, t in cands if _is_image_output(self.session, t, d)][:MAX_THUMBS]
+            if self.sheet is None:  # (a value in memory is thumbnailed from there: nothing to look up)
+                digests = [d for _, d, t in cands if _is_image_output(self.session, t, d)
+                           and not self._in_memory(d)][:MAX_THUMBS]
                 recs = store.get_records(thumbnail_key(d) for d in digests)
                 self.records = {d: recs[thumbnail_key(d)] for d in digests}
                 store.prefetch_values(r["outputs"]["jpeg"]["digest"] for r in self.records.values() if r)
@@ -297,10 +310,20 @@ class _Thumbnails:
             self.sheet, self.records = None, {}
 
     def keep(self) -> None:
-        """Every thumbnail shown, kept as one sheet (unless read from one, or some are missing)."""
-        if self.sheet is None and self.made and not (self.skipped or self.failed):
-            with contextlib.suppress(Exception):  # (a read-only cache simply does not keep it)
-                _keep_sheet(self.session.store, self.sheet_key, self.made)
+        """Every thumbnail shown, kept as one sheet (unless read from one); where some are
+        missing, those made from values in memory are kept alone instead."""
+        if self.sheet is not None or not self.made:
+            return
+        if self.skipped or self.failed:
+            for d, jpeg in self.unkept.items():
+                keep_thumbnail(self.session.store, d, jpeg)
+            return
+        with contextlib.suppress(Exception):  # (a read-only cache simply does not keep it)
+            _keep_sheet(self.session.store, self.sheet_key, self.made)
+
+    def _in_memory(self, d: str) -> bool:
+        with self.session._memo_lock:
+            return d in self.session.memo
 
     def of(self, g, o) -> str:
         imgs = []
@@ -323,7 +346,12 @@ class _Thumbnails:
         return "".join(imgs)
 
     def _made_alone(self, d: str, ptype) -> bytes | None:
+        """A thumbnail not on a sheet: made from the value in memory (kept by :meth:`keep`, on
+        the sheet as a rule: no entry of its own), else from the cache or the stored value."""
         try:
+            if self._in_memory(d):
+                self.unkept[d] = _thumbnail_of(ptype, self.session.value(d, ptype))
+                return self.unkept[d]
             return thumbnail(self.session, d, ptype, self.records.get(d, ...))
         except Exception:  # noqa: BLE001 - a report never fails a run
             return None

@@ -22,6 +22,7 @@ import os
 import sys
 import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -99,6 +100,8 @@ class Session:
         if store.on_notice is None:
             store.on_notice = notice
         self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
+        #: the notes of the last run of this graph, when read at the start of this one (executor.read_ahead)
+        self.last_notes: dict | None = None
         self._producers: dict[str, tuple[str, str]] = {}  # value digest -> (node, port)
         self.memo: dict[str, Any] = {}  # digest -> value, for values made or loaded in this process
         self._memo_lock = threading.Lock()
@@ -233,9 +236,11 @@ class Session:
             return self.memo[digest]
 
     # -- the unit of work ------------------------------------------------------------------
-    def run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
+    def run_node(self, name: str, input_digests: dict[str, str], missed: bool = False) -> NodeOutcome:
+        """Node ``name``'s outcome: a hit, or computed under its key's lock.  ``missed``: the
+        caller has just looked it up (:meth:`cached_many`) and found nothing."""
         try:
-            return self._run_node(name, input_digests)
+            return self._run_node(name, input_digests, missed)
         except BackendCannotRun as e:
             g = self.graph.nodes[name]
             bname = self._backends[name][0]
@@ -251,7 +256,7 @@ class Session:
                 self._noticed.add((g.type, bname, "run"))
             if first:
                 self.notice(f"notice: backend '{bname}' for {g.type} cannot run node '{name}' here ({e.reason}); using numpy")
-            return self._run_node(name, input_digests)
+            return self._run_node(name, input_digests, missed)
 
     def cached(self, name: str, input_digests: dict[str, str]) -> NodeOutcome | None:
         """Node ``name``'s outcome when its result is in the store (a hit), else None; nothing
@@ -279,20 +284,26 @@ class Session:
         outputs = {p: o["digest"] for p, o in rec["outputs"].items()}
         return self._remember(NodeOutcome(g.name, g.type, key, True, time.perf_counter() - t0, bname, bver, outputs, parts))
 
-    def _run_node(self, name: str, input_digests: dict[str, str]) -> NodeOutcome:
-        hit = self.cached(name, input_digests)
+    def _run_node(self, name: str, input_digests: dict[str, str], missed: bool = False) -> NodeOutcome:
+        # the look just before the lock; on an object store after a caller's miss, it goes out
+        # together with the lock's request (one round trip, not two; None: looked at below)
+        beside = missed and self.store.reads_together
+        hit = None if beside else self.cached(name, input_digests)
         if hit is not None:
             return hit
         g = self.graph.nodes[name]
         bname, bcls, bver = self.backend_for(g)
         t0 = time.perf_counter()
         key, parts = self.key(g, input_digests)
+        looking = _beside(self._lookup, g, key, parts, True) if beside else None
         with self.store.key_lock(key, name) as waited:
             # another run held the key (it was computing it): look again.  A lock taken at
-            # once (False) means nobody computed the key since the miss just above, bar a run
-            # that did all of it within those microseconds: at worst a node is computed twice,
-            # with the same bytes (None: this lock cannot tell, so look again)
-            rec = self._lookup(g, key, parts) if waited is not False else None
+            # once (False) means nobody computed the key since the miss just above (or the look
+            # beside the lock), bar a run that did all of it within that round trip: at worst a
+            # node is computed twice, with the same bytes (None: this lock cannot tell, so look again)
+            rec = looking.result() if looking is not None else None
+            if waited is not False:
+                rec = self._lookup(g, key, parts)
             if rec is None:
                 outputs = self._compute(g, bcls, key, parts, input_digests)
         if rec is not None:
@@ -368,8 +379,8 @@ class Session:
     def _store_outputs(self, g: GNode, key: str, parts: dict, staged: list, seconds: float) -> dict[str, str]:
         """Store the checked outputs ``staged`` and the record of ``key``; {port: digest}."""
         digests, rec_out = {}, {}
-        for port, p, v, vp in staged:
-            d = self.store.put_value(p.type, v, vp)
+        stored = self.store.put_values([(p.type, v, vp) for _, p, v, vp in staged])
+        for (port, p, v, vp), d in zip(staged, stored):
             digests[port] = d
             rec_out[port] = {"digest": d, "type": p.type.name}
             with self._memo_lock:
@@ -382,6 +393,19 @@ class Session:
         }
         self.store.put_record(key, record)
         return digests
+
+
+def _beside(fn: Callable, *args) -> Future:
+    """``fn(*args)`` in a thread of its own, started now (a request sent beside another)."""
+    fut: Future = Future()
+
+    def run() -> None:
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as e:  # noqa: BLE001 - raised where the result is asked for
+            fut.set_exception(e)
+    threading.Thread(target=run, daemon=True, name="graphkit-lookup").start()
+    return fut
 
 
 def _call_compute(g: GNode, bcls: type, ctx: Context, inputs: dict[str, Any]) -> Any:

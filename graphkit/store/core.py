@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterable
 from ..errors import CacheError, UsageError
 from ..types import BUILTIN_PORT_TYPES, PortType
 from . import maintenance
-from .codec import CorruptObject, check_object, encode_header, iter_chunks, object_rel, value_parts
+from .codec import DIGEST, CorruptObject, check_object, encode_header, iter_chunks, object_rel, value_parts
 from .fs import FORMAT_FILE, FORMAT_PREFIX, FORMAT_VERSION, FileSystem
 from .localfs import LocalFS
 from .objectfs import FsspecFS
@@ -132,6 +132,11 @@ class Store:
                         "are not stored")
 
     @property
+    def reads_together(self) -> bool:
+        """Whether reads sent together cost one round trip (an object store), not one each."""
+        return not self.fs.local
+
+    @property
     def memo_file(self) -> Path | None:
         return self.fs.memo_file
 
@@ -169,6 +174,10 @@ class Store:
         rels = [r for r in dict.fromkeys(rels) if r not in self._ahead]
         if len(rels) > 1:
             self._ahead.update(self.fs.read_many(rels))
+
+    def prefetch_records(self, keys: Iterable[str]) -> None:
+        """:meth:`prefetch` the records of these keys (text not of a key's hex form names none)."""
+        self.prefetch(record_rel(k) for k in keys if isinstance(k, str) and DIGEST.fullmatch(k))
 
     def prefetch_values(self, digests: Iterable[str]) -> None:
         """:meth:`prefetch` the objects of these digests (values about to be loaded)."""
@@ -242,6 +251,25 @@ class Store:
                 self._dirty = True
         self._seen_whole(digest)
         return digest
+
+    def put_values(self, items: list[tuple[PortType, Any, Any]]) -> list[str]:
+        """:meth:`put_value` of each (port type, value, parts): where a PUT is atomic (an object
+        store), the objects go out in one batch; their digests, in order."""
+        if not self.fs.atomic_put or self.read_only or len(items) < 2:
+            return [self.put_value(*item) for item in items]
+        todo, digests = {}, []
+        for ptype, value, parts in items:
+            meta, arrays, digest = parts or value_parts(ptype, value)
+            digests.append(digest)
+            if digest not in self._present:
+                head, offsets = encode_header(ptype.name, meta, arrays, digest)
+                todo[object_rel(digest)] = list(iter_chunks(head, offsets, arrays))
+        with self._errors("write a cache object"):
+            self.fs.write_many(todo)
+        self._dirty = self._dirty or bool(todo)
+        for d in digests:
+            self._seen_whole(d)
+        return digests
 
     def _seen_whole(self, digest: str) -> None:
         """Object ``digest`` is in place, whole: while the run lock is held (gc and verify

@@ -71,6 +71,12 @@ class FileSystem:
         system can send the requests together."""
         return {rel: self.read(rel) for rel in rels}
 
+    def write_many(self, entries: dict[str, list]) -> None:
+        """:meth:`write_atomic` of each entry (rel -> chunks): one batch where the file system can
+        send the writes together."""
+        for rel, chunks in entries.items():
+            self.write_atomic(rel, chunks)
+
     def read_record(self, rel: str, key: str, stale_after: float | None = None, in_run: bool = False,
                     journal_here: bool = False) -> tuple[bytes | None, str | None, bool]:
         """(the record of ``key`` at ``rel`` or None; why it is unreadable; whether it should
