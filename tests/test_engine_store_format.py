@@ -91,5 +91,11 @@ def test_verify_is_linear_in_the_records(tmp_path):
         assert store.verify() == []
         return time.process_time() - t
     cpu(small)  # (warm the imports and the page cache)
-    ratio = min(cpu(big) for _ in range(2)) / min(cpu(small) for _ in range(3))
+    # linear is 10x (measured 9.8-10.2x on an idle machine): the best of several, taken in turns,
+    # so that another process's load on the shared cores does not decide
+    smalls, bigs = [], []
+    for _ in range(4):
+        smalls.append(cpu(small))
+        bigs.append(cpu(big))
+    ratio = min(bigs) / min(smalls)
     assert ratio <= 12, ratio

@@ -1,6 +1,7 @@
-"""Warm runs on an object store read the records of a whole generation of the graph in one batch
-(issue 29, item 3): the scheduling thread looks up every ready node at once, and the store sends
-their reads together (fsspec's multi-path cat); a folder reads each record as before."""
+"""Warm runs on an object store read their records in batches (issue 29, item 3): the records the
+last run's notes name all at once, up front (executor.read_ahead); without notes, a whole
+generation of the graph at once (the scheduling thread looks up every ready node together and
+the store sends their reads with fsspec's multi-path cat); a folder reads each record as before."""
 from graphkit import run_graph
 from graphkit.store import FsspecFS, LocalFS
 
@@ -25,7 +26,7 @@ def _count_batches(monkeypatch, cls):
     return batches
 
 
-def test_a_warm_run_reads_each_generation_in_one_batch(write, engine_registry, monkeypatch, tmp_path):
+def test_a_warm_run_reads_its_records_in_one_batch(write, engine_registry, monkeypatch, tmp_path):
     g = write("wide.yaml", G.replace("outputs: {a0: a0.out}", "outputs: {" + ", ".join(
         f"a{i}: a{i}.out" for i in range(6)) + "}"))
     cold = run_graph(g, cache="memory://warm-batch", registry=engine_registry, jobs=2)
@@ -34,8 +35,23 @@ def test_a_warm_run_reads_each_generation_in_one_batch(write, engine_registry, m
     warm = run_graph(g, cache="memory://warm-batch", out=tmp_path / "out", registry=engine_registry, jobs=2)
     assert warm.computed == [] and len(warm.cached) == 12
     records = [b for b in batches if b[0] == "keys"]
-    assert records == [["keys"] * 6, ["keys"] * 6], batches  # the sources together, then their dependants
+    assert records == [["keys"] * 12], batches  # every record the last run's notes name, together
     assert ["objects"] * 6 in batches  # the six exported values, read together
+
+
+def test_without_notes_a_warm_run_reads_each_generation_in_one_batch(write, engine_registry, monkeypatch,
+                                                                      tmp_path):
+    from graphkit import executor
+
+    g = write("wide.yaml", G.replace("outputs: {a0: a0.out}", "outputs: {" + ", ".join(
+        f"a{i}: a{i}.out" for i in range(6)) + "}"))
+    run_graph(g, cache="memory://warm-batch-gen", registry=engine_registry, jobs=2)
+    monkeypatch.setattr(executor, "read_ahead", lambda session, nodes: None)  # (another graph's client)
+    batches = _count_batches(monkeypatch, FsspecFS)
+    warm = run_graph(g, cache="memory://warm-batch-gen", out=tmp_path / "out", registry=engine_registry, jobs=2)
+    assert warm.computed == [] and len(warm.cached) == 12
+    records = [b for b in batches if b[0] == "keys"]
+    assert records == [["keys"] * 6, ["keys"] * 6], batches  # the sources together, then their dependants
 
 
 def test_a_folder_reads_records_one_by_one(write, engine_registry, monkeypatch, tmp_path):
