@@ -112,6 +112,18 @@ def wait_graph(page, timeout=30000):
     page.wait_for_function("() => +document.getElementById('graph').dataset.laidOut > 0", timeout=timeout)
 
 
+def open_view(ctx, s, node, errors: list):
+    """A new page on studio ``s`` (its console errors into ``errors``), once its run is done,
+    with ``node`` clicked so that its live view mounts."""
+    page = ctx.new_page()
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.goto(s.url)
+    wait_graph(page)
+    wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
+    click_node(page, node)
+    return page
+
+
 def drawn_nodes(page):
     return page.evaluate("Object.keys(studio.editor.nodes)")
 

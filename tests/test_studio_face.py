@@ -15,7 +15,7 @@ import base64
 import numpy as np
 import pytest
 
-from studio_support import Server, browser_page, click_node, need_browser, wait_for, wait_graph
+from studio_support import Server, browser_page, need_browser, open_view, wait_for
 
 GRAPH = """graphkit: 1
 name: face_gl
@@ -67,12 +67,7 @@ def test_webgl_face_view_matches_numpy_render(pw, tmp_path, case):
     errors = []
     ctx.on("weberror", lambda e: errors.append(str(e.error)))
     try:
-        page = ctx.new_page()
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.goto(s.url)
-        wait_graph(page)
-        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
-        click_node(page, "render")
+        page = open_view(ctx, s, "render", errors)
         page.wait_for_selector("#view-body canvas.face-gl", timeout=60000)
         wait_for(lambda: page.evaluate("() => !!document.querySelector('#view-body canvas.face-gl').gkFace"),
                  30, "the WebGL view")
@@ -144,11 +139,7 @@ def test_face_view_light_frame_in_page_equals_host(pw, tmp_path):
     b, ctx = browser_page(pw, webgl=True)
     face = "document.querySelector('#view-body canvas.face-gl').gkFace"
     try:
-        page = ctx.new_page()
-        page.goto(s.url)
-        wait_graph(page)
-        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
-        click_node(page, "render")
+        page = open_view(ctx, s, "render", [])
         page.wait_for_selector("#view-body canvas.face-gl", timeout=60000)
         wait_for(lambda: page.evaluate(f"() => !!{face}"), 30, "the WebGL view")
         cases = [{"direction": [0.4, -0.5, -0.75]}, {"direction": [-0.6, 0.3, -0.75], "intensity": 2.5},

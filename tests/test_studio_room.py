@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from studio_support import Server, browser_page, click_node, need_browser, wait_for, wait_graph
+from studio_support import Server, browser_page, need_browser, open_view, wait_for
 
 GRAPH = """graphkit: 1
 name: room_view
@@ -64,12 +64,7 @@ def test_drag_a_virtual_box_over_the_floor(pw, tmp_path):
     b, ctx = browser_page(pw)
     errors = []
     try:
-        page = ctx.new_page()
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.goto(s.url)
-        wait_graph(page)
-        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 120, "the run")
-        click_node(page, "relit")
+        page = open_view(ctx, s, "relit", errors)
         page.wait_for_function("() => +document.querySelector('#view-body canvas.room-img')?.dataset.frames > 0",
                                timeout=60000)
         W, H, before = page.evaluate(PIXELS)
