@@ -219,14 +219,21 @@ def _trimmed(sigma: float, weight: np.ndarray) -> _Term:
 
 
 def _apply_terms(src: np.ndarray, terms: list[_Term], axis: int) -> np.ndarray:
-    """Σ weight · _blur_1d(src, σ) over the terms of :func:`_axis_terms`."""
+    """Σ weight · _blur_1d(src, σ) over the terms of :func:`_axis_terms`, each blur made on its
+    term's box only (grown by the kernel's radius along ``axis``, within the plane: the same
+    taps and the same reflected border as a blur of the whole plane)."""
     import cv2
 
     if len(terms) == 1 and terms[0].weight is None:
         return _blur_1d(src, terms[0].sigma, axis)
     acc = None
     for s, wt, (y0, y1, x0, x1) in terms:
-        b = _blur_1d(src, s, axis)
+        if y0 == y1 or x0 == x1:  # no weight anywhere
+            continue
+        if wt is None:
+            b = _blur_1d(src, s, axis)
+        else:
+            b = _blur_box(src, s, axis, (y0, y1, x0, x1))
         if acc is None and wt is not None and wt.shape == src.shape:
             acc = cv2.multiply(b, wt)  # the first term over the whole plane: no zeroed buffer
             continue
@@ -235,8 +242,20 @@ def _apply_terms(src: np.ndarray, terms: list[_Term], axis: int) -> np.ndarray:
         if wt is None:
             acc += b
         else:
-            cv2.accumulateProduct(b[y0:y1, x0:x1], wt, acc[y0:y1, x0:x1])
-    return acc
+            cv2.accumulateProduct(b, wt, acc[y0:y1, x0:x1])
+    return np.zeros(src.shape, np.float32) if acc is None else acc
+
+
+def _blur_box(src: np.ndarray, sigma: float, axis: int, box) -> np.ndarray:
+    """_blur_1d(src, σ, axis)[y0:y1, x0:x1]: the blur of the box grown by the kernel's radius
+    along ``axis`` (cut at the plane's edges, where the border is reflected as in the whole plane)."""
+    y0, y1, x0, x1 = box
+    r = gaussian_kernel(sigma).size // 2
+    if axis == 0:
+        a0, a1 = max(0, y0 - r), min(src.shape[0], y1 + r)
+        return _blur_1d(src[a0:a1, x0:x1], sigma, 0)[y0 - a0:y1 - a0]
+    a0, a1 = max(0, x0 - r), min(src.shape[1], x1 + r)
+    return _blur_1d(src[y0:y1, a0:a1], sigma, 1)[:, x0 - a0:x1 - a0]
 
 
 def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray | None) -> np.ndarray:
@@ -412,6 +431,7 @@ class Scatter:
             for p in passes:
                 p[2:] = [s if isinstance(s, float) else s.crop((h, w), self.box) for s in p[2:]]
         self.valid, self.axis_blur = valid, axis_blur
+        self._off = None if valid is None else valid <= 0
         if axis_blur is None:  # each axis as weighted uniform blurs (the weights: surface only)
             hw = (h, w) if self.box is None else (self.box[1] - self.box[0], self.box[3] - self.box[2])
             for p in passes:
@@ -437,23 +457,33 @@ class Scatter:
         """The scattered irradiance on :attr:`box` (the whole frame when None) from the
         irradiance there, (h, w, C) float32: what ``self(irradiance)`` puts in the box (outside
         it the irradiance is returned unchanged)."""
+        import cv2
+
         valid, axis_blur = self.valid, self.axis_blur
-        planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
+        if sub.size == 0:
+            return sub.copy()
+        planes = cv2.split(sub) if sub.shape[2] > 1 else [np.ascontiguousarray(sub[:, :, 0])]
         if axis_blur is not None:
             done = [axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
                     for chans, _, sy, sx in self.passes]
         else:  # y then x per Gaussian and channel, on the cores (cv2 and numpy release the GIL)
-            src = planes if valid is None else [a * valid for a in planes]
+            src = planes if valid is None else [cv2.multiply(a, valid) for a in planes]
             jobs = [functools.partial(_scatter_plane, src[ch], ty, tx)
                     for chans, _, ty, tx in self.passes for ch in chans]
             flat = iter(_run_balanced(jobs, [_cost(j.args[1]) + _cost(j.args[2]) for j in jobs]))
             done = [[next(flat) for _ in chans] for chans, *_ in self.passes]
-        out = [np.zeros(sub.shape[:2], np.float32) for _ in planes]
+        out = [None] * len(planes)
         for (chans, wts, *_), blurred in zip(self.passes, done):  # summed in profile order
             for ch, wt, b in zip(chans, wts, blurred):
-                out[ch] += wt * b
-        res = np.stack(out, axis=-1)
-        return res if valid is None else np.where(valid[..., None] > 0, res, sub)
+                if out[ch] is None:
+                    out[ch] = cv2.multiply(b, float(wt))
+                else:
+                    cv2.scaleAdd(b, float(wt), out[ch], dst=out[ch])
+        out = [np.zeros(sub.shape[:2], np.float32) if o is None else o for o in out]
+        if valid is not None:  # off the skin: unchanged
+            for o, a in zip(out, planes):
+                np.copyto(o, a, where=self._off)
+        return cv2.merge(out) if len(out) > 1 else out[0][:, :, None]
 
 
 def _scatter_plane(src: np.ndarray, ty: list[_Term], tx: list[_Term]) -> np.ndarray:
