@@ -462,7 +462,7 @@ class Scatter:
         valid, axis_blur = self.valid, self.axis_blur
         if sub.size == 0:
             return sub.copy()
-        planes = cv2.split(sub) if sub.shape[2] > 1 else [np.ascontiguousarray(sub[:, :, 0])]
+        planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
         if axis_blur is not None:
             done = [axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
                     for chans, _, sy, sx in self.passes]

@@ -222,6 +222,7 @@ class _Specular(NamedTuple):
     layers: list        # per layer (h, w, 1) float32
     box: tuple
     lcol: np.ndarray    # light colour × intensity
+    seen: dict          # the last layers' (transmittance, own specular) by what they come from
 
 
 class _Fixed(NamedTuple):
@@ -293,7 +294,7 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     layers = [kelemen_specular(n, ldir, v, L.m, L.rho_s, L.f0)[..., None].astype(np.float32) for L in specs]
     box = _nonzero_box(np.any(skin != 0, axis=2) | np.any([k[..., 0] != 0 for k in layers], axis=0))
     y0, y1, x0, x1 = box
-    return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol)
+    return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol, {})
 
 
 def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
@@ -303,23 +304,46 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
     T = 1 and the coverage 0 leave the specular as it is).  ``layers``: :func:`_layer_boxes`."""
     sp = fixed.spec
     y0, y1, x0, x1 = sp.box
-    Wf = km.rgb_weights(wl, p.illuminant)
-    Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
     s = sp.skin.copy()
-    for i, (k, box, top) in enumerate(zip(sp.layers, *layers)):
+    for i, (box, top, plane) in enumerate(zip(*layers)):
         b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
         if b0 >= b1 or c0 >= c1:
             continue
+        Ti, own = _layer_terms(p, wl, S[i], K[i], plane, top, (b0, b1, c0, c1), i, sp)
+        here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
+        np.multiply(here, Ti, out=here)
+        np.add(here, own, out=here)
+    out = np.zeros(t.shape[:2] + (3,), np.float32)
+    np.multiply(s, sp.lcol, out=out[y0:y1, x0:x1])
+    return out
+
+
+def _layer_terms(p, wl, S, K, plane, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
+    """Layer i's RGB transmittance (h, w, 3) and own specular weighted by its coverage (h, w, 3)
+    in ``box`` (float32), from its thickness ``plane`` (H, W) of maximum ``top``: kept for the last layers seen on
+    this surface (a re-shade after one layer changed does not redo the others)."""
+    key = xxhash.xxh3_128(canonical([i, list(box), top, p.lut_size, p.cover_mm, p.illuminant]))
+    for a in (np.asarray(wl, np.float64), np.asarray(S, np.float64), np.asarray(K, np.float64), plane):
+        key.update(np.ascontiguousarray(a))
+    key = key.hexdigest()
+    got = sp.seen.get(key)
+    if got is None:
+        b0, b1, c0, c1 = box
+        y0, x0 = sp.box[0], sp.box[2]
+        Wf = km.rgb_weights(wl, p.illuminant)
+        Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
         grid = km.thickness_grid([top], p.lut_size)
-        _, Tg = km.layer_R0_T(S[i], K[i], grid[0][:, None])
-        ti = t[b0:b1, c0:c1, i:i + 1]
+        _, Tg = km.layer_R0_T(S, K, grid[0][:, None])
+        ti = plane[b0:b1, c0:c1, None]
         Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float32)
         cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)[..., None]
-        here = (slice(b0 - y0, b1 - y0), slice(c0 - x0, c1 - x0))
-        s[here] = s[here] * Ti + cover * k[here]
-    out = np.zeros(t.shape[:2] + (3,), np.float32)
-    out[y0:y1, x0:x1] = s * sp.lcol
-    return out
+        own = np.broadcast_to(cover * sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0], Ti.shape)
+        got = (Ti, np.ascontiguousarray(own))
+        with _FIXED_LOCK:
+            while len(sp.seen) >= 8:
+                sp.seen.pop(next(iter(sp.seen)))
+            sp.seen[key] = got
+    return got
 
 
 def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
@@ -330,17 +354,18 @@ def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
     return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
-def _layer_boxes(t: np.ndarray) -> tuple[list, list[float]]:
-    """Per layer, the box of the pixels where it is thicker than 0, and its maximum (each layer
-    copied to a plane first: reductions over a strided channel are ~20× slower)."""
+def _layer_boxes(t: np.ndarray) -> tuple[list, list[float], list[np.ndarray]]:
+    """Per layer, the box of the pixels where it is thicker than 0, its maximum and its plane
+    (each layer copied to a plane first: reductions over a strided channel are ~20× slower)."""
     boxes, tops = [], []
-    for plane in np.ascontiguousarray(np.moveaxis(t, 2, 0)):
+    planes = list(np.ascontiguousarray(np.moveaxis(t, 2, 0)))
+    for plane in planes:
         per_row = plane.max(axis=1) if plane.size else np.zeros(0, plane.dtype)
         rows, cols = np.flatnonzero(per_row > 0), np.flatnonzero(plane.max(axis=0) > 0) if plane.size else []
         boxes.append((0, 0, 0, 0) if rows.size == 0 else
                      (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1))
         tops.append(float(per_row.max()) if per_row.size else 0.0)
-    return boxes, tops
+    return boxes, tops, planes
 
 
 def _support(boxes) -> tuple[int, int, int, int]:
