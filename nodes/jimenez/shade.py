@@ -23,6 +23,8 @@ BAND_ROWS = 48  # rows per band of the per-pixel terms (a band's temporaries sta
 #: face, a benchmark's; 11 MB each at 1280×720)
 _ALBEDO: dict = {}
 _ALBEDO_LOCK = threading.Lock()
+#: the last unit normals by the digest of the normals they come from (11 MB at 1280×720)
+_UNIT: dict = {}
 
 
 class SkinShade(Node):
@@ -114,6 +116,7 @@ class SkinShade(Node):
             corners = lut_corners(lut32)
         irr = np.empty((H, W, 3), np.float32)
         spec = np.empty((H, W), np.float32)
+        unit = None if normals is None else self._unit_normals(normals)
 
         # Per-pixel work in float32 on bands of rows, on contiguous arrays: numpy is several
         # times slower on (…, 3) arrays broadcast against (…, 1) ones than on flat arrays, so
@@ -125,11 +128,7 @@ class SkinShade(Node):
                 irr[y0:y1] = ndotl_0 * col + amb
                 spec[y0:y1] = spec_0
                 return
-            nb = normals.pixels[y0:y1]
-            inv = np.sqrt((nb * nb) @ np.ones(3, np.float32))  # |n|
-            np.maximum(inv, np.float32(1e-12), out=inv)
-            np.divide(np.float32(1), inv, out=inv)
-            nb = nb * cv2.merge([inv] * 3)  # unit normals
+            nb = unit[y0:y1]
             ndotl = np.maximum(nb @ l32, np.float32(0))
             spec[y0:y1] = kelemen_specular(nb, l32, v32, p.roughness, p.specular, p.f0, dtype=np.float32)
             cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
@@ -153,6 +152,31 @@ class SkinShade(Node):
 
         run_bands(combine, H, BAND_ROWS)
         return {"image": Image(img), "albedo": Image(albedo.copy()), "diffuse": Image(irr), "specular": Image(spec)}
+
+    def _unit_normals(self, normals: Image) -> np.ndarray:
+        """The unit normals (H, W, 3) float32, kept for the last faces (a new light on the same
+        face does not normalise them again)."""
+        import cv2
+
+        key = value_parts(self.in_ports["normals"].type, normals)[2]
+        got = _UNIT.get(key)
+        if got is None:
+            n = normals.pixels
+            got = np.empty(n.shape, np.float32)
+
+            def band(y0, y1):
+                nb = n[y0:y1]
+                inv = np.sqrt((nb * nb) @ np.ones(3, np.float32))  # |n|
+                np.maximum(inv, np.float32(1e-12), out=inv)
+                np.divide(np.float32(1), inv, out=inv)
+                np.multiply(nb, cv2.merge([inv] * 3), out=got[y0:y1])
+
+            run_bands(band, n.shape[0], BAND_ROWS)
+            with _ALBEDO_LOCK:
+                while len(_UNIT) >= 2:
+                    _UNIT.pop(next(iter(_UNIT)))
+                _UNIT[key] = got
+        return got
 
     def _albedo_key(self, melanin: Image, hemoglobin: Image, lut: Image) -> str:
         """The digest of what the albedo comes from (the two maps and the LUT)."""
