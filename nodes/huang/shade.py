@@ -153,17 +153,18 @@ class CosmeticShade(Node):
             box = _union(fixed.scatter.box, support)
         if box is not None:
             y0, y1, x0, x1 = box
-            t, rho_b, E_b = t[y0:y1, x0:x1], rho[y0:y1, x0:x1], E[y0:y1, x0:x1]
+            t, rho_b, E_b = t[y0:y1, x0:x1], rho[y0:y1, x0:x1], None if E is None else E[y0:y1, x0:x1]
         else:
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
         rows = max(1, km.LOOKUP_BLOCK // max(T.shape[1], 1))  # bands whose temporaries stay in the cache
-        pre = np.empty(T.shape, np.result_type(T, E_b, Rb, rho_b))
+        pre = np.empty(T.shape, np.result_type(T, Rb, rho_b, *([] if E_b is None else [E_b])))
 
         def entering(r0, r1):  # T·E / (1 − Rb·ρ)
             den = Rb[r0:r1] * rho_b[r0:r1]
-            np.divide(T[r0:r1] * E_b[r0:r1], np.subtract(1.0, den, out=den), out=pre[r0:r1])
+            lit = T[r0:r1] if E_b is None else T[r0:r1] * E_b[r0:r1]
+            np.divide(lit, np.subtract(1.0, den, out=den), out=pre[r0:r1])
 
         run_bands(entering, T.shape[0], rows)
         if fixed.scatter is not None and box is None:
@@ -176,13 +177,23 @@ class CosmeticShade(Node):
                 pre[here] = fixed.scatter.on_box(pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
-        out = np.empty(T.shape, np.float32) if box is None else np.multiply(rho, E, dtype=np.float32)
+        if box is None:
+            out = np.empty(T.shape, np.float32)
+        else:
+            out = rho.astype(np.float32) if E is None else np.multiply(rho, E, dtype=np.float32)
         inner = out if box is None else out[y0:y1, x0:x1]
 
         def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
             with np.errstate(divide="ignore", invalid="ignore"):
-                t_exit = np.where(T[r0:r1] > 1e-12, T2[r0:r1] / T[r0:r1], 0.0)
-            inner[r0:r1] = Rt[r0:r1] * E_b[r0:r1] + t_exit * rho_b[r0:r1] * pre[r0:r1]
+                t_exit = np.divide(T2[r0:r1], T[r0:r1])
+            t_exit[~(T[r0:r1] > 1e-12)] = 0.0
+            t_exit *= rho_b[r0:r1]
+            t_exit *= pre[r0:r1]
+            if E_b is None:
+                np.add(Rt[r0:r1], t_exit, out=inner[r0:r1])
+            else:
+                np.multiply(Rt[r0:r1], E_b[r0:r1], out=inner[r0:r1])
+                inner[r0:r1] += t_exit
 
         run_bands(leaving, T.shape[0], rows)
         return out
@@ -228,7 +239,7 @@ class _Specular(NamedTuple):
 class _Fixed(NamedTuple):
     """CosmeticShade's work that does not depend on the cosmetic map or the albedo."""
     surf: _Surface
-    E: np.ndarray               # irradiance (H, W, 3) float32
+    E: np.ndarray | None        # irradiance (H, W, 3) float32 (None: 1 everywhere)
     scatter: Scatter | None     # the reference SSS prepared for the surface (None: the hook, or no SSS)
     spec: _Specular | None      # None: no normals or no directional light
 
@@ -270,7 +281,7 @@ def _camera_frame_light(light: Light | None, camera: Camera | None):
 
 def _irradiance(hw, irradiance, light, lcol, ldir, n, relight: bool) -> np.ndarray:
     """E (H×W×3): the irradiance input; else colour·intensity·max(N·L, 0) + ambient from a
-    light (when ``relight``); else 1."""
+    light (when ``relight``); else None (1 everywhere: nothing to multiply by)."""
     h, w = hw
     if irradiance is not None:
         return np.broadcast_to(np.asarray(irradiance.pixels, np.float32), (h, w, 3))
@@ -278,7 +289,7 @@ def _irradiance(hw, irradiance, light, lcol, ldir, n, relight: bool) -> np.ndarr
         cos = 1.0 if n is None else np.maximum(n @ ldir, 0.0)[..., None]
         E = (np.asarray(cos, np.float32) * lcol + np.asarray(light.ambient, np.float32)).astype(np.float32)
         return np.broadcast_to(E, (h, w, 3))
-    return np.ones((h, w, 3), np.float32)
+    return None
 
 
 def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
