@@ -49,7 +49,9 @@ class CosmeticShade(Node):
     # 6: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py);
     #    the layered specular in float32
     # 7: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (nodes/common/sss.py)
-    version = "7"
+    # 8: the SSS's level blurs made on their weights' boxes and each channel's profile sum by
+    #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 1.2e-7)
+    version = "8"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",

@@ -36,7 +36,9 @@ class ScatterRelit(Node):
     approximation).  Pixels outside ``mask`` or where ``light`` ≤ ``eps`` are unchanged.
     """
 
-    version = "2"  # 2: nodes.common.sss at σ levels a factor 2 apart (SkinShade 5)
+    # 2: nodes.common.sss at σ levels a factor 2 apart (SkinShade 5)
+    # 3: nodes.common.sss's level blurs on their weights' boxes, sums by cv2.scaleAdd (SkinShade 6)
+    version = "3"
     inputs = {"image": In(Image, "the relit face (Render.image)", channels=3, finite=True),
               "light": In(Image, "the same Render without detail texture, eye highlights and clamp: "
                                  "the light on the skin × its colour", channels=3, finite=True, ge=0,

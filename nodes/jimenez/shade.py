@@ -43,7 +43,9 @@ class SkinShade(Node):
     # 3: world-frame lights (turned into the camera frame); pixel footprint z/sqrt(fx·fy)
     # 4: a per-pixel SSS kernel width as blurs at σ levels a factor 2 apart (nodes/common/sss.py)
     # 5: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (its geometric mean)
-    version = "5"
+    # 6: the SSS's level blurs made on their weights' boxes and each channel's profile sum by
+    #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 2.4e-7)
+    version = "6"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
               "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
                                finite=True, ge=0),
