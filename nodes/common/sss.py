@@ -463,45 +463,33 @@ class Scatter:
         if sub.size == 0:
             return sub.copy()
         planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
-        if axis_blur is None:  # a channel per task on the cores (cv2 and numpy release the GIL)
-            jobs = [functools.partial(self._channel, a, ch) for ch, a in enumerate(planes)]
-            costs = [sum(_cost(ty) + _cost(tx) for chans, _, ty, tx in self.passes if ch in chans)
-                     for ch in range(len(planes))]
-            out = _run_balanced(jobs, costs)
+        if axis_blur is None:  # y then x per Gaussian and channel, on the cores (cv2 and numpy release the GIL)
+            src = planes if valid is None else [cv2.multiply(a, valid) for a in planes]
+            jobs = [functools.partial(_scatter_plane, src[ch], ty, tx)
+                    for chans, _, ty, tx in self.passes for ch in chans]
+            flat = iter(_run_balanced(jobs, [_cost(j.args[1]) + _cost(j.args[2]) for j in jobs]))
+            done = [[next(flat) for _ in chans] for chans, *_ in self.passes]
         else:
-            out = [None] * len(planes)
-            for chans, wts, sy, sx in self.passes:  # summed in profile order
-                blurred = axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
-                for ch, wt, b in zip(chans, wts, blurred):
-                    out[ch] = _added(out[ch], b, wt)
-            out = [self._finished(o, a) for o, a in zip(out, planes)]
+            done = [axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
+                    for chans, _, sy, sx in self.passes]
+        terms = [[] for _ in planes]  # per channel (blurred, weight) in profile order
+        for (chans, wts, *_), blurred in zip(self.passes, done):
+            for ch, wt, b in zip(chans, wts, blurred):
+                terms[ch].append((b, wt))
+        out = run_tasks([functools.partial(self._summed, t, a) for t, a in zip(terms, planes)])
         return cv2.merge(out) if len(out) > 1 else out[0][:, :, None]
 
-    def _channel(self, plane: np.ndarray, ch: int) -> np.ndarray:
-        """Channel ``ch`` scattered: each Gaussian feeding it, y then x, summed in profile order."""
+    def _summed(self, terms: list, plane: np.ndarray) -> np.ndarray:
+        """A channel's Σ weight · blurred (in the order given: the profile's), the pixels off the
+        skin left unchanged."""
         import cv2
 
-        src = plane if self.valid is None else cv2.multiply(plane, self.valid)
-        out = None
-        for chans, wts, ty, tx in self.passes:
-            if ch in chans:
-                out = _added(out, _scatter_plane(src, ty, tx), wts[chans.index(ch)])
-        return self._finished(out, plane)
-
-    def _finished(self, out: np.ndarray | None, plane: np.ndarray) -> np.ndarray:
-        """A channel's sum (None: no Gaussian feeds it) with the pixels off the skin unchanged."""
-        if out is None:
-            out = np.zeros(plane.shape, np.float32)
+        out = np.zeros(plane.shape, np.float32) if not terms else cv2.multiply(terms[0][0], float(terms[0][1]))
+        for b, wt in terms[1:]:
+            cv2.scaleAdd(b, float(wt), out, dst=out)
         if self._off is not None:
             np.copyto(out, plane, where=self._off)
         return out
-
-
-def _added(acc: np.ndarray | None, b: np.ndarray, wt) -> np.ndarray:
-    """acc + wt·b (acc None: wt·b), in place."""
-    import cv2
-
-    return cv2.multiply(b, float(wt)) if acc is None else cv2.scaleAdd(b, float(wt), acc, dst=acc)
 
 
 def _scatter_plane(src: np.ndarray, ty: list[_Term], tx: list[_Term]) -> np.ndarray:
