@@ -51,10 +51,24 @@ def beckmann_D(cos_theta_h, m, dtype=np.float64):
     c2 = c * c
     pos = (c > 0) & (c2 > np.sqrt(np.finfo(dtype).tiny))
     c2s = np.where(pos, c2, dtype(1))
-    tan2 = (1 - c2s) / c2s
-    d = np.exp(-tan2 / m2)
-    d /= (np.pi * m2) * (c2s * c2s)
-    return np.where(pos, d, dtype(0))
+    d = _inplace(np.divide, np.subtract(dtype(1), c2s), c2s)  # tan²θ_h
+    d = np.exp(_inplace(np.divide, _inplace(np.negative, d), m2), out=d if _owned(d) else None)
+    d = _inplace(np.divide, d, _inplace(np.multiply, c2s * c2s, np.pi * m2))
+    return _inplace(np.multiply, d, pos)              # 0 where not pos (d is finite there)
+
+
+def _owned(a) -> bool:
+    """Whether ``a`` is an array this module made (results may be written into it)."""
+    return isinstance(a, np.ndarray) and a.ndim > 0
+
+
+def _inplace(op, a, b=None):
+    """op(a, b) (or op(a)), written into ``a`` when it is an array of the result's shape and type:
+    the same values as op(a, b) without a new array per step."""
+    args = (a,) if b is None else (a, b)
+    if _owned(a) and np.broadcast_shapes(a.shape, np.shape(b)) == a.shape and np.result_type(*args) == a.dtype:
+        return op(*args, out=a)
+    return op(*args)
 
 
 def schlick_fresnel(cos_theta, f0, dtype=np.float64):
@@ -83,8 +97,8 @@ def _kelemen(n, l, v, m, f0, dtype):
     H = h / np.sqrt(hh_s)[..., None]
     ndotl = _dot(n, l)
     ok = hok & (ndotl > 0)
-    f = beckmann_D(_dot(n, H), m, dtype) * (schlick_fresnel(_dot(H, l), f0, dtype) / hh_s)
-    return np.where(ok, np.maximum(f, dtype(0)), dtype(0)), ndotl
+    f = _inplace(np.multiply, beckmann_D(_dot(n, H), m, dtype), schlick_fresnel(_dot(H, l), f0, dtype) / hh_s)
+    return _inplace(np.multiply, _inplace(np.maximum, f, dtype(0)), ok), ndotl
 
 
 def kelemen_brdf(n, l, v, m, f0=0.028, dtype=np.float64):
@@ -116,4 +130,5 @@ def kelemen_specular(n, l, v, m, rho_s, f0=0.028, dtype=np.float64):
     """
     dtype = np.dtype(dtype).type
     f, ndotl = _kelemen(n, l, v, m, f0, dtype)
-    return f * (np.asarray(rho_s, dtype=dtype) * dtype(np.pi)) * np.maximum(ndotl, dtype(0))
+    f = _inplace(np.multiply, f, np.asarray(rho_s, dtype=dtype) * dtype(np.pi))
+    return _inplace(np.multiply, f, _inplace(np.maximum, ndotl, dtype(0)))
