@@ -144,8 +144,8 @@ class SkinShade(Node):
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
             irr = np.ascontiguousarray(
-                self.sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0].astype(np.float64),
-                         mask=None if mask is None else mask.alpha), np.float32)
+                self.sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0],  # (mm; float64 inside)
+                              mask=None if mask is None else mask.alpha), np.float32)
         img = np.empty((H, W, 3), np.float32)
 
         def combine(y0, y1):  # image = albedo · diffuse + specular · light
