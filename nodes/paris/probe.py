@@ -36,9 +36,9 @@ class ProbeLight(Node):
       mean of the directions of the saturated pixels: the orthographic mirror ball maps image
       area to solid angle uniformly, so this is the centre of the highlight on the sphere of
       directions.  The excess-weighted mean over the highlight and its halo refines it
-      (``refine_with_halo``) unless it moves it by more than ``MAX_HALO_SHIFT_DEG`` (1°): then
-      other light in the halo (a lit backdrop's reflection) pulls it, and the blob's mean is
-      kept.  It is returned in the probe camera's frame (OpenCV: x right, y down,
+      (``refine_with_halo``), except when the highlight is clipped and the refinement moves
+      it by more than ``MAX_HALO_SHIFT_DEG`` (1°): other light in the halo (a lit backdrop's
+      reflection) then pulls it, and the blob's mean is kept.  It is returned in the probe camera's frame (OpenCV: x right, y down,
       z forward), pointing towards the light.  A light on the far side of the subject
       (direction with z > 0, away from the camera) is refused.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
@@ -71,7 +71,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "3"
+    version = "4"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),
@@ -156,9 +156,12 @@ class ProbeLight(Node):
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
                 ref /= np.linalg.norm(ref)
-                # a lit backdrop's or lamp's reflection in the halo pulls the mean by degrees; the
-                # halo may only refine the clipped blob's direction, not move it
-                if np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1))) <= MAX_HALO_SHIFT_DEG:
+                # under a clipped highlight a lit backdrop's or lamp's reflection in the halo weighs
+                # as much as the flash and pulls the mean by degrees: the halo may then only refine
+                # the clipped blob's direction, not move it (an unclipped highlight's excess
+                # dwarfs such light, and its few top pixels alone are quantised)
+                shift = np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1)))
+                if shift <= MAX_HALO_SHIFT_DEG or not _clipped(px, inside):
                     ldir = ref
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
