@@ -35,7 +35,10 @@ class ProbeLight(Node):
       with that vertical field of view are reflected.  The flash direction is the normalised
       mean of the directions of the saturated pixels: the orthographic mirror ball maps image
       area to solid angle uniformly, so this is the centre of the highlight on the sphere of
-      directions.  It is returned in the probe camera's frame (OpenCV: x right, y down,
+      directions.  The excess-weighted mean over the highlight and its halo refines it
+      (``refine_with_halo``), except when the highlight is clipped and the refinement moves
+      it by more than ``MAX_HALO_SHIFT_DEG`` (1°): other light in the halo (a lit backdrop's
+      reflection) then pulls it, and the blob's mean is kept.  It is returned in the probe camera's frame (OpenCV: x right, y down,
       z forward), pointing towards the light.  A light on the far side of the subject
       (direction with z > 0, away from the camera) is refused.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
@@ -68,7 +71,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "3"
+    version = "4"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),
@@ -152,7 +155,14 @@ class ProbeLight(Node):
             wgt = np.clip(lum[core] - base, 0, None)
             if wgt.sum() > 0:
                 ref = (dirs[core] * wgt[:, None]).sum(0)
-                ldir = ref / np.linalg.norm(ref)
+                ref /= np.linalg.norm(ref)
+                # under a clipped highlight a lit backdrop's or lamp's reflection in the halo weighs
+                # as much as the flash and pulls the mean by degrees: the halo may then only refine
+                # the clipped blob's direction, not move it (an unclipped highlight's excess
+                # dwarfs such light, and its few top pixels alone are quantised)
+                shift = np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1)))
+                if shift <= MAX_HALO_SHIFT_DEG or not _clipped(px, inside):
+                    ldir = ref
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
             raise BadInput("probe", f"the ambient ring ({rho_h:.0f}°–{rho_h + p.ring_deg:.0f}° from the highlight) "
@@ -319,6 +329,11 @@ def _flash_highlight(sat: np.ndarray) -> np.ndarray:
                                 "the flash as the only light that clips (other lamps off, or a shorter exposure)")
     return _largest_component(sat)
 
+
+#: the most the halo's excess-weighted mean may move the clipped blob's direction (degrees); a
+#: larger move is a pull by other light in the halo (tuned on the tune half of varied_probes.py:
+#: pulls of 1.2–8.7°, refinements of 0.06–0.42°)
+MAX_HALO_SHIFT_DEG = 1.0
 
 #: a second clipped blob this large (a fraction of the largest) makes the flash's unclear
 OTHER_HIGHLIGHT = 0.2
