@@ -272,13 +272,16 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
 def link_rays(h: HR.Hierarchy, r, s, n: int):
     """Stratified ray end points (M, n², 3) on receivers r and senders s (each receiver point
     paired with a different sender point)."""
-    st = G.grid_st(n)
-    ro, ru, rv, _, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
-    p0 = ro[:, None] + st[None, :, 0:1] * ru[:, None] + st[None, :, 1:2] * rv[:, None]
-    sst = st[::-1]
-    p1 = so[:, None] + sst[None, :, 0:1] * su[:, None] + sst[None, :, 1:2] * sv[:, None]
-    return p0, p1
+    return element_points(h, r, n), element_points(h, s, n, reverse=True)
+
+
+def element_points(h: HR.Hierarchy, e, n: int, reverse: bool = False) -> np.ndarray:
+    """(len(e), n², 3) stratified points on elements e, a link's receiver end (``reverse``:
+    its sender end, in the opposite order); each element's points do not depend on e, so a
+    session computes them for every element once and gathers."""
+    st = G.grid_st(n)[::-1] if reverse else G.grid_st(n)
+    o, u, v, _, _ = h.geom(e)
+    return o[:, None] + st[None, :, 0:1] * u[:, None] + st[None, :, 1:2] * v[:, None]
 
 
 def ray_weights(h: HR.Hierarchy, r, s, p0, p1):
@@ -411,6 +414,8 @@ class VirtualSession:
         self.E0 = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H, self.e)
         self.B_ref, _ = HR.solve(self.ops, self.E0, sol.rho, tol=TOL * 0.1)
         self.bounds = link_bounds(h)
+        every = np.arange(h.n_elems)
+        self._ends = (element_points(h, every, LINK_RAYS), element_points(h, every, LINK_RAYS, True))
         self.occ = (h.P_o, h.P_u, h.P_v, h.P_n)
         self.roots = np.flatnonzero(h.parent == -1)
         self.root_of_poly = np.full(len(h.P_o), -1)
@@ -547,24 +552,23 @@ class VirtualSession:
         the ``old`` reach's links kept: a drag leaves one reach for the next)."""
         links = shaft_crossed(self.bounds, lo, hi)
         kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
-        have = np.zeros(len(links), bool)
-        if old is not None and old.pack[0] == kind and len(old.links):
+        keep = old is not None and old.pack[0] == kind and len(old.links) > 0
+        if keep:  # both sorted: each link's place in the old reach, where it has one
             pos = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
-            have = old.links[pos] == links
-        new = np.flatnonzero(~have)
+            new = np.flatnonzero(old.links[pos] != links)
+        else:
+            new = np.arange(len(links))
         h = self.h
         r, s = h.recv[links[new]], h.send[links[new]]
-        p0, p1 = link_rays(h, r, s, LINK_RAYS)
+        p0, p1 = self._ends[0][r], self._ends[1][s]
         _, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
         fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
         out = []
-        for j, f in enumerate(fresh):
-            x = np.empty((len(links), *f.shape[1:]), f.dtype)
-            if have.any():
-                x[have] = (old.pack[1:] + (old.w,))[j][pos[have]]
+        for x, f in zip(old.pack[1:] + (old.w,) if keep else fresh, fresh):
+            x = np.take(x, pos, axis=0) if keep else np.empty((len(links), *f.shape[1:]), f.dtype)
             x[new] = f
             out.append(x)
-        sub = tuple(x[:, links] if j < 2 else x[links] for j, x in enumerate(self.bounds))
+        sub = tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
         return _Reach(lo, hi, links, sub, (kind, out[0], out[1]), out[2])
 
     def _object_links(self, p: _Placed) -> tuple:
