@@ -46,6 +46,7 @@ TOL = 1e-4  # relative change of B at which the update stops
 MAX_ITER = 60
 EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
 REACH = 0.1  # m: a moved object's links are sought among those its bounds grown by this cross
+SCAN_ALIGN = 4096  # the look-ahead scans the links in slices of multiples of this
 
 
 # ------------------------------------------------------------------------------------------
@@ -192,25 +193,47 @@ def _ray_kind() -> str:
 
 
 def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
+    """Whether each ray of a :func:`ray_pack` crosses one of the triangles (T,3,3): only the
+    rays that may meet the triangles' bounding box are cast (a ray's answer does not depend on
+    the others cast with it)."""
     from nodes.common import rays
 
     kind, p0, p1 = pack
+    out = np.zeros(len(p0), bool)
     if len(p0) == 0 or len(tris) == 0:
-        return np.zeros(len(p0), bool)
+        return out
+    v = tris.reshape(-1, 3)
+    m = np.flatnonzero(near_box(p0, p1 if kind == "embree" else p1 - p0, v.min(0), v.max(0)))
+    p0, p1 = p0[m], p1[m]
     if kind == "embree":
         from embreex import mesh_construction, rtcore_scene
 
         sc = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(sc, tris.astype(np.float32))
         tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
-        return sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
-    out = np.zeros(len(p0), bool)
+        out[m] = sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
+        return out
     step = max(1, 2_000_000 // len(tris))
     for s in range(0, len(p0), step):
         o, d = p0[s:s + step], p1[s:s + step] - p0[s:s + step]
         t = _triangle_t(o, d, tris)
-        out[s:s + step] = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
+        out[m[s:s + step]] = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
     return out
+
+
+def near_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether each segment o + t·d, t ∈ [0, 1] (N,3) may meet the box [lo, hi] (a slab test
+    in the segments' precision, the box grown by 1 mm and 1e-4 of its size: conservative)."""
+    g = 1e-3 + 1e-4 * float(np.max(hi - lo))
+    lo, hi = (np.asarray(lo) - g).astype(o.dtype), (np.asarray(hi) + g).astype(o.dtype)
+    t_in, t_out = np.zeros(len(o), o.dtype), np.ones(len(o), o.dtype)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for j in range(3):  # (0·∞ = NaN where o is on a face: fmin/fmax ignore it)
+            inv = 1 / d[:, j]
+            t1, t2 = (lo[j] - o[:, j]) * inv, (hi[j] - o[:, j]) * inv
+            t_in = np.fmax(t_in, np.fmin(t1, t2))
+            t_out = np.fmin(t_out, np.fmax(t1, t2))
+    return t_in <= t_out
 
 
 def _triangle_t(o: np.ndarray, d: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -371,6 +394,7 @@ class _Placed:
     vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coo: tuple = ()
     reach: "_Reach | None" = None
+    ahead: "_Scan | _Reach | None" = None  # the reach a drag will need next (see _look_ahead)
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
 
@@ -394,6 +418,17 @@ class _Reach:
         big = 0.5 * np.linalg.norm(self.hi - self.lo) - 1e-3  # (1 mm: float32's rounding)
         return bool(np.all(lo >= self.lo) and np.all(hi <= self.hi)
                     and np.linalg.norm(m - 0.5 * (self.lo + self.hi)) + r <= big)
+
+
+@dataclass(eq=False)
+class _Scan:
+    """A reach being built ahead of a drag: the box [lo, hi] and the links whose shafts it
+    crosses among the first ``done`` (a slice more per move)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    done: int = 0
+    found: list = field(default_factory=list)
 
 
 class VirtualSession:
@@ -511,14 +546,19 @@ class VirtualSession:
         p = self.things[name]
         t = p.thing
         if t.light:
+            self.stats.pop("reach", None)
             p.F, p.V = self._light_links(t, np.arange(self.L0))
             for q in self._objects():
                 q.coo = self._object_links(q)
             return
         lo, hi = t.lo - 1e-6, t.hi + 1e-6
-        R = p.reach
-        if R is None or not R.holds(lo, hi) or R.pack[0] != _ray_kind():
-            R = p.reach = self._reach(lo - REACH, hi + REACH, R)
+        R, A, kind = p.reach, p.ahead, _ray_kind()
+        self.stats["reach"] = "kept"
+        if R is None or not R.holds(lo, hi) or R.pack[0] != kind:
+            ready = isinstance(A, _Reach) and A.holds(lo, hi) and A.pack[0] == kind
+            R = p.reach = A if ready else self._reach(lo - REACH, hi + REACH, R)
+            p.ahead = None
+            self.stats["reach"] = "ahead" if ready else "built"
         sel = shaft_crossed(R.bounds, lo, hi)
         idx = R.links[sel]
         vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
@@ -531,6 +571,8 @@ class VirtualSession:
             redo = self._light_shafts(q.thing, boxes)
             q.V[redo] = self._light_links(q.thing, redo)[1]
         self.stats["links_reevaluated"] = int(len(idx))
+        if old_bounds is not None:
+            self._look_ahead(p, 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1]))
 
     def _objects(self):
         return [p for p in self.things.values() if not p.thing.light]
@@ -547,10 +589,39 @@ class VirtualSession:
         out[m] = weighted_visible(b[m], w[m])
         return out
 
-    def _reach(self, lo, hi, old: _Reach | None) -> _Reach:
-        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights (those of
-        the ``old`` reach's links kept: a drag leaves one reach for the next)."""
-        links = shaft_crossed(self.bounds, lo, hi)
+    def _look_ahead(self, p: _Placed, step: np.ndarray) -> None:
+        """Build the reach a drag at this ``step`` will need next, a slice of the links per
+        move: the current reach's box moved REACH ahead in the step's direction (its largest
+        component), the slices sized to be done by the time the object has room for one more
+        step.  A new direction (the target moved by over REACH / 2) starts it again.  What a
+        move finds does not depend on it: only the time of the move that leaves a reach."""
+        R, big = p.reach, np.abs(step).max()
+        if big <= 1e-9:
+            return
+        c, half = 0.5 * (R.lo + R.hi) + REACH * step / big, 0.5 * (R.hi - R.lo)
+        A = p.ahead
+        if A is None or np.abs(0.5 * (A.lo + A.hi) - c).max() > 0.5 * REACH:
+            A = p.ahead = _Scan(c - half, c + half)
+        if isinstance(A, _Reach):
+            return
+        M = len(self.h.recv)
+        if A.done == M:  # the move after the last slice: its rays
+            p.ahead = self._reach(A.lo, A.hi, R, np.concatenate(A.found))
+            return
+        t = p.thing
+        room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
+        left = int(room.min())  # moves of this step the current reach still holds
+        n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
+        b = min(M, A.done + -(-n // SCAN_ALIGN) * SCAN_ALIGN)
+        part = tuple(x[:, A.done:b] if j < 2 else x[A.done:b] for j, x in enumerate(self.bounds))
+        A.found.append(A.done + shaft_crossed(part, A.lo, A.hi))
+        A.done = b
+
+    def _reach(self, lo, hi, old: _Reach | None, links: np.ndarray | None = None) -> _Reach:
+        """The links whose shafts [lo, hi] crosses (``links`` when a look-ahead found them),
+        their bounds, rays and weights (those of the ``old`` reach's links kept: a drag leaves
+        one reach for the next)."""
+        links = shaft_crossed(self.bounds, lo, hi) if links is None else links
         kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
         keep = old is not None and old.pack[0] == kind and len(old.links) > 0
         if keep:  # both sorted: each link's place in the old reach, where it has one
