@@ -462,6 +462,7 @@ class VirtualSession:
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
         self.things: dict[str, _Placed] = {}
+        self._cover: dict = {}  # per thing, its screen box's coverage (see _coverage)
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
         self._Be0 = self.ops.pull @ self.B_ref
@@ -497,6 +498,7 @@ class VirtualSession:
         p = self._placed(name, "virtual_boxes")
         bounds = (p.thing.lo, p.thing.hi)
         del self.things[name]
+        self._cover.pop(name, None)
         first = self.L0
         for q in self.things.values():  # patches are numbered anew: their links too
             q.first, first = first, first + len(q.thing.centre)
@@ -794,40 +796,55 @@ class VirtualSession:
         """Virtual things over the image: SUB² rays per pixel of each thing's screen box, each
         the nearest of the room (its depth, once per session) and the things; a thing's sample
         shows its patch's B/π."""
-        from .textures import rays_at
-
-        tris = self._virtual_tris()
         H, W = out.shape[:2]
-        g = (np.arange(SUB) + 0.5) / SUB
         hds = self.handles()
-        first = np.cumsum([0] + [len(p.thing.tris) for p in self.things.values()])
+        things = [p.thing for p in self.things.values()]
+        first = np.cumsum([0] + [len(t.tris) for t in things])
         cam = self.camera
-        front = [np.all((p.thing.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
-                 for p in self.things.values()]
+        front = [np.all((t.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
+                 for t in things]
         for hd in hds:
             x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
             x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
             if x1 <= x0 or y1 <= y0:
                 continue
             # the things that may show here: screen boxes overlapping (wholly in front), in order
-            sel = np.concatenate([np.arange(first[j], first[j + 1]) for j, q in enumerate(hds)
-                                  if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
-                                                      and q["box"][1] <= y1 and q["box"][3] >= y0)])
-            ys, xs = np.mgrid[y0:y1, x0:x1]
-            X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
-            Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
-            o, d = rays_at(cam, X, Y)
-            tri, t_v = _first_triangle(o, d, tris[sel])
-            tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
-            hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
-            L = np.zeros((len(X), 3))
+            parts = tuple((int(first[j]), things[j]) for j, q in enumerate(hds)
+                          if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
+                                              and q["box"][1] <= y1 and q["box"][3] >= y0))
+            tri, hit, x = self._coverage(hd["name"], (x0, y0, x1, y1), parts)
+            L = np.zeros((len(hit), 3))
             if hit.any():
-                L[hit] = self._patch_radiance(tri[hit], o[hit] + t_v[hit, None] * d[hit])
+                L[hit] = self._patch_radiance(tri[hit], x)
             k = SUB * SUB
             cov = hit.reshape(-1, k).mean(1)
             Lm = L.reshape(-1, k, 3).sum(1) / k
             blk = out[y0:y1, x0:x1].reshape(-1, 3)
             out[y0:y1, x0:x1] = (blk * (1 - cov)[:, None] + Lm).reshape(y1 - y0, x1 - x0, 3)
+
+    def _coverage(self, name: str, box: tuple, parts: tuple):
+        """Per subsample ray of the screen box (x0, y0, x1, y1) of thing ``name``: the virtual
+        triangle it meets first (-1: none; triangles numbered over all things), whether that is
+        in front of the room, and the hit points.  ``parts``: (first triangle, thing) of the
+        things that may show there; kept while the box and these things stay the same (a drag
+        moves one thing: the others' boxes are not cast again)."""
+        from .textures import rays_at
+
+        key = (box, parts)  # (things compare by identity: a moved thing is a new one)
+        if self._cover.get(name, (None,))[0] == key:
+            return self._cover[name][1]
+        x0, y0, x1, y1 = box
+        g = (np.arange(SUB) + 0.5) / SUB
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
+        Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
+        o, d = rays_at(self.camera, X, Y)
+        sel = np.concatenate([f + np.arange(len(t.tris)) for f, t in parts])
+        tri, t_v = _first_triangle(o, d, np.concatenate([t.tris for _, t in parts]))
+        tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
+        hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
+        self._cover[name] = (key, (tri, hit, o[hit] + t_v[hit, None] * d[hit]))
+        return self._cover[name][1]
 
     def _room_depth(self, H: int, W: int) -> np.ndarray:
         """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
