@@ -608,7 +608,7 @@ class VirtualSession:
             return
         M = len(self.h.recv)
         if A.done == M:  # the move after the last slice: its rays
-            p.ahead = self._reach(A.lo, A.hi, R, np.concatenate(A.found))
+            p.ahead = self._reach_of(A.lo, A.hi, R, A.found)
             return
         t = p.thing
         room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
@@ -616,32 +616,41 @@ class VirtualSession:
         n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
         b = min(M, A.done + -(-n // SCAN_ALIGN) * SCAN_ALIGN)
         part = tuple(x[:, A.done:b] if j < 2 else x[A.done:b] for j, x in enumerate(self.bounds))
-        A.found.append(A.done + shaft_crossed(part, A.lo, A.hi))
+        A.found.append(self._part(A.done + shaft_crossed(part, A.lo, A.hi), R))
         A.done = b
 
-    def _reach(self, lo, hi, old: _Reach | None, links: np.ndarray | None = None) -> _Reach:
-        """The links whose shafts [lo, hi] crosses (``links`` when a look-ahead found them),
-        their bounds, rays and weights (those of the ``old`` reach's links kept: a drag leaves
-        one reach for the next)."""
-        links = shaft_crossed(self.bounds, lo, hi) if links is None else links
-        kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
-        keep = old is not None and old.pack[0] == kind and len(old.links) > 0
-        if keep:  # both sorted: each link's place in the old reach, where it has one
-            pos = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
-            new = np.flatnonzero(old.links[pos] != links)
-        else:
-            new = np.arange(len(links))
-        h = self.h
+    def _reach(self, lo, hi, old: _Reach | None) -> _Reach:
+        """The links whose shafts [lo, hi] crosses, their bounds, rays and weights (those of
+        the ``old`` reach's links kept: a drag leaves one reach for the next)."""
+        return self._reach_of(lo, hi, old, [self._part(shaft_crossed(self.bounds, lo, hi), old)])
+
+    def _part(self, links: np.ndarray, old: _Reach | None) -> tuple:
+        """Links (sorted) of a reach being built: them, their places in the ``old`` reach
+        (−1: not there, or its rays were cast another way) and their shaft bounds."""
+        pos = np.full(len(links), -1)
+        if old is not None and old.pack[0] == _ray_kind() and len(old.links):
+            at = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
+            pos = np.where(old.links[at] == links, at, -1)
+        return links, pos, tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
+
+    def _reach_of(self, lo, hi, old: _Reach | None, parts: list) -> _Reach:
+        """The reach [lo, hi] of the links in ``parts`` (see _part): the rays of those the old
+        reach has taken from it, the others' cast anew."""
+        links, pos = (np.concatenate([q[j] for q in parts]) for j in (0, 1))
+        sub = tuple(np.concatenate([q[2][j] for q in parts], axis=int(j < 2)) for j in range(len(parts[0][2])))
+        k, new, h = LINK_RAYS * LINK_RAYS, np.flatnonzero(pos < 0), self.h
         r, s = h.recv[links[new]], h.send[links[new]]
         p0, p1 = self._ends[0][r], self._ends[1][s]
-        _, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
+        kind, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
         fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
         out = []
-        for x, f in zip(old.pack[1:] + (old.w,) if keep else fresh, fresh):
-            x = np.take(x, pos, axis=0) if keep else np.empty((len(links), *f.shape[1:]), f.dtype)
+        for j, f in enumerate(fresh):
+            if len(new) < len(links):  # (then old's rays are of this kind: see _part)
+                x = np.take((old.pack[1:] + (old.w,))[j], np.maximum(pos, 0), axis=0)
+            else:
+                x = np.empty((len(links), *f.shape[1:]), f.dtype)
             x[new] = f
             out.append(x)
-        sub = tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
         return _Reach(lo, hi, links, sub, (kind, out[0], out[1]), out[2])
 
     def _object_links(self, p: _Placed) -> tuple:
