@@ -397,6 +397,7 @@ class _Placed:
     ahead: "_Scan | _Reach | None" = None  # the reach a drag will need next (see _look_ahead)
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
+    real: np.ndarray | None = None  # a light's rays (leaf, SOURCE_RAYS²) the real polygons block
 
 
 @dataclass(eq=False)
@@ -506,7 +507,7 @@ class VirtualSession:
             q.coo = self._object_links(q)
         for q in self._lights():
             redo = self._light_shafts(q.thing, [bounds])
-            q.V[redo] = self._light_links(q.thing, redo)[1]
+            self._light_links(q, redo)
         self.B = self.B[:self.L0]
         return self.update()
 
@@ -537,8 +538,7 @@ class VirtualSession:
         from nodes.common import rays
 
         ign = None if ignore_poly is None else np.stack([ignore_poly, np.full_like(ignore_poly, -1)], 1)
-        b = rays.occluded(p0, p1, self.occ, ignore=ign)
-        return b | segments_hit(p0, p1, self._virtual_tris())
+        return rays.occluded(p0, p1, self.occ, ignore=ign) | segments_hit(p0, p1, self._virtual_tris())
 
     def _relink(self, name: str, old_bounds) -> None:
         """Re-evaluate what thing ``name`` changes: for an object, the real links whose shafts
@@ -549,7 +549,7 @@ class VirtualSession:
         t = p.thing
         if t.light:
             self.stats.pop("reach", None)
-            p.F, p.V = self._light_links(t, np.arange(self.L0))
+            self._light_links(p, None)
             for q in self._objects():
                 q.coo = self._object_links(q)
             return
@@ -571,7 +571,7 @@ class VirtualSession:
         boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
         for q in self._lights():
             redo = self._light_shafts(q.thing, boxes)
-            q.V[redo] = self._light_links(q.thing, redo)[1]
+            self._light_links(q, redo)
         self.stats["links_reevaluated"] = int(len(idx))
         if old_bounds is not None:
             self._look_ahead(p, 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1]))
@@ -674,12 +674,27 @@ class VirtualSession:
         rows.append(self.ops.leaves[near[r]]); cols.append(pid[s]); vals.append(Fk[r, s])
         return tuple(np.concatenate(x) for x in (rows, cols, vals))
 
-    def _light_links(self, t: Thing, leaves: np.ndarray):
-        """F and V of real leaves ← a virtual light (point-to-polygon from the leaf centres)."""
-        qo, qu, qv = _light_quad(t)
-        F, V = self._point_to_polygons(self.leaf_c[leaves], self.leaf_n[leaves], qo, qu, qv,
-                                       np.full(1, -1))
-        return F[:, 0], V[:, 0]
+    def _light_links(self, p: _Placed, leaves: np.ndarray | None) -> None:
+        """F and V of the real leaves ← virtual light p (point-to-polygon from the leaf centres):
+        of every leaf when it is inserted, else of ``leaves`` (those whose shafts to it a moved
+        object crossed).  A light does not move: its F and which of its rays the real polygons
+        block are found once; the virtual triangles are cast again."""
+        from nodes.common import rays
+
+        qo, qu, qv = _light_quad(p.thing)
+        if leaves is None:
+            p.F = self._ff_front(self.leaf_c, self.leaf_n, qo, qu, qv)[:, 0]
+            p.V, p.real = np.zeros(self.L0), np.zeros((self.L0, SOURCE_RAYS ** 2), bool)
+        r = np.flatnonzero(p.F > 1e-9) if leaves is None else leaves[p.F[leaves] > 1e-9]
+        if len(r) == 0:
+            return
+        p0, p1, ig = self._source_rays(self.leaf_c[r], self.leaf_n[r], qo, qu, qv, np.full(1, -1),
+                                       np.arange(len(r)), np.zeros(len(r), int))
+        if leaves is None:
+            ign = np.stack([ig, np.full_like(ig, -1)], 1)
+            p.real[r] = rays.occluded(p0, p1, self.occ, ignore=ign).reshape(len(r), -1)
+        b = p.real[r] | segments_hit(p0, p1, self._virtual_tris()).reshape(len(r), -1)
+        p.V[r] = 1.0 - b.mean(1)
 
     def _light_shafts(self, t: Thing, boxes) -> np.ndarray:
         """Real leaves whose shaft to light t may meet one of the boxes (lo, hi)."""
@@ -705,25 +720,33 @@ class VirtualSession:
     def _point_to_polygons(self, x, n, so, su, sv, spoly):
         """(M,K) form factors from points x (normals n) to parallelograms (o, u, v) and their
         visibility by SOURCE_RAYS² rays to stratified points on each."""
+        F = self._ff_front(x, n, so, su, sv)
+        r, s = np.nonzero(F > 1e-9)
+        V = np.zeros(F.shape)
+        if len(r):
+            p0, p1, ig = self._source_rays(x, n, so, su, sv, spoly, r, s)
+            V[r, s] = 1.0 - self._blocked(p0, p1, ig).reshape(len(r), -1).mean(1)
+        return F, V
+
+    @staticmethod
+    def _ff_front(x, n, so, su, sv) -> np.ndarray:
+        """(M,K) point-to-parallelogram form factors, 0 where a point is behind one."""
         M, K = len(x), len(so)
         P = G.corners(so, su, sv)
         X = np.repeat(x, K, 0)
         Nn = np.repeat(n, K, 0)
         F = G.ff_point_polygon(X + 1e-6 * Nn, Nn, np.tile(P, (M, 1, 1))).reshape(M, K)
-        sn = np.cross(su, sv)
-        front = np.einsum("mkc,kc->mk", x[:, None] - so[None], sn) > 0
-        F = np.where(front, F, 0.0)
-        r, s = np.nonzero(F > 1e-9)
-        V = np.zeros((M, K))
-        if len(r):
-            st = G.grid_st(SOURCE_RAYS)
-            p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
-            p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
-            k = p1.shape[1]
-            ig = np.repeat(spoly[s], k)
-            b = self._blocked(p0.reshape(-1, 3), p1.reshape(-1, 3), ig)
-            V[r, s] = 1.0 - b.reshape(len(r), k).mean(1)
-        return F, V
+        front = np.einsum("mkc,kc->mk", x[:, None] - so[None], np.cross(su, sv)) > 0
+        return np.where(front, F, 0.0)
+
+    @staticmethod
+    def _source_rays(x, n, so, su, sv, spoly, r, s):
+        """SOURCE_RAYS² rays (flat end points) from points x[r] to stratified points on the
+        parallelograms s, and the polygon each ray is not blocked by (its own)."""
+        st = G.grid_st(SOURCE_RAYS)
+        p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
+        p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
+        return p0.reshape(-1, 3), p1.reshape(-1, 3), np.repeat(spoly[s], p1.shape[1])
 
     # -- radiosity and image -----------------------------------------------------------------
     def _system(self):
