@@ -730,14 +730,13 @@ class VirtualSession:
 
     @staticmethod
     def _ff_front(x, n, so, su, sv) -> np.ndarray:
-        """(M,K) point-to-parallelogram form factors, 0 where a point is behind one."""
-        M, K = len(x), len(so)
-        P = G.corners(so, su, sv)
-        X = np.repeat(x, K, 0)
-        Nn = np.repeat(n, K, 0)
-        F = G.ff_point_polygon(X + 1e-6 * Nn, Nn, np.tile(P, (M, 1, 1))).reshape(M, K)
+        """(M,K) point-to-parallelogram form factors, 0 where a point is behind one (those
+        pairs are not computed)."""
         front = np.einsum("mkc,kc->mk", x[:, None] - so[None], np.cross(su, sv)) > 0
-        return np.where(front, F, 0.0)
+        m, k = np.nonzero(front)
+        F = np.zeros(front.shape)
+        F[m, k] = G.ff_point_polygon(x[m] + 1e-6 * n[m], n[m], G.corners(so, su, sv)[k])
+        return F
 
     @staticmethod
     def _source_rays(x, n, so, su, sv, spoly, r, s):
