@@ -21,7 +21,9 @@ the pixel plan of the photograph) and inserts, moves and removes virtual things 
 * a virtual **light** is one emitting parallelogram linked to every real leaf and patch.
 
 Moving an object re-evaluates the links crossed by its old or new bounds, its own links, and
-the virtual lights' links to the leaves whose shafts it crossed.  The image is the pixel plan
+the virtual lights' links to the leaves whose shafts it crossed.  The links are sought among
+the object's *reach* (those its bounds grown by REACH cross); a drag builds the next reach
+ahead of the object, a slice of all links per move, so no move scans them all.  The image is the pixel plan
 applied to the new leaf multipliers, with the virtual things drawn over it by coverage
 (``SUB``² rays per pixel in their screen box, depth-tested against the room).
 """
@@ -631,13 +633,15 @@ class VirtualSession:
         if old is not None and old.pack[0] == _ray_kind() and len(old.links):
             at = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
             pos = np.where(old.links[at] == links, at, -1)
-        return links, pos, tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
+        sub = tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
+        return links, pos, sub
 
     def _reach_of(self, lo, hi, old: _Reach | None, parts: list) -> _Reach:
         """The reach [lo, hi] of the links in ``parts`` (see _part): the rays of those the old
         reach has taken from it, the others' cast anew."""
         links, pos = (np.concatenate([q[j] for q in parts]) for j in (0, 1))
-        sub = tuple(np.concatenate([q[2][j] for q in parts], axis=int(j < 2)) for j in range(len(parts[0][2])))
+        sub = tuple(np.concatenate([q[2][j] for q in parts], axis=int(j < 2))
+                    for j in range(len(parts[0][2])))
         k, new, h = LINK_RAYS * LINK_RAYS, np.flatnonzero(pos < 0), self.h
         r, s = h.recv[links[new]], h.send[links[new]]
         p0, p1 = self._ends[0][r], self._ends[1][s]
