@@ -557,10 +557,13 @@ class VirtualSession:
             return
         lo, hi = t.lo - 1e-6, t.hi + 1e-6
         R, A, kind = p.reach, p.ahead, _ray_kind()
+        step = None if old_bounds is None else 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1])
+        fast = step is not None and np.abs(step).max() > 0.5 * REACH
         self.stats["reach"] = "kept"
         if R is None or not R.holds(lo, hi) or R.pack[0] != kind:
             ready = isinstance(A, _Reach) and A.holds(lo, hi) and A.pack[0] == kind
-            R = p.reach = A if ready else self._reach(lo - REACH, hi + REACH, R)
+            grow = 0.0 if fast else REACH  # (a fast drag would leave a reach at once)
+            R = p.reach = A if ready else self._reach(lo - grow, hi + grow, R)
             p.ahead = None
             self.stats["reach"] = "ahead" if ready else "built"
         sel = shaft_crossed(R.bounds, lo, hi)
@@ -575,8 +578,8 @@ class VirtualSession:
             redo = self._light_shafts(q.thing, boxes)
             self._light_links(q, redo)
         self.stats["links_reevaluated"] = int(len(idx))
-        if old_bounds is not None:
-            self._look_ahead(p, 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1]))
+        if step is not None and not fast:
+            self._look_ahead(p, step)
 
     def _objects(self):
         return [p for p in self.things.values() if not p.thing.light]
@@ -597,7 +600,8 @@ class VirtualSession:
         """Build the reach a drag at this ``step`` will need next, a slice of the links per
         move: the current reach's box moved REACH ahead in the step's direction (its largest
         component), the slices sized to be done by the time the object has room for one more
-        step.  A new direction (the target moved by over REACH / 2) starts it again.  What a
+        step (a step over REACH / 2 finds its links on the spot, with no reach around them).
+        A new direction (the target moved by over REACH / 2) starts it again.  What a
         move finds does not depend on it: only the time of the move that leaves a reach."""
         R, big = p.reach, np.abs(step).max()
         if big <= 1e-9:
