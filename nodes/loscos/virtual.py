@@ -598,15 +598,17 @@ class VirtualSession:
 
     def _look_ahead(self, p: _Placed, step: np.ndarray) -> None:
         """Build the reach a drag at this ``step`` will need next, a slice of the links per
-        move: the current reach's box moved REACH ahead in the step's direction (its largest
-        component), the slices sized to be done by the time the object has room for one more
+        move: the current reach's box moved REACH ahead in the drag's direction (the object's
+        drift from the reach's centre plus this step, by its largest component), the slices sized to be done by the time the object has room for one more
         step (a step over REACH / 2 finds its links on the spot, with no reach around them).
         A new direction (the target moved by over REACH / 2) starts it again.  What a
         move finds does not depend on it: only the time of the move that leaves a reach."""
-        R, big = p.reach, np.abs(step).max()
+        R, t = p.reach, p.thing
+        way = 0.5 * (t.lo + t.hi - R.lo - R.hi) + step  # its drift in this reach, and the step
+        big = np.abs(way).max()
         if big <= 1e-9:
             return
-        c, half = 0.5 * (R.lo + R.hi) + REACH * step / big, 0.5 * (R.hi - R.lo)
+        c, half = 0.5 * (R.lo + R.hi) + REACH * way / big, 0.5 * (R.hi - R.lo)
         A = p.ahead
         if A is None or np.abs(0.5 * (A.lo + A.hi) - c).max() > 0.5 * REACH:
             A = p.ahead = _Scan(c - half, c + half)
@@ -616,7 +618,6 @@ class VirtualSession:
         if A.done == M:  # the move after the last slice: its rays
             p.ahead = self._reach_of(A.lo, A.hi, R, A.found)
             return
-        t = p.thing
         room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
         left = int(room.min())  # moves of this step the current reach still holds
         n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
