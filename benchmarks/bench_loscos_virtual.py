@@ -48,10 +48,10 @@ CASES = {
                      table_step=(0.01, 0.0, -0.005),
                      light=dict(center=(-0.5, 0.9, -0.5), size=(0.3, 0.3), normal=(0, -1, 0),
                                 emittance=(40.0, 36.0, 28.0))),
-    # a table 1.4 × 0.8 m, 0.75 m high, centred at (1.0, -1.2)
-    "furnished": dict(box=dict(center=(2.2, 0.2, -2.4), size=(0.4, 0.4, 0.4), rotation_deg=15),
-                      step=(0.03, 0.0, 0.02),
-                      table=dict(center=(0.7, 0.9, -1.1), size=(0.3, 0.3, 0.3), rotation_deg=30),
+    # a table 1.4 × 0.8 m, 0.75 m high, centred at (1.0, -1.2); balls on the floor and table
+    "furnished": dict(box=dict(center=(0.9, 0.2, -2.3), size=(0.4, 0.4, 0.4), rotation_deg=15),
+                      step=(0.03, 0.0, 0.005),
+                      table=dict(center=(1.2, 0.85, -1.0), size=(0.2, 0.2, 0.2), rotation_deg=0),
                       light=dict(center=(3.5, 2.9, -2.5), size=(0.4, 0.4), normal=(0, -1, 0),
                                  emittance=(20.0, 18.0, 14.0))),
 }
