@@ -397,6 +397,7 @@ class _Placed:
     coo: tuple = ()
     reach: "_Reach | None" = None
     ahead: "_Scan | _Reach | None" = None  # the reach a drag will need next (see _look_ahead)
+    pace: np.ndarray = field(default_factory=lambda: np.zeros(3))  # its steps, smoothed
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
     real: np.ndarray | None = None  # a light's rays (leaf, SOURCE_RAYS²) the real polygons block
@@ -417,10 +418,17 @@ class _Reach:
     w: np.ndarray
 
     def holds(self, lo, hi) -> bool:
-        m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-        big = 0.5 * np.linalg.norm(self.hi - self.lo) - 1e-3  # (1 mm: float32's rounding)
-        return bool(np.all(lo >= self.lo) and np.all(hi <= self.hi)
-                    and np.linalg.norm(m - 0.5 * (self.lo + self.hi)) + r <= big)
+        return box_holds(self.lo, self.hi, lo, hi)
+
+
+def box_holds(blo, bhi, lo, hi) -> bool:
+    """Whether a reach's box [blo, bhi] holds bounds [lo, hi]: the box and its bounding sphere
+    contain the bounds and theirs (then every link the shaft test finds for the bounds is one
+    the box's finds)."""
+    m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    big = 0.5 * np.linalg.norm(bhi - blo) - 1e-3  # (1 mm: float32's rounding)
+    return bool(np.all(lo >= blo) and np.all(hi <= bhi)
+                and np.linalg.norm(m - 0.5 * (blo + bhi)) + r <= big)
 
 
 @dataclass(eq=False)
@@ -598,19 +606,22 @@ class VirtualSession:
 
     def _look_ahead(self, p: _Placed, step: np.ndarray) -> None:
         """Build the reach a drag at this ``step`` will need next, a slice of the links per
-        move: the current reach's box moved REACH ahead in the drag's direction (the object's
-        drift from the reach's centre plus this step, by its largest component), the slices sized to be done by the time the object has room for one more
+        move: the current reach's box moved REACH ahead in the drag's direction (its steps
+        averaged, each weighing half the last average; by the largest component), the slices sized to be done by the time the object has room for one more
         step (a step over REACH / 2 finds its links on the spot, with no reach around them).
-        A new direction (the target moved by over REACH / 2) starts it again.  What a
+        It starts again when its box would not hold the object where, at this pace, it
+        leaves the current reach.  What a
         move finds does not depend on it: only the time of the move that leaves a reach."""
         R, t = p.reach, p.thing
-        way = 0.5 * (t.lo + t.hi - R.lo - R.hi) + step  # its drift in this reach, and the step
+        way = p.pace = 0.5 * (p.pace + step)  # (a hand's jitter smoothed out)
         big = np.abs(way).max()
         if big <= 1e-9:
             return
         c, half = 0.5 * (R.lo + R.hi) + REACH * way / big, 0.5 * (R.hi - R.lo)
-        A = p.ahead
-        if A is None or np.abs(0.5 * (A.lo + A.hi) - c).max() > 0.5 * REACH:
+        room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
+        left = int(room.min())  # moves of this step the current reach still holds
+        A, go = p.ahead, (left + 1) * way  # (where the object will be when it leaves R)
+        if A is None or not box_holds(A.lo, A.hi, t.lo + go, t.hi + go):
             A = p.ahead = _Scan(c - half, c + half)
         if isinstance(A, _Reach):
             return
@@ -618,8 +629,6 @@ class VirtualSession:
         if A.done == M:  # the move after the last slice: its rays
             p.ahead = self._reach_of(A.lo, A.hi, R, A.found)
             return
-        room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
-        left = int(room.min())  # moves of this step the current reach still holds
         n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
         b = min(M, A.done + -(-n // SCAN_ALIGN) * SCAN_ALIGN)
         part = tuple(x[:, A.done:b] if j < 2 else x[A.done:b] for j, x in enumerate(self.bounds))
