@@ -67,7 +67,7 @@ def test_insert_move_remove_are_incremental_and_consistent():
     changed = np.abs(i1 - i0).max(2) > 0.02
     assert changed.sum() > 20  # the box and its shadow
     i2 = S.move("v", offset=(-0.25, 0, 0.15))
-    # a step over REACH / 2: its links are found on the spot, with no reach around them
+    # a step over REACH / 3: its links are found on the spot, with no reach around them
     assert S.stats["reach"] == "built"
     assert len(S.things["v"].reach.links) == S.stats["links_reevaluated"]
     fresh = session()

@@ -566,7 +566,7 @@ class VirtualSession:
         lo, hi = t.lo - 1e-6, t.hi + 1e-6
         R, A, kind = p.reach, p.ahead, _ray_kind()
         step = None if old_bounds is None else 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1])
-        fast = step is not None and np.abs(step).max() > 0.5 * REACH
+        fast = step is not None and np.abs(step).max() > REACH / 3
         self.stats["reach"] = "kept"
         if R is None or not R.holds(lo, hi) or R.pack[0] != kind:
             ready = isinstance(A, _Reach) and A.holds(lo, hi) and A.pack[0] == kind
@@ -608,7 +608,7 @@ class VirtualSession:
         """Build the reach a drag at this ``step`` will need next, a slice of the links per
         move: the current reach's box moved REACH ahead in the drag's direction (its steps
         averaged, each weighing half the last average; by the largest component), the slices sized to be done by the time the object has room for one more
-        step (a step over REACH / 2 finds its links on the spot, with no reach around them).
+        step (a step over REACH / 3 finds its links on the spot, with no reach around them).
         It starts again when its box would not hold the object where, at this pace, it
         leaves the current reach.  What a
         move finds does not depend on it: only the time of the move that leaves a reach."""
