@@ -67,6 +67,9 @@ def test_insert_move_remove_are_incremental_and_consistent():
     changed = np.abs(i1 - i0).max(2) > 0.02
     assert changed.sum() > 20  # the box and its shadow
     i2 = S.move("v", offset=(-0.25, 0, 0.15))
+    # a step over REACH / 3: its links are found on the spot, with no reach around them
+    assert S.stats["reach"] == "built"
+    assert len(S.things["v"].reach.links) == S.stats["links_reevaluated"]
     fresh = session()
     fresh.insert(box(center=(0.15, -0.85, 0.35)))
     assert np.abs(i2 - fresh.image()).max() < SOLVER  # the old bounds' links went back
@@ -99,6 +102,63 @@ def test_a_drag_within_reach_finds_what_the_full_shaft_test_finds():
     assert np.abs(S.image() - fresh.image()).max() < SOLVER
 
 
+def test_a_drag_builds_its_next_reach_ahead_and_it_is_a_full_build():
+    """A drag builds the reach it will need next a slice of the links per move
+    (VirtualSession._look_ahead) and switches to it when the object leaves the current one:
+    that reach is the one built from scratch for its box (links, shaft bounds, rays, weights),
+    and every move re-evaluates exactly the links the shaft test over all links finds."""
+    from nodes.loscos import virtual as VV
+
+    S = session()
+    S.insert(box())
+    kinds = []
+    for _ in range(14):
+        S.move("v", offset=(0.02, 0, -0.01))
+        t = S.things["v"].thing
+        kinds.append(S.stats["reach"])
+        assert S.stats["links_reevaluated"] == len(VV.shaft_crossed(S.bounds, t.lo - 1e-6, t.hi + 1e-6))
+    assert kinds.count("ahead") >= 2 and "built" not in kinds, kinds
+    R = S.things["v"].reach
+    full = S._reach(R.lo, R.hi, None)
+    np.testing.assert_array_equal(R.links, full.links)
+    for a, b in zip((*R.bounds, *R.pack[1:], R.w), (*full.bounds, *full.pack[1:], full.w)):
+        np.testing.assert_array_equal(a, b)
+    fresh = session()
+    fresh.insert(box(center=(0.68, -0.85, 0.06)))
+    p, q = S.things["v"], fresh.things["v"]
+    np.testing.assert_array_equal(p.links, q.links)
+    np.testing.assert_allclose(p.vfac, q.vfac, atol=1e-9)
+
+
+def test_rays_left_out_by_the_box_test_miss():
+    """packed_hit casts only the rays near_box keeps: every segment that crosses a triangle
+    (here: through random points on a box's faces, some grazing an edge, some along an axis)
+    is kept, and the answers are those of casting all of them."""
+    from nodes.common import rays
+    from nodes.loscos import virtual as VV
+
+    rng = np.random.default_rng(3)
+    tris = box().tris
+    n = 4000
+    f = rng.integers(0, len(tris), n)
+    a, b = rng.random((2, n, 1))
+    a, b = np.where(a + b > 1, 1 - a, a), np.where(a + b > 1, 1 - b, b)
+    a[:200] = 0.0  # on an edge
+    x = tris[f, 0] + a * (tris[f, 1] - tris[f, 0]) + b * (tris[f, 2] - tris[f, 0])
+    d = rng.normal(size=(n, 3))
+    d[:300, :2] = 0.0  # along an axis
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    p0, p1 = x - rng.random((n, 1)) * d, x + rng.random((n, 1)) * d
+    t = VV._triangle_t(p0, p1 - p0, tris)
+    with np.errstate(invalid="ignore"):
+        hit = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
+    assert hit.sum() > 0.9 * n
+    keep = VV.near_box(p0, p1 - p0, tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0))
+    assert keep[hit].all()
+    np.testing.assert_array_equal(VV.packed_hit(("numpy", p0, p1), tris), hit)
+    assert not VV.near_box(p0 + 5.0, p1 - p0, tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)).any()
+
+
 def test_virtual_light_and_a_mesh_file(tmp_path):
     import trimesh
 
@@ -115,6 +175,15 @@ def test_virtual_light_and_a_mesh_file(tmp_path):
     assert np.abs(i2 - i1).max(2).max() > 0.1
     i3 = S.move("cone", to=(0.1, -1.0, 0.3), port="mesh")
     assert np.abs(i3 - i2).max() > 0.1
+    # the light keeps its form factors and its rays' real blockers: its V is still the one
+    # cast from scratch against the real polygons and the cone where it is now
+    from nodes.loscos.virtual import _light_quad
+
+    V = S.things["V"]
+    F, Vfull = S._point_to_polygons(S.leaf_c, S.leaf_n, *_light_quad(V.thing), np.full(1, -1))
+    assert (Vfull[:, 0] < 1).sum() > 20
+    np.testing.assert_array_equal(V.F, F[:, 0])
+    np.testing.assert_array_equal(V.V, Vfull[:, 0])
 
 
 @pytest.mark.parametrize("where,words", [

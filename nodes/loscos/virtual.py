@@ -21,7 +21,9 @@ the pixel plan of the photograph) and inserts, moves and removes virtual things 
 * a virtual **light** is one emitting parallelogram linked to every real leaf and patch.
 
 Moving an object re-evaluates the links crossed by its old or new bounds, its own links, and
-the virtual lights' links to the leaves whose shafts it crossed.  The image is the pixel plan
+the virtual lights' links to the leaves whose shafts it crossed.  The links are sought among
+the object's *reach* (those its bounds grown by REACH cross); a drag builds the next reach
+ahead of the object, a slice of all links per move, so no move scans them all.  The image is the pixel plan
 applied to the new leaf multipliers, with the virtual things drawn over it by coverage
 (``SUB``² rays per pixel in their screen box, depth-tested against the room).
 """
@@ -46,6 +48,7 @@ TOL = 1e-4  # relative change of B at which the update stops
 MAX_ITER = 60
 EDGE = 1e-6  # placement: polygons shrink by this fraction, so touching is not crossing
 REACH = 0.1  # m: a moved object's links are sought among those its bounds grown by this cross
+SCAN_ALIGN = 4096  # the look-ahead scans the links in slices of multiples of this
 
 
 # ------------------------------------------------------------------------------------------
@@ -192,25 +195,47 @@ def _ray_kind() -> str:
 
 
 def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
+    """Whether each ray of a :func:`ray_pack` crosses one of the triangles (T,3,3): only the
+    rays that may meet the triangles' bounding box are cast (a ray's answer does not depend on
+    the others cast with it)."""
     from nodes.common import rays
 
     kind, p0, p1 = pack
+    out = np.zeros(len(p0), bool)
     if len(p0) == 0 or len(tris) == 0:
-        return np.zeros(len(p0), bool)
+        return out
+    v = tris.reshape(-1, 3)
+    m = np.flatnonzero(near_box(p0, p1 if kind == "embree" else p1 - p0, v.min(0), v.max(0)))
+    p0, p1 = p0[m], p1[m]
     if kind == "embree":
         from embreex import mesh_construction, rtcore_scene
 
         sc = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(sc, tris.astype(np.float32))
         tfar = np.full(len(p0), 1 - 2 * rays.T_EPS, np.float32)
-        return sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
-    out = np.zeros(len(p0), bool)
+        out[m] = sc.run(p0, p1, dists=tfar, query="OCCLUDED") >= 0
+        return out
     step = max(1, 2_000_000 // len(tris))
     for s in range(0, len(p0), step):
         o, d = p0[s:s + step], p1[s:s + step] - p0[s:s + step]
         t = _triangle_t(o, d, tris)
-        out[s:s + step] = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
+        out[m[s:s + step]] = ((t > rays.T_EPS) & (t < 1 - rays.T_EPS)).any(1)
     return out
+
+
+def near_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether each segment o + t·d, t ∈ [0, 1] (N,3) may meet the box [lo, hi] (a slab test
+    in the segments' precision, the box grown by 1 mm and 1e-4 of its size: conservative)."""
+    g = 1e-3 + 1e-4 * float(np.max(hi - lo))
+    lo, hi = (np.asarray(lo) - g).astype(o.dtype), (np.asarray(hi) + g).astype(o.dtype)
+    t_in, t_out = np.zeros(len(o), o.dtype), np.ones(len(o), o.dtype)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for j in range(3):  # (0·∞ = NaN where o is on a face: fmin/fmax ignore it)
+            inv = 1 / d[:, j]
+            t1, t2 = (lo[j] - o[:, j]) * inv, (hi[j] - o[:, j]) * inv
+            t_in = np.fmax(t_in, np.fmin(t1, t2))
+            t_out = np.fmin(t_out, np.fmax(t1, t2))
+    return t_in <= t_out
 
 
 def _triangle_t(o: np.ndarray, d: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -272,13 +297,16 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
 def link_rays(h: HR.Hierarchy, r, s, n: int):
     """Stratified ray end points (M, n², 3) on receivers r and senders s (each receiver point
     paired with a different sender point)."""
-    st = G.grid_st(n)
-    ro, ru, rv, _, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
-    p0 = ro[:, None] + st[None, :, 0:1] * ru[:, None] + st[None, :, 1:2] * rv[:, None]
-    sst = st[::-1]
-    p1 = so[:, None] + sst[None, :, 0:1] * su[:, None] + sst[None, :, 1:2] * sv[:, None]
-    return p0, p1
+    return element_points(h, r, n), element_points(h, s, n, reverse=True)
+
+
+def element_points(h: HR.Hierarchy, e, n: int, reverse: bool = False) -> np.ndarray:
+    """(len(e), n², 3) stratified points on elements e, a link's receiver end (``reverse``:
+    its sender end, in the opposite order); each element's points do not depend on e, so a
+    session computes them for every element once and gathers."""
+    st = G.grid_st(n)[::-1] if reverse else G.grid_st(n)
+    o, u, v, _, _ = h.geom(e)
+    return o[:, None] + st[None, :, 0:1] * u[:, None] + st[None, :, 1:2] * v[:, None]
 
 
 def ray_weights(h: HR.Hierarchy, r, s, p0, p1):
@@ -368,8 +396,11 @@ class _Placed:
     vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coo: tuple = ()
     reach: "_Reach | None" = None
+    ahead: "_Scan | _Reach | None" = None  # the reach a drag will need next (see _look_ahead)
+    pace: np.ndarray = field(default_factory=lambda: np.zeros(3))  # its steps, smoothed
     F: np.ndarray | None = None  # a light's form factors and visibility from each real leaf
     V: np.ndarray | None = None
+    real: np.ndarray | None = None  # a light's rays (leaf, SOURCE_RAYS²) the real polygons block
 
 
 @dataclass(eq=False)
@@ -387,10 +418,28 @@ class _Reach:
     w: np.ndarray
 
     def holds(self, lo, hi) -> bool:
-        m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-        big = 0.5 * np.linalg.norm(self.hi - self.lo) - 1e-3  # (1 mm: float32's rounding)
-        return bool(np.all(lo >= self.lo) and np.all(hi <= self.hi)
-                    and np.linalg.norm(m - 0.5 * (self.lo + self.hi)) + r <= big)
+        return box_holds(self.lo, self.hi, lo, hi)
+
+
+def box_holds(blo, bhi, lo, hi) -> bool:
+    """Whether a reach's box [blo, bhi] holds bounds [lo, hi]: the box and its bounding sphere
+    contain the bounds and theirs (then every link the shaft test finds for the bounds is one
+    the box's finds)."""
+    m, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    big = 0.5 * np.linalg.norm(bhi - blo) - 1e-3  # (1 mm: float32's rounding)
+    return bool(np.all(lo >= blo) and np.all(hi <= bhi)
+                and np.linalg.norm(m - 0.5 * (blo + bhi)) + r <= big)
+
+
+@dataclass(eq=False)
+class _Scan:
+    """A reach being built ahead of a drag: the box [lo, hi] and the links whose shafts it
+    crosses among the first ``done`` (a slice more per move)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    done: int = 0
+    found: list = field(default_factory=list)
 
 
 class VirtualSession:
@@ -411,6 +460,8 @@ class VirtualSession:
         self.E0 = np.einsum("lsc,sc->lc", sol.resp - sol.rho[:, None, :] * sol.resp_H, self.e)
         self.B_ref, _ = HR.solve(self.ops, self.E0, sol.rho, tol=TOL * 0.1)
         self.bounds = link_bounds(h)
+        every = np.arange(h.n_elems)
+        self._ends = (element_points(h, every, LINK_RAYS), element_points(h, every, LINK_RAYS, True))
         self.occ = (h.P_o, h.P_u, h.P_v, h.P_n)
         self.roots = np.flatnonzero(h.parent == -1)
         self.root_of_poly = np.full(len(h.P_o), -1)
@@ -422,6 +473,7 @@ class VirtualSession:
         self.glow_px = np.asarray(self.plan.glow @ glow)
         self.room_depth = self._room_depth(*self.plan.photo.shape[:2])
         self.things: dict[str, _Placed] = {}
+        self._cover: dict = {}  # per thing, its screen box's coverage (see _coverage)
         self.B = self.B_ref
         self._K0c = self.ops.K.tocsc()
         self._Be0 = self.ops.pull @ self.B_ref
@@ -457,6 +509,7 @@ class VirtualSession:
         p = self._placed(name, "virtual_boxes")
         bounds = (p.thing.lo, p.thing.hi)
         del self.things[name]
+        self._cover.pop(name, None)
         first = self.L0
         for q in self.things.values():  # patches are numbered anew: their links too
             q.first, first = first, first + len(q.thing.centre)
@@ -464,7 +517,7 @@ class VirtualSession:
             q.coo = self._object_links(q)
         for q in self._lights():
             redo = self._light_shafts(q.thing, [bounds])
-            q.V[redo] = self._light_links(q.thing, redo)[1]
+            self._light_links(q, redo)
         self.B = self.B[:self.L0]
         return self.update()
 
@@ -495,8 +548,7 @@ class VirtualSession:
         from nodes.common import rays
 
         ign = None if ignore_poly is None else np.stack([ignore_poly, np.full_like(ignore_poly, -1)], 1)
-        b = rays.occluded(p0, p1, self.occ, ignore=ign)
-        return b | segments_hit(p0, p1, self._virtual_tris())
+        return rays.occluded(p0, p1, self.occ, ignore=ign) | segments_hit(p0, p1, self._virtual_tris())
 
     def _relink(self, name: str, old_bounds) -> None:
         """Re-evaluate what thing ``name`` changes: for an object, the real links whose shafts
@@ -506,14 +558,22 @@ class VirtualSession:
         p = self.things[name]
         t = p.thing
         if t.light:
-            p.F, p.V = self._light_links(t, np.arange(self.L0))
+            self.stats.pop("reach", None)
+            self._light_links(p, None)
             for q in self._objects():
                 q.coo = self._object_links(q)
             return
         lo, hi = t.lo - 1e-6, t.hi + 1e-6
-        R = p.reach
-        if R is None or not R.holds(lo, hi) or R.pack[0] != _ray_kind():
-            R = p.reach = self._reach(lo - REACH, hi + REACH, R)
+        R, A, kind = p.reach, p.ahead, _ray_kind()
+        step = None if old_bounds is None else 0.5 * (t.lo + t.hi - old_bounds[0] - old_bounds[1])
+        fast = step is not None and np.abs(step).max() > REACH / 3
+        self.stats["reach"] = "kept"
+        if R is None or not R.holds(lo, hi) or R.pack[0] != kind:
+            ready = isinstance(A, _Reach) and A.holds(lo, hi) and A.pack[0] == kind
+            grow = 0.0 if fast else REACH  # (a fast drag would leave a reach at once)
+            R = p.reach = A if ready else self._reach(lo - grow, hi + grow, R)
+            p.ahead = None
+            self.stats["reach"] = "ahead" if ready else "built"
         sel = shaft_crossed(R.bounds, lo, hi)
         idx = R.links[sel]
         vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
@@ -524,8 +584,10 @@ class VirtualSession:
         boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
         for q in self._lights():
             redo = self._light_shafts(q.thing, boxes)
-            q.V[redo] = self._light_links(q.thing, redo)[1]
+            self._light_links(q, redo)
         self.stats["links_reevaluated"] = int(len(idx))
+        if step is not None and not fast:
+            self._look_ahead(p, step)
 
     def _objects(self):
         return [p for p in self.things.values() if not p.thing.light]
@@ -542,29 +604,71 @@ class VirtualSession:
         out[m] = weighted_visible(b[m], w[m])
         return out
 
+    def _look_ahead(self, p: _Placed, step: np.ndarray) -> None:
+        """Build the reach a drag at this ``step`` will need next, a slice of the links per
+        move: the current reach's box moved REACH ahead in the drag's direction (its steps
+        averaged, each weighing half the last average; by the largest component), the slices sized to be done by the time the object has room for one more
+        step (a step over REACH / 3 finds its links on the spot, with no reach around them).
+        It starts again when its box would not hold the object where, at this pace, it
+        leaves the current reach.  What a
+        move finds does not depend on it: only the time of the move that leaves a reach."""
+        R, t = p.reach, p.thing
+        way = p.pace = 0.5 * (p.pace + step)  # (a hand's jitter smoothed out)
+        big = np.abs(way).max()
+        if big <= 1e-9:
+            return
+        c, half = 0.5 * (R.lo + R.hi) + REACH * way / big, 0.5 * (R.hi - R.lo)
+        room = np.where(step > 0, R.hi - t.hi, t.lo - R.lo) / np.maximum(np.abs(step), 1e-12)
+        left = int(room.min())  # moves of this step the current reach still holds
+        A, go = p.ahead, (left + 1) * way  # (where the object will be when it leaves R)
+        if A is None or not box_holds(A.lo, A.hi, t.lo + go, t.hi + go):
+            A = p.ahead = _Scan(c - half, c + half)
+        if isinstance(A, _Reach):
+            return
+        M = len(self.h.recv)
+        if A.done == M:  # the move after the last slice: its rays
+            p.ahead = self._reach_of(A.lo, A.hi, R, A.found)
+            return
+        n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
+        b = min(M, A.done + -(-n // SCAN_ALIGN) * SCAN_ALIGN)
+        part = tuple(x[:, A.done:b] if j < 2 else x[A.done:b] for j, x in enumerate(self.bounds))
+        A.found.append(self._part(A.done + shaft_crossed(part, A.lo, A.hi), R))
+        A.done = b
+
     def _reach(self, lo, hi, old: _Reach | None) -> _Reach:
         """The links whose shafts [lo, hi] crosses, their bounds, rays and weights (those of
         the ``old`` reach's links kept: a drag leaves one reach for the next)."""
-        links = shaft_crossed(self.bounds, lo, hi)
-        kind, k = _ray_kind(), LINK_RAYS * LINK_RAYS
-        have = np.zeros(len(links), bool)
-        if old is not None and old.pack[0] == kind and len(old.links):
-            pos = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
-            have = old.links[pos] == links
-        new = np.flatnonzero(~have)
-        h = self.h
+        return self._reach_of(lo, hi, old, [self._part(shaft_crossed(self.bounds, lo, hi), old)])
+
+    def _part(self, links: np.ndarray, old: _Reach | None) -> tuple:
+        """Links (sorted) of a reach being built: them, their places in the ``old`` reach
+        (−1: not there, or its rays were cast another way) and their shaft bounds."""
+        pos = np.full(len(links), -1)
+        if old is not None and old.pack[0] == _ray_kind() and len(old.links):
+            at = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
+            pos = np.where(old.links[at] == links, at, -1)
+        sub = tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
+        return links, pos, sub
+
+    def _reach_of(self, lo, hi, old: _Reach | None, parts: list) -> _Reach:
+        """The reach [lo, hi] of the links in ``parts`` (see _part): the rays of those the old
+        reach has taken from it, the others' cast anew."""
+        links, pos = (np.concatenate([q[j] for q in parts]) for j in (0, 1))
+        sub = tuple(np.concatenate([q[2][j] for q in parts], axis=int(j < 2))
+                    for j in range(len(parts[0][2])))
+        k, new, h = LINK_RAYS * LINK_RAYS, np.flatnonzero(pos < 0), self.h
         r, s = h.recv[links[new]], h.send[links[new]]
-        p0, p1 = link_rays(h, r, s, LINK_RAYS)
-        _, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
+        p0, p1 = self._ends[0][r], self._ends[1][s]
+        kind, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
         fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
         out = []
         for j, f in enumerate(fresh):
-            x = np.empty((len(links), *f.shape[1:]), f.dtype)
-            if have.any():
-                x[have] = (old.pack[1:] + (old.w,))[j][pos[have]]
+            if len(new) < len(links):  # (then old's rays are of this kind: see _part)
+                x = np.take((old.pack[1:] + (old.w,))[j], np.maximum(pos, 0), axis=0)
+            else:
+                x = np.empty((len(links), *f.shape[1:]), f.dtype)
             x[new] = f
             out.append(x)
-        sub = tuple(x[:, links] if j < 2 else x[links] for j, x in enumerate(self.bounds))
         return _Reach(lo, hi, links, sub, (kind, out[0], out[1]), out[2])
 
     def _object_links(self, p: _Placed) -> tuple:
@@ -588,12 +692,27 @@ class VirtualSession:
         rows.append(self.ops.leaves[near[r]]); cols.append(pid[s]); vals.append(Fk[r, s])
         return tuple(np.concatenate(x) for x in (rows, cols, vals))
 
-    def _light_links(self, t: Thing, leaves: np.ndarray):
-        """F and V of real leaves ← a virtual light (point-to-polygon from the leaf centres)."""
-        qo, qu, qv = _light_quad(t)
-        F, V = self._point_to_polygons(self.leaf_c[leaves], self.leaf_n[leaves], qo, qu, qv,
-                                       np.full(1, -1))
-        return F[:, 0], V[:, 0]
+    def _light_links(self, p: _Placed, leaves: np.ndarray | None) -> None:
+        """F and V of the real leaves ← virtual light p (point-to-polygon from the leaf centres):
+        of every leaf when it is inserted, else of ``leaves`` (those whose shafts to it a moved
+        object crossed).  A light does not move: its F and which of its rays the real polygons
+        block are found once; the virtual triangles are cast again."""
+        from nodes.common import rays
+
+        qo, qu, qv = _light_quad(p.thing)
+        if leaves is None:
+            p.F = self._ff_front(self.leaf_c, self.leaf_n, qo, qu, qv)[:, 0]
+            p.V, p.real = np.zeros(self.L0), np.zeros((self.L0, SOURCE_RAYS ** 2), bool)
+        r = np.flatnonzero(p.F > 1e-9) if leaves is None else leaves[p.F[leaves] > 1e-9]
+        if len(r) == 0:
+            return
+        p0, p1, ig = self._source_rays(self.leaf_c[r], self.leaf_n[r], qo, qu, qv, np.full(1, -1),
+                                       np.arange(len(r)), np.zeros(len(r), int))
+        if leaves is None:
+            ign = np.stack([ig, np.full_like(ig, -1)], 1)
+            p.real[r] = rays.occluded(p0, p1, self.occ, ignore=ign).reshape(len(r), -1)
+        b = p.real[r] | segments_hit(p0, p1, self._virtual_tris()).reshape(len(r), -1)
+        p.V[r] = 1.0 - b.mean(1)
 
     def _light_shafts(self, t: Thing, boxes) -> np.ndarray:
         """Real leaves whose shaft to light t may meet one of the boxes (lo, hi)."""
@@ -619,25 +738,32 @@ class VirtualSession:
     def _point_to_polygons(self, x, n, so, su, sv, spoly):
         """(M,K) form factors from points x (normals n) to parallelograms (o, u, v) and their
         visibility by SOURCE_RAYS² rays to stratified points on each."""
-        M, K = len(x), len(so)
-        P = G.corners(so, su, sv)
-        X = np.repeat(x, K, 0)
-        Nn = np.repeat(n, K, 0)
-        F = G.ff_point_polygon(X + 1e-6 * Nn, Nn, np.tile(P, (M, 1, 1))).reshape(M, K)
-        sn = np.cross(su, sv)
-        front = np.einsum("mkc,kc->mk", x[:, None] - so[None], sn) > 0
-        F = np.where(front, F, 0.0)
+        F = self._ff_front(x, n, so, su, sv)
         r, s = np.nonzero(F > 1e-9)
-        V = np.zeros((M, K))
+        V = np.zeros(F.shape)
         if len(r):
-            st = G.grid_st(SOURCE_RAYS)
-            p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
-            p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
-            k = p1.shape[1]
-            ig = np.repeat(spoly[s], k)
-            b = self._blocked(p0.reshape(-1, 3), p1.reshape(-1, 3), ig)
-            V[r, s] = 1.0 - b.reshape(len(r), k).mean(1)
+            p0, p1, ig = self._source_rays(x, n, so, su, sv, spoly, r, s)
+            V[r, s] = 1.0 - self._blocked(p0, p1, ig).reshape(len(r), -1).mean(1)
         return F, V
+
+    @staticmethod
+    def _ff_front(x, n, so, su, sv) -> np.ndarray:
+        """(M,K) point-to-parallelogram form factors, 0 where a point is behind one (those
+        pairs are not computed)."""
+        front = np.einsum("mkc,kc->mk", x[:, None] - so[None], np.cross(su, sv)) > 0
+        m, k = np.nonzero(front)
+        F = np.zeros(front.shape)
+        F[m, k] = G.ff_point_polygon(x[m] + 1e-6 * n[m], n[m], G.corners(so, su, sv)[k])
+        return F
+
+    @staticmethod
+    def _source_rays(x, n, so, su, sv, spoly, r, s):
+        """SOURCE_RAYS² rays (flat end points) from points x[r] to stratified points on the
+        parallelograms s, and the polygon each ray is not blocked by (its own)."""
+        st = G.grid_st(SOURCE_RAYS)
+        p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
+        p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
+        return p0.reshape(-1, 3), p1.reshape(-1, 3), np.repeat(spoly[s], p1.shape[1])
 
     # -- radiosity and image -----------------------------------------------------------------
     def _system(self):
@@ -719,40 +845,55 @@ class VirtualSession:
         """Virtual things over the image: SUB² rays per pixel of each thing's screen box, each
         the nearest of the room (its depth, once per session) and the things; a thing's sample
         shows its patch's B/π."""
-        from .textures import rays_at
-
-        tris = self._virtual_tris()
         H, W = out.shape[:2]
-        g = (np.arange(SUB) + 0.5) / SUB
         hds = self.handles()
-        first = np.cumsum([0] + [len(p.thing.tris) for p in self.things.values()])
+        things = [p.thing for p in self.things.values()]
+        first = np.cumsum([0] + [len(t.tris) for t in things])
         cam = self.camera
-        front = [np.all((p.thing.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
-                 for p in self.things.values()]
+        front = [np.all((t.tris.reshape(-1, 3) - cam.position) @ cam.pose[2, :3] > 0)
+                 for t in things]
         for hd in hds:
             x0, y0 = (max(0, int(np.floor(c)) - 1) for c in hd["box"][:2])
             x1, y1 = int(min(W, np.ceil(hd["box"][2]) + 1)), int(min(H, np.ceil(hd["box"][3]) + 1))
             if x1 <= x0 or y1 <= y0:
                 continue
             # the things that may show here: screen boxes overlapping (wholly in front), in order
-            sel = np.concatenate([np.arange(first[j], first[j + 1]) for j, q in enumerate(hds)
-                                  if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
-                                                      and q["box"][1] <= y1 and q["box"][3] >= y0)])
-            ys, xs = np.mgrid[y0:y1, x0:x1]
-            X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
-            Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
-            o, d = rays_at(cam, X, Y)
-            tri, t_v = _first_triangle(o, d, tris[sel])
-            tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
-            hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
-            L = np.zeros((len(X), 3))
+            parts = tuple((int(first[j]), things[j]) for j, q in enumerate(hds)
+                          if not front[j] or (q["box"][0] <= x1 and q["box"][2] >= x0
+                                              and q["box"][1] <= y1 and q["box"][3] >= y0))
+            tri, hit, x = self._coverage(hd["name"], (x0, y0, x1, y1), parts)
+            L = np.zeros((len(hit), 3))
             if hit.any():
-                L[hit] = self._patch_radiance(tri[hit], o[hit] + t_v[hit, None] * d[hit])
+                L[hit] = self._patch_radiance(tri[hit], x)
             k = SUB * SUB
             cov = hit.reshape(-1, k).mean(1)
             Lm = L.reshape(-1, k, 3).sum(1) / k
             blk = out[y0:y1, x0:x1].reshape(-1, 3)
             out[y0:y1, x0:x1] = (blk * (1 - cov)[:, None] + Lm).reshape(y1 - y0, x1 - x0, 3)
+
+    def _coverage(self, name: str, box: tuple, parts: tuple):
+        """Per subsample ray of the screen box (x0, y0, x1, y1) of thing ``name``: the virtual
+        triangle it meets first (-1: none; triangles numbered over all things), whether that is
+        in front of the room, and the hit points.  ``parts``: (first triangle, thing) of the
+        things that may show there; kept while the box and these things stay the same (a drag
+        moves one thing: the others' boxes are not cast again)."""
+        from .textures import rays_at
+
+        key = (box, parts)  # (things compare by identity: a moved thing is a new one)
+        if self._cover.get(name, (None,))[0] == key:
+            return self._cover[name][1]
+        x0, y0, x1, y1 = box
+        g = (np.arange(SUB) + 0.5) / SUB
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
+        Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
+        o, d = rays_at(self.camera, X, Y)
+        sel = np.concatenate([f + np.arange(len(t.tris)) for f, t in parts])
+        tri, t_v = _first_triangle(o, d, np.concatenate([t.tris for _, t in parts]))
+        tri = np.where(tri >= 0, sel[np.maximum(tri, 0)], -1)
+        hit = (tri >= 0) & (t_v < self.room_depth[y0:y1, x0:x1].reshape(-1))
+        self._cover[name] = (key, (tri, hit, o[hit] + t_v[hit, None] * d[hit]))
+        return self._cover[name][1]
 
     def _room_depth(self, H: int, W: int) -> np.ndarray:
         """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
