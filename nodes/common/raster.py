@@ -89,8 +89,10 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     H, W = int(height), int(width)
     depth = np.full(H * W, np.inf)
-    tri = np.full(H * W, -1, np.int64)
-    bary = np.zeros((H * W, 3))
+    if depth_only:  # read-only views of one value, no memory: only the depth is resolved
+        tri, bary = np.broadcast_to(np.int64(-1), (H * W,)), np.broadcast_to(0.0, (H * W, 3))
+    else:
+        tri, bary = np.full(H * W, -1, np.int64), np.zeros((H * W, 3))
     if len(faces) == 0:
         return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
                       bary.reshape(H, W, 3))
@@ -329,18 +331,18 @@ class ShadowMap:
         if self.kind == "point":
             b = b * np.maximum(d, 1e-9) / self._ref_dist
         H, W = self.depth.shape
-        # pad the map with +inf (nothing in the way) so taps need no bounds checks
-        dpad = np.pad(self.depth, pcf + 1, constant_values=np.inf).ravel()
-        Wp = W + 2 * (pcf + 1)
-        ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64) + pcf + 1
-        iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64) + pcf + 1
-        base = iy * Wp + ix
+        flat = self.depth.ravel()
+        ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64)
+        iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64)
         db = d - b
         acc = np.zeros(len(pts))
         taps = 0
         for dy in range(-pcf, pcf + 1):
             for dx in range(-pcf, pcf + 1):
-                acc += db <= dpad[base + (dy * Wp + dx)]
+                x, y = ix + dx, iy + dy
+                inside = (x >= 0) & (x < W) & (y >= 0) & (y < H)  # outside the map: nothing in the way
+                z = np.where(inside, flat[np.clip(y, 0, H - 1) * W + np.clip(x, 0, W - 1)], np.inf)
+                acc += db <= z
                 taps += 1
         out[good] = acc / taps
         return out

@@ -12,6 +12,7 @@ metres (:func:`world_lights` converts them to world units once).
 """
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import dataclass
 from typing import Literal, NamedTuple, Optional
@@ -22,6 +23,7 @@ import xxhash
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 from graphkit.hashing import canonical
 from graphkit.store import value_parts
+from nodes.common.parallel import run_tasks
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .environment import EnvironmentLighting, sh_irradiance
@@ -607,6 +609,7 @@ class Render(Node):
         kd = np.asarray(material.diffuse, np.float64)
         col = np.zeros((M, 3))
         amb = np.zeros(3)
+        lit = []  # (light, L, diffuse and specular lobes, shadow-map task)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
@@ -615,10 +618,12 @@ class Render(Node):
                                           f"position {light.position})", f"{M} visible pixels")
             elif not (diff > 0).any():
                 continue
-            if p.shadows:
-                vis = self._visibility(mesh, light, camera, s, i, "lights" if i < own else "environment")
-                diff, spec = diff * vis, spec * vis
-            col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
+            lit.append((light, L, diff, spec, functools.partial(
+                self._visibility, mesh, light, camera, s, i, "lights" if i < own else "environment")))
+        # the lights' shadows are independent: on the cores (an environment's dozen lights)
+        vis = run_tasks([t[4] for t in lit]) if p.shadows else [1.0] * len(lit)
+        for (light, L, diff, spec, _), v in zip(lit, vis):
+            col += phong.shade(kd, material.specular, 0.0, L, diff * v, spec * v)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
         if ambient is not None:
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
