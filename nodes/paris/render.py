@@ -648,8 +648,12 @@ class Render(Node):
         if g.eyes:
             idx, add = self._eyes(g.eyes, lights)
             img.reshape(-1, 3)[idx] += add
-        out = np.empty((H, W, 3), np.float32)
-        out[:] = self._exposed(bg)
+        fill = self._exposed(bg)
+        if fill.view(np.uint32).any():
+            out = np.empty((H, W, 3), np.float32)
+            out[:] = fill
+        else:  # a black background: zeroed pages from the system, not written here
+            out = np.zeros((H, W, 3), np.float32)
         out[box] = self._exposed(img)
         return {"image": Image(out),
                 "depth": Image(g.depth.copy()),
