@@ -209,7 +209,8 @@ def _offsets(n):
 def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth):
     """The z-buffer (scatter-min) of the spans' depths, without barycentrics (shadow maps):
     the depth (orthographic) or its inverse (perspective) is linear along a row, so it is
-    evaluated at each span's first pixel as :func:`_resolve` does and stepped across it."""
+    interpolated from the edge functions at each span's first pixel (as :func:`_resolve`) and
+    stepped across the span: the full path's depths to ~1e-12 (tests/test_raster.py)."""
     keep = n > 0
     t, yc, lo, n = t[keep], yc[keep], lo[keep], n[keep]
     if len(t) == 0:
