@@ -136,6 +136,31 @@ def test_render_takes_an_environment_without_lights_and_refuses_neither():
     np.testing.assert_allclose(out["image"].pixels[cov], 1.0, rtol=1e-3)  # l = 2 terms of the pixel grid
 
 
+def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
+    """An environment light's shadow map: the brightest's side × (luminance ratio)^⅓, at least
+    an eighth of it; the lights on ``lights`` keep ``shadow_map_size`` however dim."""
+    from graphkit import Light
+    from nodes.common import raster
+    from nodes.paris.data.make_capture import camera, head_mesh
+    from nodes.paris.environment import EnvironmentLighting, shadow_map_sizes
+    from nodes.paris.models import PhongMaterial
+    from nodes.paris.render import Render
+
+    front = (0.0, 0.0, -1.0)
+    env = EnvironmentLighting(lights=tuple(Light(direction=front, intensity=i, color=(1.0, 1.0, 1.0))
+                                           for i in (8.0, 1.0, 8 / 27, 1e-6)))
+    assert shadow_map_sizes(env.lights, 1024) == [1024, 512, 341, 128]
+    assert shadow_map_sizes(env.lights[1:2], 1024) == [1024]  # alone, it is the brightest
+    sizes = []
+    real = raster.shadow_map
+    monkeypatch.setattr(raster, "shadow_map", lambda V, F, light, size, **kw: sizes.append(size) or real(V, F, light, size, **kw))
+    m, _, _ = head_mesh(2)
+    compute_checked(Render(Render.Params(shadow_map_size=96)), mesh=m, camera=camera(16),
+                    material=PhongMaterial(diffuse=E.ALBEDO), lights=[Light(direction=front, intensity=1e-6)],
+                    environment=env)
+    assert sorted(sizes) == sorted([96, 96, 48, 32, 16])  # 96 / 8 = 12 → 16 (the least map)
+
+
 GRAPH = """graphkit: 1
 nodes:
   env: {type: LoadEnvironment, params: {path: MAP}}

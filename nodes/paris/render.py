@@ -26,7 +26,7 @@ from graphkit.store import value_parts
 from nodes.common.parallel import run_tasks
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
-from .environment import EnvironmentLighting, sh_irradiance
+from .environment import EnvironmentLighting, sh_irradiance, shadow_map_sizes
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -530,7 +530,9 @@ class Render(Node):
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
-      shaded and shadowed as the others (they may lie behind the face), its 9 spherical-
+      shaded and shadowed as the others (they may lie behind the face; the brightest on a
+      ``shadow_map_size``² map, dimmer ones on smaller maps, side ∝ luminance^⅓:
+      ``environment.shadow_map_sizes``), its 9 spherical-
       harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
       Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
       WebGL view does not).
@@ -610,6 +612,7 @@ class Render(Node):
         col = np.zeros((M, 3))
         amb = np.zeros(3)
         lit = []  # (light, L, diffuse and specular lobes, shadow-map task)
+        sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
@@ -619,7 +622,7 @@ class Render(Node):
             elif not (diff > 0).any():
                 continue
             lit.append((light, L, diff, spec, functools.partial(
-                self._visibility, mesh, light, camera, s, i, "lights" if i < own else "environment")))
+                self._visibility, mesh, light, camera, s, i, "lights" if i < own else "environment", sizes[i])))
         # the lights' shadows are independent: on the cores (an environment's dozen lights)
         vis = run_tasks([t[4] for t in lit]) if p.shadows else [1.0] * len(lit)
         for (light, L, diff, spec, _), v in zip(lit, vis):
@@ -666,14 +669,15 @@ class Render(Node):
             img = np.clip(img, 0.0, 1.0, out=img)
         return img.astype(np.float32)
 
-    def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int, port: str) -> np.ndarray:
+    def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int, port: str,
+                    size: int) -> np.ndarray:
         """Shadow-map visibility of the surface's points from light ``i`` (soft for a light with
-        a size); a shadow-map failure is bad input on ``port``."""
+        a size) on a ``size``² map; a shadow-map failure is bad input on ``port``."""
         from nodes.common import raster
         from nodes.common.shadows import light_visibility
 
         try:
-            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, self.params.shadow_map_size,
+            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, size,
                                    up=camera.rotation[1])
             return light_visibility(sm, light, s.points, s.normals)
         except ValueError as e:
