@@ -99,9 +99,10 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
 
     p = xy[faces]  # F×3×2
     fz = z[faces]  # F×3
-    ok = np.all(np.isfinite(p), axis=(1, 2)) & np.all(np.isfinite(fz), axis=1)
+    good = np.isfinite(xy).all(1) & np.isfinite(z)  # per vertex, then per face (every vertex)
     if near is not None:
-        ok &= np.all(fz > near, axis=1)
+        good &= z > near
+    ok = good[faces[:, 0]] & good[faces[:, 1]] & good[faces[:, 2]]
     x0, y0 = p[:, 0, 0], p[:, 0, 1]
     x1, y1 = p[:, 1, 0], p[:, 1, 1]
     x2, y2 = p[:, 2, 0], p[:, 2, 1]
@@ -113,10 +114,11 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         ok &= area > 0
     # pixel index range whose centres (i + 0.5) may fall inside the triangle
     with np.errstate(invalid="ignore"):
-        xmin = np.maximum(np.ceil(p[..., 0].min(1) - 0.5), 0)
-        xmax = np.minimum(np.floor(p[..., 0].max(1) - 0.5), W - 1)
-        ymin = np.maximum(np.ceil(p[..., 1].min(1) - 0.5), 0)
-        ymax = np.minimum(np.floor(p[..., 1].max(1) - 0.5), H - 1)
+        # (element-wise over the three vertices: a reduction along an axis of 3 is ~20× slower)
+        xmin = np.maximum(np.ceil(np.minimum(np.minimum(x0, x1), x2) - 0.5), 0)
+        xmax = np.minimum(np.floor(np.maximum(np.maximum(x0, x1), x2) - 0.5), W - 1)
+        ymin = np.maximum(np.ceil(np.minimum(np.minimum(y0, y1), y2) - 0.5), 0)
+        ymax = np.minimum(np.floor(np.maximum(np.maximum(y0, y1), y2) - 0.5), H - 1)
     ok &= (xmax >= xmin) & (ymax >= ymin)
     ids = np.nonzero(ok)[0]
     if len(ids) == 0:
