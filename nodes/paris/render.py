@@ -23,7 +23,7 @@ import xxhash
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 from graphkit.hashing import canonical
 from graphkit.store import value_parts
-from nodes.common.parallel import run_tasks
+from nodes.common.parallel import run_balanced
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
 from .environment import EnvironmentLighting, sh_irradiance, shadow_map_sizes
@@ -611,7 +611,7 @@ class Render(Node):
         kd = np.asarray(material.diffuse, np.float64)
         col = np.zeros((M, 3))
         amb = np.zeros(3)
-        lit = []  # (light, L, diffuse and specular lobes, shadow-map task)
+        lit = []  # (light, L, diffuse and specular lobes, shadow-map task, its map's side)
         sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
@@ -623,10 +623,15 @@ class Render(Node):
                 continue
             lit.append((light, L, diff, spec, functools.partial(
                 self._visibility, mesh, light, camera, s, diff > 0, i, "lights" if i < own else "environment",
-                sizes[i])))
-        # the lights' shadows are independent: on the cores (an environment's dozen lights)
-        vis = run_tasks([t[4] for t in lit]) if p.shadows else [1.0] * len(lit)
-        for (light, L, diff, spec, _), v in zip(lit, vis):
+                sizes[i]), sizes[i]))
+        # the lights' shadows are independent: on the cores (an environment's dozen lights),
+        # dealt by cost: a map's time measured ∝ (side + 256)² (its texels, and the triangles')
+        vis = run_balanced([t[4] for t in lit], [(t[5] + 256) ** 2 for t in lit]) if p.shadows \
+            else [1.0] * len(lit)
+        for v in vis:
+            if isinstance(v, BadInput):
+                raise v
+        for (light, L, diff, spec, _, _), v in zip(lit, vis):
             col += phong.shade(kd, material.specular, 0.0, L, diff * v, spec * v)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
         if ambient is not None:
@@ -671,9 +676,10 @@ class Render(Node):
         return img.astype(np.float32)
 
     def _visibility(self, mesh, light, camera: Camera, s: Surface, facing: np.ndarray, i: int,
-                    port: str, size: int) -> np.ndarray:
+                    port: str, size: int) -> np.ndarray | BadInput:
         """Shadow-map visibility of the surface's points from light ``i`` (soft for a light with
-        a size) on a ``size``² map; a shadow-map failure is bad input on ``port``.  Tested only
+        a size) on a ``size``² map; a shadow-map failure is bad input on ``port``, returned (the
+        caller raises the first light's, however the tasks ran on the cores).  Tested only
         where the surface faces the light (``facing``): elsewhere the light adds nothing
         whatever the visibility (1 there), and each point's test is its own, so the image is
         the same as testing every point (an environment's lights face ~⅓ of the face)."""
@@ -688,7 +694,7 @@ class Render(Node):
             vis[idx] = light_visibility(sm, light, s.points[idx], s.normals[idx])
             return vis
         except ValueError as e:
-            raise BadInput(port, f"light {i}: {e}") from None
+            return BadInput(port, f"light {i}: {e}")
 
     def _geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
         """What does not depend on the lights or the material (the surface, its detail texture,
