@@ -97,15 +97,15 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
                       bary.reshape(H, W, 3))
 
-    p = xy[faces]  # F×3×2
     fz = z[faces]  # F×3
     good = np.isfinite(xy).all(1) & np.isfinite(z)  # per vertex, then per face (every vertex)
     if near is not None:
         good &= z > near
     ok = good[faces[:, 0]] & good[faces[:, 1]] & good[faces[:, 2]]
-    x0, y0 = p[:, 0, 0], p[:, 0, 1]
-    x1, y1 = p[:, 1, 0], p[:, 1, 1]
-    x2, y2 = p[:, 2, 0], p[:, 2, 1]
+    # the corners' coordinates, one contiguous array each (x0 = the first corners' x, …)
+    X = [xy[:, 0][faces[:, j]] for j in range(3)]
+    Y = [xy[:, 1][faces[:, j]] for j in range(3)]
+    (x0, x1, x2), (y0, y1, y2) = X, Y
     area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)  # >0: clockwise on screen (y down)
     ok &= area != 0
     if cull == "back":
@@ -138,17 +138,14 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     # edge functions e_i = A_i x + B_i y + C_i (weight of vertex i), positive inside, and the
     # tie rule per edge; computed once per triangle
     sg = np.sign(area)
-    A = np.empty((len(faces), 3))
-    B = np.empty((len(faces), 3))
-    C = np.empty((len(faces), 3))
+    A, B, C = [], [], []
     own = np.empty((len(faces), 3), bool)
     for i in range(3):
-        a, b = p[:, (i + 1) % 3], p[:, (i + 2) % 3]
-        A[:, i] = -(b[:, 1] - a[:, 1]) * sg
-        B[:, i] = (b[:, 0] - a[:, 0]) * sg
-        C[:, i] = ((b[:, 1] - a[:, 1]) * a[:, 0] - (b[:, 0] - a[:, 0]) * a[:, 1]) * sg
-        own[:, i] = _owns_edge(a[:, 0], a[:, 1], b[:, 0], b[:, 1], sg)
-    A, B, C = ([np.ascontiguousarray(M[:, i]) for i in range(3)] for M in (A, B, C))
+        (ax, ay), (bx, by) = ((X[j], Y[j]) for j in ((i + 1) % 3, (i + 2) % 3))
+        A.append(-(by - ay) * sg)
+        B.append((bx - ax) * sg)
+        C.append(((by - ay) * ax - (bx - ax) * ay) * sg)
+        own[:, i] = _owns_edge(ax, ay, bx, by, sg)
     for a, b in zip(starts[:-1], starts[1:]):
         rows = _row_spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
         if depth_only:
