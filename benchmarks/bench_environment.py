@@ -9,7 +9,8 @@ of turning the environment.
 2. An environment rotation at 1024² after the preprocess is cached: the astronaut photo
    upsampled to 1024², its FaceMesh mesh and camera (the preprocess, done once), then per
    rotation LoadEnvironment (builtin:envmaps/interior.exr) → EnvironmentLights → Render
-   (``--backend`` numpy or opengl; 16 shadowed lights + SH, detail texture) → CompositeFace.
+   (``--backend`` numpy or opengl — there with ``mouth: skin``, the GL programs' mouth; 16
+   shadowed lights + SH, detail texture) → CompositeFace.
    Median CPU seconds (time.process_time: this process, all its threads — with opengl also
    Mesa llvmpipe's, which run in this process) and wall seconds over ``--repeat`` rotations,
    with Render under one light (as face_relight.yaml's portraits, same backend) as the peer.
@@ -75,7 +76,9 @@ def _renderer(backend: str):
     def run(**kw):
         check_inputs(Render, kw)
         dig = {k: f"bench:{k}" for k in ("mesh", "camera", "detail", "texture_camera")}  # fixed inputs
-        return gl(Render.Params(), Context(inputs=dig)).compute(**kw)
+        # the GL programs do not draw the mouth from the photo's detail (Render's default
+        # mouth: photo): the opengl Render shades it as skin
+        return gl(Render.Params(mouth="skin"), Context(inputs=dig)).compute(**kw)
     return run
 
 

@@ -136,6 +136,31 @@ def test_render_takes_an_environment_without_lights_and_refuses_neither():
     np.testing.assert_allclose(out["image"].pixels[cov], 1.0, rtol=1e-3)  # l = 2 terms of the pixel grid
 
 
+def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
+    """An environment light's shadow map: the brightest's side × (luminance ratio)^⅓, at least
+    an eighth of it; the lights on ``lights`` keep ``shadow_map_size`` however dim."""
+    from graphkit import Light
+    from nodes.common import raster
+    from nodes.paris.data.make_capture import camera, head_mesh
+    from nodes.paris.environment import EnvironmentLighting, shadow_map_sizes
+    from nodes.paris.models import PhongMaterial
+    from nodes.paris.render import Render
+
+    front = (0.0, 0.0, -1.0)
+    env = EnvironmentLighting(lights=tuple(Light(direction=front, intensity=i, color=(1.0, 1.0, 1.0))
+                                           for i in (8.0, 1.0, 8 / 27, 1e-6)))
+    assert shadow_map_sizes(env.lights, 1024) == [1024, 512, 341, 128]
+    assert shadow_map_sizes(env.lights[1:2], 1024) == [1024]  # alone, it is the brightest
+    sizes = []
+    real = raster.shadow_map
+    monkeypatch.setattr(raster, "shadow_map", lambda V, F, light, size, **kw: sizes.append(size) or real(V, F, light, size, **kw))
+    m, _, _ = head_mesh(2)
+    compute_checked(Render(Render.Params(shadow_map_size=96)), mesh=m, camera=camera(16),
+                    material=PhongMaterial(diffuse=E.ALBEDO), lights=[Light(direction=front, intensity=1e-6)],
+                    environment=env)
+    assert sorted(sizes) == sorted([96, 96, 48, 32, 16])  # 96 / 8 = 12 → 16 (the least map)
+
+
 GRAPH = """graphkit: 1
 nodes:
   env: {type: LoadEnvironment, params: {path: MAP}}
@@ -249,3 +274,33 @@ def test_a_radiance_hdr_map_is_read(tmp_path):
     _write(tmp_path / "m.hdr", px)
     err = np.abs(read_hdr(str(tmp_path / "m.hdr")) - px)
     assert np.all(err <= px.max(2, keepdims=True) / 64)
+
+
+def test_the_first_light_whose_shadow_map_fails_is_named_however_the_cores_ran(monkeypatch):
+    """Shadow maps run on the cores, dealt by cost: of two lights whose shadow map fails, the
+    first is named, even when the second failed first (it had the smaller map, or its core
+    was free sooner)."""
+    import time
+
+    from graphkit import Light
+    from nodes.common import raster
+    from nodes.paris.data.make_capture import camera, head_mesh
+    from nodes.paris.models import PhongMaterial
+    from nodes.paris.render import Render
+
+    real = raster.shadow_map
+
+    def failing(V, F, light, size, **kw):
+        if light.intensity < 1:  # lights 1 (0.5, slow) and 2 (0.25) fail
+            time.sleep(0.3 if light.intensity == 0.5 else 0.0)
+            raise ValueError(f"fails ({light.intensity})")
+        return real(V, F, light, size, **kw)
+
+    monkeypatch.setattr(raster, "shadow_map", failing)
+    m, _, _ = head_mesh(2)
+    front = (0.0, 0.0, -1.0)
+    with pytest.raises(BadInput) as e:
+        compute_checked(Render(Render.Params(shadow_map_size=64)), mesh=m, camera=camera(16),
+                        material=PhongMaterial(diffuse=E.ALBEDO),
+                        lights=[Light(direction=front, intensity=i) for i in (1.0, 0.5, 0.25, 1.0)])
+    assert (e.value.port, e.value.message) == ("lights", "light 1: fails (0.5)")

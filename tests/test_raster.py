@@ -125,6 +125,46 @@ def test_shadow_map_occluder_casts_exact_shadow():
     assert (vis[inside] == 0).all() and (vis[outside] == 1).all()
 
 
+def test_pixel_centres_on_shared_edges_belong_to_one_triangle():
+    """A grid of triangles whose edges (vertical, horizontal, both diagonals) run through pixel
+    centres: each centre strictly inside the grid is covered by exactly one triangle (the tie
+    rule), none by two."""
+    xs, ys = 0.5 + 4.0 * np.arange(6), 0.5 + 3.0 * np.arange(6)
+    X, Y = np.meshgrid(xs, ys)
+    xy = np.stack([X.ravel(), Y.ravel()], 1)
+    idx = np.arange(36).reshape(6, 6)
+    faces = []
+    for j in range(5):
+        for i in range(5):
+            a, b, c, d = idx[j, i], idx[j, i + 1], idx[j + 1, i + 1], idx[j + 1, i]
+            faces += [[a, b, c], [a, c, d]] if (i + j) % 2 else [[a, b, d], [b, c, d]]
+    count = sum(raster.rasterize_screen(xy, np.ones(36), [f], 24, 18).coverage.astype(int) for f in faces)
+    yy, xx = np.mgrid[0:18, 0:24] + 0.5
+    inside = (xx > xs[0]) & (xx < xs[-1]) & (yy > ys[0]) & (yy < ys[-1])
+    assert count.max() == 1 and (count[inside] == 1).all()
+    for f in faces:  # the same with the depth-only path (shadow maps)
+        assert np.array_equal(np.isfinite(raster.rasterize_screen(xy, np.ones(36), [f], 24, 18, depth_only=True).depth),
+                              raster.rasterize_screen(xy, np.ones(36), [f], 24, 18).coverage)
+
+
+@pytest.mark.parametrize("perspective", [True, False])
+def test_depth_only_zbuffer_equals_the_full_rasteriser(perspective):
+    """Shadow maps' depth-only path (depth stepped along each row span) keeps the same pixels
+    and depths as the full one: overlapping random triangles, some with horizontal edges."""
+    rng = np.random.default_rng(11)
+    W, H = 90, 70
+    xy = rng.uniform([-15, -15], [W + 15, H + 15], (120, 2))
+    xy[61:90:2, 1] = xy[60:90:2, 1]  # pairs of vertices on one row: horizontal edges
+    faces = rng.integers(0, 120, (150, 3))
+    faces[:15] = np.stack([rng.integers(0, 60, 15), np.arange(60, 90, 2), np.arange(61, 90, 2)], 1)
+    z = rng.uniform(1.0, 5.0, 120)
+    full = raster.rasterize_screen(xy, z, faces, W, H, perspective=perspective)
+    fast = raster.rasterize_screen(xy, z, faces, W, H, perspective=perspective, depth_only=True)
+    assert full.coverage.sum() > 0.8 * W * H
+    assert np.array_equal(np.isfinite(fast.depth), full.coverage)
+    assert np.allclose(fast.depth[full.coverage], full.depth[full.coverage], rtol=1e-12, atol=0)
+
+
 def test_scanline_spans_equal_brute_force_inside_test():
     """Random triangles: the covered pixels are exactly those whose centre passes the three
     edge functions (brute force over every pixel)."""

@@ -78,13 +78,20 @@ class SmoothFill:
             part = np.flatnonzero((a > 0) & (a < 1))
             self.steps.append((np.flatnonzero(flat_level == k), part, a[part][:, None]))
 
-    def __call__(self, values: np.ndarray) -> np.ndarray:
+    def __call__(self, values: np.ndarray, box: tuple[slice, slice] | None = None) -> np.ndarray:
+        """The filled field of ``values``: the whole image's, or with ``box`` (row and column
+        slices) the values in that box, 0 everywhere else (the same result, without the
+        product of the weights and the zeros outside it)."""
         import cv2
 
         v = np.asarray(values, np.float32)
         squeeze = v.ndim == 2
         v = v[:, :, None] if squeeze else v
-        vw = v * self.w[:, :, None]
+        if box is None:
+            vw = v * self.w[:, :, None]
+        else:
+            vw = np.zeros(self.shape + v.shape[2:], np.float32)
+            vw[box] = v * self.w[box][:, :, None]
         if self.f > 1:
             vw = cv2.resize(vw, self.small, interpolation=cv2.INTER_AREA).reshape(self.small[1], self.small[0], -1)
         num = _blur(vw, self.s)

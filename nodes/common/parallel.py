@@ -48,3 +48,20 @@ def run_tasks(tasks) -> list:
 def run_bands(fn, h: int, rows: int) -> list:
     """fn(r0, r1) for bands of ``rows`` rows covering [0, h), with :func:`run_tasks`."""
     return run_tasks([functools.partial(fn, r, min(h, r + rows)) for r in range(0, h, max(1, rows))])
+
+
+def run_balanced(jobs, costs) -> list:
+    """run_tasks(jobs) with the jobs dealt to the cores by cost (largest first, each to the least
+    loaded core), the results in the jobs' order."""
+    n = max(1, min(os.cpu_count() or 1, len(jobs)))
+    loads, groups = [0] * n, [[] for _ in range(n)]
+    for i in sorted(range(len(jobs)), key=lambda i: -costs[i]):
+        k = loads.index(min(loads))
+        loads[k] += costs[i]
+        groups[k].append(i)
+    done = run_tasks([functools.partial(lambda g: [jobs[i]() for i in g], g) for g in groups])
+    res = [None] * len(jobs)
+    for g, rs in zip(groups, done):
+        for i, r in zip(g, rs):
+            res[i] = r
+    return res

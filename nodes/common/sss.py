@@ -46,7 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .parallel import run_tasks
+from .parallel import run_balanced
 
 #: d'Eon et al. 2007 six-Gaussian fit of the three-layer skin diffusion profile
 #: (GPU Gems 3, ch. 14, table 14-1): (variance in mm², RGB weight).
@@ -467,7 +467,7 @@ class Scatter:
             src = planes if valid is None else [cv2.multiply(a, valid) for a in planes]
             jobs = [functools.partial(_scatter_plane, src[ch], ty, tx)
                     for chans, _, ty, tx in self.passes for ch in chans]
-            flat = iter(_run_balanced(jobs, [_cost(j.args[1]) + _cost(j.args[2]) for j in jobs]))
+            flat = iter(run_balanced(jobs, [_cost(j.args[1]) + _cost(j.args[2]) for j in jobs]))
             done = [[next(flat) for _ in chans] for chans, *_ in self.passes]
         else:
             done = [axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
@@ -500,25 +500,6 @@ def _scatter_plane(src: np.ndarray, ty: list[_Term], tx: list[_Term]) -> np.ndar
 def _cost(terms: list[_Term]) -> int:
     """A pass's cost in kernel taps (for sharing the passes among the cores)."""
     return sum(gaussian_kernel(t.sigma).size + 4 for t in terms)
-
-
-def _run_balanced(jobs, costs) -> list:
-    """run_tasks(jobs) with the jobs dealt to the cores by cost (largest first, each to the least
-    loaded core), the results in the jobs' order."""
-    import os
-
-    n = max(1, min(os.cpu_count() or 1, len(jobs)))
-    loads, groups = [0] * n, [[] for _ in range(n)]
-    for i in sorted(range(len(jobs)), key=lambda i: -costs[i]):
-        k = loads.index(min(loads))
-        loads[k] += costs[i]
-        groups[k].append(i)
-    done = run_tasks([functools.partial(lambda g: [jobs[i]() for i in g], g) for g in groups])
-    res = [None] * len(jobs)
-    for g, rs in zip(groups, done):
-        for i, r in zip(g, rs):
-            res[i] = r
-    return res
 
 
 def _radius(sigma) -> int:

@@ -78,11 +78,10 @@ def composite(photo: np.ndarray, relit: np.ndarray, covered: np.ndarray, band_px
     pr = prepared or prepare(photo, covered, band_px, scale_px)
     photo, alpha = pr.photo, pr.alpha
     relit = np.asarray(relit, np.float32)
-    log_ratio = np.zeros(photo.shape, np.float32)  # measured where the fill weighs it: the face's box
-    box = pr.box
-    log_ratio[box] = np.clip(np.log(np.maximum(relit[box], 1e-6) / np.maximum(photo[box], 1e-6)),
-                             -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
-    ratio = np.exp(pr.fill(log_ratio)).astype(np.float32)
+    box = pr.box  # the change of light is measured where the fill weighs it: the face's box
+    log_ratio = np.clip(np.log(np.maximum(relit[box], 1e-6) / np.maximum(photo[box], 1e-6)),
+                        -LOG_RATIO_LIMIT, LOG_RATIO_LIMIT)
+    ratio = np.exp(pr.fill(log_ratio, box)).astype(np.float32, copy=False)
     around = photo * ratio
     if method == "pyramid":  # on the face's box (blend_region); the photo × ratio around it
         bb = pr.blend_box

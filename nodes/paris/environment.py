@@ -70,6 +70,26 @@ def sh_irradiance(sh, normals: np.ndarray) -> np.ndarray:
     return sh_basis(normals) @ coef
 
 
+#: an environment light's shadow map: the brightest light's side × (its luminance / the
+#: brightest's) ** SIZE_POWER, at least MIN_SIZE of it (see shadow_map_sizes)
+SIZE_POWER = 1 / 3
+MIN_SIZE = 1 / 8
+
+
+def shadow_map_sizes(lights, size: int) -> list[int]:
+    """The shadow-map side of each of an environment's ``lights``: ``size`` for the brightest,
+    smaller for dimmer ones.  A coarser map moves a shadow's edge by up to a texel, an error
+    weighed by the light's energy: the sum over lights of energy / side, for a cost growing
+    with the texels (side²), is least with side ∝ energy^⅓.  Measured against Mitsuba
+    (benchmarks/bench_environment.py, 16 lights): every map within 0.01 dB of full-size maps
+    or better; at 1024² the environment's shadow maps take ~⅓ of their texels."""
+    lum = np.array([light.intensity * float(np.dot(light.color, LUMA)) for light in lights])
+    if len(lum) == 0 or lum.max() <= 0:
+        return [size] * len(lum)
+    side = size * np.maximum((lum / lum.max()) ** SIZE_POWER, MIN_SIZE)
+    return [int(v) for v in np.clip(np.rint(side), 16, size)]
+
+
 def map_energy(px: np.ndarray) -> np.ndarray:
     """RGB ∫ L dω of an equirectangular map (H×W×C), with exact pixel solid angles."""
     h, w = px.shape[:2]

@@ -100,7 +100,7 @@ def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera
         amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
     job["material"] = (kd, float(material.specular), float(material.shininess), amb)
     # shadow maps (same frames as nodes.common.raster.shadow_map)
-    part, sm_errors = light_part(p, V, F, lights, up)
+    part, sm_errors = light_part(p, V, F, lights, up, own)
     job.update(part)
     return job, lights, sm_errors, job["eyes"]
 
@@ -197,17 +197,23 @@ def _static_part(p, mesh, camera, lights, detail, texture_camera, environment=No
     return job, mesh, V, F, camera.rotation[1]
 
 
-def light_part(p, V: np.ndarray, F: np.ndarray, lights, up) -> tuple[dict, list]:
-    """(the light-dependent part of the job: ``lights`` uniforms, ``shadow`` frames or None and
-    ``shadow_key``; per-light shadow-map errors or None) for world-unit ``lights`` (scene()'s
-    second result) and the drawn mesh's vertices/faces; what a light drag recomputes."""
-    part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None}
+def light_part(p, V: np.ndarray, F: np.ndarray, lights, up, own: int | None = None) -> tuple[dict, list]:
+    """(the light-dependent part of the job: ``lights`` uniforms, ``shadow`` frames or None,
+    ``sm_sizes`` and ``shadow_key``; per-light shadow-map errors or None) for world-unit
+    ``lights`` (scene()'s second result; those after the first ``own`` an environment's, whose
+    maps are sized as numpy's: environment.shadow_map_sizes) and the drawn mesh's
+    vertices/faces; what a light drag recomputes."""
+    from nodes.paris.environment import shadow_map_sizes
+
+    own = len(lights) if own is None else own
+    sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
+    part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None, "sm_sizes": sizes}
     sm_errors = [None] * len(lights)
     if p.shadows and lights:  # (none: an environment's SH ambient alone, unshadowed)
         sms = []
         for i, light in enumerate(lights):
             try:
-                sm = _shadow_setup(V, F, light, p.shadow_map_size, up=up)
+                sm = _shadow_setup(V, F, light, sizes[i], up=up)
                 sm["key"] = (digest(sm["q"]), digest(sm["faces"]))
                 sms.append(sm)
             except ValueError as e:

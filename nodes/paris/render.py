@@ -12,6 +12,7 @@ metres (:func:`world_lights` converts them to world units once).
 """
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import dataclass
 from typing import Literal, NamedTuple, Optional
@@ -22,9 +23,10 @@ import xxhash
 from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Mesh, Node, Out
 from graphkit.hashing import canonical
 from graphkit.store import value_parts
+from nodes.common.parallel import run_balanced
 
 from .checks import check_lit, check_mesh, check_rgb, unit_direction
-from .environment import EnvironmentLighting, sh_irradiance
+from .environment import EnvironmentLighting, sh_irradiance, shadow_map_sizes
 from .models import PhongMaterial
 
 # mediapipe face-mesh eye contours (FACEMESH_LEFT_EYE / FACEMESH_RIGHT_EYE vertex ids)
@@ -528,7 +530,9 @@ class Render(Node):
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
-      shaded and shadowed as the others (they may lie behind the face), its 9 spherical-
+      shaded and shadowed as the others (they may lie behind the face; the brightest on a
+      ``shadow_map_size``² map, dimmer ones on smaller maps, side ∝ luminance^⅓:
+      ``environment.shadow_map_sizes``), its 9 spherical-
       harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
       Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
       WebGL view does not).
@@ -607,6 +611,8 @@ class Render(Node):
         kd = np.asarray(material.diffuse, np.float64)
         col = np.zeros((M, 3))
         amb = np.zeros(3)
+        lit = []  # (light, L, diffuse and specular lobes, shadow-map task, its map's side)
+        sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
@@ -615,10 +621,18 @@ class Render(Node):
                                           f"position {light.position})", f"{M} visible pixels")
             elif not (diff > 0).any():
                 continue
-            if p.shadows:
-                vis = self._visibility(mesh, light, camera, s, i, "lights" if i < own else "environment")
-                diff, spec = diff * vis, spec * vis
-            col += phong.shade(kd, material.specular, 0.0, L, diff, spec)
+            lit.append((light, L, diff, spec, functools.partial(
+                self._visibility, mesh, light, camera, s, diff > 0, i, "lights" if i < own else "environment",
+                sizes[i]), sizes[i]))
+        # the lights' shadows are independent: on the cores (an environment's dozen lights),
+        # dealt by cost: a map's time measured ∝ (side + 256)² (its texels, and the triangles')
+        vis = run_balanced([t[4] for t in lit], [(t[5] + 256) ** 2 for t in lit]) if p.shadows \
+            else [1.0] * len(lit)
+        for v in vis:
+            if isinstance(v, BadInput):
+                raise v
+        for (light, L, diff, spec, _, _), v in zip(lit, vis):
+            col += phong.shade(kd, material.specular, 0.0, L, diff * v, spec * v)
             amb += np.asarray(light.ambient, np.float64) * material.ambient_scale
         if ambient is not None:
             amb += np.asarray(ambient.ambient, np.float64) * material.ambient_scale * p.ambient_gain
@@ -643,8 +657,12 @@ class Render(Node):
         if g.eyes:
             idx, add = self._eyes(g.eyes, lights)
             img.reshape(-1, 3)[idx] += add
-        out = np.empty((H, W, 3), np.float32)
-        out[:] = self._exposed(bg)
+        fill = self._exposed(bg)
+        if fill.view(np.uint32).any():
+            out = np.empty((H, W, 3), np.float32)
+            out[:] = fill
+        else:  # a black background: zeroed pages from the system, not written here
+            out = np.zeros((H, W, 3), np.float32)
         out[box] = self._exposed(img)
         return {"image": Image(out),
                 "depth": Image(g.depth.copy()),
@@ -657,18 +675,26 @@ class Render(Node):
             img = np.clip(img, 0.0, 1.0, out=img)
         return img.astype(np.float32)
 
-    def _visibility(self, mesh, light, camera: Camera, s: Surface, i: int, port: str) -> np.ndarray:
+    def _visibility(self, mesh, light, camera: Camera, s: Surface, facing: np.ndarray, i: int,
+                    port: str, size: int) -> np.ndarray | BadInput:
         """Shadow-map visibility of the surface's points from light ``i`` (soft for a light with
-        a size); a shadow-map failure is bad input on ``port``."""
+        a size) on a ``size``² map; a shadow-map failure is bad input on ``port``, returned (the
+        caller raises the first light's, however the tasks ran on the cores).  Tested only
+        where the surface faces the light (``facing``): elsewhere the light adds nothing
+        whatever the visibility (1 there), and each point's test is its own, so the image is
+        the same as testing every point (an environment's lights face ~⅓ of the face)."""
         from nodes.common import raster
         from nodes.common.shadows import light_visibility
 
         try:
-            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, self.params.shadow_map_size,
+            sm = raster.shadow_map(mesh.vertices, mesh.faces, light, size,
                                    up=camera.rotation[1])
-            return light_visibility(sm, light, s.points, s.normals)
+            idx = np.flatnonzero(facing)
+            vis = np.ones(len(facing))
+            vis[idx] = light_visibility(sm, light, s.points[idx], s.normals[idx])
+            return vis
         except ValueError as e:
-            raise BadInput(port, f"light {i}: {e}") from None
+            return BadInput(port, f"light {i}: {e}")
 
     def _geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
         """What does not depend on the lights or the material (the surface, its detail texture,

@@ -99,7 +99,8 @@ vec3 env_irradiance(vec3 n) {
 #define SM_WINDOW 0
 #endif
 #if SHADOWS
-// All lights' shadow maps in one R32F atlas: light i's sm_size² map starts at texel sm_tile[i];
+// All lights' shadow maps in one R32F atlas: light i's SM_SIZE(i)² map starts at texel sm_tile[i]
+// (an environment's dimmer lights have smaller maps, environment.shadow_map_sizes);
 // values are light-frame depths (1e30 where nothing is in the way).  SM_WINDOW (the studio's
 // depth-only shadow pass, depth.vert WORLD): a depth texture of window depths in [0, 1] (1
 // where nothing is in the way), compared with the biased light-frame depth db mapped the same
@@ -124,7 +125,13 @@ uniform sampler2D shadow_maps;
 #if SM_WINDOW
 uniform vec3 sm_zmap[N_LIGHTS];
 #endif
-uniform int sm_size;
+#if SM_WINDOW
+uniform int sm_size;                      // (the studio: every light's map this size)
+#define SM_SIZE(i) sm_size
+#else
+uniform int sm_size[N_LIGHTS];
+#define SM_SIZE(i) sm_size[i]
+#endif
 uniform ivec2 sm_tile[N_LIGHTS];
 uniform mat4 sm_to_light[N_LIGHTS];       // world → light frame
 uniform vec4 sm_proj[N_LIGHTS];           // (sx, sy, ox, oy)
@@ -149,7 +156,7 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
     db = min((zm.z != 0.0 && db <= 0.0) ? -1.0 : zm.x + zm.y * db + (zm.z != 0.0 ? zm.z / db : 0.0), 1.0);
 #endif
 #endif
-    vec2 fxy = clamp(floor(xy), -1.0, float(sm_size));
+    vec2 fxy = clamp(floor(xy), -1.0, float(SM_SIZE(i)));
 #if SM_WINDOW && SM_BILINEAR
     // texel (x, y) spans [x, x + 1) × [y, y + 1); the taps are the texels base + (−1…1)², base
     // as below: the corner c = base is between the 2×2 taps dx, dy ∈ {−1, 0}, c + 1.5 the centre
@@ -175,7 +182,7 @@ float visibility(int i, vec3 P, vec3 n, vec3 ldir) {
 #else
 #define SM_TAP(DX, DY) { \
         ivec2 at = ivec2(ix + DX, iy + DY); \
-        ivec2 c = clamp(at, ivec2(0), ivec2(sm_size - 1)); \
+        ivec2 c = clamp(at, ivec2(0), ivec2(SM_SIZE(i) - 1)); \
         acc += (at != c || db <= texelFetch(shadow_maps, tile + c, 0).r) ? 1.0 : 0.0; }
 #endif
     SM_TAP(-1, -1) SM_TAP(0, -1) SM_TAP(1, -1)

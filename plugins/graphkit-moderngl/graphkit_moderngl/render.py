@@ -275,8 +275,9 @@ def _depth_pass(rt, fbo, geom, viewport, key):
 
 def _shadow_atlas(rt, job):
     """All lights' shadow maps in one R32F atlas (kept, and re-rendered only when a light or
-    the mesh changed): (texture, size, tiles (n × 2 texel offsets))."""
-    sms, size = job["shadow"], job["p"].shadow_map_size
+    the mesh changed): (texture, tiles (n × 2 texel offsets)).  Light i's map fills the
+    corner of its size² tile that job["sm_sizes"][i] gives."""
+    sms, size, sizes = job["shadow"], job["p"].shadow_map_size, job["sm_sizes"]
     n = len(sms)
     cols, rows = atlas_grid(n)
     tiles = np.array([[(i % cols) * size, (i // cols) * size] for i in range(n)], np.int32)
@@ -290,10 +291,10 @@ def _shadow_atlas(rt, job):
         for i, sm in enumerate(sms):
             if sm is not None:
                 _depth_pass(rt, fbo, (sm["q"], sm["faces"], sm["clip"]),
-                            (int(tiles[i, 0]), int(tiles[i, 1]), size, size), sm["key"])
+                            (int(tiles[i, 0]), int(tiles[i, 1]), sizes[i], sizes[i]), sm["key"])
         fbo.viewport = (0, 0, cols * size, rows * size)
         t["key"] = job["shadow_key"]
-    return t["tex"][0], size, tiles
+    return t["tex"][0], tiles
 
 
 def _gbuffer(rt, job):
@@ -361,7 +362,7 @@ def _gbuffer(rt, job):
     return g
 
 
-def _shade_uniforms(prog, job, p, size: int, tiles):
+def _shade_uniforms(prog, job, p, tiles):
     """shade.frag's uniforms: g-buffer units 0–2, shadow atlas unit 3, lights, material, an
     environment's SH weights, eyes."""
     lights, eyes = job["lights"], job["eyes"]
@@ -371,7 +372,9 @@ def _shade_uniforms(prog, job, p, size: int, tiles):
     _set(prog, "g_detail", 2)
     if tiles is not None:
         _set(prog, "shadow_maps", 3)
-        _set(prog, "sm_size", size)
+        sides = np.zeros(nL, np.int32)
+        sides[:len(job["sm_sizes"])] = job["sm_sizes"]
+        _write(prog, "sm_size", sides.tobytes())
         to_light = np.tile(np.eye(4), (nL, 1, 1))
         proj = np.zeros((nL, 4), np.float32)
         bias = np.ones((nL, 2), np.float32)
@@ -460,7 +463,7 @@ def _render(rt, job):
     shadows = job["shadow"] is not None
     eyes = job["eyes"]
     if shadows:
-        atlas, size, tiles = _shadow_atlas(rt, job)
+        atlas, tiles = _shadow_atlas(rt, job)
     g = _gbuffer(rt, job)
     masks = nL > 1  # one light: its "lit somewhere" check is the sign of the image's alpha
     # specialised (the same maths, less of it): DETAIL 0 when no detail texture (the g-buffer's
@@ -494,7 +497,7 @@ def _render(rt, job):
     if shadows:
         atlas.use(location=3)
     for prog in {id(pr): pr for pr, _ in passes}.values():
-        _shade_uniforms(prog, job, p, size if shadows else 0, tiles if shadows else None)
+        _shade_uniforms(prog, job, p, tiles if shadows else None)
     colors = ((3,) if split else (4,)) + ((4,) if masks else ()) + ((1,) if split else ())
     out = _target(rt, "shade", W, H, colors, depth=False)
     fbo = out["fbo"]
