@@ -46,7 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .parallel import run_balanced
+from .parallel import run_balanced, run_tasks
 
 #: d'Eon et al. 2007 six-Gaussian fit of the three-layer skin diffusion profile
 #: (GPU Gems 3, ch. 14, table 14-1): (variance in mm², RGB weight).
