@@ -88,36 +88,37 @@ def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray,
     if len(x) > chunk:
         return np.concatenate([ff_point_polygon(x[a:a + chunk], nx[a:a + chunk], P[a:a + chunk])
                                for a in range(0, len(x), chunk)])
-    R = P - x[:, None, :]
-    d = np.einsum("nkc,nc->nk", R, nx)
+    R = np.ascontiguousarray(np.moveaxis(P - x[:, None, :], -1, 0))  # (3,N,K)
+    nxt = np.ascontiguousarray(nx.T)[:, :, None]  # (3,N,1)
+    d = (R * nxt).sum(0)
     whole = (d > 0).all(1)
     out = np.empty(len(x))
+    if whole.all():
+        return np.abs(_lambert(R, np.roll(R, -1, axis=2), nxt))
     if whole.any():
-        Rw = R[whole]
-        out[whole] = np.abs(_lambert(Rw, np.roll(Rw, -1, axis=1), nx[whole], pad=True))
+        Rw = R[:, whole]
+        out[whole] = np.abs(_lambert(Rw, np.roll(Rw, -1, axis=2), nxt[:, whole]))
     clip = ~whole
     if clip.any():
-        out[clip] = _ff_clipped(R[clip], d[clip], nx[clip])
+        out[clip] = _ff_clipped(np.moveaxis(R[:, clip], 0, -1), d[clip], nx[clip])
     return out
 
 
-def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray, pad: bool = False) -> np.ndarray:
-    """Σ_k γ_k (V_k × V_k+1)/|V_k × V_k+1| · nx / 2π over the edges V_k → Vn_k (N,K,3).
-
-    ``pad``: sum as the clipped path sums its 2K slots, where every other edge has length 0
-    (numpy's pairwise order), so both paths give the same bits."""
-    c = np.cross(V, Vn)
-    cn = np.linalg.norm(c, axis=-1)
-    lv = np.linalg.norm(V, axis=-1)
-    lvn = np.linalg.norm(Vn, axis=-1)
-    cosg = np.einsum("nkc,nkc->nk", V, Vn) / np.maximum(lv * lvn, 1e-300)
-    gamma = np.arctan2(cn, np.clip(cosg, -1, 1) * lv * lvn)  # robust angle
-    proj = np.einsum("nkc,nc->nk", c, nx) / np.maximum(cn, 1e-300)
+def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray) -> np.ndarray:
+    """Σ_k γ_k (V_k × V_k+1)/|V_k × V_k+1| · nx / 2π over the edges V_k → Vn_k, given
+    component first: V, Vn (3,N,K), nx (3,N,1); K a power of 2.
+    γ_k = atan2(|V_k × V_k+1|, V_k · V_k+1)."""
+    (ax, ay, az), (bx, by, bz) = V, Vn
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    cn = np.sqrt(cx * cx + cy * cy + cz * cz)
+    gamma = np.arctan2(cn, ax * bx + ay * by + az * bz)
+    proj = (cx * nx[0] + cy * nx[1] + cz * nx[2]) / np.maximum(cn, 1e-300)
     g = np.where(cn > 1e-300, gamma * proj, 0.0)
-    if pad:
-        z = np.zeros_like(g)
-        g = np.stack([z, g], -1).reshape(len(g), -1)
-    return g.sum(1) / (2 * np.pi)
+    while g.shape[1] > 1:  # pairwise, so the clipped path's 2K slots (every other edge of
+        g = g[:, 0::2] + g[:, 1::2]  # length 0) give the same bits as the K edges
+    return g[:, 0] / (2 * np.pi)
 
 
 def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
@@ -144,8 +145,8 @@ def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
     idx = np.maximum.accumulate(idx, axis=1)
     idx = np.where(idx < 0, last[:, None], idx)
     idx = np.maximum(idx, 0)
-    V = np.take_along_axis(slots, idx[..., None], axis=1)
-    f = _lambert(V, np.roll(V, -1, axis=1), nx)
+    V = np.moveaxis(np.take_along_axis(slots, idx[..., None], axis=1), -1, 0)
+    f = _lambert(V, np.roll(V, -1, axis=2), np.ascontiguousarray(nx.T)[:, :, None])
     return np.where(anyv, np.abs(f), 0.0)
 
 

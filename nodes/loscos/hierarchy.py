@@ -376,16 +376,56 @@ class RefineParams:
     max_link_area: float = np.inf  # m²: larger elements never carry a link
 
 
+@dataclass
+class LinkData:
+    """Links r ← s with what refinement computed for them: F, V, C (as :class:`Hierarchy`)
+    and the oracle's F spread over the receiver (dF = max − min) and centre value Fc
+    (:func:`ff_spread`).  All of it depends only on the two elements (V and C also on the
+    rays drawn), so a later round that meets the same link again takes it from here."""
+
+    r: np.ndarray
+    s: np.ndarray
+    F: np.ndarray
+    V: np.ndarray
+    C: np.ndarray
+    dF: np.ndarray
+    Fc: np.ndarray
+
+    def astuple(self):
+        return self.r, self.s, self.F, self.V, self.C
+
+    @classmethod
+    def concat(cls, parts: list["LinkData"]) -> "LinkData":
+        if not parts:
+            z = np.zeros(0)
+            return cls(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z, np.zeros((0, 4)),
+                       z, z)
+        return cls(*(np.concatenate([getattr(p, k) for p in parts])
+                     for k in cls.__dataclass_fields__))
+
+
 def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
            prm: RefineParams, rng, force=None, progress=None):
+    """BF / BFV refinement of candidate links r ← s (:func:`refine_links`); returns the
+    accepted links (r, s, F, V, C); grows h."""
+    return refine_links(h, r, s, B_elem, prm, rng, force, progress).astuple()
+
+
+def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
+                 prm: RefineParams, rng, force=None, progress=None,
+                 known: LinkData | None = None) -> LinkData:
     """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4), plus a
     largest element size for links (``prm.max_link_area``).
 
     B_elem: (n_elems,) luminance of each element's radiosity (W/m²).  ``force(r, s)`` may
     return a mask of links that must be split further (used for §4.1 and §4.5).
-    Returns the accepted links (r, s, F, V, C); grows h.
+    ``known``: the candidates are these links of an earlier round (r, s ignored): their F
+    spread, V, C and F are taken from it, not computed again; their children are computed.
+    Returns the accepted links; grows h.
     """
-    out_r, out_s, out_F, out_V, out_C = [], [], [], [], []
+    if known is not None:
+        r, s = known.r, known.s
+    out = []
     it = 0
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
@@ -394,7 +434,12 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         r, s = r[m], s[m]
         if not len(r):
             break
-        Fmin, Fc, Fmax = ff_spread(h, r, s)
+        if known is not None:
+            dF, Fc, V, C = known.dF[m], known.Fc[m], known.V[m], known.C[m]
+        else:
+            Fmin, Fc, Fmax = ff_spread(h, r, s)
+            dF = Fmax - Fmin
+            V, C = link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
         ar, as_ = h.area(r), h.area(s)
@@ -403,9 +448,8 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         # (a) the irradiance varies over the receiver by more than eps: the push step would
         #     spread an average, so split the receiver;  (b) Hanrahan's BF on the larger of
         #     F_rs and F_sr = F_rs·A_r/A_s (split the larger element);  (c) BFV for PARTIAL.
-        trig_r = (Fmax - Fmin) * Bs > prm.eps_bf
+        trig_r = dF * Bs > prm.eps_bf
         contrib = Fc * np.maximum(1.0, ar / as_) * Bs
-        V, C = link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
         partial = (V > 1e-9) & (V < 1 - 1e-9)
         trig_c = (contrib > prm.eps_bf) | (partial & (Fc * Bs > prm.eps_bfv))
         if force is not None:
@@ -417,15 +461,15 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         big_r = np.where(ar >= as_, can_r, ~can_s & can_r)
         split_r = (trig_r & can_r) | (trig_c & big_r)
         split_s = ~split_r & trig_c & can_s
-        need = split_r | split_s
-        go = need & (split_r | split_s)
+        go = split_r | split_s
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            F = element_links_ff(h, ra, sa, prm.n_ff)
+            F = known.F[m][acc] if known is not None else element_links_ff(h, ra, sa, prm.n_ff)
             keep = F > 0
-            out_r.append(ra[keep]); out_s.append(sa[keep])
-            out_F.append(F[keep]); out_V.append(V[acc][keep]); out_C.append(C[acc][keep])
+            out.append(LinkData(ra[keep], sa[keep], F[keep], V[acc][keep], C[acc][keep],
+                                dF[acc][keep], Fc[acc][keep]))
+        known = None
         gr = go & split_r
         gs = go & ~split_r
         h.subdivide(r[gr])
@@ -437,9 +481,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         s = np.concatenate(ns)
         if progress:
             progress(it, len(r))
-    cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
-    C = np.concatenate(out_C) if out_C else np.zeros((0, 4))
-    return cat(out_r, np.int64), cat(out_s, np.int64), cat(out_F, float), cat(out_V, float), C
+    return LinkData.concat(out)
 
 
 def _grow(B_elem: np.ndarray, h: Hierarchy) -> np.ndarray:
