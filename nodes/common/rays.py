@@ -79,14 +79,22 @@ def boxes_meet(lo: np.ndarray, hi: np.ndarray, occ, ignore: np.ndarray | None = 
         return np.ones(len(lo), bool)
     c = np.stack([o, o + u, o + u + v, o + v], 1)
     olo, ohi = c.min(1), c.max(1)
-    pid = np.arange(len(o))
     out = np.empty(len(lo), bool)
     for a in range(0, len(lo), chunk):
         b = min(len(lo), a + chunk)
-        meet = ((lo[a:b, None] <= ohi[None]) & (hi[a:b, None] >= olo[None])).all(2)
-        if ignore is not None:
-            meet &= (pid[None] != ignore[a:b, 0:1]) & (pid[None] != ignore[a:b, 1:2])
-        out[a:b] = meet.any(1)
+        meet = lo[a:b, None, 0] <= ohi[None, :, 0]
+        for c in range(3):  # one axis at a time: (n,P) temporaries, not (n,P,3)
+            if c:
+                meet &= lo[a:b, None, c] <= ohi[None, :, c]
+            meet &= hi[a:b, None, c] >= olo[None, :, c]
+        n = np.count_nonzero(meet, axis=1)
+        if ignore is not None:  # less the ignored occluders the box meets (each once)
+            ig = ignore[a:b]
+            row = np.arange(b - a)
+            for k in range(ig.shape[1]):
+                ok = (ig[:, k] >= 0) & np.all(ig[:, :k] != ig[:, k:k + 1], axis=1)
+                n -= ok & meet[row, np.maximum(ig[:, k], 0)]
+        out[a:b] = n > 0
     return out
 
 

@@ -439,7 +439,6 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         else:
             Fmin, Fc, Fmax = ff_spread(h, r, s)
             dF = Fmax - Fmin
-            V, C = link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
         ar, as_ = h.area(r), h.area(s)
@@ -450,8 +449,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         #     F_rs and F_sr = F_rs·A_r/A_s (split the larger element);  (c) BFV for PARTIAL.
         trig_r = dF * Bs > prm.eps_bf
         contrib = Fc * np.maximum(1.0, ar / as_) * Bs
-        partial = (V > 1e-9) & (V < 1 - 1e-9)
-        trig_c = (contrib > prm.eps_bf) | (partial & (Fc * Bs > prm.eps_bfv))
+        trig_c = contrib > prm.eps_bf
         if force is not None:
             trig_c |= force(r, s)
         # (d) links between elements larger than max_link_area are always split: BF bounds
@@ -459,6 +457,15 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         #     the kernel from the opposite wall peaks there too), an error of one sign
         trig_c |= np.maximum(ar, as_) > prm.max_link_area
         big_r = np.where(ar >= as_, can_r, ~can_s & can_r)
+        # only the links that these leave unsplit need their visibility (and BFV: a PARTIAL
+        # link that can be split is)
+        split = (trig_r & can_r) | (trig_c & (big_r | can_s))
+        if known is None:
+            V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
+            V[~split], C[~split] = link_visibility(h, r[~split], s[~split], prm.n_rays, rng,
+                                                   centroid=True)
+        partial = (V > 1e-9) & (V < 1 - 1e-9)
+        trig_c |= ~split & partial & (Fc * Bs > prm.eps_bfv)
         split_r = (trig_r & can_r) | (trig_c & big_r)
         split_s = ~split_r & trig_c & can_s
         go = split_r | split_s
