@@ -271,18 +271,17 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     st = G.grid_st(n_rays)
     k = len(st)
     M = len(r)
-    ja = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
-    jb = (st[None] + (rng.random((M, k, 2)) - 0.5) / n_rays).clip(0, 1)
-    jb = jb[:, rng.permutation(k)]
+    ja = _jittered(st, n_rays, M, rng)
+    jb = _jittered(st[rng.permutation(k)], n_rays, M, rng)
     if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
-    p0 = ro[:, None] + ja[..., 0:1] * ru[:, None] + ja[..., 1:2] * rv[:, None]
-    p1 = so[:, None] + jb[..., 0:1] * su[:, None] + jb[..., 1:2] * sv[:, None]
+    p0, p1 = _points(ro, ru, rv, ja), _points(so, su, sv, jb)
     own = np.stack([h.poly[r], h.poly[s]], 1)
     # only links whose rays' bounding box meets an occluder's (other than their own two
     # polygons) can be blocked: the rest are cast by no backend (the same answers)
-    cast = rays.boxes_meet(np.minimum(p0, p1).min(1), np.maximum(p0, p1).max(1), occ, own)
+    cast = rays.boxes_meet(np.minimum(p0.min(1), p1.min(1)), np.maximum(p0.max(1), p1.max(1)),
+                           occ, own)
     blocked = np.zeros((M, k), bool)
     if cast.any():
         blocked[cast] = rays.occluded(p0[cast].reshape(-1, 3), p1[cast].reshape(-1, 3), occ,
@@ -308,6 +307,23 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     return V, C
 
 
+def _jittered(st: np.ndarray, n: int, M: int, rng) -> np.ndarray:
+    """(M,k,2): the cell centres st (k,2) of an n×n grid, each moved at random in its cell."""
+    j = rng.random((M, len(st), 2))
+    j -= 0.5
+    j /= n
+    j += st
+    return np.clip(j, 0, 1, out=j)
+
+
+def _points(o, u, v, st) -> np.ndarray:
+    """(M,k,3) points o + s·u + t·v of elements (M,3) at st (M,k,2)."""
+    p = st[..., 0:1] * u[:, None]
+    p += st[..., 1:2] * v[:, None]
+    p += o[:, None]
+    return p
+
+
 def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
     """False where one element lies wholly behind the other's plane (no exchange)."""
     ro, ru, rv, rn, _ = h.geom(r)
@@ -319,39 +335,55 @@ def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
     return (ds > 1e-9).any(1) & (dr > 1e-9).any(1) & (h.poly[r] != h.poly[s])
 
 
-def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2=None):
+def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2=None,
+                      far=None):
     """F for links, with 4× more receiver points for near pairs (the integrand peaks at a
     shared edge, where a coarse midpoint rule underestimates it).  tri1 / tri2 (M,): the
-    receiver / sender is a triangle."""
+    receiver / sender is a triangle.  ``far`` (M,): F already estimated (:func:`ff_spread`'s
+    mean; NaN where not), taken for the pairs that are not near."""
     c1 = o1 + 0.5 * (u1 + v1)
     c2 = o2 + 0.5 * (u2 + v2)
     size = np.linalg.norm(u1 + v1, axis=1) + np.linalg.norm(u2 + v2, axis=1)
     near = np.linalg.norm(c1 - c2, axis=1) < 1.0 * size
     F = np.zeros(len(o1))
     sel = lambda t, m: None if t is None else np.asarray(t)[m]  # noqa: E731
-    for m, n in ((~near, n_ff), (near, 4 * n_ff)):
+    given = ~near & np.isfinite(far) if far is not None else np.zeros(len(o1), bool)
+    F[given] = far[given] if far is not None else 0.0
+    for m, n in ((~near & ~given, n_ff), (near, 4 * n_ff)):
         if m.any():
             F[m] = G.element_form_factors(o1[m], u1[m], v1[m], n1[m], o2[m], u2[m], v2[m],
                                           n2[m], n, tri_i=sel(tri1, m), tri_j=sel(tri2, m))
     return F
 
 
-def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int) -> np.ndarray:
+def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int,
+                     far=None) -> np.ndarray:
     """:func:`link_form_factors` of links r ← s of h."""
     o1, u1, v1, n1, _ = h.geom(r)
     o2, u2, v2, n2, _ = h.geom(s)
     tri = h.tri_poly.any()
     return link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff,
-                             h.tri(r) if tri else None, h.tri(s) if tri else None)
+                             h.tri(r) if tri else None, h.tri(s) if tri else None, far)
+
+
+#: a parallelogram's corner points in :func:`ff_spread`, 1 % in from its corners
+CORNER_IN = 0.01
+#: the weight of the corners' mean in :func:`ff_spread`'s mean F: with the centre's 1 − w the
+#: rule is exact for every quadratic over the parallelogram (∫(s − ½)² = 1/12)
+W_CORNERS = 1 / (12 * (0.5 - CORNER_IN) ** 2)
 
 
 def ff_spread(h: Hierarchy, r, s):
     """Min, centre and max of the point-to-polygon F_{dx→s} over r's centre and corners
-    (moved 1 % inwards), the refinement oracle."""
+    (moved 1 % inwards), the refinement oracle; and, for a parallelogram receiver, the
+    mean F_rs from those five points where each element lies wholly in front of the other
+    (exact for F quadratic over r; NaN on a triangle receiver or across a horizon, where F
+    is not smooth)."""
     ro, ru, rv, rn, _ = h.geom(r)
     so, su, sv, sn, _ = h.geom(s)
     P = G.corners(so, su, sv, h.tri(s))
-    st = np.array([[0.5, 0.5], [0.01, 0.01], [0.99, 0.01], [0.99, 0.99], [0.01, 0.99]])
+    a, b = CORNER_IN, 1 - CORNER_IN
+    st = np.array([[0.5, 0.5], [a, a], [b, a], [b, b], [a, b]])
     # a triangle's centre, corners (1 % in) and its long edge's midpoint
     st_tri = np.array([[1 / 3, 1 / 3], [0.01, 0.01], [0.98, 0.01], [0.49, 0.49], [0.01, 0.98]])
     tri_r = h.tri(r)[:, None]
@@ -361,7 +393,10 @@ def ff_spread(h: Hierarchy, r, s):
         f = G.ff_point_polygon(x, rn, P)
         F.append(np.where(np.einsum("nc,nc->n", x - so, sn) > 0, f, 0.0))
     F = np.stack(F, 1)
-    return F.min(1), F[:, 0], F.max(1)
+    mean = (1 - W_CORNERS) * F[:, 0] + W_CORNERS * F[:, 1:].mean(1)
+    clean = (np.einsum("nkc,nc->nk", P - ro[:, None], rn) > 0).all(1) & \
+        (np.einsum("nkc,nc->nk", G.corners(ro, ru, rv) - so[:, None], sn) > 0).all(1)
+    return F.min(1), F[:, 0], F.max(1), np.where(clean & ~tri_r[:, 0], mean, np.nan)
 
 
 @dataclass
@@ -437,7 +472,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         if known is not None:
             dF, Fc, V, C = known.dF[m], known.Fc[m], known.V[m], known.C[m]
         else:
-            Fmin, Fc, Fmax = ff_spread(h, r, s)
+            Fmin, Fc, Fmax, Fq = ff_spread(h, r, s)
             dF = Fmax - Fmin
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
@@ -472,7 +507,8 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            F = known.F[m][acc] if known is not None else element_links_ff(h, ra, sa, prm.n_ff)
+            F = known.F[m][acc] if known is not None else \
+                element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc])
             keep = F > 0
             out.append(LinkData(ra[keep], sa[keep], F[keep], V[acc][keep], C[acc][keep],
                                 dF[acc][keep], Fc[acc][keep]))
