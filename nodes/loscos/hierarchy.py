@@ -261,11 +261,24 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
 
     With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
     points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
-    (0.5, 0.5) where no ray carries weight.
+    (0.5, 0.5) where no ray carries weight.  Links are taken ``RAYS_AT_ONCE`` rays at a time
+    (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory).
     """
-    if len(r) == 0:
-        return (np.zeros(0), np.zeros((0, 4))) if centroid else np.zeros(0)
     occ = occ if occ is not None else h.occluders()
+    step = max(1, RAYS_AT_ONCE // (n_rays * n_rays))
+    V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
+    for a in range(0, len(r), step):
+        b = slice(a, a + step)
+        V[b], C[b] = _link_visibility(h, r[b], s[b], n_rays, rng, occ)
+    return (V, C) if centroid else V
+
+
+#: rays per block of :func:`link_visibility`
+RAYS_AT_ONCE = 1 << 18
+
+
+def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng, occ):
+    """:func:`link_visibility`'s V and C of one block of links."""
     ro, ru, rv, _, _ = h.geom(r)
     so, su, sv, _, _ = h.geom(s)
     st = G.grid_st(n_rays)
@@ -297,8 +310,6 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     wsum = w.sum(1)
     vis = 1.0 - blocked.reshape(M, k)
     V = np.where(wsum > 0, (w * vis).sum(1) / np.maximum(wsum, 1e-300), vis.mean(1))
-    if not centroid:
-        return V
     C = np.full((M, 4), 0.5)
     for a, W in ((0, w * vis), (2, w)):
         ws = W.sum(1)
