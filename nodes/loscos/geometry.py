@@ -122,32 +122,30 @@ def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray) -> np.ndarray:
 
 
 def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
+    """Lambert's sum over the polygon R (N,K,3) (from the point) clipped to its part in
+    front (d = R·nx > 0): each edge k → k+1 from its start, or where it comes in front, to
+    its end, or where it goes behind (zero length when wholly behind), and the one edge the
+    clip adds in the point's plane, from where the contour goes behind to where it comes
+    back.  Summed as :func:`_lambert` sums 2K edges, so a polygon wholly in front gives the
+    unclipped path's bits."""
     N, K, _ = R.shape
-    # clip: for each edge k → k+1 emit vertex k if in front, then the crossing point
-    Rn = np.roll(R, -1, axis=1)
+    R = np.moveaxis(R, -1, 0)  # (3,N,K)
+    Rn = np.roll(R, -1, axis=2)
     dn = np.roll(d, -1, axis=1)
-    keep = d > 0
-    cross_ = (d > 0) != (dn > 0)
+    front, front_n = d > 0, dn > 0
+    cross_ = front != front_n
     with np.errstate(divide="ignore", invalid="ignore"):
-        a = d / (d - dn)
-    a = np.where(cross_, a, 0.0)
-    inter = R + a[..., None] * (Rn - R)
-    slots = np.empty((N, 2 * K, 3))
-    slots[:, 0::2] = R
-    slots[:, 1::2] = inter
-    valid = np.empty((N, 2 * K), bool)
-    valid[:, 0::2] = keep
-    valid[:, 1::2] = cross_
-    anyv = valid.any(1)
-    # forward-fill invalid slots with the previous valid one (cyclically): zero-length edges
-    idx = np.where(valid, np.arange(2 * K)[None, :], -1)
-    last = np.max(idx, axis=1)
-    idx = np.maximum.accumulate(idx, axis=1)
-    idx = np.where(idx < 0, last[:, None], idx)
-    idx = np.maximum(idx, 0)
-    V = np.moveaxis(np.take_along_axis(slots, idx[..., None], axis=1), -1, 0)
-    f = _lambert(V, np.roll(V, -1, axis=2), np.ascontiguousarray(nx.T)[:, :, None])
-    return np.where(anyv, np.abs(f), 0.0)
+        a = np.where(cross_, d / (d - dn), 0.0)
+    inter = R + a * (Rn - R)  # where edge k crosses the plane (R_k where it does not)
+    A = np.where(front, R, inter)
+    B = np.where(front_n, Rn, inter)
+    # a convex polygon's contour goes behind at most once and comes back once
+    out_ = (inter * (front & ~front_n)).sum(2)
+    in_ = (inter * (~front & front_n)).sum(2)
+    z = np.zeros((3, N, K - 1))
+    V = np.concatenate([A, out_[..., None], z], axis=2)
+    Vn = np.concatenate([B, in_[..., None], z], axis=2)
+    return np.abs(_lambert(V, Vn, np.ascontiguousarray(nx.T)[:, :, None]))
 
 
 def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int = 3,

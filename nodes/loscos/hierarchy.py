@@ -348,8 +348,9 @@ def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2=None,
                       far=None):
-    """F for links, with 4× more receiver points for near pairs (the integrand peaks at a
-    shared edge, where a coarse midpoint rule underestimates it).  tri1 / tri2 (M,): the
+    """F for links, with 4× more receiver points ((2·n_ff)²) for near pairs (the integrand
+    peaks at a shared edge, where a coarse midpoint rule underestimates it; on builtin:room's
+    near links 1.3e-3 mean relative error against a 32×32 rule, −1.6e-4 in their sum).  tri1 / tri2 (M,): the
     receiver / sender is a triangle.  ``far`` (M,): F already estimated (:func:`ff_spread`'s
     mean; NaN where not), taken for the pairs that are not near."""
     c1 = o1 + 0.5 * (u1 + v1)
@@ -360,7 +361,7 @@ def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2
     sel = lambda t, m: None if t is None else np.asarray(t)[m]  # noqa: E731
     given = ~near & np.isfinite(far) if far is not None else np.zeros(len(o1), bool)
     F[given] = far[given] if far is not None else 0.0
-    for m, n in ((~near & ~given, n_ff), (near, 4 * n_ff)):
+    for m, n in ((~near & ~given, n_ff), (near, 2 * n_ff)):
         if m.any():
             F[m] = G.element_form_factors(o1[m], u1[m], v1[m], n1[m], o2[m], u2[m], v2[m],
                                           n2[m], n, tri_i=sel(tri1, m), tri_j=sel(tri2, m))
