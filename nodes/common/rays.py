@@ -69,24 +69,26 @@ def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = No
 
 
 def boxes_meet(lo: np.ndarray, hi: np.ndarray, occ, ignore: np.ndarray | None = None,
-               chunk: int = 200_000, max_occluders: int = 4096) -> np.ndarray:
+               chunk: int = 1 << 22, max_occluders: int = 4096) -> np.ndarray:
     """(M,) bool: the box [lo, hi] (M,3) meets the bounding box of an occluder of ``occ`` (as
     :func:`occluded`'s) other than the two in ``ignore`` (M,2).  A segment inside a box that
     meets none is blocked by none: its rays need no casting.  Over ``max_occluders`` all True
-    (the M × P test would cost more than it saves)."""
+    (the M × P test would cost more than it saves).  Boxes are tested ``chunk`` box–occluder
+    pairs at a time (a few MB of temporaries)."""
     o, u, v = (np.asarray(a, np.float64) for a in occ[:3])
     if len(o) > max_occluders:
         return np.ones(len(lo), bool)
     c = np.stack([o, o + u, o + u + v, o + v], 1)
     olo, ohi = c.min(1), c.max(1)
     out = np.empty(len(lo), bool)
-    for a in range(0, len(lo), chunk):
-        b = min(len(lo), a + chunk)
+    step = max(1, chunk // max(len(o), 1))
+    for a in range(0, len(lo), step):
+        b = min(len(lo), a + step)
         meet = lo[a:b, None, 0] <= ohi[None, :, 0]
-        for c in range(3):  # one axis at a time: (n,P) temporaries, not (n,P,3)
-            if c:
-                meet &= lo[a:b, None, c] <= ohi[None, :, c]
-            meet &= hi[a:b, None, c] >= olo[None, :, c]
+        for ax in range(3):  # one axis at a time: (n,P) temporaries, not (n,P,3)
+            if ax:
+                meet &= lo[a:b, None, ax] <= ohi[None, :, ax]
+            meet &= hi[a:b, None, ax] >= olo[None, :, ax]
         n = np.count_nonzero(meet, axis=1)
         if ignore is not None:  # less the ignored occluders the box meets (each once)
             ig = ignore[a:b]

@@ -181,7 +181,7 @@ def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int 
 
 
 def ray_first_hit(o: np.ndarray, d: np.ndarray, occ_o, occ_u, occ_v, occ_n,
-                  two_sided: bool = False, chunk: int = 50_000, tri=None):
+                  two_sided: bool = False, chunk: int = 1 << 21, tri=None):
     """Nearest parallelogram (or triangle, where ``tri`` (P,)) hit along rays o + t·d, t > 0.
 
     Returns (poly index or -1, t, s, tt) per ray; s, tt are the in-polygon coordinates.
@@ -195,8 +195,9 @@ def ray_first_hit(o: np.ndarray, d: np.ndarray, occ_o, occ_u, occ_v, occ_n,
     if len(occ_o) == 0:
         return idx, tb, sb, ttb
     du, dv = dual_basis(occ_u, occ_v)
-    for a in range(0, N, chunk):
-        b = min(N, a + chunk)
+    step = max(1, chunk // len(occ_o))  # rays per block: ``chunk`` ray–polygon pairs
+    for a in range(0, N, step):
+        b = min(N, a + step)
         oo, dd = o[a:b], d[a:b]
         den = dd @ occ_n.T
         num = np.einsum("pc,pc->p", occ_o, occ_n)[None, :] - oo @ occ_n.T

@@ -641,12 +641,13 @@ def tri_child_weights(cen: np.ndarray) -> np.ndarray:
 
 
 def solve(ops: Operators, E: np.ndarray, rho: np.ndarray, tol: float = 1e-7,
-          max_iter: int = 500) -> tuple[np.ndarray, int]:
-    """Jacobi gather/push-pull iterations for B = E + ρ·H(B) at the leaves.
+          max_iter: int = 500, B0: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Jacobi gather/push-pull iterations for B = E + ρ·H(B) at the leaves, from B0 (default
+    E).
 
     E, rho: (L, m) — m independent right-hand sides (channels × lights).  Returns (B, iters).
     """
-    B = E.copy()
+    B = E.copy() if B0 is None else B0.copy()
     scale = max(np.abs(E).max(), 1e-300)
     for it in range(1, max_iter + 1):
         Bn = E + rho * ops.gather(B)

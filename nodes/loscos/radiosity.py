@@ -126,8 +126,9 @@ def estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, mode, rho_hat, n_i
         return rho_scene
     rho = fill_unseen(h, leaves, fournier_reflectance(h, leaves, T, seen, rho_hat, rho_scene),
                       seen, emitting)
-    for _ in range(n_iter):
-        B, _ = HR.solve(ops, emit_leaf, rho, tol=tol)
+    B = None
+    for _ in range(n_iter):  # each solve starts from the last (ρ changes a little)
+        B, _ = HR.solve(ops, emit_leaf, rho, tol=tol, B0=B)
         rho = implied_reflectance(rho, T, ops.gather(B), seen, h, leaves, emitting)
     return rho
 
