@@ -441,6 +441,9 @@ class LinkData:
     def astuple(self):
         return self.r, self.s, self.F, self.V, self.C
 
+    def select(self, m) -> "LinkData":
+        return LinkData(*(getattr(self, k)[m] for k in self.__dataclass_fields__))
+
     @classmethod
     def concat(cls, parts: list["LinkData"]) -> "LinkData":
         if not parts:
@@ -449,6 +452,10 @@ class LinkData:
                        z, z)
         return cls(*(np.concatenate([getattr(p, k) for p in parts])
                      for k in cls.__dataclass_fields__))
+
+
+#: candidate links per block of :func:`refine_links` (bounds its temporaries)
+LINKS_AT_ONCE = 1 << 18
 
 
 def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
@@ -468,10 +475,18 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     return a mask of links that must be split further (used for §4.1 and §4.5).
     ``known``: the candidates are these links of an earlier round (r, s ignored): their F
     spread, V, C and F are taken from it, not computed again; their children are computed.
-    Returns the accepted links; grows h.
+    Candidates are refined ``LINKS_AT_ONCE`` at a time (they are independent; a mesh's
+    polygon pairs are millions).  Returns the accepted links; grows h.
     """
     if known is not None:
         r, s = known.r, known.s
+    if len(r) > LINKS_AT_ONCE:
+        parts = []
+        for a in range(0, len(r), LINKS_AT_ONCE):
+            b = slice(a, a + LINKS_AT_ONCE)
+            parts.append(refine_links(h, r[b], s[b], _grow(B_elem, h), prm, rng, force,
+                                      progress, None if known is None else known.select(b)))
+        return LinkData.concat(parts)
     out = []
     it = 0
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
