@@ -25,6 +25,8 @@ BACKENDS = ("numpy", "embree")
 _backend: contextvars.ContextVar[str] = contextvars.ContextVar("rays_backend", default="numpy")
 # segments start and end this fraction of their length inside (the reference's open interval)
 T_EPS = 1e-6
+#: Embree hits this close to a segment's end (in t) are decided by the float64 reference
+END_EPS = 1e-4
 
 
 @contextlib.contextmanager
@@ -185,18 +187,24 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
         return hit
     # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
     # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times; what is left
-    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference
+    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference, and so is a
+    # ray whose hit lies within END_EPS of its end (a polygon touching the receiving one, as a
+    # box standing on the floor: float32 puts a grazing ray's end point on either side of it)
     todo = np.flatnonzero(hit)
     t0 = np.zeros(len(p0))
+    again = []
     for _ in range(rounds):
         r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
                    dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
         prim = prim_poly[np.maximum(r["primID"], 0)]
         own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
         hit[todo[r["primID"] < 0]] = False
+        again.append(todo[(r["primID"] >= 0) & ~own
+                          & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS)])
         t0[todo[own]] += r["tfar"][own] + T_EPS
         todo = todo[own]
         if len(todo) == 0:
-            return hit
+            break
+    todo = np.concatenate(again + [todo])
     hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ[:4], tri=_tri(occ), ignore=ignore[todo])
     return hit
