@@ -89,6 +89,26 @@ def test_rows_sum_to_one_in_closed_box():
     assert np.abs(row - 1).max() < 0.05  # per leaf: the push step spreads link averages
 
 
+def test_refinement_in_blocks_of_candidates_gives_the_same_links(monkeypatch):
+    # a closed box casts no ray (nothing but the two polygons of a link lies in its box), so
+    # the refinement is deterministic: blocks of candidates may only change the order
+    sc = closed_box()
+    prm = HR.RefineParams(eps_bf=0.05, eps_bfv=0.01, min_area=5e-3, max_level=4, n_rays=1)
+    one = RS.hierarchical_solve(sc, prm, 2, 1e-8)
+    monkeypatch.setattr(HR, "LINKS_AT_ONCE", 7)
+    blocks = RS.hierarchical_solve(sc, prm, 2, 1e-8)
+
+    def links(h):
+        key = lambda e: np.column_stack([h.poly[e], h.level[e], h.ij[e]])  # noqa: E731
+        k = np.column_stack([key(h.recv), key(h.send)])
+        order = np.lexsort(k.T[::-1])
+        return k[order], h.F[order]
+
+    assert len(one.recv) > 7 * 10
+    (k1, f1), (k2, f2) = links(one), links(blocks)
+    assert np.array_equal(k1, k2) and np.allclose(f1, f2, rtol=0, atol=1e-15)
+
+
 def test_furnace_closed_box():
     sc = closed_box(rho=0.6, E=1.0)
     # 2×2 rays: a link's sender centroid (where the receiver looks, hierarchy.link_matrix)

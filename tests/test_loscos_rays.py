@@ -75,3 +75,21 @@ def test_unknown_backend_is_refused():
     with pytest.raises(ValueError, match="unknown ray-casting backend 'optix'"):
         with rays.using("optix"):
             pass
+
+
+def test_boxes_meet_is_the_box_test_less_the_ignored_occluders():
+    occ = _room_occluders()
+    o, u, v = occ[:3]
+    rng = np.random.default_rng(3)
+    n = 3000
+    c = np.stack([o, o + u, o + u + v, o + v], 1)
+    lo = rng.uniform(c.min((0, 1)), c.max((0, 1)), (n, 3))
+    hi = lo + rng.uniform(0, 0.4, (n, 3)) * (c.max((0, 1)) - c.min((0, 1)))
+    ignore = rng.integers(-1, len(o), (n, 2))
+    ignore[::7, 1] = ignore[::7, 0]  # the same occluder twice
+    meet = ((lo[:, None] <= c.max(1)[None]) & (hi[:, None] >= c.min(1)[None])).all(2)
+    want = (meet & (np.arange(len(o))[None] != ignore[:, :1])
+            & (np.arange(len(o))[None] != ignore[:, 1:])).any(1)
+    assert 0.2 < want.mean() < 0.98 and (meet.any(1) & ~want).any()
+    assert np.array_equal(rays.boxes_meet(lo, hi, occ, ignore, chunk=1000), want)
+    assert np.array_equal(rays.boxes_meet(lo, hi, occ), meet.any(1))

@@ -25,6 +25,8 @@ BACKENDS = ("numpy", "embree")
 _backend: contextvars.ContextVar[str] = contextvars.ContextVar("rays_backend", default="numpy")
 # segments start and end this fraction of their length inside (the reference's open interval)
 T_EPS = 1e-6
+#: Embree hits this close to a segment's end (in t) are decided by the float64 reference
+END_EPS = 1e-4
 
 
 @contextlib.contextmanager
@@ -69,24 +71,34 @@ def occluded(p0: np.ndarray, p1: np.ndarray, occ, ignore: np.ndarray | None = No
 
 
 def boxes_meet(lo: np.ndarray, hi: np.ndarray, occ, ignore: np.ndarray | None = None,
-               chunk: int = 200_000, max_occluders: int = 4096) -> np.ndarray:
+               chunk: int = 1 << 22, max_occluders: int = 4096) -> np.ndarray:
     """(M,) bool: the box [lo, hi] (M,3) meets the bounding box of an occluder of ``occ`` (as
     :func:`occluded`'s) other than the two in ``ignore`` (M,2).  A segment inside a box that
     meets none is blocked by none: its rays need no casting.  Over ``max_occluders`` all True
-    (the M × P test would cost more than it saves)."""
+    (the M × P test would cost more than it saves).  Boxes are tested ``chunk`` box–occluder
+    pairs at a time (a few MB of temporaries)."""
     o, u, v = (np.asarray(a, np.float64) for a in occ[:3])
     if len(o) > max_occluders:
         return np.ones(len(lo), bool)
     c = np.stack([o, o + u, o + u + v, o + v], 1)
     olo, ohi = c.min(1), c.max(1)
-    pid = np.arange(len(o))
     out = np.empty(len(lo), bool)
-    for a in range(0, len(lo), chunk):
-        b = min(len(lo), a + chunk)
-        meet = ((lo[a:b, None] <= ohi[None]) & (hi[a:b, None] >= olo[None])).all(2)
-        if ignore is not None:
-            meet &= (pid[None] != ignore[a:b, 0:1]) & (pid[None] != ignore[a:b, 1:2])
-        out[a:b] = meet.any(1)
+    step = max(1, chunk // max(len(o), 1))
+    for a in range(0, len(lo), step):
+        b = min(len(lo), a + step)
+        meet = lo[a:b, None, 0] <= ohi[None, :, 0]
+        for ax in range(3):  # one axis at a time: (n,P) temporaries, not (n,P,3)
+            if ax:
+                meet &= lo[a:b, None, ax] <= ohi[None, :, ax]
+            meet &= hi[a:b, None, ax] >= olo[None, :, ax]
+        n = np.count_nonzero(meet, axis=1)
+        if ignore is not None:  # less the ignored occluders the box meets (each once)
+            ig = ignore[a:b]
+            row = np.arange(b - a)
+            for k in range(ig.shape[1]):
+                ok = (ig[:, k] >= 0) & np.all(ig[:, :k] != ig[:, k:k + 1], axis=1)
+                n -= ok & meet[row, np.maximum(ig[:, k], 0)]
+        out[a:b] = n > 0
     return out
 
 
@@ -175,18 +187,24 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
         return hit
     # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
     # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times; what is left
-    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference
+    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference, and so is a
+    # ray whose hit lies within END_EPS of its end (a polygon touching the receiving one, as a
+    # box standing on the floor: float32 puts a grazing ray's end point on either side of it)
     todo = np.flatnonzero(hit)
     t0 = np.zeros(len(p0))
+    again = []
     for _ in range(rounds):
         r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
                    dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
         prim = prim_poly[np.maximum(r["primID"], 0)]
         own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
         hit[todo[r["primID"] < 0]] = False
+        again.append(todo[(r["primID"] >= 0) & ~own
+                          & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS)])
         t0[todo[own]] += r["tfar"][own] + T_EPS
         todo = todo[own]
         if len(todo) == 0:
-            return hit
+            break
+    todo = np.concatenate(again + [todo])
     hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ[:4], tri=_tri(occ), ignore=ignore[todo])
     return hit

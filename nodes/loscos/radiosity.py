@@ -126,8 +126,9 @@ def estimate_reflectance(scene, h, ops, leaves, T, emit_leaf, mode, rho_hat, n_i
         return rho_scene
     rho = fill_unseen(h, leaves, fournier_reflectance(h, leaves, T, seen, rho_hat, rho_scene),
                       seen, emitting)
-    for _ in range(n_iter):
-        B, _ = HR.solve(ops, emit_leaf, rho, tol=tol)
+    B = None
+    for _ in range(n_iter):  # each solve starts from the last (ρ changes a little)
+        B, _ = HR.solve(ops, emit_leaf, rho, tol=tol, B0=B)
         rho = implied_reflectance(rho, T, ops.gather(B), seen, h, leaves, emitting)
     return rho
 
@@ -387,9 +388,12 @@ def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol:
     r, s = r.ravel(), s.ravel()
     m = r != s
     B = initial_radiosity(scene, h)
+    links = None
     for k in range(rounds):
-        h.recv, h.send, h.F, h.V, h.C = HR.refine(h, r[m] if k == 0 else h.recv,
-                                                  s[m] if k == 0 else h.send, B, prm, rng)
+        # a later round refines the last round's links with the new B: what they carry
+        # (F, its spread, V, C) depends only on the two elements, so it is not computed again
+        links = HR.refine_links(h, r[m], s[m], B, prm, rng, known=links)
+        h.recv, h.send, h.F, h.V, h.C = links.astuple()
         if progress:
             progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")
         ops = HR.operators(h)
@@ -430,7 +434,7 @@ class RadiositySolve(Node):
     emittance and where it came from (also in the solution's info).
     """
 
-    version = "3"
+    version = "4"
     inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY, "lights": Json}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
@@ -646,7 +650,7 @@ class TextureRefine(Node):
     The emittances are the solution's (the scene file's or those RadiositySolve estimated).
     """
 
-    version = "3"
+    version = "4"
     inputs = {"scene": ROOM_SCENE, "solution": RADIOSITY, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}

@@ -184,7 +184,7 @@ class Relight(Node):
     Values are linear radiance.
     """
 
-    version = "2"
+    version = "3"
     studio_view = "nodes.loscos.studio_view:RoomView"  # graphkit serve: light sliders on the fast path
     inputs = {"solution": RADIOSITY, "unoccluded": UNOCCLUDED, "projection": PROJECTION,
               "photo": Image,
