@@ -2,8 +2,11 @@
 a cold run's per-node work (lease, lookups, objects, record) and a warm run's reads stay within
 a budget a real network can afford."""
 import json
+import threading
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import engine_env, graphkit
@@ -55,3 +58,44 @@ def test_a_cold_run_needs_at_most_7_requests_per_computed_node_and_a_warm_run_2_
     total = sum(warm_req.values())
     assert total <= PER_RUN + 2 * len(warm["nodes"]), (total, len(warm["nodes"]), warm_req)
     assert warm_req.get("PUT run", 0) == 0, warm_req  # unchanged run notes are not written again
+
+
+def test_a_computed_nodes_writes_and_lease_release_go_out_behind_it_in_order(monkeypatch):
+    """On S3, a computed node's objects, record and lease release are off the run's critical
+    path: the key lock's body ends without waiting for them (the proxy holds them), they go out
+    one after the other (the record only once the objects are in, the release once the record
+    is), and the run's commit waits for them.  A release (or a write) back in the node's own
+    thread holds the key lock's end for the proxy's 5 s and fails this."""
+    from graphkit.store import Store
+    from graphkit.types import BUILTIN_PORT_TYPES
+
+    held, gate, arrived = ("PUT object", "PUT record", "DELETE lease"), threading.Event(), []
+
+    def before(kind: str) -> None:
+        if kind in held:
+            arrived.append(kind)
+            gate.wait(5)
+
+    with S3Server() as s3:
+        proxy = make_proxy(s3.port, Counter(), before=before)
+        for k, v in s3.env.items():
+            monkeypatch.setenv(k, v)
+        store = Store("s3://gk-test/behind", options={"endpoint_url": f"http://127.0.0.1:{proxy.server_address[1]}"}).open()
+        key = "ab" * 16
+        with store.run_lock():
+            t0 = time.monotonic()
+            with store.key_lock(key, "n"):
+                [d] = store.put_values([(BUILTIN_PORT_TYPES["Array"], np.arange(4.0), None)])
+                store.put_record(key, {"key": key, "node": "n", "parts": {}, "outputs": {"out": {"digest": d, "type": "Array"}}})
+            took = time.monotonic() - t0
+            time.sleep(0.3)  # (a record sent beside its objects would arrive now)
+            first = list(arrived)
+            gate.set()
+            store.commit()
+            assert arrived == list(held)
+        proxy.shutdown()
+        keys = s3.keys("behind/")
+    assert took < 2, took
+    assert first == ["PUT object"]
+    assert f"behind/keys/ab/{key}.json" in keys and f"behind/objects/{d[:2]}/{d}" in keys
+    assert not [k for k in keys if k.startswith("behind/locks/")]
