@@ -20,6 +20,9 @@ from typing import Callable
 
 #: threads writing behind (each node's writes go out in order, nodes beside each other)
 WORKERS = 8
+#: nodes whose writes may wait behind at once (each holds its lease, renewed, until they are
+#: out): a run whose nodes are done faster than the store takes their writes waits here
+PENDING = 32
 
 
 class WritesBehind:
@@ -29,6 +32,7 @@ class WritesBehind:
         self._pool: ThreadPoolExecutor | None = None
         self._running: set[Future] = set()
         self._error: BaseException | None = None
+        self._room = threading.BoundedSemaphore(PENDING)
 
     def later(self, write: Callable[[], None]) -> None:
         """``write()`` now, or, inside :meth:`hold` in this thread, behind the key lock (in order)."""
@@ -66,6 +70,8 @@ class WritesBehind:
                     release()
                 except Exception as e:  # noqa: BLE001
                     self._fail(e)
+                self._room.release()
+        self._room.acquire()
         with self._guard:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(WORKERS, thread_name_prefix="graphkit-behind")
