@@ -3,7 +3,8 @@ a small counting proxy that can add a delay to every request (a real store's lat
 
 Runs the graph cold and warm on a local folder and on S3, alternating (rounds of: local cold,
 S3 cold, local warm, S3 warm; every other round S3 first), each cold run on a new folder or
-prefix; prints each run's wall and CPU time (graphkit's process: user + sys) with the load, then
+prefix; prints each run's wall and CPU time (graphkit's process: user + sys; for S3 also the
+CPU of the S3 server and proxy, which run in this process on the same cores) with the load, then
 medians, the ratio of the medians, requests per computed (cold) or cached (warm) node by kind,
 and the serial round trips the delay added to the cold run (S3 − local wall, ÷ the delay).
 Goals: cold <= 10 requests per computed node, warm <= 3 per cached node; with 20 ms per
@@ -37,17 +38,18 @@ def _child_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run(graph: str, cache: str, out: Path, env: dict, jobs: int) -> tuple[float, float, dict]:
-    """(wall s, CPU s of the graphkit process, manifest) of one run."""
+def run(graph: str, cache: str, out: Path, env: dict, jobs: int) -> tuple[float, float, float, dict]:
+    """(wall s, CPU s of the graphkit process, CPU s of this one: the S3 server and the proxy,
+    which share the machine's cores with the run, manifest) of one run."""
     exe = ROOT / ".venv" / "bin" / "graphkit"
     cmd = [str(exe) if exe.exists() else sys.executable, *([] if exe.exists() else ["-m", "graphkit"])]
-    cpu, t = _child_cpu(), time.perf_counter()
+    cpu, own, t = _child_cpu(), time.process_time(), time.perf_counter()
     r = subprocess.run([*cmd, "run", graph, "--cache", cache, "--out", str(out), "--jobs", str(jobs), "-q"],
                        env=env, capture_output=True, text=True)
-    took, cpu = time.perf_counter() - t, _child_cpu() - cpu
+    took, cpu, own = time.perf_counter() - t, _child_cpu() - cpu, time.process_time() - own
     if r.returncode:
         sys.exit(f"run failed: {r.stderr}")
-    return took, cpu, json.loads((out / "manifest.json").read_text())
+    return took, cpu, own, json.loads((out / "manifest.json").read_text())
 
 
 def per_node(counts: dict, n: int) -> str:
@@ -84,14 +86,15 @@ def main() -> None:
                     for store in (("local", "s3") if i % 2 == 0 else ("s3", "local")):
                         name = f"{store} {phase}"
                         counter.take()
-                        took, used, m = run(args.graph, where[store], tmp / f"out-{i}-{store}-{phase}", env, args.jobs)
+                        took, used, server, m = run(args.graph, where[store], tmp / f"out-{i}-{store}-{phase}", env, args.jobs)
                         counts = counter.take()
                         wall.setdefault(name, []).append(took)
                         cpu.setdefault(name, []).append(used)
                         if store == "s3":
                             requests.setdefault(name, counts)
                             nodes[name] = sum(n["hit"] is (phase == "warm") for n in m["nodes"].values())
-                        print(f"  round {i + 1} {name:10s} {took:6.2f} s wall {used:6.2f} s CPU  ({load()})", flush=True)
+                        print(f"  round {i + 1} {name:10s} {took:6.2f} s wall {used:6.2f} s CPU"
+                              + (f" + {server:5.2f} s server CPU" if store == "s3" else " " * 22) + f"  ({load()})", flush=True)
             proxy.shutdown()
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
