@@ -206,7 +206,10 @@ class Store:
         if self.read_only:
             return self._read_only_notice()
         raw = encode_record(record, self.secret)
-        self._behind.later(lambda: self._write_record(key, raw))
+        if self.fs.atomic_put:  # (an object store: maybe behind a key lock; a folder writes now)
+            self._behind.later(lambda: self._write_record(key, raw))
+        else:
+            self._write_record(key, raw)
         self._dirty = True
 
     def _write_record(self, key: str, raw: bytes) -> None:
