@@ -52,6 +52,16 @@ def input_digests(session: Session, name: str, outcomes: dict[str, NodeOutcome])
     return g.map_inputs(lambda src, sport: outcomes[src].outputs[sport])
 
 
+def probably_new(session: Session, name: str, outcomes: dict[str, NodeOutcome]) -> bool:
+    """Whether node ``name`` is probably not in the store: an input of it was computed in this run
+    (a new input digest makes a new key, bar a value computed again to the bytes it had before).
+    Such a node is looked up beside its lease's request (Session.run_node's ``missed``: on an
+    object store, one round trip for both), not on its own first: a cold run waits one round
+    trip per node for its store, not two.  A hit found that way is served as ever.  (On a
+    folder, where reads do not go together, always False: it would change nothing.)"""
+    return session.store.reads_together and any(not outcomes[src].hit for src in session.graph.nodes[name].sources())
+
+
 def locked_run(store, work: Callable[[], Any], then: Callable[[Any], Any] | None = None) -> Any:
     """The one lock-then-commit sequence of a run: ``work()`` under the store's run lock (shared,
     so a concurrent ``cache gc`` waits instead of removing what the run reads), this run's
@@ -90,7 +100,7 @@ def run_local(session: Session, targets: list[str], jobs: int = 1,
 def _run_serial(session: Session, plan: Plan, progress: Progress, result: RunResult) -> None:
     for n in plan.order:
         progress.running(n, plan.graph.nodes[n].type)
-        o = session.run_node(n, input_digests(session, n, result.outcomes))
+        o = session.run_node(n, input_digests(session, n, result.outcomes), probably_new(session, n, result.outcomes))
         result.outcomes[n] = o
         progress.done(o)
 
@@ -126,10 +136,13 @@ class _Pool:
 
     def _resolve_hits(self) -> None:
         """Look up every ready node, all of them at once (their records are read in one batch):
-        the hits are done (readying more, looked up next), the misses queue."""
+        the hits are done (readying more, looked up next), the misses queue, and so do the
+        nodes that are :func:`probably_new` (looked up beside their leases)."""
         session, outcomes = self.session, self.result.outcomes
         while self.ready and self.error is None:
-            batch = list(self.ready)
+            batch = []
+            for n in self.ready:
+                (self.misses if probably_new(session, n, outcomes) else batch).append(n)
             self.ready.clear()
             try:
                 found = session.cached_many([(n, input_digests(session, n, outcomes)) for n in batch])

@@ -238,7 +238,8 @@ class Session:
     # -- the unit of work ------------------------------------------------------------------
     def run_node(self, name: str, input_digests: dict[str, str], missed: bool = False) -> NodeOutcome:
         """Node ``name``'s outcome: a hit, or computed under its key's lock.  ``missed``: the
-        caller has just looked it up (:meth:`cached_many`) and found nothing."""
+        caller has just looked it up (:meth:`cached_many`) and found nothing, or expects it to
+        miss (executor.probably_new): on an object store it is looked up beside the lock's request."""
         try:
             return self._run_node(name, input_digests, missed)
         except BackendCannotRun as e:

@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 import urllib.parse
+from typing import Callable
 
 from s3server import free_port
 
@@ -50,9 +51,12 @@ def kind_of(method: str, path: str) -> str:
     return f"{method} {area}"
 
 
-def make_proxy(upstream_port: int, counter: Counter, delay_s: float = 0.0):
+def make_proxy(upstream_port: int, counter: Counter, delay_s: float = 0.0,
+               before: Callable[[str], bool | None] | None = None):
     """An HTTP proxy on loopback in front of the S3 server at ``upstream_port`` that counts every
-    request and can add ``delay_s`` to each (a real store's latency); ``.shutdown()`` ends it."""
+    request and can add ``delay_s`` to each (a real store's latency); ``before(kind)`` is called
+    with each request's kind before it is forwarded (a test may hold it there, or return True to
+    answer it with a server error instead); ``.shutdown()`` ends it."""
     class Proxy(http.server.BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
@@ -60,13 +64,18 @@ def make_proxy(upstream_port: int, counter: Counter, delay_s: float = 0.0):
             pass
 
         def _forward(self):
-            counter.add(kind_of(self.command, self.path))
+            kind = kind_of(self.command, self.path)
+            counter.add(kind)
+            n = int(self.headers.get("Content-Length") or 0)
+            body = self.rfile.read(n) if n else None
+            if before is not None and before(kind):  # answered here: a server error
+                self.send_response(503, "Slow Down")
+                self.send_header("Content-Length", "0")
+                return self.end_headers()
             if os.environ.get("BENCH_S3_TRACE") == "1":  # print every request (method and path)
                 print(self.command, self.path, file=sys.stderr)
             if delay_s:
                 time.sleep(delay_s)
-            n = int(self.headers.get("Content-Length") or 0)
-            body = self.rfile.read(n) if n else None
             conn = http.client.HTTPConnection("127.0.0.1", upstream_port, timeout=60)
             headers = {k: v for k, v in self.headers.items() if k.lower() not in ("connection",)}
             conn.request(self.command, self.path, body=body, headers=headers)

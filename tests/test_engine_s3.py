@@ -211,6 +211,29 @@ def test_concurrent_clients_and_a_looping_gc_compute_each_key_once(s3, url, tmp_
     assert v.returncode == 0, v.stdout + v.stderr
 
 
+TWINS = """\
+graphkit: 1
+name: twins
+nodes:
+  a: {{type: Count, params: {{log: {log}, value: 1, seconds: 0.5}}}}
+  b: {{type: Count, params: {{log: {log}, value: 1, seconds: 0.5}}}}
+outputs: {{a: a.out, b: b.out}}
+"""
+
+
+def test_two_nodes_of_one_key_in_one_run_compute_it_once(s3, url, tmp_path):
+    """Two nodes with the same key run side by side in threads of one process (--jobs 2): the
+    second waits for the first's thread, then looks again and finds its record (its lease alone
+    would not say it waited: the first let go of it before the second asked)."""
+    log = tmp_path / "count.log"
+    g = tmp_path / "g.yaml"
+    g.write_text(TWINS.format(log=log))
+    m = run_ok(s3, g, url, tmp_path / "o", "--jobs", "2")
+    assert m["nodes"]["a"]["key"] == m["nodes"]["b"]["key"]
+    assert len(log.read_text().splitlines()) == 1, log.read_text()
+    assert sorted(n["hit"] for n in m["nodes"].values()) == [False, True]
+
+
 def s3fs_for(s3):
     import s3fs
 

@@ -26,6 +26,7 @@ from typing import Any, Callable, Iterable
 from ..errors import CacheError, UsageError
 from ..types import BUILTIN_PORT_TYPES, PortType
 from . import maintenance
+from .behind import WritesBehind
 from .codec import DIGEST, CorruptObject, check_object, encode_header, iter_chunks, object_rel, value_parts
 from .fs import FORMAT_FILE, FORMAT_PREFIX, FORMAT_VERSION, FileSystem
 from .localfs import LocalFS
@@ -65,6 +66,9 @@ class Store:
         self._present: set[str] = set()
         #: entries read ahead in one batch (:meth:`prefetch`), each taken by its next read
         self._ahead: dict[str, bytes | None] = {}
+        #: a computed node's objects, record and lease release, off the critical path (object
+        #: stores, inside a run: graphkit.store.behind); drained before the run ends
+        self._behind = WritesBehind()
         #: the keyed check's secret (GRAPHKIT_CACHE_KEY; None: records carry no MAC)
         self.secret = cache_key()
         #: called with one line for each damaged entry found (Session sets it to its notice)
@@ -202,13 +206,19 @@ class Store:
         if self.read_only:
             return self._read_only_notice()
         raw = encode_record(record, self.secret)
+        if self.fs.atomic_put:  # (an object store: maybe behind a key lock; a folder writes now)
+            self._behind.later(lambda: self._write_record(key, raw))
+        else:
+            self._write_record(key, raw)
+        self._dirty = True
+
+    def _write_record(self, key: str, raw: bytes) -> None:
         try:  # (not `with self._errors(...)` around it: a generator context per cold node)
             if not (self._journal_here() and self.fs.append_record(key, raw)):
                 self.fs.write_atomic(record_rel(key), [raw])
         except OSError:
             with self._errors("write a cache record"):
                 raise
-        self._dirty = True
 
     def _journal_here(self) -> bool:
         """Records go to a journal: a writable folder with hard links, inside a run."""
@@ -254,8 +264,9 @@ class Store:
 
     def put_values(self, items: list[tuple[PortType, Any, Any]]) -> list[str]:
         """:meth:`put_value` of each (port type, value, parts): where a PUT is atomic (an object
-        store), the objects go out in one batch; their digests, in order."""
-        if not self.fs.atomic_put or self.read_only or len(items) < 2:
+        store), the objects go out in one batch (behind a key lock: see graphkit.store.behind);
+        their digests, in order."""
+        if not self.fs.atomic_put or self.read_only:
             return [self.put_value(*item) for item in items]
         todo, digests = {}, []
         for ptype, value, parts in items:
@@ -264,12 +275,16 @@ class Store:
             if digest not in self._present:
                 head, offsets = encode_header(ptype.name, meta, arrays, digest)
                 todo[object_rel(digest)] = list(iter_chunks(head, offsets, arrays))
-        with self._errors("write a cache object"):
-            self.fs.write_many(todo)
+        if todo:
+            self._behind.later(lambda: self._write_objects(todo))
         self._dirty = self._dirty or bool(todo)
         for d in digests:
             self._seen_whole(d)
         return digests
+
+    def _write_objects(self, todo: dict[str, list]) -> None:
+        with self._errors("write a cache object"):
+            self.fs.write_many(todo)
 
     def _seen_whole(self, digest: str) -> None:
         """Object ``digest`` is in place, whole: while the run lock is held (gc and verify
@@ -302,6 +317,8 @@ class Store:
         """Group commit: make every write so far durable with one syncfs (see module docstring).
 
         ``force=False`` commits only if COMMIT_INTERVAL_S has passed since the last commit."""
+        if force:
+            self._behind.drain()  # (writes behind a key lock: done, or their error raised here)
         if not self._dirty or not self.sync:
             return
         now = time.monotonic()
@@ -327,7 +344,8 @@ class Store:
             self.notice(f"notice: {'node ' + node if node else 'key ' + key[:16]} waits for lease "
                         f"{self.location}/locks/{key[:2]}/{key}.lock held by {who} (computing the same key); "
                         f"broken if not renewed within {ttl:g} s")
-        return self.fs.key_lock(key, waiting)
+        lock = self.fs.key_lock(key, waiting)
+        return self._behind.hold(lock) if self._run_lock_depth and self.fs.atomic_put else lock
 
     @contextlib.contextmanager
     def run_lock(self):
@@ -351,6 +369,7 @@ class Store:
             with self._run_lock_guard:
                 self._run_lock_depth -= 1
                 if self._run_lock_depth == 0:
+                    self._behind.wait()  # (their errors: raised by commit, before the run ends)
                     self._present.clear()
                     self._ahead.clear()
                     self.fs.end_run()  # this run's journal is complete; what others wrote may change

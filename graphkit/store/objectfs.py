@@ -317,13 +317,22 @@ class FsspecFS(FileSystem):
             cm = (leases.shared if shared else leases.exclusive)(self.fs, self.root, on_wait)
         else:
             cm = leases.Lease(self.fs, self.path(rel), on_wait=on_wait)
-        with self._thread_lock(rel) if not shared else contextlib.nullcontext(), self._held(cm):
-            yield getattr(cm, "waited", None)
+        with self._thread_lock(rel) if not shared else contextlib.nullcontext(False) as waited, self._held(cm):
+            yield waited or getattr(cm, "waited", None)
 
-    def _thread_lock(self, rel: str) -> threading.Lock:
-        """Threads of this process first, then other processes."""
+    @contextlib.contextmanager
+    def _thread_lock(self, rel: str):
+        """Threads of this process first, then other processes; yields whether another thread held
+        it (it may have computed the key meanwhile: the caller looks again)."""
         with self._locks_guard:
-            return self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
+            lock = self._locks.setdefault(f"{self.url}/{rel}", threading.Lock())
+        waited = not lock.acquire(blocking=False)
+        if waited:
+            lock.acquire()
+        try:
+            yield waited
+        finally:
+            lock.release()
 
     @contextlib.contextmanager
     def _held(self, cm):
