@@ -6,8 +6,8 @@ path-tracing time to the same PSNR (issue 27 item 3).
 
 It runs the preprocess at graphs/room_relight.yaml's settings with ``--backend embree`` ray
 casting — ProjectTextures, RadiositySolve, TextureRefine,
-Unocclude — and prints each stage's CPU seconds and the total wall seconds (this process, time.process_time: on a
-shared machine the CPU time stands for a quiet machine's wall time), the links, the load
+Unocclude — and prints each stage's CPU seconds, then the total wall seconds (this process,
+time.process_time: on a shared machine the CPU time stands for a quiet machine's wall time), the links, the load
 average, and the PSNR of "A off" and "B ×2" against Mitsuba references (512 spp, cached under
 --cache; loscos_scenes.py's), inside the room and over the whole image.
 
