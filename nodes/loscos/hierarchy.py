@@ -264,11 +264,12 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
     points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
     (0.5, 0.5) where no ray carries weight.  Links are taken ``RAYS_AT_ONCE`` rays at a time
-    (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory).
+    (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory),
+    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.
     """
     occ = occ if occ is not None else h.occluders()
-    step = max(1, RAYS_AT_ONCE // (n_rays * n_rays))
     k = n_rays * n_rays
+    step = max(1, RAYS_AT_ONCE // k)
     V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
     blocks = [slice(a, min(len(r), a + step)) for a in range(0, len(r), step)]
     for g in range(0, len(blocks), BLOCKS_AT_ONCE):
