@@ -6,8 +6,8 @@ path-tracing time to the same PSNR (issue 27 item 3).
 
 It runs the preprocess at graphs/room_relight.yaml's settings with ``--backend embree`` ray
 casting — ProjectTextures, RadiositySolve, TextureRefine,
-Unocclude — and prints each stage's CPU seconds (this process, time.process_time: on a
-shared machine the CPU time stands for a quiet machine's wall time), the links, the load
+Unocclude — and prints each stage's CPU seconds, then the total wall seconds (this process,
+time.process_time: on a shared machine the CPU time stands for a quiet machine's wall time), the links, the load
 average, and the PSNR of "A off" and "B ×2" against Mitsuba references (512 spp, cached under
 --cache; loscos_scenes.py's), inside the room and over the whole image.
 
@@ -39,13 +39,13 @@ from nodes.loscos.textures import ProjectTextures  # noqa: E402
 
 
 def preprocess(name: str, builtin: str):
-    """(outputs, {stage: CPU s}) of the Embree preprocess of ``builtin:<builtin>``."""
-    t = {}
+    """(outputs, {stage: CPU s}, {stage: wall s}) of the Embree preprocess of ``builtin:<builtin>``."""
+    t, wall = {}, {}
 
     def clock(key, cls, params, **kw):
-        c = time.process_time()
+        c, w = time.process_time(), time.perf_counter()
         out = LS.run(cls, params, **kw)
-        t[key] = time.process_time() - c
+        t[key], wall[key] = time.process_time() - c, time.perf_counter() - w
         return out
 
     with rays.using("embree"):
@@ -58,7 +58,7 @@ def preprocess(name: str, builtin: str):
                     scene=s["scene"], solution=sol, projection=pr)
         un = clock("Unocclude", Unocclude, {}, solution=ref, projection=pr,
                    photo=s["photo"])["unoccluded"]
-    return dict(s, projection=pr, solution=ref, unoccluded=un), t
+    return dict(s, projection=pr, solution=ref, unoccluded=un), t, wall
 
 
 def relit(p, params):
@@ -100,11 +100,12 @@ def main():
     os.makedirs(a.cache, exist_ok=True)
     ms = LS.make_scenes()
     A, B, _ = LS.cases(a.scene, ms)
-    p, t = preprocess(a.scene, a.scene + ("_mesh" if a.mesh else ""))
+    p, t, wall = preprocess(a.scene, a.scene + ("_mesh" if a.mesh else ""))
     total = sum(t.values())
     print(f"{a.scene}{' (mesh file)' if a.mesh else ''} --backend embree: preprocess {total:.1f} s CPU ("
           + ", ".join(f"{k} {v:.1f}" for k, v in t.items())
-          + f"); {len(p['solution'].recv)} links; load {os.getloadavg()[0]:.1f}", flush=True)
+          + f"), {sum(wall.values()):.1f} s wall; {len(p['solution'].recv)} links; "
+          f"load {os.getloadavg()[0]:.1f}", flush=True)
     pr = p["projection"]
     inside = pr.pix_poly >= 0
     for case, prm in (("A off", {"light_scale": {A: 0.0}}), ("B x2", {"light_scale": {B: 2.0}})):

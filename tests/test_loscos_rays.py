@@ -93,3 +93,28 @@ def test_boxes_meet_is_the_box_test_less_the_ignored_occluders():
     assert 0.2 < want.mean() < 0.98 and (meet.any(1) & ~want).any()
     assert np.array_equal(rays.boxes_meet(lo, hi, occ, ignore, chunk=1000), want)
     assert np.array_equal(rays.boxes_meet(lo, hi, occ), meet.any(1))
+
+
+def test_link_visibility_and_point_form_factors_are_the_same_on_one_or_two_cores(monkeypatch):
+    # link_visibility draws each block's random numbers in the caller, in block order, and
+    # the blocks run on the cores (nodes.common.parallel.run_tasks): the bits must not
+    # depend on the threads; nor ff_point_polygon's chunks
+    import os
+
+    from nodes.loscos import hierarchy as HR
+
+    sc = LoadScene(LoadScene.Params(path="builtin:room"), Context()).compute()["scene"]
+    h = HR.Hierarchy.roots(sc.verts)
+    r, s = np.nonzero(~np.eye(len(sc.verts), dtype=bool))
+    monkeypatch.setattr(HR, "RAYS_AT_ONCE", 16 * 97)  # many blocks of 97 links
+    pts = G.corners(*h.geom(r)[:3])[:, 0] * 0.9 + 0.1 * G.corners(*h.geom(s)[:3])[:, 1]
+    got = {}
+    for cores in (1, 2):
+        monkeypatch.setattr(os, "cpu_count", lambda cores=cores: cores)
+        with rays.using("embree"):
+            V, C = HR.link_visibility(h, r, s, 4, np.random.default_rng(5), centroid=True)
+        F = G.ff_point_polygon(pts, h.geom(r)[3], G.corners(*h.geom(s)[:3]), chunk=101)
+        got[cores] = V, C, F
+    assert len(r) > 10 * 97 and 0.05 < (got[1][0] < 1).mean() < 0.95
+    for a, b in zip(got[1], got[2]):
+        assert np.array_equal(a, b)

@@ -5,10 +5,13 @@ threads; the bands are independent, so results do not depend on the threading.
 """
 from __future__ import annotations
 
+import contextvars
 import functools
 import os
+import threading
 
 _POOL = None
+_PREFIX = "nodes-bands"
 
 
 def pool():
@@ -20,25 +23,26 @@ def pool():
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor
 
-        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix="nodes-bands")
+        _POOL = ThreadPoolExecutor(min(ncpu, 8), thread_name_prefix=_PREFIX)
     return _POOL
 
 
 def run_tasks(tasks) -> list:
     """Run the callables, inline on one core or for one task, else on :func:`pool`, and return
     their results in order.  One run of consecutive tasks per thread, the caller's thread
-    taking the first: few hand-offs, and neighbouring bands stay on one core."""
+    taking the first: few hand-offs, and neighbouring bands stay on one core.  Each run sees
+    the caller's context variables (as the ray-casting backend of ``rays.using``)."""
     tasks = list(tasks)
     ncpu = os.cpu_count() or 1
-    if ncpu < 2 or len(tasks) < 2:
-        return [fn() for fn in tasks]
+    if ncpu < 2 or len(tasks) < 2 or threading.current_thread().name.startswith(_PREFIX):
+        return [fn() for fn in tasks]  # (inside a pool thread: inline, never waiting on the pool)
     per = -(-len(tasks) // min(ncpu, len(tasks)))
     runs = [tasks[i:i + per] for i in range(0, len(tasks), per)]
 
     def run(chunk):
         return [fn() for fn in chunk]
 
-    futs = [pool().submit(run, c) for c in runs[1:]]
+    futs = [pool().submit(contextvars.copy_context().run, run, c) for c in runs[1:]]
     out = run(runs[0])
     for fut in futs:
         out += fut.result()

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import threading
 
 import numpy as np
 
@@ -145,6 +146,7 @@ def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
 
 _SCENES: dict[bytes, object] = {}
 _MAX_SCENES = 8
+_SCENES_LOCK = threading.Lock()
 
 
 def scene(occ):
@@ -152,23 +154,28 @@ def scene(occ):
     (o, o+u+v, o+v), or the one triangle (o, o+u, o+v) of a triangle occluder; with the
     occluder of each primitive.  Built once per set of occluders and kept (the last few)."""
     import xxhash
-    from embreex import mesh_construction, rtcore_scene
 
     o, u, v = (np.ascontiguousarray(a, np.float64) for a in occ[:3])
     tri = _tri(occ)
     key = xxhash.xxh3_128_digest(o.tobytes() + u.tobytes() + v.tobytes() + tri.tobytes())
-    sc = _SCENES.get(key)
-    if sc is None:
-        c = np.stack([o, o + u, o + u + v, o + v], 1)
-        tris = np.stack([np.where(tri[:, None, None], c[:, [0, 1, 3]], c[:, [0, 1, 2]]),
-                         c[:, [0, 2, 3]]], 1)
-        keep = np.stack([np.ones(len(o), bool), ~tri], 1).reshape(-1)
-        emb = rtcore_scene.EmbreeScene(robust=True)
-        mesh_construction.TriangleMesh(emb, tris.reshape(-1, 3, 3)[keep].astype(np.float32))
-        sc = (emb, np.repeat(np.arange(len(o)), 2)[keep])
-        if len(_SCENES) >= _MAX_SCENES:
-            _SCENES.pop(next(iter(_SCENES)))
-        _SCENES[key] = sc
+    with _SCENES_LOCK:  # callers on several threads build each scene once
+        return _SCENES.get(key) or _build_scene(key, o, u, v, tri)
+
+
+def _build_scene(key, o, u, v, tri):
+    """:func:`scene`'s Embree scene, built and kept under key (the caller holds the lock)."""
+    from embreex import mesh_construction, rtcore_scene
+
+    c = np.stack([o, o + u, o + u + v, o + v], 1)
+    tris = np.stack([np.where(tri[:, None, None], c[:, [0, 1, 3]], c[:, [0, 1, 2]]),
+                     c[:, [0, 2, 3]]], 1)
+    keep = np.stack([np.ones(len(o), bool), ~tri], 1).reshape(-1)
+    emb = rtcore_scene.EmbreeScene(robust=True)
+    mesh_construction.TriangleMesh(emb, tris.reshape(-1, 3, 3)[keep].astype(np.float32))
+    sc = (emb, np.repeat(np.arange(len(o)), 2)[keep])
+    if len(_SCENES) >= _MAX_SCENES:
+        _SCENES.pop(next(iter(_SCENES)))
+    _SCENES[key] = sc
     return sc
 
 

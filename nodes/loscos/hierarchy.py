@@ -30,11 +30,13 @@ algorithm is refined below the cluster level at once, so no cluster elements are
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from nodes.common import rays
+from nodes.common.parallel import run_tasks
 
 from . import geometry as G
 
@@ -262,30 +264,47 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
     With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
     points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
     (0.5, 0.5) where no ray carries weight.  Links are taken ``RAYS_AT_ONCE`` rays at a time
-    (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory).
+    (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory),
+    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.
     """
     occ = occ if occ is not None else h.occluders()
-    step = max(1, RAYS_AT_ONCE // (n_rays * n_rays))
+    k = n_rays * n_rays
+    step = max(1, RAYS_AT_ONCE // k)
     V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
-    for a in range(0, len(r), step):
-        b = slice(a, a + step)
-        V[b], C[b] = _link_visibility(h, r[b], s[b], n_rays, rng, occ)
+    blocks = [slice(a, min(len(r), a + step)) for a in range(0, len(r), step)]
+    for g in range(0, len(blocks), BLOCKS_AT_ONCE):
+        group = blocks[g:g + BLOCKS_AT_ONCE]
+        # each block's random numbers drawn here, in block order: the same V and C on any
+        # number of threads
+        draws = [(rng.random((b.stop - b.start, k, 2)), rng.permutation(k),
+                  rng.random((b.stop - b.start, k, 2))) for b in group]
+        out = run_tasks([functools.partial(_link_visibility, h, r[b], s[b], n_rays, d, occ)
+                         for b, d in zip(group, draws)])
+        for b, (v, c) in zip(group, out):
+            V[b], C[b] = v, c
     return (V, C) if centroid else V
+
+
+#: blocks of :func:`link_visibility` cast together, on the cores (numpy and Embree release
+#: the GIL); a whole group's random numbers are held at once
+BLOCKS_AT_ONCE = 2
 
 
 #: rays per block of :func:`link_visibility`
 RAYS_AT_ONCE = 1 << 18
 
 
-def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng, occ):
-    """:func:`link_visibility`'s V and C of one block of links."""
+def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, draws, occ):
+    """:func:`link_visibility`'s V and C of one block of links, with its random numbers
+    ``draws``: (M,k,2) uniforms for the receiver's points, a permutation of the k cells and
+    (M,k,2) uniforms for the sender's."""
     ro, ru, rv, _, _ = h.geom(r)
     so, su, sv, _, _ = h.geom(s)
     st = G.grid_st(n_rays)
     k = len(st)
     M = len(r)
-    ja = _jittered(st, n_rays, M, rng)
-    jb = _jittered(st[rng.permutation(k)], n_rays, M, rng)
+    ja = _jittered(st, n_rays, draws[0])
+    jb = _jittered(st[draws[1]], n_rays, draws[2])
     if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
@@ -318,9 +337,9 @@ def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rn
     return V, C
 
 
-def _jittered(st: np.ndarray, n: int, M: int, rng) -> np.ndarray:
-    """(M,k,2): the cell centres st (k,2) of an n×n grid, each moved at random in its cell."""
-    j = rng.random((M, len(st), 2))
+def _jittered(st: np.ndarray, n: int, j: np.ndarray) -> np.ndarray:
+    """(M,k,2): the cell centres st (k,2) of an n×n grid, each moved in its cell by the
+    uniforms j (M,k,2), in place."""
     j -= 0.5
     j /= n
     j += st
