@@ -18,7 +18,11 @@ from nodes.loscos.scene import LoadScene  # noqa: E402
 from nodes.loscos.textures import ProjectTextures  # noqa: E402
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
-FAST = dict(eps_bf=0.3, eps_bfv=0.03, min_area=0.002, max_level=6)
+# rays=8 (64 visibility rays per link, not the default 16): the per-tile check below is about the
+# method's bias, and with 16 rays the ray noise alone moved the back wall's worst tile by
+# 0.034-0.049 over seeds 0-3 on the same code (the limit is 0.05), so a change that only drew
+# its rays in another order passed or failed by luck; with 64: 0.029-0.036 over seeds.
+FAST = dict(eps_bf=0.3, eps_bfv=0.03, min_area=0.002, max_level=6, rays=8)
 VLIGHT = {"name": "V", "center": [0.55, 0.9, -0.45], "size": [0.3, 0.3], "normal": [0, -1, 0],
           "emittance": [40.0, 36.0, 28.0]}
 
