@@ -10,7 +10,8 @@ processes, Dask workers on other machines) compute each key once and ``cache gc`
   the store's atomic primitive, an exclusive create (``open(path, "xb")``: a conditional PUT,
   ``If-None-Match: *``, on S3 and GCS), holding its owner and an expiry time.  A thread renews it
   every ``ttl/5`` seconds while it is held (a node done sooner never renews); release deletes it
-  (in a run, behind the node's record, off its critical path: graphkit.store.behind).
+  unless it is finished (below) (in a run, behind the node's record, off its critical path:
+  graphkit.store.behind).
   Renewal and release are one request each (a PUT, a DELETE) while the lease is far from its
   expiry: nobody breaks an unexpired lease, so it is still the owner's; only an owner that could
   not renew for half a ttl reads the lease back first (someone may have broken it).  A key's
