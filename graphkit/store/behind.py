@@ -5,7 +5,7 @@ two after its compute: its objects (one batch), then its record, and then the le
 (renewal stops; a lease whose record is written is left, finished: graphkit.leases), each after
 the one before (a record never names an object not yet there; a lease is never let go before
 the record is there, so a run that waited for it finds the record and does not compute the key
-again).  :meth:`WritesBehind.hold` keeps that order but runs the three in a
+again).  :meth:`WritesBehind.hold` keeps that order but runs them in a
 thread of its own: the node's outcome (its digests, its values in memory) goes on to the nodes
 that need it at once.  The run waits for every write behind before its outputs are exported
 and before it lets go of the store (:meth:`drain`, from ``Store.commit``), so ``cache gc``,
