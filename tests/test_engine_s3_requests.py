@@ -45,7 +45,7 @@ def test_a_cold_run_needs_at_most_5_requests_per_computed_node_and_a_warm_run_2_
     computed in this run is not looked up on its own first; the graph's source is, in its
     generation's batch), the lease's create (not its delete: a lease whose record is written is
     left, finished), an object per output, the record: 45 requests for quickstart's 7 nodes
-    (52 with a delete per lease, 59 with two lookups per node too; issue 29's goal is 10 per
+    (52 with a delete per lease, and more with a second lookup per node; issue 29's goal is 10 per
     node; a lease read back before its release, or a thumbnail entry per image beside the
     sheet, breaks this).  Warm: the records (read ahead in one batch from
     the last run's notes) and the exported objects: 17 requests."""
