@@ -10,10 +10,14 @@ processes, Dask workers on other machines) compute each key once and ``cache gc`
   the store's atomic primitive, an exclusive create (``open(path, "xb")``: a conditional PUT,
   ``If-None-Match: *``, on S3 and GCS), holding its owner and an expiry time.  A thread renews it
   every ``ttl/5`` seconds while it is held (a node done sooner never renews); release deletes it
-  (in a run, behind the node's record, off its critical path: graphkit.store.behind).
+  unless it is finished (below) (in a run, behind the node's record, off its critical path:
+  graphkit.store.behind).
   Renewal and release are one request each (a PUT, a DELETE) while the lease is far from its
   expiry: nobody breaks an unexpired lease, so it is still the owner's; only an owner that could
-  not renew for half a ttl reads the lease back first (someone may have broken it).  A lease whose expiry has passed
+  not renew for half a ttl reads the lease back first (someone may have broken it).  A key's
+  lease whose record the owner wrote is not deleted at all: a lease whose record exists is
+  finished (a run that meets one looks the record up and does not wait), and ``cache gc``
+  removes it.  A lease whose expiry has passed
   (its owner died, or lost the store for a whole ttl) is broken by the next run that wants it,
   which says once what it waits for.  Where a file system has no exclusive create, the lease is
   written and read back after a pause (a documented weaker mode: two runs may then both win and
@@ -81,14 +85,23 @@ def alive(cur: dict | None) -> bool:
 class Lease:
     """An exclusive lease on ``path`` in the fsspec file system ``fs`` (see the module docstring).
 
-    ``on_wait(holder, ttl)`` is called once when the lease is held by someone else."""
+    ``on_wait(holder, ttl)`` is called once when the lease is held by someone else.  ``done()``,
+    if given, says whether the work the lease guards is out (a key's record exists): a lease met
+    while it is, is a finished one that its owner left behind (:attr:`finished`), and acquire
+    returns at once without holding it (``waited``: the caller looks the record up)."""
 
     def __init__(self, fs, path: str, ttl: float | None = None,
-                 on_wait: Callable[[dict, float], None] | None = None):
+                 on_wait: Callable[[dict, float], None] | None = None,
+                 done: Callable[[], bool] | None = None):
         self.fs, self.path = fs, path
         self.ttl = ttl or _ttl()
         self.token = uuid.uuid4().hex
         self.on_wait = on_wait
+        self.done = done
+        #: set by the owner once the guarded work is out: release leaves the lease where it is
+        #: (finished, as ``done()`` tells others) instead of deleting it: one request less
+        self.finished = False
+        self._held = False
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._renewer: threading.Thread | None = None
@@ -167,6 +180,8 @@ class Lease:
             if got:
                 break
             self.waited = True
+            if self.done is not None and self.done():
+                return  # a finished lease left behind: nothing to wait for, nothing held
             cur = self._read()
             if not said and self.on_wait is not None and cur is not None:
                 said = True
@@ -174,6 +189,7 @@ class Lease:
             self._break_if_stale(cur)
             time.sleep(delay)
             delay = min(_POLL_MAX, delay * 2)
+        self._held = True
         self._renewer = threading.Thread(target=self._renew, daemon=True, name="graphkit-lease")
         self._renewer.start()
 
@@ -197,7 +213,8 @@ class Lease:
             self._renewer.join()
         if self.error is not None:
             raise LeaseLost(f"{type(self.error).__name__}: {self.error}")
-        if self._mine():
+        held, self._held = self._held, False
+        if held and not self.finished and self._mine():
             with contextlib.suppress(FileNotFoundError, OSError):
                 self.fs.rm_file(self.path)
 

@@ -1,10 +1,11 @@
 """Writes behind a computed node, off the run's critical path (object stores, inside a run).
 
 On an object store each write is a round trip.  A node computed under its key's lease needs
-three after its compute: its objects (one batch), then its record, then the lease's release,
-each after the one before (a record never names an object not yet there; a lease is never let
-go before the record is there, so a run that waited for it finds the record and does not
-compute the key again).  :meth:`WritesBehind.hold` keeps that order but runs the three in a
+two after its compute: its objects (one batch), then its record, and then the lease is let go
+(renewal stops; a lease whose record is written is left, finished: graphkit.leases), each after
+the one before (a record never names an object not yet there; a lease is never let go before
+the record is there, so a run that waited for it finds the record and does not compute the key
+again).  :meth:`WritesBehind.hold` keeps that order but runs them in a
 thread of its own: the node's outcome (its digests, its values in memory) goes on to the nodes
 that need it at once.  The run waits for every write behind before its outputs are exported
 and before it lets go of the store (:meth:`drain`, from ``Store.commit``), so ``cache gc``,

@@ -102,11 +102,14 @@ def ls(store: "Store") -> list[dict]:
 
 
 def _stale(store: "Store", cat: Catalog) -> list[Entry]:
-    """Temp files, lock files no live lease holds, quarantined entries, journals no record links
+    """Temp files, lock files no live lease holds or finished, quarantined entries, journals no record links
     to, and what a killed file-memo save left at the root."""
     fs = store.fs
     out = [e for part in ("tmp", "quarantine") for e in cat.parts[part]]
-    out += [e for e in cat.parts["locks"] if not fs.live_lease(e.rel)]  # (a lease held outside a run)
+    # a lease no live owner holds (one outside a run), or, on an object store, a finished one:
+    # its key's record exists (graphkit.leases: its owner left it; keys/ab/K.json, locks/ab/K.lock)
+    done = {e.rel[5:-5] for e in cat.parts["keys"]} if fs.atomic_put else set()
+    out += [e for e in cat.parts["locks"] if e.rel[6:-5] in done or not fs.live_lease(e.rel)]
     if fs.hard_links:  # no record links to it any more (and no run writes it: see above)
         out += [e for e in cat.parts["journal"] if e.nlink == 1]
     out += [e for e in cat.root_files if _MEMO_TMP.match(e.rel)]

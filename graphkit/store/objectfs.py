@@ -132,6 +132,8 @@ class FsspecFS(FileSystem):
         """``options``: storage options (a graph file's), under those of GRAPHKIT_CACHE_OPTIONS."""
         import fsspec
 
+        self._leases: dict[str, Any] = {}  # the key leases this process holds, by rel
+
         protocol = fsspec.core.split_protocol(url)[0]
         self.options = merged_options(merged_options(CLIENT_DEFAULTS.get(protocol, {}), options or {}),
                                       cache_options())
@@ -243,7 +245,8 @@ class FsspecFS(FileSystem):
         data = b"".join(bytes(c) for c in chunks)
         with fs_errors(self.url):
             if self.buckets:
-                return self.fs.pipe_file(self.path(rel), data)
+                self.fs.pipe_file(self.path(rel), data)
+                return self._finished(rel)
             self._parent(rel)
             tmp = self.path(f"tmp/{uuid.uuid4().hex}")
             try:
@@ -253,6 +256,13 @@ class FsspecFS(FileSystem):
                 with contextlib.suppress(Exception):
                     self.fs.rm_file(tmp)
                 raise
+
+    def _finished(self, rel: str) -> None:
+        """A key's record is written: its lease, held here, is finished (left, not deleted)."""
+        if rel.startswith("keys/"):
+            lease = self._leases.get(f"locks/{rel[5:-5]}.lock")
+            if lease is not None:
+                lease.finished = True
 
     def write_many(self, entries: dict[str, list]) -> None:
         """One concurrent batch of PUTs where a PUT is atomic (fsspec's multi-path ``pipe``)."""
@@ -296,12 +306,14 @@ class FsspecFS(FileSystem):
         from ..leases import is_in_process, local_root
 
         leased = local_root(self.fs, self.root) is None and not is_in_process(self.fs)
-        return self.lock(f"locks/{key[:2]}/{key}.lock", on_wait=on_wait if leased else None)
+        return self.lock(f"locks/{key[:2]}/{key}.lock", on_wait=on_wait if leased else None,
+                         done=lambda: self.read(f"keys/{key[:2]}/{key}.json") is not None)
 
     @contextlib.contextmanager
-    def lock(self, rel: str, shared: bool = False, on_wait=None):
+    def lock(self, rel: str, shared: bool = False, on_wait=None, done=None):
         """Locks that hold across processes (see graphkit.leases): flocks for file://, a thread
-        lock for memory://, leases on object stores (``store.lock``: runs shared, gc exclusive)."""
+        lock for memory://, leases on object stores (``store.lock``: runs shared, gc exclusive;
+        ``done``: a key's lease, finished once its record is written, see :meth:`write_atomic`)."""
         from .. import leases
 
         folder = leases.local_root(self.fs, self.root)
@@ -316,9 +328,13 @@ class FsspecFS(FileSystem):
         if rel == "store.lock":
             cm = (leases.shared if shared else leases.exclusive)(self.fs, self.root, on_wait)
         else:
-            cm = leases.Lease(self.fs, self.path(rel), on_wait=on_wait)
+            cm = leases.Lease(self.fs, self.path(rel), on_wait=on_wait, done=done)
         with self._thread_lock(rel) if not shared else contextlib.nullcontext(False) as waited, self._held(cm):
-            yield waited or getattr(cm, "waited", None)
+            self._leases[rel] = cm  # (the thread lock: one holder of rel in this process)
+            try:
+                yield waited or getattr(cm, "waited", None)
+            finally:
+                self._leases.pop(rel, None)
 
     @contextlib.contextmanager
     def _thread_lock(self, rel: str):
