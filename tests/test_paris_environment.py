@@ -151,6 +151,8 @@ def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
                                            for i in (8.0, 1.0, 8 / 27, 1e-6)))
     assert shadow_map_sizes(env.lights, 1024) == [1024, 512, 341, 128]
     assert shadow_map_sizes(env.lights[1:2], 1024) == [1024]  # alone, it is the brightest
+    # lights given as such (the first ``own``) keep the full map; the rest are sized among themselves
+    assert shadow_map_sizes(env.lights, 1024, own=2) == [1024, 1024, 1024, 128]
     sizes = []
     real = raster.shadow_map
     monkeypatch.setattr(raster, "shadow_map", lambda V, F, light, size, **kw: sizes.append(size) or real(V, F, light, size, **kw))

@@ -76,18 +76,19 @@ SIZE_POWER = 1 / 3
 MIN_SIZE = 1 / 8
 
 
-def shadow_map_sizes(lights, size: int) -> list[int]:
-    """The shadow-map side of each of an environment's ``lights``: ``size`` for the brightest,
-    smaller for dimmer ones.  A coarser map moves a shadow's edge by up to a texel, an error
+def shadow_map_sizes(lights, size: int, own: int = 0) -> list[int]:
+    """The shadow-map side of each of ``lights``: ``size`` for the first ``own`` (lights
+    given as such) and for the brightest of the rest (an environment's), smaller for dimmer
+    ones.  A coarser map moves a shadow's edge by up to a texel, an error
     weighed by the light's energy: the sum over lights of energy / side, for a cost growing
     with the texels (side²), is least with side ∝ energy^⅓.  Measured against Mitsuba
     (benchmarks/bench_environment.py, 16 lights): every map within 0.01 dB of full-size maps
     or better; at 1024² the environment's shadow maps take ~⅓ of their texels."""
-    lum = np.array([light.intensity * float(np.dot(light.color, LUMA)) for light in lights])
+    lum = np.array([light.intensity * float(np.dot(light.color, LUMA)) for light in lights[own:]])
     if len(lum) == 0 or lum.max() <= 0:
-        return [size] * len(lum)
+        return [size] * len(lights)
     side = size * np.maximum((lum / lum.max()) ** SIZE_POWER, MIN_SIZE)
-    return [int(v) for v in np.clip(np.rint(side), 16, size)]
+    return [size] * own + [int(v) for v in np.clip(np.rint(side), 16, size)]
 
 
 def map_energy(px: np.ndarray) -> np.ndarray:

@@ -206,7 +206,7 @@ def light_part(p, V: np.ndarray, F: np.ndarray, lights, up, own: int | None = No
     from nodes.paris.environment import shadow_map_sizes
 
     own = len(lights) if own is None else own
-    sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
+    sizes = shadow_map_sizes(lights, p.shadow_map_size, own)
     part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None, "sm_sizes": sizes}
     sm_errors = [None] * len(lights)
     if p.shadows and lights:  # (none: an environment's SH ambient alone, unshadowed)

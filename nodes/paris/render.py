@@ -612,7 +612,7 @@ class Render(Node):
         col = np.zeros((M, 3))
         amb = np.zeros(3)
         lit = []  # (light, L, diffuse and specular lobes, shadow-map task, its map's side)
-        sizes = [p.shadow_map_size] * own + shadow_map_sizes(lights[own:], p.shadow_map_size)
+        sizes = shadow_map_sizes(lights, p.shadow_map_size, own)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             diff, spec = phong.lobes(s.normals, ldir, s.view, material.shininess)
