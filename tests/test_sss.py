@@ -108,6 +108,24 @@ def test_scatter_is_sss_blur_prepared_once():
         assert np.array_equal(got[mask == 0], x[mask == 0])
 
 
+@pytest.mark.parametrize("mpp, crop", [(1.0, False), (1.0, True), (0.25, False)])
+def test_scatter_bytes_do_not_depend_on_its_bands(monkeypatch, mpp, crop):
+    """Scatter works on bands of rows, one per core, each band's y pass reading the rows
+    around it: the bytes are those of one band over the whole box, for any number of bands
+    (per-pixel σ, a mask, the skin's box; wide kernels at 0.25 mm/px reach across bands)."""
+    import os
+
+    from nodes.common.sss import Scatter
+
+    img, depth, mask = _face()
+    outs = []
+    for cores in (1, 2, 3, 7):
+        monkeypatch.setattr(os, "cpu_count", lambda cores=cores: cores)
+        outs.append(Scatter(img.shape, mpp, depth, mask=mask, crop=crop)(img))
+    for got in outs[1:]:
+        assert np.array_equal(got, outs[0])
+
+
 def test_scatter_without_skin_changes_nothing():
     from nodes.common.sss import Scatter
 

@@ -41,12 +41,13 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
 from __future__ import annotations
 
 import functools
+import os
 import threading
 from typing import NamedTuple
 
 import numpy as np
 
-from .parallel import run_balanced, run_tasks
+from .parallel import run_tasks
 
 #: d'Eon et al. 2007 six-Gaussian fit of the three-layer skin diffusion profile
 #: (GPU Gems 3, ch. 14, table 14-1): (variance in mm², RGB weight).
@@ -218,44 +219,89 @@ def _trimmed(sigma: float, weight: np.ndarray) -> _Term:
     return _Term(sigma, np.ascontiguousarray(weight[y0:y1, x0:x1]), (y0, y1, x0, x1))
 
 
-def _apply_terms(src: np.ndarray, terms: list[_Term], axis: int) -> np.ndarray:
-    """Σ weight · _blur_1d(src, σ) over the terms of :func:`_axis_terms`, each blur made on its
-    term's box only (grown by the kernel's radius along ``axis``, within the plane: the same
-    taps and the same reflected border as a blur of the whole plane)."""
+class _Work:
+    """Float32 buffers kept between calls, by name: a fresh 1280×720 plane costs ~1 ms of page
+    faults when first written (the kernel zeroes its pages), as much as a short blur of it, and
+    a scatter would fault ~60 MB per call."""
+
+    def __init__(self):
+        self._bufs: dict = {}
+
+    def get(self, name, rows: int, cols: int) -> np.ndarray:
+        """A (rows, cols) C-contiguous float32 array (contents undefined)."""
+        n = rows * cols
+        buf = self._bufs.get(name)
+        if buf is None or buf.size < n:
+            buf = self._bufs[name] = np.empty(n, np.float32)
+        return buf[:n].reshape(rows, cols)
+
+
+#: the spare sets of buffers (one _Work per band), shared by every Scatter; a call takes one
+_SPARE: list = []
+
+
+def _band_terms(src: np.ndarray, off: int, terms: list[_Term], axis: int, rows: tuple[int, int],
+                work: _Work, name: str) -> np.ndarray:
+    """Rows r0:r1 (``rows``) of Σ weight · _blur_1d(plane, σ) over the terms of
+    :func:`_axis_terms`, where ``src`` holds the plane's rows off : off + len(src) (for
+    ``axis`` 0 all of them; for axis 1 at least r0:r1).  Each blur is made on its term's box
+    within the rows only (grown by the kernel's radius along ``axis``, within the plane: the
+    same taps, the same reflected border and the same columns as a blur of the whole plane, so
+    the same bytes).  Returns (r1 − r0, W) float32: a view of ``src`` or of ``work``'s buffers."""
     import cv2
 
+    r0, r1 = rows
+    width = src.shape[1]
     if len(terms) == 1 and terms[0].weight is None:
-        return _blur_1d(src, terms[0].sigma, axis)
-    acc = None
+        return _blur_rows(src, off, terms[0].sigma, axis, (r0, r1, 0, width), work, name + "t")
+    acc = work.get(name, r1 - r0, width)
+    started = False
     for s, wt, (y0, y1, x0, x1) in terms:
-        if y0 == y1 or x0 == x1:  # no weight anywhere
+        a, b = max(y0, r0), min(y1, r1)
+        if a >= b or x0 == x1:  # no weight in these rows
             continue
-        if wt is None:
-            b = _blur_1d(src, s, axis)
+        blurred = _blur_rows(src, off, s, axis, (a, b, x0, x1), work, name + "t")
+        w = None if wt is None else wt[a - y0:b - y0]
+        if not started and (a, b, x0, x1) == (r0, r1, 0, width):  # the first term covers the band
+            if w is None:
+                np.copyto(acc, blurred)
+            else:
+                cv2.multiply(blurred, w, dst=acc)
         else:
-            b = _blur_box(src, s, axis, (y0, y1, x0, x1))
-        if acc is None and wt is not None and wt.shape == src.shape:
-            acc = cv2.multiply(b, wt)  # the first term over the whole plane: no zeroed buffer
-            continue
-        if acc is None:
-            acc = np.zeros(src.shape, np.float32)
-        if wt is None:
-            acc += b
-        else:
-            cv2.accumulateProduct(b, wt, acc[y0:y1, x0:x1])
-    return np.zeros(src.shape, np.float32) if acc is None else acc
+            if not started:
+                acc.fill(0.0)
+            region = acc[a - r0:b - r0, x0:x1]
+            if w is None:
+                region += blurred
+            else:
+                cv2.accumulateProduct(blurred, w, region)
+        started = True
+    if not started:
+        acc.fill(0.0)
+    return acc
 
 
-def _blur_box(src: np.ndarray, sigma: float, axis: int, box) -> np.ndarray:
-    """_blur_1d(src, σ, axis)[y0:y1, x0:x1]: the blur of the box grown by the kernel's radius
-    along ``axis`` (cut at the plane's edges, where the border is reflected as in the whole plane)."""
+def _blur_rows(src: np.ndarray, off: int, sigma: float, axis: int, box, work: _Work, name: str) -> np.ndarray:
+    """_blur_1d(plane, σ, axis)[y0:y1, x0:x1] (``box``), ``src`` holding the plane's rows from
+    ``off``: the blur of the box grown by the kernel's radius along ``axis`` (cut at the plane's
+    edges, where the border is reflected as in the whole plane), into ``work``'s buffer
+    ``name``; the identity (a one-tap kernel) is a view of ``src``."""
+    import cv2
+
     y0, y1, x0, x1 = box
-    r = gaussian_kernel(sigma).size // 2
+    k = gaussian_kernel(sigma)
+    if k.size == 1:
+        return src[y0 - off:y1 - off, x0:x1]
+    r = k.size // 2
     if axis == 0:
-        a0, a1 = max(0, y0 - r), min(src.shape[0], y1 + r)
-        return _blur_1d(src[a0:a1, x0:x1], sigma, 0)[y0 - a0:y1 - a0]
+        a0, a1 = max(0, y0 - r), min(off + src.shape[0], y1 + r)
+        out = work.get(name, a1 - a0, x1 - x0)
+        cv2.filter2D(src[a0 - off:a1 - off, x0:x1], -1, k.reshape(-1, 1), dst=out, borderType=cv2.BORDER_REFLECT)
+        return out[y0 - a0:y1 - a0]
     a0, a1 = max(0, x0 - r), min(src.shape[1], x1 + r)
-    return _blur_1d(src[y0:y1, a0:a1], sigma, 1)[:, x0 - a0:x1 - a0]
+    out = work.get(name, y1 - y0, a1 - a0)
+    cv2.filter2D(src[y0 - off:y1 - off, a0:a1], -1, k.reshape(1, -1), dst=out, borderType=cv2.BORDER_REFLECT)
+    return out[:, x0 - a0:x1 - a0]
 
 
 def _blur_axis(img: np.ndarray, sigma: np.ndarray, axis: int, valid: np.ndarray | None) -> np.ndarray:
@@ -436,6 +482,7 @@ class Scatter:
             hw = (h, w) if self.box is None else (self.box[1] - self.box[0], self.box[3] - self.box[2])
             for p in passes:
                 p[2:] = [_axis_terms(p[2], 0, valid, hw), _axis_terms(p[3], 1, valid, hw)]
+            self._row_cost = _row_costs(passes, hw)
         self.passes = passes
 
     def __call__(self, irradiance: np.ndarray) -> np.ndarray:
@@ -450,56 +497,120 @@ class Scatter:
         else:
             y0, y1, x0, x1 = self.box
             res = img.copy()
-            res[y0:y1, x0:x1] = self.on_box(img[y0:y1, x0:x1])
+            self.on_box(img[y0:y1, x0:x1], out=res[y0:y1, x0:x1])
         return res[:, :, 0] if squeeze else res
 
-    def on_box(self, sub: np.ndarray) -> np.ndarray:
+    def on_box(self, sub: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The scattered irradiance on :attr:`box` (the whole frame when None) from the
         irradiance there, (h, w, C) float32: what ``self(irradiance)`` puts in the box (outside
-        it the irradiance is returned unchanged)."""
-        import cv2
-
-        valid, axis_blur = self.valid, self.axis_blur
+        it the irradiance is returned unchanged).  Written into ``out`` when given (an (h, w, C)
+        float32 array; it may be ``sub`` itself: all of ``sub`` is read before ``out`` is written)."""
+        out = np.empty(sub.shape, np.float32) if out is None else out
         if sub.size == 0:
-            return sub.copy()
-        planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
-        if axis_blur is None:  # y then x per Gaussian and channel, on the cores (cv2 and numpy release the GIL)
-            src = planes if valid is None else [cv2.multiply(a, valid) for a in planes]
-            jobs = [functools.partial(_scatter_plane, src[ch], ty, tx)
-                    for chans, _, ty, tx in self.passes for ch in chans]
-            flat = iter(run_balanced(jobs, [_cost(j.args[1]) + _cost(j.args[2]) for j in jobs]))
-            done = [[next(flat) for _ in chans] for chans, *_ in self.passes]
-        else:
-            done = [axis_blur(axis_blur([planes[ch] for ch in chans], sy, 0, valid), sx, 1, valid)
-                    for chans, _, sy, sx in self.passes]
-        terms = [[] for _ in planes]  # per channel (blurred, weight) in profile order
-        for (chans, wts, *_), blurred in zip(self.passes, done):
-            for ch, wt, b in zip(chans, wts, blurred):
-                terms[ch].append((b, wt))
-        out = run_tasks([functools.partial(self._summed, t, a) for t, a in zip(terms, planes)])
-        return cv2.merge(out) if len(out) > 1 else out[0][:, :, None]
-
-    def _summed(self, terms: list, plane: np.ndarray) -> np.ndarray:
-        """A channel's Σ weight · blurred (in the order given: the profile's), the pixels off the
-        skin left unchanged."""
-        import cv2
-
-        out = np.zeros(plane.shape, np.float32) if not terms else cv2.multiply(terms[0][0], float(terms[0][1]))
-        for b, wt in terms[1:]:
-            cv2.scaleAdd(b, float(wt), out, dst=out)
-        if self._off is not None:
-            np.copyto(out, plane, where=self._off)
+            return out
+        if self.axis_blur is not None:
+            self._hooked(sub, out)
+            return out
+        h, w, c = sub.shape
+        bands = self._bands()
+        works = _take_work(len(bands))
+        try:  # the planes (times the mask) first: a band's y pass reads the rows around it
+            planes = [works[0].get(("plane", ch), h, w) for ch in range(c)]
+            src = planes if self.valid is None else [works[0].get(("src", ch), h, w) for ch in range(c)]
+            run_tasks([functools.partial(self._split, sub, planes, src, b) for b in bands])
+            run_tasks([functools.partial(self._band, planes, src, out, b, wk) for b, wk in zip(bands, works)])
+        finally:
+            _give_work(works)
         return out
 
+    def _split(self, sub, planes, src, rows) -> None:
+        """Rows r0:r1 of each channel's plane, and of the plane times the mask (the blurs' source)."""
+        import cv2
 
-def _scatter_plane(src: np.ndarray, ty: list[_Term], tx: list[_Term]) -> np.ndarray:
-    """One Gaussian of the profile on one plane: the y pass, then the x pass."""
-    return _apply_terms(_apply_terms(src, ty, 0), tx, 1)
+        r0, r1 = rows
+        for ch, plane in enumerate(planes):
+            np.copyto(plane[r0:r1], sub[r0:r1, :, ch])
+            if src is not planes:
+                cv2.multiply(plane[r0:r1], self.valid[r0:r1], dst=src[ch][r0:r1])
+
+    def _band(self, planes, src, out, rows, work: _Work) -> None:
+        """Rows r0:r1 of the scattered irradiance into ``out``: per Gaussian and channel the y
+        pass on those rows (reading the rows around them), the x pass, and the channel's sum."""
+        r0, r1 = rows
+        sums = [None] * len(planes)
+        for chans, wts, ty, tx in self.passes:
+            for ch, wt in zip(chans, wts):
+                blurred = _band_terms(_band_terms(src[ch], 0, ty, 0, rows, work, "y"), r0, tx, 1, rows, work, "x")
+                sums[ch] = _accumulate(sums[ch], blurred, wt, work.get(("sum", ch), r1 - r0, out.shape[1]))
+        self._finish(sums, [p[r0:r1] for p in planes], out[r0:r1], None if self._off is None else self._off[r0:r1])
+
+    def _hooked(self, sub, out) -> None:
+        """on_box through the backend's ``axis_blur`` (whole planes, one Gaussian after another)."""
+        planes = [np.ascontiguousarray(sub[:, :, ch]) for ch in range(sub.shape[2])]
+        sums = [None] * len(planes)
+        for chans, wts, sy, sx in self.passes:
+            done = self.axis_blur(self.axis_blur([planes[ch] for ch in chans], sy, 0, self.valid), sx, 1, self.valid)
+            for ch, wt, b in zip(chans, wts, done):
+                sums[ch] = _accumulate(sums[ch], b, wt, np.empty(planes[ch].shape, np.float32))
+        self._finish(sums, planes, out, self._off)
+
+    @staticmethod
+    def _finish(sums, planes, dst, off) -> None:
+        """dst = the channels' sums (a channel no Gaussian feeds: 0), the pixels off the skin
+        (``off``) left as in ``planes``."""
+        import cv2
+
+        for ch, plane in enumerate(planes):
+            if sums[ch] is None:
+                sums[ch] = np.zeros(plane.shape, np.float32)
+            if off is not None:
+                np.copyto(sums[ch], plane, where=off)
+        if len(sums) > 1:
+            cv2.merge(sums, dst=dst)
+        else:
+            np.copyto(dst[:, :, 0], sums[0])
+
+    def _bands(self) -> list[tuple[int, int]]:
+        """Bands of rows of equal blur work (kernel taps × columns per row), one per core."""
+        cost = self._row_cost
+        n = max(1, min(os.cpu_count() or 1, 8, cost.size))
+        cum = np.cumsum(cost)
+        cuts = [0] + [int(np.searchsorted(cum, cum[-1] * k / n)) + 1 for k in range(1, n)] + [cost.size]
+        cuts = sorted(set(min(max(x, 0), cost.size) for x in cuts))
+        return list(zip(cuts[:-1], cuts[1:]))
 
 
-def _cost(terms: list[_Term]) -> int:
-    """A pass's cost in kernel taps (for sharing the passes among the cores)."""
-    return sum(gaussian_kernel(t.sigma).size + 4 for t in terms)
+def _row_costs(passes, shape) -> np.ndarray:
+    """Per row of the box the blur work of :meth:`Scatter._band` (kernel taps × columns)."""
+    cost = np.ones(shape[0])
+    for chans, _, ty, tx in passes:
+        for terms in (ty, tx):
+            for s, _, (y0, y1, x0, x1) in terms:
+                cost[y0:y1] += len(chans) * (gaussian_kernel(s).size + 4) * (x1 - x0)
+    return cost
+
+
+def _accumulate(total, blurred, wt, buf):
+    """total + wt · blurred in place (the first term, total None: wt · blurred into ``buf``)."""
+    import cv2
+
+    if total is None:
+        return cv2.multiply(blurred, float(wt), dst=buf)
+    return cv2.scaleAdd(blurred, float(wt), total, dst=total)
+
+
+def _take_work(n: int) -> list[_Work]:
+    """A set of ``n`` buffer sets (a spare one when there is, its buffers already paged in)."""
+    with _SCATTERS_LOCK:
+        got = _SPARE.pop() if _SPARE else []
+    return got[:n] + [_Work() for _ in range(n - len(got))]
+
+
+def _give_work(works: list[_Work]) -> None:
+    """Keep ``works`` for the next call (at most two sets: calls rarely overlap)."""
+    with _SCATTERS_LOCK:
+        if len(_SPARE) < 2:
+            _SPARE.append(works)
 
 
 def _radius(sigma) -> int:
