@@ -231,6 +231,29 @@ def test_skinshade_camera_footprint_equals_explicit_mm_per_pixel():
     np.testing.assert_allclose(a["image"].pixels, b["image"].pixels, atol=1e-6)
 
 
+@pytest.mark.parametrize("case", [0, 1, 2])
+def test_skinshade_scatters_n_dot_l_as_a_hook_scatters_the_irradiance(case):
+    """With the reference SSS SkinShade scatters N·L once per Gaussian and forms
+    diffuse = light · sss(N·L) + ambient (the scatter is linear, the profile's weights sum to
+    one per channel); a backend's hook is given the irradiance E itself.  Both give the same
+    diffuse and image to float rounding (flat; mask and depth gradient; camera footprint)."""
+    from nodes.common import sss
+
+    class Hooked(SkinShade):
+        sss_blur = staticmethod(lambda *a, **k: sss.sss_blur(*a, **k))
+
+    params, inputs = SkinShade.examples()[case]
+    light = inputs["light"]
+    inputs = {**inputs, "light": Light(direction=light.direction, color=(1.0, 0.8, 0.6), intensity=1.5,
+                                       ambient=(0.05, 0.04, 0.03))}
+    p = SkinShade.Params.model_validate(params)
+    ref, got = Hooked(p).compute(**inputs), SkinShade(p).compute(**inputs)
+    if "normals" in inputs:  # the light varies over the skin: something is scattered
+        assert float(np.ptp(got["diffuse"].pixels[..., 0])) > 0.05
+    for port in ("diffuse", "image"):
+        np.testing.assert_allclose(got[port].pixels, ref[port].pixels, rtol=1e-6, atol=1e-7)
+
+
 def _gather_sss(img, mpp, depth=None, mask=None):
     """Reference screen-space SSS with the exact per-pixel gather (nodes.common.sss._blur_axis,
     itself checked against scipy in tests/test_sss.py): each pixel's kernel is the Gaussian of

@@ -126,6 +126,23 @@ def test_scatter_bytes_do_not_depend_on_its_bands(monkeypatch, mpp, crop):
         assert np.array_equal(got, outs[0])
 
 
+@pytest.mark.parametrize("mpp, per_pixel, masked, crop", [(0.5, False, False, False), (1.0, True, True, False),
+                                                      (1.0, True, True, True), (0.25, True, False, False)])
+def test_one_plane_is_the_scatter_of_its_copies(mpp, per_pixel, masked, crop):
+    """sss_blur_plane / Scatter.plane blur each Gaussian once for an irradiance whose channels
+    are one plane (SkinShade's light · N·L): the bytes of sss_blur / Scatter of that irradiance
+    (uniform σ; per-pixel σ with a mask, also on the skin's box; wide kernels)."""
+    from nodes.common.sss import Scatter, sss_blur_plane
+
+    img, depth, mask = _face()
+    plane = img[:, :, 0] * 2
+    copies = np.repeat(plane[:, :, None], 3, axis=2)
+    d, m = (depth if per_pixel else None), (mask if masked else None)
+    assert np.array_equal(sss_blur_plane(plane, mpp, d, mask=m), sss_blur(copies, mpp, d, mask=m))
+    sc = Scatter(copies.shape, mpp, d, mask=m, crop=crop)
+    assert np.array_equal(sc.plane(plane), sc(copies))
+
+
 def test_scatter_without_skin_changes_nothing():
     from nodes.common.sss import Scatter
 

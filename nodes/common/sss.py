@@ -36,6 +36,7 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
 
     SKIN_PROFILE: tuple[(variance_mm2, (w_r, w_g, w_b)), ...]
     sss_blur(irradiance, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None) -> ndarray
+    sss_blur_plane(plane, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, channels=3) -> ndarray
     Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False)(irradiance)
 """
 from __future__ import annotations
@@ -391,6 +392,18 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
     return _prepared(img.shape, mm_per_pixel, depth, profile, mask)(img)
 
 
+def sss_blur_plane(plane: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np.ndarray | None = None,
+                   profile=SKIN_PROFILE, mask: np.ndarray | None = None, channels: int = 3) -> np.ndarray:
+    """sss_blur of the (H, W, ``channels``) irradiance whose every channel is ``plane`` (H, W),
+    bit for bit, each Gaussian blurred once (not once per channel): the scatter of a light of
+    one colour, ``col · sss_blur_plane(N·L)`` (the scatter is linear).  Returns float32
+    (H, W, channels)."""
+    p = np.asarray(plane, dtype=np.float32)
+    if p.ndim != 2:
+        raise ValueError(f"plane must be H×W, got shape {p.shape}")
+    return _prepared(p.shape + (channels,), mm_per_pixel, depth, profile, mask).plane(p)
+
+
 #: the last Scatters by the digest of their surface (a live view re-shading one face, a
 #: benchmark): their per-pixel weight maps, ~100–200 MB for a whole 1280×720 frame
 _SCATTERS: dict = {}
@@ -500,11 +513,30 @@ class Scatter:
             self.on_box(img[y0:y1, x0:x1], out=res[y0:y1, x0:x1])
         return res[:, :, 0] if squeeze else res
 
+    def plane(self, plane: np.ndarray) -> np.ndarray:
+        """``self(irradiance)`` for the irradiance whose every channel is ``plane`` ((H, W)): the
+        same bytes, with one blur per Gaussian instead of one per Gaussian and channel (a light
+        of one colour: the scatter is linear, so col · self.plane(N·L) is its scatter)."""
+        p = np.asarray(plane, dtype=np.float32)
+        if len(self.shape) != 3 or p.shape != self.shape[:2]:
+            raise ValueError(f"plane must be {self.shape[:2]} for a scatter of {self.shape}, got shape {p.shape}")
+        if self.axis_blur is not None:
+            return self(np.repeat(p[:, :, None], self.shape[2], axis=2))
+        sub = p[:, :, None]
+        if self.box is None:
+            return self.on_box(sub, out=np.empty(self.shape, np.float32))
+        y0, y1, x0, x1 = self.box
+        res = np.repeat(sub, self.shape[2], axis=2)
+        self.on_box(sub[y0:y1, x0:x1], out=res[y0:y1, x0:x1])
+        return res
+
     def on_box(self, sub: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The scattered irradiance on :attr:`box` (the whole frame when None) from the
         irradiance there, (h, w, C) float32: what ``self(irradiance)`` puts in the box (outside
         it the irradiance is returned unchanged).  Written into ``out`` when given (an (h, w, C)
-        float32 array; it may be ``sub`` itself: all of ``sub`` is read before ``out`` is written)."""
+        float32 array; it may be ``sub`` itself: all of ``sub`` is read before ``out`` is written).
+        ``sub`` of one channel (h, w, 1) with ``out`` of C: the irradiance whose every channel is
+        that plane, each Gaussian's blur made once (:meth:`plane`)."""
         out = np.empty(sub.shape, np.float32) if out is None else out
         if sub.size == 0:
             return out
@@ -537,12 +569,17 @@ class Scatter:
         """Rows r0:r1 of the scattered irradiance into ``out``: per Gaussian and channel the y
         pass on those rows (reading the rows around them), the x pass, and the channel's sum."""
         r0, r1 = rows
-        sums = [None] * len(planes)
+        one = len(planes) == 1  # every channel is that plane: each Gaussian blurred once
+        sums = [None] * out.shape[2]
         for chans, wts, ty, tx in self.passes:
+            blurred = None
             for ch, wt in zip(chans, wts):
-                blurred = _band_terms(_band_terms(src[ch], 0, ty, 0, rows, work, "y"), r0, tx, 1, rows, work, "x")
+                if blurred is None or not one:
+                    plane = src[0 if one else ch]
+                    blurred = _band_terms(_band_terms(plane, 0, ty, 0, rows, work, "y"), r0, tx, 1, rows, work, "x")
                 sums[ch] = _accumulate(sums[ch], blurred, wt, work.get(("sum", ch), r1 - r0, out.shape[1]))
-        self._finish(sums, [p[r0:r1] for p in planes], out[r0:r1], None if self._off is None else self._off[r0:r1])
+        band = [p[r0:r1] for p in planes] * (len(sums) if one else 1)
+        self._finish(sums, band, out[r0:r1], None if self._off is None else self._off[r0:r1])
 
     def _hooked(self, sub, out) -> None:
         """on_box through the backend's ``axis_blur`` (whole planes, one Gaussian after another)."""
@@ -640,4 +677,4 @@ def _mean_step(step: np.ndarray) -> float:
     return lo if lo == hi else float(np.sqrt(lo * hi))
 
 
-__all__ = ["SKIN_PROFILE", "Scatter", "sss_blur"]
+__all__ = ["SKIN_PROFILE", "Scatter", "sss_blur", "sss_blur_plane"]

@@ -16,7 +16,7 @@ from graphkit import BadInput, Camera, Field, Image, In, Light, Mask, Node, Out
 from graphkit.store import value_parts
 from nodes.common.checks import require_directional
 from nodes.common.parallel import run_bands
-from nodes.common.sss import sss_blur
+from nodes.common.sss import sss_blur, sss_blur_plane
 
 BAND_ROWS = 48  # rows per band of the per-pixel terms (a band's temporaries stay in the cache)
 #: the last albedos (LUT lookups) by the digest of the maps and LUT they come from (a live view's
@@ -45,7 +45,9 @@ class SkinShade(Node):
     # 5: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (its geometric mean)
     # 6: the SSS's level blurs made on their weights' boxes and each channel's profile sum by
     #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 2.4e-7)
-    version = "6"
+    # 7: the reference SSS scatters N·L once per Gaussian, diffuse = light · sss(N·L) + ambient
+    #    (nodes.common.sss.sss_blur_plane; the scatter is linear): outputs move by float rounding
+    version = "7"
     inputs = {"melanin": In(Image, "C_m map (volume fraction)", channels=1, finite=True, ge=0),
               "hemoglobin": In(Image, "C_hd map (volume fraction)", channels=1, same_size_as="melanin",
                                finite=True, ge=0),
@@ -116,7 +118,12 @@ class SkinShade(Node):
             albedo = np.empty((H, W, 3), np.float32)
             lut32 = np.ascontiguousarray(lut.pixels, np.float32)
             corners = lut_corners(lut32)
-        irr = np.empty((H, W, 3), np.float32)
+        # the reference SSS scatters N·L once per Gaussian: E = col·N·L + ambient in every
+        # channel, the scatter is linear and the profile's weights sum to one per channel
+        # (energy conserving), so sss(E) = col·sss(N·L) + ambient (to float rounding)
+        one_plane = p.scatter and self.sss_blur is sss_blur
+        ndl = np.empty((H, W), np.float32) if one_plane else None
+        irr = None if one_plane else np.empty((H, W, 3), np.float32)
         spec = np.empty((H, W), np.float32)
         unit = None if normals is None else self._unit_normals(normals)
 
@@ -127,13 +134,16 @@ class SkinShade(Node):
             if looked_up:
                 albedo[y0:y1] = lut_lookup(lut32, maps["melanin"][y0:y1], maps["hemoglobin"][y0:y1], corners)
             if normals is None:
-                irr[y0:y1] = ndotl_0 * col + amb
+                ndotl = np.full((y1 - y0, W), ndotl_0, np.float32)
                 spec[y0:y1] = spec_0
-                return
-            nb = unit[y0:y1]
-            ndotl = np.maximum(nb @ l32, np.float32(0))
-            spec[y0:y1] = kelemen_specular(nb, l32, v32, p.roughness, p.specular, p.f0, dtype=np.float32)
-            cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
+            else:
+                nb = unit[y0:y1]
+                ndotl = np.maximum(nb @ l32, np.float32(0))
+                spec[y0:y1] = kelemen_specular(nb, l32, v32, p.roughness, p.specular, p.f0, dtype=np.float32)
+            if one_plane:
+                ndl[y0:y1] = ndotl
+            else:
+                cv2.merge([ndotl * col[c] + amb[c] for c in range(3)], dst=irr[y0:y1])
 
         run_bands(per_pixel, H, BAND_ROWS)
         if looked_up:
@@ -143,12 +153,18 @@ class SkinShade(Node):
                 _ALBEDO[key] = albedo
         if p.scatter:
             self.ctx.progress(0.2, "subsurface scattering")
-            irr = np.ascontiguousarray(
-                self.sss_blur(irr, mpp, None if depth is None else depth.pixels[:, :, 0],  # (mm; float64 inside)
-                              mask=None if mask is None else mask.alpha), np.float32)
+            z, skin = None if depth is None else depth.pixels[:, :, 0], None if mask is None else mask.alpha  # (mm)
+            if one_plane:  # sss(N·L) in every channel (the light and ambient are applied in combine)
+                irr = sss_blur_plane(ndl, mpp, z, mask=skin)
+            else:
+                irr = np.ascontiguousarray(self.sss_blur(irr, mpp, z, mask=skin), np.float32)
         img = np.empty((H, W, 3), np.float32)
+        col4, amb4 = tuple(map(float, col)) + (0.0,), tuple(map(float, amb)) + (0.0,)
 
-        def combine(y0, y1):  # image = albedo · diffuse + specular · light
+        def combine(y0, y1):  # (diffuse = col · sss(N·L) + ambient;) image = albedo · diffuse + specular · light
+            if one_plane:
+                d = irr[y0:y1]
+                cv2.add(cv2.multiply(d, col4, dst=d), amb4, dst=d)
             cv2.merge([spec[y0:y1] * col[c] for c in range(3)], dst=img[y0:y1])
             img[y0:y1] += albedo[y0:y1] * irr[y0:y1]
 
