@@ -547,21 +547,25 @@ class Scatter:
         bands = self._bands()
         works = _take_work(len(bands))
         try:  # the planes (times the mask) first: a band's y pass reads the rows around it
-            planes = [works[0].get(("plane", ch), h, w) for ch in range(c)]
+            # one contiguous plane not written over (out is not sub) is read where it is
+            copy = not (c == 1 and sub[:, :, 0].flags.c_contiguous and not np.may_share_memory(sub, out))
+            planes = [works[0].get(("plane", ch), h, w) for ch in range(c)] if copy else [sub[:, :, 0]]
             src = planes if self.valid is None else [works[0].get(("src", ch), h, w) for ch in range(c)]
-            run_tasks([functools.partial(self._split, sub, planes, src, b) for b in bands])
+            run_tasks([functools.partial(self._split, sub, planes, src, b, copy) for b in bands])
             run_tasks([functools.partial(self._band, planes, src, out, b, wk) for b, wk in zip(bands, works)])
         finally:
             _give_work(works)
         return out
 
-    def _split(self, sub, planes, src, rows) -> None:
-        """Rows r0:r1 of each channel's plane, and of the plane times the mask (the blurs' source)."""
+    def _split(self, sub, planes, src, rows, copy: bool) -> None:
+        """Rows r0:r1 of each channel's plane (``copy``: copied from ``sub``), and of the plane
+        times the mask (the blurs' source)."""
         import cv2
 
         r0, r1 = rows
         for ch, plane in enumerate(planes):
-            np.copyto(plane[r0:r1], sub[r0:r1, :, ch])
+            if copy:
+                np.copyto(plane[r0:r1], sub[r0:r1, :, ch])
             if src is not planes:
                 cv2.multiply(plane[r0:r1], self.valid[r0:r1], dst=src[ch][r0:r1])
 
@@ -628,11 +632,12 @@ def _row_costs(passes, shape) -> np.ndarray:
 
 
 def _accumulate(total, blurred, wt, buf):
-    """total + wt · blurred in place (the first term, total None: wt · blurred into ``buf``)."""
+    """total + wt · blurred in place (the first term, total None: wt · blurred into ``buf``;
+    numpy's float32 product, the bytes of cv2.multiply's by a scalar at ~1/6 of its time)."""
     import cv2
 
     if total is None:
-        return cv2.multiply(blurred, float(wt), dst=buf)
+        return np.multiply(blurred, np.float32(wt), out=buf)
     return cv2.scaleAdd(blurred, float(wt), total, dst=total)
 
 

@@ -158,7 +158,7 @@ class SkinShade(Node):
                 irr = sss_blur_plane(ndl, mpp, z, mask=skin)
             else:
                 irr = np.ascontiguousarray(self.sss_blur(irr, mpp, z, mask=skin), np.float32)
-        img = np.empty((H, W, 3), np.float32)
+        img, albedo_out = np.empty((H, W, 3), np.float32), np.empty((H, W, 3), np.float32)
         col4, amb4 = tuple(map(float, col)) + (0.0,), tuple(map(float, amb)) + (0.0,)
 
         def combine(y0, y1):  # (diffuse = col · sss(N·L) + ambient;) image = albedo · diffuse + specular · light
@@ -167,9 +167,10 @@ class SkinShade(Node):
                 cv2.add(cv2.multiply(d, col4, dst=d), amb4, dst=d)
             cv2.merge([spec[y0:y1] * col[c] for c in range(3)], dst=img[y0:y1])
             img[y0:y1] += albedo[y0:y1] * irr[y0:y1]
+            albedo_out[y0:y1] = albedo[y0:y1]  # (the kept albedo is not handed out)
 
         run_bands(combine, H, BAND_ROWS)
-        return {"image": Image(img), "albedo": Image(albedo.copy()), "diffuse": Image(irr), "specular": Image(spec)}
+        return {"image": Image(img), "albedo": Image(albedo_out), "diffuse": Image(irr), "specular": Image(spec)}
 
     def _unit_normals(self, normals: Image) -> np.ndarray:
         """The unit normals (H, W, 3) float32, kept for the last faces (a new light on the same
