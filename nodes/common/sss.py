@@ -386,10 +386,9 @@ def sss_blur(irradiance: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np
     img = np.asarray(irradiance, dtype=np.float32)
     if img.ndim not in (2, 3):
         raise ValueError(f"irradiance must be H×W×C, got shape {img.shape}")
-    if axis_blur is not None or (depth is None and mask is None and np.ndim(mm_per_pixel) == 0):
-        # (one σ per Gaussian and no mask: nothing per surface to keep)
+    if axis_blur is not None:
         return Scatter(img.shape, mm_per_pixel, depth, profile, mask, axis_blur)(img)
-    return _prepared(img.shape, mm_per_pixel, depth, profile, mask)(img)
+    return _scatter(img.shape, mm_per_pixel, depth, profile, mask)(img)
 
 
 def sss_blur_plane(plane: np.ndarray, mm_per_pixel: float | np.ndarray, depth: np.ndarray | None = None,
@@ -401,7 +400,15 @@ def sss_blur_plane(plane: np.ndarray, mm_per_pixel: float | np.ndarray, depth: n
     p = np.asarray(plane, dtype=np.float32)
     if p.ndim != 2:
         raise ValueError(f"plane must be H×W, got shape {p.shape}")
-    return _prepared(p.shape + (channels,), mm_per_pixel, depth, profile, mask).plane(p)
+    return _scatter(p.shape + (channels,), mm_per_pixel, depth, profile, mask).plane(p)
+
+
+def _scatter(shape, mm_per_pixel, depth, profile, mask) -> "Scatter":
+    """The Scatter of a surface: made afresh for one σ per Gaussian and no mask (nothing per
+    surface to keep), else the memoised one (:func:`_prepared`)."""
+    if depth is None and mask is None and np.ndim(mm_per_pixel) == 0:
+        return Scatter(shape, mm_per_pixel, depth, profile, mask)
+    return _prepared(shape, mm_per_pixel, depth, profile, mask)
 
 
 #: the last Scatters by the digest of their surface (a live view re-shading one face, a
