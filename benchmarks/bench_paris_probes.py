@@ -11,6 +11,7 @@ the same with the true circle given, and a summary per half.  CPU seconds of the
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
@@ -27,7 +28,10 @@ def _angle(a, b):
 def probe_image(spec, cache: str | None):
     from nodes.paris.data.make_probes import render
 
-    path = os.path.join(cache, f"{spec.name}_{abs(hash(repr(spec))) % 10**8}.npy") if cache else None
+    # a digest of the spec, not hash(): str hashes change from one process to the next, so the
+    # cache was never found again
+    key = hashlib.sha1(repr(spec).encode()).hexdigest()[:10]
+    path = os.path.join(cache, f"{spec.name}_{key}.npy") if cache else None
     if path and os.path.exists(path):
         return np.load(path)
     img = render(spec)
