@@ -75,14 +75,18 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "n
 
 def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
                      *, perspective: bool = True, cull: str = "none",
-                     near: float | None = NEAR, depth_only: bool = False) -> Raster:
+                     near: float | None = NEAR, depth_only: bool = False,
+                     want: np.ndarray | None = None) -> Raster:
     """Rasterise triangles given vertex screen positions (pixels) and depths.
 
     With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
     (linear in 1/z); without it (orthographic views) linearly in screen space.  Triangles with
     a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
     ``depth_only`` (shadow maps): only the depth is resolved; the triangle ids, coverage and
-    barycentrics are left empty.
+    barycentrics are left empty.  ``want`` (with ``depth_only``): which tiles of TILE² pixels
+    are wanted (a ⌈H/TILE⌉×⌈W/TILE⌉ bool mask): the pixels of those tiles get the depths of the
+    whole z-buffer (the same arithmetic, bit for bit); only the row spans of triangles that
+    meet a wanted tile are drawn, so other pixels may be left +inf.
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -120,6 +124,12 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         ymin = np.maximum(np.ceil(np.minimum(np.minimum(y0, y1), y2) - 0.5), 0)
         ymax = np.minimum(np.floor(np.maximum(np.maximum(y0, y1), y2) - 0.5), H - 1)
     ok &= (xmax >= xmin) & (ymax >= ymin)
+    runs = None
+    if want is not None:  # summed-area table of the wanted tiles: runs[i, j] = those < (i, j)
+        runs = np.zeros((want.shape[0] + 1, want.shape[1] + 1), np.int64)
+        runs[1:, 1:] = want
+        runs = runs.cumsum(0).cumsum(1)
+        ok &= _boxes_hold(runs, ok, xmin, xmax, ymin, ymax)
     ids = np.nonzero(ok)[0]
     if len(ids) == 0:
         return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
@@ -149,12 +159,36 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     for a, b in zip(starts[:-1], starts[1:]):
         rows = _row_spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
         if depth_only:
-            _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth)
+            _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth, runs)
         else:
             _resolve(*_pixels(*rows), A, B, C, fz, area, perspective, W, depth, (tri, bary))
     cov = tri >= 0
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
+
+
+#: the side of the tiles in which :func:`_boxes_hold` counts the wanted pixels
+TILE = 8
+
+
+def _boxes_hold(tiles, ok, xmin, xmax, ymin, ymax):
+    """Per triangle: does its pixel box [xmin, xmax] × [ymin, ymax] meet a wanted tile
+    (``tiles``: the wanted tiles' summed-area table)?  False where not ``ok``."""
+    k = np.flatnonzero(ok)
+    out = np.zeros(len(ok), bool)
+    out[k] = _tiles_met(tiles, ymin[k], ymax[k], xmin[k], xmax[k]) > 0
+    return out
+
+
+def _tiles_met(tiles, y0, y1, x0, x1):
+    """How many wanted tiles the pixel boxes [x0, x1] × [y0, y1] meet (``tiles``: the wanted
+    tiles' summed-area table; the bounds are whole, as floats or integers)."""
+    ty0, ty1 = y0.astype(np.int64) // TILE, y1.astype(np.int64) // TILE + 1
+    tx0, tx1 = x0.astype(np.int64) // TILE, x1.astype(np.int64) // TILE + 1
+    f, w = tiles.ravel(), tiles.shape[1]
+    ty0 *= w
+    ty1 *= w
+    return f[ty1 + tx1] - f[ty0 + tx1] - f[ty1 + tx0] + f[ty0 + tx0]
 
 
 def _owns_edge(ax, ay, bx, by, sign):
@@ -205,13 +239,19 @@ def _offsets(n):
     return np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
 
 
-def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth):
+def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth, runs=None):
     """The z-buffer (scatter-min) of the spans' depths, without barycentrics (shadow maps):
     the depth (orthographic) or its inverse (perspective) is linear along a row, so it is
     interpolated from the edge functions at each span's first pixel (as :func:`_resolve`) and
-    stepped across the span: the full path's depths to ~1e-12 (tests/test_raster.py)."""
+    stepped across the span: the full path's depths to ~1e-12 (tests/test_raster.py).  With
+    ``runs`` (the wanted tiles' summed-area table) only the spans that meet a wanted tile."""
     keep = n > 0
-    t, yc, lo, n = t[keep], yc[keep], lo[keep], n[keep]
+    t, yc, lo, cnt = t[keep], yc[keep], lo[keep], n[keep]
+    start = (yc - 0.5).astype(np.int64) * W + lo.astype(np.int64)  # each span's first pixel
+    if runs is not None:
+        y = yc - 0.5
+        keep = _tiles_met(runs, y, y, lo, lo + cnt - 1) > 0
+        t, yc, lo, cnt, start = t[keep], yc[keep], lo[keep], cnt[keep], start[keep]
     if len(t) == 0:
         return
     x = lo + 0.5
@@ -220,11 +260,11 @@ def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth):
     e = [A[i][t] * x + B[i][t] * yc + C[i][t] for i in range(3)]
     z0 = e[0] / absa * Z[:, 0] + e[1] / absa * Z[:, 1] + e[2] / absa * Z[:, 2]
     dz = (A[0][t] * Z[:, 0] + A[1][t] * Z[:, 1] + A[2][t] * Z[:, 2]) / absa  # per pixel along x
-    k = _offsets(n)
-    zk = np.repeat(z0, n) + k * np.repeat(dz, n)
+    k = _offsets(cnt)
+    pix = np.repeat(start, cnt) + k
+    zk = np.repeat(z0, cnt) + k * np.repeat(dz, cnt)
     if perspective:
         zk = 1.0 / zk
-    pix = np.repeat((yc - 0.5).astype(np.int64) * W + lo.astype(np.int64), n) + k
     np.minimum.at(depth, pix, zk)
 
 
@@ -326,17 +366,21 @@ class ShadowMap:
         if normals is not None:
             n = np.asarray(normals, np.float64)[good]
             ldir = self.light_dirs(pts)
-            cos = np.clip(np.abs((n * ldir).sum(1)), 0.05, 1.0)
+            cos = np.clip(np.abs(n[:, 0] * ldir[:, 0] + n[:, 1] * ldir[:, 1] + n[:, 2] * ldir[:, 2]), 0.05, 1.0)
             b = b * np.minimum(np.sqrt(1 - cos ** 2) / cos + 1.0, 10.0)
         if self.kind == "point":
             b = b * np.maximum(d, 1e-9) / self._ref_dist
         H, W = self.depth.shape
-        # pad the map with +inf (nothing in the way) so taps need no bounds checks
-        dpad = np.pad(self.depth, pcf + 1, constant_values=np.inf).ravel()
-        Wp = W + 2 * (pcf + 1)
-        ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64) + pcf + 1
-        iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64) + pcf + 1
-        base = iy * Wp + ix
+        ix, iy = _tap_centres(xy, W, H)
+        # the map's block under the taps, padded with +inf (nothing in the way) so that the
+        # taps need no bounds checks
+        p = pcf + 1
+        x0, y0 = max(int(ix.min()) - pcf, 0), max(int(iy.min()) - pcf, 0)
+        x1, y1 = min(int(ix.max()) + p, W), min(int(iy.max()) + p, H)
+        dpad = np.pad(self.depth[y0:y1, x0:x1], p, constant_values=np.inf)
+        Wp = dpad.shape[1]
+        dpad = dpad.ravel()
+        base = (iy - y0 + p) * Wp + ix - x0 + p
         db = d - b
         acc = np.zeros(len(pts))
         taps = 0
@@ -346,6 +390,18 @@ class ShadowMap:
                 taps += 1
         out[good] = acc / taps
         return out
+
+    def tap_tiles(self, points: np.ndarray, pcf: int = 1) -> np.ndarray:
+        """Which tiles of TILE² texels (``rasterize_screen``'s ``want``) hold the texels that
+        :meth:`visibility` reads for ``points`` with ``pcf`` (< TILE)."""
+        pts = np.asarray(points, np.float64)
+        H, W = self.depth.shape
+        ix, iy = _tap_centres(self._project(pts[np.all(np.isfinite(pts), axis=1)])[0], W, H)
+        tiles = np.zeros((-(-H // TILE), -(-W // TILE)), bool)
+        for y in (iy - pcf, iy + pcf):  # a tap square smaller than a tile: its corners' tiles
+            for x in (ix - pcf, ix + pcf):
+                tiles[np.clip(y, 0, H - 1) // TILE, np.clip(x, 0, W - 1) // TILE] = True
+        return tiles
 
     def light_dirs(self, pts: np.ndarray) -> np.ndarray:
         """Unit directions from points towards the light."""
@@ -357,6 +413,16 @@ class ShadowMap:
         return v / np.linalg.norm(v, axis=1, keepdims=True)
 
     _ref_dist: float = 1.0
+    #: False for a map made only at some points' taps (shadow_map's ``at``): read it there only
+    complete: bool = True
+
+
+def _tap_centres(xy: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """The texel (x, y) a point's percentage-closer taps centre on, clipped to the map and the
+    ring of texels round it (−1 … W, −1 … H)."""
+    ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64)
+    iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64)
+    return ix, iy
 
 
 def _look_frame(forward: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
@@ -430,20 +496,28 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
 
 
 def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
-               margin: float = 0.02, up: np.ndarray | None = None) -> ShadowMap:
+               margin: float = 0.02, up: np.ndarray | None = None, at: np.ndarray | None = None,
+               pcf: int = 1) -> ShadowMap:
     """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
 
     Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
     perspective view from the light's position whose field of view fits the mesh.
+    ``at`` (N×3 world points): the map will only be read by :meth:`ShadowMap.visibility` at
+    those points with ``pcf``, so only the texels it reads there are rasterised (the same
+    depths, bit for bit; every other texel +inf, ``complete`` False): it costs the points'
+    texels, not the map's.
     """
     fr = shadow_frame(vertices, light, size, margin, up)
-    xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
-    r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
-                         perspective=fr.perspective, near=NEAR if fr.perspective else None,
-                         depth_only=True)
-    sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
+    sm = ShadowMap(fr.kind, np.empty((size, size)), fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist
+    want = None
+    if at is not None:
+        want, sm.complete = sm.tap_tiles(at, pcf), False
+    xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
+    sm.depth = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
+                                perspective=fr.perspective, near=NEAR if fr.perspective else None,
+                                depth_only=True, want=want).depth
     return sm
 
 
