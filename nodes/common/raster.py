@@ -84,9 +84,9 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
     ``depth_only`` (shadow maps): only the depth is resolved; the triangle ids, coverage and
     barycentrics are left empty.  ``want`` (with ``depth_only``): which tiles of TILE² pixels
-    are wanted (a ⌈H/TILE⌉×⌈W/TILE⌉ bool mask): the pixels of those tiles get the depths of the
-    whole z-buffer (the same arithmetic, bit for bit); only the row spans of triangles that
-    meet a wanted tile are drawn, so other pixels may be left +inf.
+    are wanted (a ⌈H/TILE⌉×⌈W/TILE⌉ bool mask): only the triangles whose pixel box meets one
+    are drawn, so the pixels of those tiles get the depths of the whole z-buffer (the same
+    arithmetic, bit for bit) and others may be left +inf.
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -124,12 +124,8 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         ymin = np.maximum(np.ceil(np.minimum(np.minimum(y0, y1), y2) - 0.5), 0)
         ymax = np.minimum(np.floor(np.maximum(np.maximum(y0, y1), y2) - 0.5), H - 1)
     ok &= (xmax >= xmin) & (ymax >= ymin)
-    runs = None
-    if want is not None:  # summed-area table of the wanted tiles: runs[i, j] = those < (i, j)
-        runs = np.zeros((want.shape[0] + 1, want.shape[1] + 1), np.int64)
-        runs[1:, 1:] = want
-        runs = runs.cumsum(0).cumsum(1)
-        ok &= _boxes_hold(runs, ok, xmin, xmax, ymin, ymax)
+    if want is not None:
+        ok &= _boxes_meet(want, ok, xmin, xmax, ymin, ymax)
     ids = np.nonzero(ok)[0]
     if len(ids) == 0:
         return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
@@ -159,7 +155,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
     for a, b in zip(starts[:-1], starts[1:]):
         rows = _row_spans(ids[a:b], bh[a:b], xmin, xmax, ymin, A, B, C, own)
         if depth_only:
-            _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth, runs)
+            _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth)
         else:
             _resolve(*_pixels(*rows), A, B, C, fz, area, perspective, W, depth, (tri, bary))
     cov = tri >= 0
@@ -167,28 +163,22 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
                   bary.reshape(H, W, 3))
 
 
-#: the side of the tiles in which :func:`_boxes_hold` counts the wanted pixels
+#: the side of the tiles of ``rasterize_screen``'s ``want``
 TILE = 8
 
 
-def _boxes_hold(tiles, ok, xmin, xmax, ymin, ymax):
-    """Per triangle: does its pixel box [xmin, xmax] × [ymin, ymax] meet a wanted tile
-    (``tiles``: the wanted tiles' summed-area table)?  False where not ``ok``."""
+def _boxes_meet(want, ok, xmin, xmax, ymin, ymax):
+    """Per triangle: does its pixel box [xmin, xmax] × [ymin, ymax] meet a wanted tile of TILE²
+    pixels (``want``)?  False where not ``ok``."""
+    sat = np.zeros((want.shape[0] + 1, want.shape[1] + 1), np.int64)  # summed-area table:
+    sat[1:, 1:] = want
+    sat = sat.cumsum(0).cumsum(1)  # sat[i, j] = the wanted tiles above and left of (i, j)
     k = np.flatnonzero(ok)
+    y0, y1 = ymin[k].astype(np.int64) // TILE, ymax[k].astype(np.int64) // TILE + 1
+    x0, x1 = xmin[k].astype(np.int64) // TILE, xmax[k].astype(np.int64) // TILE + 1
     out = np.zeros(len(ok), bool)
-    out[k] = _tiles_met(tiles, ymin[k], ymax[k], xmin[k], xmax[k]) > 0
+    out[k] = sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0] > 0
     return out
-
-
-def _tiles_met(tiles, y0, y1, x0, x1):
-    """How many wanted tiles the pixel boxes [x0, x1] × [y0, y1] meet (``tiles``: the wanted
-    tiles' summed-area table; the bounds are whole, as floats or integers)."""
-    ty0, ty1 = y0.astype(np.int64) // TILE, y1.astype(np.int64) // TILE + 1
-    tx0, tx1 = x0.astype(np.int64) // TILE, x1.astype(np.int64) // TILE + 1
-    f, w = tiles.ravel(), tiles.shape[1]
-    ty0 *= w
-    ty1 *= w
-    return f[ty1 + tx1] - f[ty0 + tx1] - f[ty1 + tx0] + f[ty0 + tx0]
 
 
 def _owns_edge(ax, ay, bx, by, sign):
@@ -239,19 +229,13 @@ def _offsets(n):
     return np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
 
 
-def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth, runs=None):
+def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth):
     """The z-buffer (scatter-min) of the spans' depths, without barycentrics (shadow maps):
     the depth (orthographic) or its inverse (perspective) is linear along a row, so it is
     interpolated from the edge functions at each span's first pixel (as :func:`_resolve`) and
-    stepped across the span: the full path's depths to ~1e-12 (tests/test_raster.py).  With
-    ``runs`` (the wanted tiles' summed-area table) only the spans that meet a wanted tile."""
+    stepped across the span: the full path's depths to ~1e-12 (tests/test_raster.py)."""
     keep = n > 0
-    t, yc, lo, cnt = t[keep], yc[keep], lo[keep], n[keep]
-    start = (yc - 0.5).astype(np.int64) * W + lo.astype(np.int64)  # each span's first pixel
-    if runs is not None:
-        y = yc - 0.5
-        keep = _tiles_met(runs, y, y, lo, lo + cnt - 1) > 0
-        t, yc, lo, cnt, start = t[keep], yc[keep], lo[keep], cnt[keep], start[keep]
+    t, yc, lo, n = t[keep], yc[keep], lo[keep], n[keep]
     if len(t) == 0:
         return
     x = lo + 0.5
@@ -260,11 +244,11 @@ def _depth_rows(t, yc, lo, n, A, B, C, fz, area, perspective, W, depth, runs=Non
     e = [A[i][t] * x + B[i][t] * yc + C[i][t] for i in range(3)]
     z0 = e[0] / absa * Z[:, 0] + e[1] / absa * Z[:, 1] + e[2] / absa * Z[:, 2]
     dz = (A[0][t] * Z[:, 0] + A[1][t] * Z[:, 1] + A[2][t] * Z[:, 2]) / absa  # per pixel along x
-    k = _offsets(cnt)
-    pix = np.repeat(start, cnt) + k
-    zk = np.repeat(z0, cnt) + k * np.repeat(dz, cnt)
+    k = _offsets(n)
+    zk = np.repeat(z0, n) + k * np.repeat(dz, n)
     if perspective:
         zk = 1.0 / zk
+    pix = np.repeat((yc - 0.5).astype(np.int64) * W + lo.astype(np.int64), n) + k
     np.minimum.at(depth, pix, zk)
 
 
@@ -503,12 +487,13 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
     Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
     perspective view from the light's position whose field of view fits the mesh.
     ``at`` (N×3 world points): the map will only be read by :meth:`ShadowMap.visibility` at
-    those points with ``pcf``, so only the texels it reads there are rasterised (the same
-    depths, bit for bit; every other texel +inf, ``complete`` False): it costs the points'
-    texels, not the map's.
+    those points with ``pcf`` (< TILE), so only the triangles that meet the tiles of the
+    texels it reads there are drawn (those texels' depths are the whole map's, bit for bit;
+    texels elsewhere may stay +inf, ``complete`` False): a few points cost their part of the
+    map, not all of it.
     """
     fr = shadow_frame(vertices, light, size, margin, up)
-    sm = ShadowMap(fr.kind, np.empty((size, size)), fr.M, fr.scale, fr.offset, fr.texel)
+    sm = ShadowMap(fr.kind, np.broadcast_to(np.inf, (size, size)), fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist
     want = None
