@@ -153,6 +153,11 @@ def _taps(dpad, xy, d_test, grad, radius, disc, bilinear: bool = True):
     return hits, deepest
 
 
+def is_sized(light) -> bool:
+    """Does ``light`` have a size (a sphere or a disc: soft shadows, which read the whole map)?"""
+    return light.radius_m > 0 or light.angular_radius_deg > 0
+
+
 def light_visibility(sm, light, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """Fraction of ``light`` (a :class:`graphkit.Light` in world units) reaching each point,
     from its shadow map ``sm``: the hard test with a 3×3 percentage-closer filter
@@ -174,6 +179,5 @@ def mesh_visibility(vertices: np.ndarray, faces: np.ndarray, light, size: int, p
     whole map."""
     from nodes.common.raster import shadow_map
 
-    sized = light.radius_m > 0 or light.angular_radius_deg > 0
-    sm = shadow_map(vertices, faces, light, size, up=up, at=None if sized else points)
+    sm = shadow_map(vertices, faces, light, size, up=up, at=None if is_sized(light) else points)
     return light_visibility(sm, light, points, normals)
