@@ -158,7 +158,7 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
             _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth)
         else:
             _resolve(*_pixels(*rows), A, B, C, fz, area, perspective, W, depth, (tri, bary))
-    cov = tri >= 0
+    cov = np.broadcast_to(False, (H * W,)) if depth_only else tri >= 0  # (no ids: none covered)
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
 
