@@ -612,7 +612,7 @@ class Render(Node):
         kd = np.asarray(material.diffuse, np.float64)
         col = np.zeros((M, 3))
         amb = np.zeros(3)
-        lit = []  # (light, the points facing it, L, their lobes, shadow-map task, its map's side)
+        lit = []  # (light, the points facing it, L, their lobes, shadow-map task, its cost)
         sizes = shadow_map_sizes(lights, p.shadow_map_size, own)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
