@@ -215,3 +215,38 @@ def test_orthographic_units_and_rays():
     np.testing.assert_allclose(o[0], [50.0, -25.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(d[0], [0, 0, 1.0])
     np.testing.assert_allclose(cam.units_per_pixel(np.array([1.0, 900.0])), [5.0, 5.0])
+
+
+@pytest.mark.parametrize("light", [Light(kind="directional", direction=(0.3, -1.0, 0.2)),
+                                   Light(kind="point", position=(0.5, -3.0, 0.4))])
+@pytest.mark.parametrize("pcf", [1, 2])
+def test_shadow_map_at_points_reads_the_full_maps_depths(light, pcf):
+    """A shadow map made only for some points (``at``: the texels their taps read) gives them
+    the whole map's visibility, bit for bit, and leaves most of the map undrawn."""
+    import trimesh
+
+    g = np.linspace(-2, 2, 121)
+    X, Z = np.meshgrid(g, g)
+    idx = np.arange(121 * 121).reshape(121, 121)
+    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+    ground = trimesh.Trimesh(np.stack([X.ravel(), np.zeros(X.size), Z.ravel()], 1),
+                             np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]), process=False)
+    occ = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    occ.apply_translation([0.2, -0.8, 0.1])
+    m = trimesh.util.concatenate([ground, occ])
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([np.stack([rng.uniform(-0.6, 1.0, 150), np.full(150, -0.005),
+                                    rng.uniform(-0.7, 0.9, 150)], 1),
+                          occ.sample(40, seed=4)])  # sparse: the taps' tiles are mostly their own
+    nrm = np.tile([0.0, -1.0, 0.0], (len(pts), 1))
+    full = raster.shadow_map(m.vertices, m.faces, light, size=300)
+    part = raster.shadow_map(m.vertices, m.faces, light, size=300, at=pts, pcf=pcf)
+    assert full.complete and not part.complete
+    got, want = part.visibility(pts, nrm, pcf=pcf), full.visibility(pts, nrm, pcf=pcf)
+    assert np.array_equal(got, want) and 0 < want.mean() < 1
+    ix, iy = raster._tap_centres(full._project(pts)[0], 300, 300)  # every texel a tap reads
+    d = np.arange(-pcf, pcf + 1)
+    tx, ty = (ix[:, None, None] + d[None, None, :]).ravel(), (iy[:, None, None] + d[None, :, None]).ravel()
+    on = (tx >= 0) & (tx < 300) & (ty >= 0) & (ty < 300)
+    assert np.array_equal(part.depth[ty[on], tx[on]], full.depth[ty[on], tx[on]])
+    assert np.isfinite(part.depth).sum() < 0.5 * np.isfinite(full.depth).sum()

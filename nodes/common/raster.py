@@ -75,14 +75,18 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, camera, *, cull: str = "n
 
 def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: int, height: int,
                      *, perspective: bool = True, cull: str = "none",
-                     near: float | None = NEAR, depth_only: bool = False) -> Raster:
+                     near: float | None = NEAR, depth_only: bool = False,
+                     want: np.ndarray | None = None) -> Raster:
     """Rasterise triangles given vertex screen positions (pixels) and depths.
 
     With ``perspective`` the barycentrics and depth are interpolated perspective-correctly
     (linear in 1/z); without it (orthographic views) linearly in screen space.  Triangles with
     a vertex at z ≤ ``near`` are dropped (``near=None``: none, e.g. orthographic light views).
     ``depth_only`` (shadow maps): only the depth is resolved; the triangle ids, coverage and
-    barycentrics are left empty.
+    barycentrics are left empty.  ``want`` (with ``depth_only``): which tiles of TILE² pixels
+    are wanted (a ⌈H/TILE⌉×⌈W/TILE⌉ bool mask): only the triangles whose pixel box meets one
+    are drawn, so the pixels of those tiles get the depths of the whole z-buffer (the same
+    arithmetic, bit for bit) and others may be left +inf.
     """
     xy = np.asarray(xy, np.float64)
     z = np.asarray(z, np.float64)
@@ -120,6 +124,8 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
         ymin = np.maximum(np.ceil(np.minimum(np.minimum(y0, y1), y2) - 0.5), 0)
         ymax = np.minimum(np.floor(np.maximum(np.maximum(y0, y1), y2) - 0.5), H - 1)
     ok &= (xmax >= xmin) & (ymax >= ymin)
+    if want is not None:
+        ok &= _boxes_meet(want, ok, xmin, xmax, ymin, ymax)
     ids = np.nonzero(ok)[0]
     if len(ids) == 0:
         return Raster(depth.reshape(H, W), tri.reshape(H, W) >= 0, tri.reshape(H, W),
@@ -152,9 +158,27 @@ def rasterize_screen(xy: np.ndarray, z: np.ndarray, faces: np.ndarray, width: in
             _depth_rows(*rows, A, B, C, fz, area, perspective, W, depth)
         else:
             _resolve(*_pixels(*rows), A, B, C, fz, area, perspective, W, depth, (tri, bary))
-    cov = tri >= 0
+    cov = np.broadcast_to(False, (H * W,)) if depth_only else tri >= 0  # (no ids: none covered)
     return Raster(depth.reshape(H, W), cov.reshape(H, W), tri.reshape(H, W),
                   bary.reshape(H, W, 3))
+
+
+#: the side of the tiles of ``rasterize_screen``'s ``want``
+TILE = 8
+
+
+def _boxes_meet(want, ok, xmin, xmax, ymin, ymax):
+    """Per triangle: does its pixel box [xmin, xmax] × [ymin, ymax] meet a wanted tile of TILE²
+    pixels (``want``)?  False where not ``ok``."""
+    sat = np.zeros((want.shape[0] + 1, want.shape[1] + 1), np.int64)  # summed-area table:
+    sat[1:, 1:] = want
+    sat = sat.cumsum(0).cumsum(1)  # sat[i, j] = the wanted tiles above and left of (i, j)
+    k = np.flatnonzero(ok)
+    y0, y1 = ymin[k].astype(np.int64) // TILE, ymax[k].astype(np.int64) // TILE + 1
+    x0, x1 = xmin[k].astype(np.int64) // TILE, xmax[k].astype(np.int64) // TILE + 1
+    out = np.zeros(len(ok), bool)
+    out[k] = sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0] > 0
+    return out
 
 
 def _owns_edge(ax, ay, bx, by, sign):
@@ -326,17 +350,21 @@ class ShadowMap:
         if normals is not None:
             n = np.asarray(normals, np.float64)[good]
             ldir = self.light_dirs(pts)
-            cos = np.clip(np.abs((n * ldir).sum(1)), 0.05, 1.0)
+            cos = np.clip(np.abs(n[:, 0] * ldir[:, 0] + n[:, 1] * ldir[:, 1] + n[:, 2] * ldir[:, 2]), 0.05, 1.0)
             b = b * np.minimum(np.sqrt(1 - cos ** 2) / cos + 1.0, 10.0)
         if self.kind == "point":
             b = b * np.maximum(d, 1e-9) / self._ref_dist
         H, W = self.depth.shape
-        # pad the map with +inf (nothing in the way) so taps need no bounds checks
-        dpad = np.pad(self.depth, pcf + 1, constant_values=np.inf).ravel()
-        Wp = W + 2 * (pcf + 1)
-        ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64) + pcf + 1
-        iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64) + pcf + 1
-        base = iy * Wp + ix
+        ix, iy = _tap_centres(xy, W, H)
+        # the map's block under the taps, padded with +inf (nothing in the way) so that the
+        # taps need no bounds checks
+        p = pcf + 1
+        x0, y0 = max(int(ix.min()) - pcf, 0), max(int(iy.min()) - pcf, 0)
+        x1, y1 = min(int(ix.max()) + p, W), min(int(iy.max()) + p, H)
+        dpad = np.pad(self.depth[y0:y1, x0:x1], p, constant_values=np.inf)
+        Wp = dpad.shape[1]
+        dpad = dpad.ravel()
+        base = (iy - y0 + p) * Wp + ix - x0 + p
         db = d - b
         acc = np.zeros(len(pts))
         taps = 0
@@ -346,6 +374,18 @@ class ShadowMap:
                 taps += 1
         out[good] = acc / taps
         return out
+
+    def tap_tiles(self, points: np.ndarray, pcf: int = 1) -> np.ndarray:
+        """Which tiles of TILE² texels (``rasterize_screen``'s ``want``) hold the texels that
+        :meth:`visibility` reads for ``points`` with ``pcf`` (< TILE)."""
+        pts = np.asarray(points, np.float64)
+        H, W = self.depth.shape
+        ix, iy = _tap_centres(self._project(pts[np.all(np.isfinite(pts), axis=1)])[0], W, H)
+        tiles = np.zeros((-(-H // TILE), -(-W // TILE)), bool)
+        for y in (iy - pcf, iy + pcf):  # a tap square smaller than a tile: its corners' tiles
+            for x in (ix - pcf, ix + pcf):
+                tiles[np.clip(y, 0, H - 1) // TILE, np.clip(x, 0, W - 1) // TILE] = True
+        return tiles
 
     def light_dirs(self, pts: np.ndarray) -> np.ndarray:
         """Unit directions from points towards the light."""
@@ -357,6 +397,16 @@ class ShadowMap:
         return v / np.linalg.norm(v, axis=1, keepdims=True)
 
     _ref_dist: float = 1.0
+    #: False for a map made only at some points' taps (shadow_map's ``at``): read it there only
+    complete: bool = True
+
+
+def _tap_centres(xy: np.ndarray, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """The texel (x, y) a point's percentage-closer taps centre on, clipped to the map and the
+    ring of texels round it (−1 … W, −1 … H)."""
+    ix = np.clip(np.floor(xy[:, 0]), -1, W).astype(np.int64)
+    iy = np.clip(np.floor(xy[:, 1]), -1, H).astype(np.int64)
+    return ix, iy
 
 
 def _look_frame(forward: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
@@ -430,20 +480,29 @@ def shadow_frame(vertices: np.ndarray, light, size: int = 512, margin: float = 0
 
 
 def shadow_map(vertices: np.ndarray, faces: np.ndarray, light, size: int = 512,
-               margin: float = 0.02, up: np.ndarray | None = None) -> ShadowMap:
+               margin: float = 0.02, up: np.ndarray | None = None, at: np.ndarray | None = None,
+               pcf: int = 1) -> ShadowMap:
     """Render the depth of a mesh seen from ``light`` (a :class:`graphkit.Light`).
 
     Directional lights use an orthographic view fitted to the mesh's bounds; point lights a
     perspective view from the light's position whose field of view fits the mesh.
+    ``at`` (N×3 world points): the map will only be read by :meth:`ShadowMap.visibility` at
+    those points with ``pcf`` (< TILE), so only the triangles that meet the tiles of the
+    texels it reads there are drawn (those texels' depths are the whole map's, bit for bit;
+    texels elsewhere may stay +inf, ``complete`` False): a few points cost their part of the
+    map, not all of it.
     """
     fr = shadow_frame(vertices, light, size, margin, up)
-    xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
-    r = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
-                         perspective=fr.perspective, near=NEAR if fr.perspective else None,
-                         depth_only=True)
-    sm = ShadowMap(fr.kind, r.depth, fr.M, fr.scale, fr.offset, fr.texel)
+    sm = ShadowMap(fr.kind, np.broadcast_to(np.inf, (size, size)), fr.M, fr.scale, fr.offset, fr.texel)
     if fr.perspective:
         sm._ref_dist = fr.ref_dist
+    want = None
+    if at is not None:
+        want, sm.complete = sm.tap_tiles(at, pcf), False
+    xy = fr.q[:, :2] / fr.q[:, 2:3] if fr.perspective else fr.q[:, :2]
+    sm.depth = rasterize_screen(xy * fr.scale + fr.offset, fr.q[:, 2], faces, size, size,
+                                perspective=fr.perspective, near=NEAR if fr.perspective else None,
+                                depth_only=True, want=want).depth
     return sm
 
 

@@ -59,6 +59,7 @@ def soft_visibility(sm, points: np.ndarray, normals: np.ndarray | None = None, *
     directional light's angular radius.  ``bias`` in texels, as
     :meth:`~nodes.common.raster.ShadowMap.visibility`.
     """
+    assert sm.complete, "soft shadows read the whole map (its nearest depth, a disc round each point)"
     pts = np.asarray(points, np.float64)
     out = np.ones(len(pts))
     good = np.flatnonzero(np.all(np.isfinite(pts), axis=1))
@@ -152,6 +153,11 @@ def _taps(dpad, xy, d_test, grad, radius, disc, bilinear: bool = True):
     return hits, deepest
 
 
+def is_sized(light) -> bool:
+    """Does ``light`` have a size (a sphere or a disc: soft shadows, which read the whole map)?"""
+    return light.radius_m > 0 or light.angular_radius_deg > 0
+
+
 def light_visibility(sm, light, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """Fraction of ``light`` (a :class:`graphkit.Light` in world units) reaching each point,
     from its shadow map ``sm``: the hard test with a 3×3 percentage-closer filter
@@ -162,3 +168,16 @@ def light_visibility(sm, light, points: np.ndarray, normals: np.ndarray | None =
     if light.angular_radius_deg > 0:
         return soft_visibility(sm, points, normals, tan_angle=float(np.tan(np.radians(light.angular_radius_deg))))
     return sm.visibility(points, normals)
+
+
+def mesh_visibility(vertices: np.ndarray, faces: np.ndarray, light, size: int, points: np.ndarray,
+                    normals: np.ndarray | None = None, up: np.ndarray | None = None) -> np.ndarray:
+    """:func:`light_visibility` of world ``points`` on the ``size``² shadow map of the mesh
+    seen from ``light`` (``up``: as :func:`~nodes.common.raster.shadow_map`).  For a light
+    without a size only the texels the points' 3×3 taps read are rasterised (the same
+    result as the whole map's, at the cost of the points' texels); soft shadows read the
+    whole map."""
+    from nodes.common.raster import shadow_map
+
+    sm = shadow_map(vertices, faces, light, size, up=up, at=None if is_sized(light) else points)
+    return light_visibility(sm, light, points, normals)

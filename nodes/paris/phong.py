@@ -19,11 +19,18 @@ def unit(v: np.ndarray) -> np.ndarray:
     return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
 
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a·b along the last axis (of 3): the sum of ``np.sum(a * b, axis=-1)`` in its order, bit
+    for bit, element-wise (a reduction along an axis of 3 is several times slower)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def lobes(n: np.ndarray, l: np.ndarray, v: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
     """Diffuse factor max(n·l, 0) and specular factor max(r·v, 0)^s (both (...,))."""
-    nl = np.sum(n * l, axis=-1)
+    nl = dot(n, l)
     r = 2.0 * nl[..., None] * n - l
-    rv = np.clip(np.sum(r * v, axis=-1), 0.0, None)
+    rv = np.clip(dot(r, v), 0.0, None)
     lit = nl > 0
     diff = np.where(lit, nl, 0.0)
     with np.errstate(divide="ignore", invalid="ignore", under="ignore"):
