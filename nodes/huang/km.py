@@ -289,7 +289,8 @@ def thickness_grid(maxima, size: int) -> list[np.ndarray]:
 
 
 _TABLES: dict = {}
-#: tables kept by stack_rgb_table (the oldest go first): a slider's new maxima each make one
+#: tables kept by stack_rgb_table (the least recently used go first): a slider's new maxima
+#: each make one
 _TABLES_KEPT = 16
 _TABLES_LOCK = threading.Lock()
 #: values (thickness nodes × wavelengths) of the product grid per block in stack_rgb_table
@@ -309,7 +310,10 @@ def stack_rgb_table(S, K, wl, grids, illuminant, bg, full: bool = True):
     """
     key = (S.tobytes(), K.tobytes(), wl.tobytes(), tuple(g.tobytes() for g in grids), illuminant,
            None if bg is None else bg.tobytes())
-    tab = _TABLES.get(key)
+    with _TABLES_LOCK:  # the least recently used go first
+        tab = _TABLES.pop(key, None)
+        if tab is not None:
+            _TABLES[key] = tab
     if tab is None:
         tab = _new_tables(S, K, wl, grids, illuminant, bg)
         with _TABLES_LOCK:
