@@ -98,7 +98,7 @@ class CosmeticShade(Node):
         check_illuminant(p.illuminant)
         specs = resolve_layers(layers, p.cosmetics)
         wl, S, K = layer_arrays(specs)
-        rho = np.asarray(albedo.pixels, np.float32)  # read only: no copy of a float32 albedo
+        rho = albedo.pixels.astype(np.float32)
         h, w = rho.shape[:2]
         t = layer_thicknesses(thickness, len(specs))
         if connected_together({"mesh": mesh, "camera": camera}) and (normals is not None or depth is not None):
