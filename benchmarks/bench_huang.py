@@ -29,8 +29,8 @@ same photo, warm) as the base of the ratio:
 * ``thickness, seen`` — the blush thickness toggles between two values already shaded (the
   spectral table of each is memoised: what a slider that comes back costs);
 * ``thickness, new``  — the blush thickness changes to a value never seen (its spectral table is
-  built: the lines of the 25³ grid × 81 wavelengths that the map reads; the maps are made before
-  the clock starts: a frame times the node, not numpy making its input);
+  built: the lines of the 25³ grid × 81 wavelengths that the map reads; each frame's map is
+  made just before its clock starts: a frame times the node, not numpy making its input);
 * ``colour, seen``    — the blush toggles between blush_rose and blush_orange.
 
 ``--opencl`` adds the new-thickness frames with graphkit-opencl's hooks (KM lookup; lookup + SSS),
@@ -73,19 +73,27 @@ def maps() -> dict[str, np.ndarray]:
 
 def timed(fns: dict, runs: int, warmup: int = 1, cpu: dict | None = None) -> dict:
     """{name: (median s, best s)}: the callables run interleaved, ``runs`` rounds after warm-up;
-    ``cpu``, when given, gets {name: median CPU seconds of this process per call} (all threads:
-    what a frame costs the cores, which other jobs on a shared machine do not inflate)."""
+    a (make, fn) pair runs fn(make()) with make() before the clock (a frame's input made as
+    the frame comes, so the process allocates as it would, but not timed); ``cpu``, when given,
+    gets {name: median CPU seconds of this process per call} (all threads: what a frame costs
+    the cores, which other jobs on a shared machine do not inflate)."""
+    def call(fn, clocks=None):
+        make, fn = fn if isinstance(fn, tuple) else (None, fn)
+        args = () if make is None else (make(),)
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn(*args)
+        if clocks is not None:
+            clocks[0].append(time.perf_counter() - t0)
+            clocks[1].append(time.process_time() - c0)
+
     for _ in range(warmup):
         for fn in fns.values():
-            fn()
+            call(fn)
     ts: dict = {k: [] for k in fns}
     cs: dict = {k: [] for k in fns}
     for _ in range(runs):
         for k, fn in fns.items():
-            c0, t0 = time.process_time(), time.perf_counter()
-            fn()
-            ts[k].append(time.perf_counter() - t0)
-            cs[k].append(time.process_time() - c0)
+            call(fn, (ts[k], cs[k]))
     if cpu is not None:
         cpu.update({k: statistics.median(v) for k, v in cs.items()})
     return {k: (statistics.median(v), min(v)) for k, v in ts.items()}
@@ -184,9 +192,10 @@ def reshade(runs: int, opencl: bool = False) -> int:
         return Image(t * scale)
 
     seen = [blush(1.0), blush(1.5)]
-    # one map per new-thickness frame (warm-up and --opencl rounds included), made before the clock
-    n_new = runs + 2 + (3 * (max(3, runs // 3) + 1) if opencl else 0)
-    fresh = iter([blush(1.0 + 1e-4 * k) for k in range(1, n_new + 1)])
+    fresh = iter(1.0 + 1e-4 * k for k in range(1, 10 ** 6))
+
+    def new_map():  # made before each new-thickness frame's clock
+        return blush(next(fresh))
     flips = {"thickness": 0, "colour": 0}
 
     def toggle(what, choices):
@@ -203,7 +212,7 @@ def reshade(runs: int, opencl: bool = False) -> int:
     cpu: dict = {}
     r = timed({"KMStack": lambda: compute_checked(stack, thickness=base, background=albedo),
                "thickness, seen": lambda: compute_checked(shade, thickness=toggle("thickness", seen), **fixed),
-               "thickness, new": lambda: compute_checked(shade, thickness=next(fresh), **fixed),
+               "thickness, new": (new_map, lambda m: compute_checked(shade, thickness=m, **fixed)),
                "colour, seen": lambda: compute_checked(toggle("colour", (shade, orange)), thickness=base, **fixed)},
               runs, warmup=2, cpu=cpu)
     if opencl:  # the same new-thickness frames with graphkit-opencl's hooks (pocl on this CPU)
@@ -216,7 +225,7 @@ def reshade(runs: int, opencl: bool = False) -> int:
                  "new, KM+SSS pocl": both(both.Params(**cos))}
         for node in cases.values():
             compute_checked(node, thickness=base, **fixed)
-        r.update(timed({k: (lambda n=n: compute_checked(n, thickness=next(fresh), **fixed))
+        r.update(timed({k: (new_map, lambda m, n=n: compute_checked(n, thickness=m, **fixed))
                         for k, n in cases.items()}, max(3, runs // 3), warmup=1, cpu=cpu))
     k = r["KMStack"]
     for name, (med, best) in r.items():
