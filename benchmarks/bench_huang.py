@@ -10,7 +10,8 @@ spectral CIE TCS13 skin (and over an RGB skin image):
 
 "cold" includes building the spectral thickness table (first frame for a material set);
 "warm" reuses it (the per-frame cost).  The whole node ``compute`` including input checks, as
-the engine calls it.  Median and best of ``--runs`` runs after warm-up, each run interleaved
+the engine calls it, with every BLAS pool at one thread as the engine runs nodes
+(``graphkit.runner.pin_blas_threads``).  Median and best of ``--runs`` runs after warm-up, each run interleaved
 with two peers in the same process, and the ratios to them (this 2-core machine is shared and
 noisy; the ratios move much less than the times):
 
@@ -28,7 +29,8 @@ same photo, warm) as the base of the ratio:
 * ``thickness, seen`` — the blush thickness toggles between two values already shaded (the
   spectral table of each is memoised: what a slider that comes back costs);
 * ``thickness, new``  — the blush thickness changes to a value never seen (its spectral table is
-  built: 25³ grid × 81 wavelengths);
+  built: the lines of the 25³ grid × 81 wavelengths that the map reads; each frame's map is
+  made just before its clock starts: a frame times the node, not numpy making its input);
 * ``colour, seen``    — the blush toggles between blush_rose and blush_orange.
 
 ``--opencl`` adds the new-thickness frames with graphkit-opencl's hooks (KM lookup; lookup + SSS),
@@ -71,19 +73,27 @@ def maps() -> dict[str, np.ndarray]:
 
 def timed(fns: dict, runs: int, warmup: int = 1, cpu: dict | None = None) -> dict:
     """{name: (median s, best s)}: the callables run interleaved, ``runs`` rounds after warm-up;
-    ``cpu``, when given, gets {name: median CPU seconds of this process per call} (all threads:
-    what a frame costs the cores, which other jobs on a shared machine do not inflate)."""
+    a (make, fn) pair runs fn(make()) with make() before the clock (a frame's input made as
+    the frame comes, so the process allocates as it would, but not timed); ``cpu``, when given,
+    gets {name: median CPU seconds of this process per call} (all threads: what a frame costs
+    the cores, which other jobs on a shared machine do not inflate)."""
+    def call(fn, clocks=None):
+        make, fn = fn if isinstance(fn, tuple) else (None, fn)
+        args = () if make is None else (make(),)
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn(*args)
+        if clocks is not None:
+            clocks[0].append(time.perf_counter() - t0)
+            clocks[1].append(time.process_time() - c0)
+
     for _ in range(warmup):
         for fn in fns.values():
-            fn()
+            call(fn)
     ts: dict = {k: [] for k in fns}
     cs: dict = {k: [] for k in fns}
     for _ in range(runs):
         for k, fn in fns.items():
-            c0, t0 = time.process_time(), time.perf_counter()
-            fn()
-            ts[k].append(time.perf_counter() - t0)
-            cs[k].append(time.process_time() - c0)
+            call(fn, (ts[k], cs[k]))
     if cpu is not None:
         cpu.update({k: statistics.median(v) for k, v in cs.items()})
     return {k: (statistics.median(v), min(v)) for k, v in ts.items()}
@@ -102,6 +112,9 @@ def peers():
 
 
 def main(argv=None) -> int:
+    from graphkit.runner import pin_blas_threads
+
+    pin_blas_threads()  # as the engine runs a node
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--reshade", action="store_true", help="CosmeticShade after a cosmetic change (issue 28)")
@@ -180,6 +193,9 @@ def reshade(runs: int, opencl: bool = False) -> int:
 
     seen = [blush(1.0), blush(1.5)]
     fresh = iter(1.0 + 1e-4 * k for k in range(1, 10 ** 6))
+
+    def new_map():  # made before each new-thickness frame's clock
+        return blush(next(fresh))
     flips = {"thickness": 0, "colour": 0}
 
     def toggle(what, choices):
@@ -196,7 +212,7 @@ def reshade(runs: int, opencl: bool = False) -> int:
     cpu: dict = {}
     r = timed({"KMStack": lambda: compute_checked(stack, thickness=base, background=albedo),
                "thickness, seen": lambda: compute_checked(shade, thickness=toggle("thickness", seen), **fixed),
-               "thickness, new": lambda: compute_checked(shade, thickness=blush(next(fresh)), **fixed),
+               "thickness, new": (new_map, lambda m: compute_checked(shade, thickness=m, **fixed)),
                "colour, seen": lambda: compute_checked(toggle("colour", (shade, orange)), thickness=base, **fixed)},
               runs, warmup=2, cpu=cpu)
     if opencl:  # the same new-thickness frames with graphkit-opencl's hooks (pocl on this CPU)
@@ -209,12 +225,13 @@ def reshade(runs: int, opencl: bool = False) -> int:
                  "new, KM+SSS pocl": both(both.Params(**cos))}
         for node in cases.values():
             compute_checked(node, thickness=base, **fixed)
-        r.update(timed({k: (lambda n=n: compute_checked(n, thickness=blush(next(fresh)), **fixed))
+        r.update(timed({k: (new_map, lambda m, n=n: compute_checked(n, thickness=m, **fixed))
                         for k, n in cases.items()}, max(3, runs // 3), warmup=1, cpu=cpu))
     k = r["KMStack"]
     for name, (med, best) in r.items():
         print(f"{name:16s} median {med * 1e3:6.1f} ms  best {best * 1e3:6.1f} ms  × KMStack {med / k[0]:4.1f} / "
               f"{best / k[1]:4.1f}  CPU {cpu[name] * 1e3:6.1f} ms (× KMStack {cpu[name] / cpu['KMStack']:4.1f})")
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
     return 0
 
 

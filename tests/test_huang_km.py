@@ -297,3 +297,33 @@ def test_empty_stack_is_vacuum():
     Rt, Rb, T = km.stack([], [], [])
     for v, want in ((Rt, 0.0), (Rb, 0.0), (T, 1.0)):
         assert v.shape == (1,) and v[0] == want
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.sampled_from(["zero", "max", "below_node", "near_node", "random", "cell"]), min_size=3, max_size=3),
+       st.integers(0, 2**31 - 1), st.sampled_from([3, 4]))
+def test_lazy_tables_look_up_the_bytes_of_whole_tables(kinds, seed, n):
+    # stack_rgb_table(full=False) computes the lines of nodes a lookup reads as maps come (each
+    # small map here needs lines the ones before did not; their interpolation coefficients are
+    # made for those lines only): the same bytes as through the whole table
+    rng = np.random.default_rng(seed)
+    wl = km.WAVELENGTHS
+    S, K = rng.uniform(1, 30, (n, wl.size)), rng.uniform(0.1, 8, (n, wl.size))
+    mx = rng.uniform(0.005, 0.1, n).astype(np.float32)
+    g = km.thickness_grid([float(m) for m in mx], 25)
+    bg = rng.uniform(0, 1, wl.size) if seed % 2 else None
+    km._TABLES.clear()
+    whole = km.stack_rgb_table(S, K, wl, g, "D65", bg)
+    km._TABLES.clear()
+    lazy = km.stack_rgb_table(S, K, wl, g, "D65", bg, full=False)
+    for kind in kinds:
+        node = rng.integers(0, 25, (2, 3, n)).astype(np.float32)
+        t = {"zero": np.zeros((2, 3, n)), "max": np.broadcast_to(mx, (2, 3, n)),
+             "below_node": mx * np.nextafter(node / 24, np.float32(0)),  # snapped up to the node
+             "near_node": mx * node / 24 * (1 + 1e-7 * rng.normal(size=node.shape)),
+             "random": mx * rng.random((2, 3, n)), "cell": mx * (node + rng.random((2, 3, n))) / 24}[kind]
+        t = np.minimum(np.asarray(t, np.float32), mx)
+        for a, b in zip(km.lookup(whole, g, t), km.lookup(lazy, g, t)):
+            np.testing.assert_array_equal(a, b)
+    assert not lazy.done.all()
+    km._TABLES.clear()

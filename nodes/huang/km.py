@@ -34,8 +34,10 @@ S = ln[(1 − R R∞)(R∞ − Rg) / ((R∞ − R)(1 − Rg R∞))] / (2bD), b =
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
+import xxhash
 
 from nodes.common import parallel
 from nodes.common.parallel import run_tasks
@@ -287,62 +289,88 @@ def thickness_grid(maxima, size: int) -> list[np.ndarray]:
 
 
 _TABLES: dict = {}
+#: tables kept by stack_rgb_table (the least recently used go first): a slider's new maxima
+#: each make one
+_TABLES_KEPT = 16
+_TABLES_LOCK = threading.Lock()
 #: values (thickness nodes × wavelengths) of the product grid per block in stack_rgb_table
 TABLE_BLOCK = 1 << 17
 
 
-def stack_rgb_table(S, K, wl, grids, illuminant, bg):
+def stack_rgb_table(S, K, wl, grids, illuminant, bg, full: bool = True):
     """Linear-RGB tables of a stack on a grid of layer thicknesses (memoised per material set).
 
     S, K: (n, n_λ) mm⁻¹, bottom layer first; ``grids``: one 1-D thickness grid (mm) per layer;
     ``bg``: spectral background reflectance (n_λ) or None.  Returns float32 tables of shape
     (*grid sizes, 3): [RGB of R over bg, T filter] with a background, else [RGB of Rt, Rb filter,
     T filter, T² filter] (filters: RGB(x)/RGB(1)).  The spectral work (eqs. 1–4 per wavelength)
-    happens only here.
+    happens only here.  ``full=False``: the entries are computed when :func:`lookup` first
+    needs them, a line of nodes along the last layer's axis at a time (a face's map uses a few
+    of the 25³ nodes: a new thickness costs those); an entry has the same bits either way.
     """
     key = (S.tobytes(), K.tobytes(), wl.tobytes(), tuple(g.tobytes() for g in grids), illuminant,
            None if bg is None else bg.tobytes())
-    tab = _TABLES.get(key)
-    if tab is not None:
-        return tab
+    with _TABLES_LOCK:  # the least recently used go first
+        tab = _TABLES.pop(key, None)
+        if tab is not None:
+            _TABLES[key] = tab
+    if tab is None:
+        tab = _new_tables(S, K, wl, grids, illuminant, bg)
+        with _TABLES_LOCK:
+            while len(_TABLES) >= _TABLES_KEPT:
+                _TABLES.pop(next(iter(_TABLES)))
+            _TABLES[key] = tab
+    if full:
+        tab.fill(np.ones_like(tab.done))
+    return tab
+
+
+def _new_tables(S, K, wl, grids, illuminant, bg) -> "Tables":
+    """Empty :class:`Tables` for :func:`stack_rgb_table` and the function that fills their lines."""
     n = S.shape[0]
     shape = tuple(len(g) for g in grids)
     # each layer on its own 1-D grid (axis i), broadcast together by compose: eqs. 1–2 run on
-    # n × lut_size × n_λ values, eqs. 3–4 on the product grid, in blocks of TABLE_BLOCK values
-    # along the longest axis on the cores (element-wise work and one matrix product per row:
-    # the same values as at once; blocks whose temporaries stay in the cache, ~2× faster)
+    # n × lut_size × n_λ values, eqs. 3–4 on lines of nodes along the last axis (one matrix
+    # product per line, as when the whole grid is broadcast at once: the same values), in
+    # blocks of TABLE_BLOCK values on the cores (their temporaries stay in the cache)
     lays = [layer_R0_T(S[i], K[i], g.reshape(tuple(len(g) if j == i else 1 for j in range(n)) + (1,)))
             for i, g in enumerate(grids)]
     W = rgb_weights(wl, illuminant)
     # quantities that multiply light (T, T², Rb·Rg) are RGB filters: divided by the RGB of the
     # spectrally flat 1, so that no layer gives exactly 1 (the white's RGB is 1 ± 1e-4)
     Wf = W / W.sum(axis=0)
-    tab = [np.empty(shape + (3,), np.float32) for _ in range(2 if bg is not None else 4)]
-    ax = int(np.argmax(shape)) if n else 0
-    step = max(1, TABLE_BLOCK * shape[ax] // (int(np.prod(shape)) * wl.size)) if n else 0
-    starts = range(0, shape[ax], step) if n else [None]
+    tabs = [np.zeros(shape + (3,), np.float32) for _ in range(2 if bg is not None else 4)]
 
-    def block(k0):
-        cut = () if k0 is None else (slice(None),) * ax + (slice(k0, k0 + step),)
-        acc = None
-        for i, (R0, T) in enumerate(lays):
-            lay = (R0[cut], R0[cut], T[cut]) if i == ax else (R0, R0, T)
-            acc = lay if acc is None else compose(lay, acc)
-        sub = tab[0][cut].shape[:-1] + (wl.size,)
-        if acc is None:  # no layer: vacuum
-            acc = (np.zeros(1), np.zeros(1), np.ones(1))
+    def parts(acc, sub):
         Rt, Rb, T = (np.broadcast_to(a, sub) for a in acc)
-        parts = [over_background(Rt, Rb, T, bg) @ W, T @ Wf] if bg is not None else \
+        return [over_background(Rt, Rb, T, bg) @ W, T @ Wf] if bg is not None else \
             [Rt @ W, Rb @ Wf, T @ Wf, (T * T) @ Wf]
-        for out, x in zip(tab, parts):
-            out[cut] = x
 
-    run_tasks([functools.partial(block, k0) for k0 in starts])
-    tab = Tables(tab)
-    if len(_TABLES) > 64:
-        _TABLES.clear()
-    _TABLES[key] = tab
-    return tab
+    if n == 0:  # no layer: vacuum
+        for out, x in zip(tabs, parts((np.zeros(1), np.zeros(1), np.ones(1)), (wl.size,))):
+            out[...] = x
+        return Tables(tabs)
+    lead, last = shape[:-1], shape[-1]
+    # per layer (R0, T) on its grid: (nodes, n_λ), the last layer's (1, nodes, n_λ)
+    flat = [(R0.reshape(-1, wl.size), T.reshape(-1, wl.size)) for R0, T in lays[:-1]]
+    flat.append(tuple(a.reshape(1, last, wl.size) for a in lays[-1]))
+    rows = [t.reshape(-1, last, 3) for t in tabs]
+    per = max(1, TABLE_BLOCK // (last * wl.size))
+
+    def block(lines):
+        idx = np.unravel_index(lines, lead) if lead else ()
+        acc = None
+        for i, (R0, T) in enumerate(flat):
+            if i < n - 1:
+                R0, T = R0[idx[i]][:, None], T[idx[i]][:, None]
+            acc = (R0, R0, T) if acc is None else compose((R0, R0, T), acc)
+        for out, x in zip(rows, parts(acc, (lines.size, last, wl.size))):
+            out[lines] = x
+
+    def fill(lines):
+        run_tasks([functools.partial(block, lines[i:i + per]) for i in range(0, lines.size, per)])
+
+    return Tables(tabs, fill, int(np.prod(lead, dtype=np.int64)))
 
 
 #: pixels per band of rows in :func:`lookup` (a band's temporaries stay in the cache)
@@ -359,18 +387,77 @@ _ZEROS = [np.zeros(0, np.float32)]
 
 class Tables(list):
     """The tables of :func:`stack_rgb_table` (float32 arrays on one grid).  Keeps the lookup
-    plans (and their per-cell interpolation coefficients) so they are built once per material set."""
+    plans (and their per-cell interpolation coefficients) so they are built once per material
+    set, and which lines of nodes (along the last axis) are computed: ``fill`` computes lines
+    (a mask over the product of the other axes) that are not yet; :meth:`cover` those a map's
+    lookup reads."""
 
-    def __init__(self, *a):
-        super().__init__(*a)
+    def __init__(self, tabs, fill=None, lines: int = 1):
+        super().__init__(tabs)
         self.plans = {}
+        self._fill = fill
+        self.done = np.full(lines, fill is None)
+        self.version = 0     # bumped when lines are added: the plans' coefficients follow
+        self._covered = {}   # digests of maps whose lines are all computed
+        self._lock = threading.Lock()
+
+    def fill(self, need: np.ndarray) -> None:
+        if self.done.all():
+            return
+        with self._lock:
+            new = np.flatnonzero(need & ~self.done)
+            if new.size:
+                self._fill(new)
+                self.done[new] = True
+                self.version += 1
+
+    def cover(self, t: np.ndarray, plan: "_Plan") -> None:
+        """Compute the lines that a lookup of the (P, n) float32 thicknesses ``t`` reads."""
+        if self.done.all():
+            return
+        digest = xxhash.xxh3_128_digest(t)
+        if digest in self._covered:
+            return
+        self.fill(plan.lines_read(t))
+        if len(self._covered) >= 1024:
+            self._covered.clear()
+        self._covered[digest] = True
 
 
-def _corner_tables(tab: np.ndarray, live) -> list[np.ndarray]:
+def _corner_tables(tab: np.ndarray, live, lines: np.ndarray | None = None) -> list[np.ndarray]:
     """Per-cell coefficients of the multilinear form: for each subset b of the live axes (bit k
     = axis live[k]) the finite difference of ``tab`` along the axes in b, the next node clamped
     to the last (so the differences are 0 there).  In float64, stored as float32; entry 0 is
-    the table itself, bit for bit."""
+    the table itself, bit for bit.  ``lines`` (a mask over the lines of nodes along the last
+    axis, as :class:`Tables` keeps it): only the cells on a few lines are wanted (zeros
+    elsewhere), each computed from its line and the lines a node up on each live axis gathered
+    around it: the same subtractions of the same values."""
+    n = tab.ndim - 1
+    if lines is None or 4 * np.count_nonzero(lines) > lines.size:
+        return _differences(tab, live)
+    lead, last, C = tab.shape[:n - 1], tab.shape[n - 1], tab.shape[-1]
+    up = [ax for ax in live if ax < n - 1]
+    at = np.flatnonzero(lines)
+    here = np.unravel_index(at, lead)
+    rows = tab.reshape(-1, last, C)
+    # the stencil: (lines, 2 per live leading axis, last, C), a node up clamped to the last
+    stencil = np.empty((at.size,) + (2,) * len(up) + (last, C), np.float64)
+    for s in np.ndindex(*(2,) * len(up)):
+        idx = list(here)
+        for ax, d in zip(up, s):
+            idx[ax] = np.minimum(idx[ax] + d, lead[ax] - 1)
+        stencil[(slice(None),) + s] = rows[np.ravel_multi_index(idx, lead)]
+    axes = [1 + j for j in range(len(up))] + ([1 + len(up)] if n - 1 in live else [])
+    out = []
+    for c in _differences(stencil, axes):
+        full = np.zeros(tab.shape, np.float32)
+        full.reshape(-1, last, C)[at] = c[(slice(None),) + (0,) * len(up)]
+        out.append(full)
+    return out
+
+
+def _differences(tab: np.ndarray, live) -> list[np.ndarray]:
+    """:func:`_corner_tables` on every cell."""
     out = {0: np.asarray(tab, np.float64)}
     for k, ax in enumerate(live):
         N = tab.shape[ax]
@@ -390,7 +477,8 @@ class _Plan:
     Tables that do not fit cv2's 16-bit coordinates are gathered with np.take instead.
     """
 
-    def __init__(self, tables, grids):
+    def __init__(self, tables, grids, owner: Tables | None = None):
+        self.owner = owner
         self.sizes = sizes = [len(g) for g in grids]
         self.n = n = len(sizes)
         self.tables = [np.asarray(tb, np.float32) for tb in tables]
@@ -420,25 +508,70 @@ class _Plan:
             st, lt = self._tiles = (np.tile(self.scale, B), np.tile(self.last, B))
         return st[:B * self.n], lt[:B * self.n]
 
+    def lines_read(self, t) -> np.ndarray:
+        """Which lines of nodes along the last axis (a mask over the product of the other axes)
+        a lookup of the (P, n) float32 thicknesses ``t`` reads: each pixel's cell (computed as
+        :meth:`interp` does), and one and two nodes up on each axis (its cell's far corner; a
+        position within SNAP below a node is put on it)."""
+        lead = self.sizes[:-1]
+        mask = np.zeros(int(np.prod(lead, dtype=np.int64)), bool)
+        if not lead:
+            mask[:] = True
+            return mask
+        n = t.shape[1]
+        strides = [np.float32(np.prod(lead[i + 1:], dtype=np.int64)) for i in range(n - 1)]
+
+        def band(s0):  # in bands (the tiles of a band): cells as interp finds them
+            B = min(t.shape[0] - s0, LOOKUP_BLOCK)
+            st, lt = self.tiles(B)
+            f = np.multiply(t[s0:s0 + B].reshape(-1), st)
+            np.minimum(f, lt, out=f)
+            f = np.floor(f, out=f).reshape(B, n)
+            idx = f[:, 0] * strides[0]  # whole numbers below 2**24: exact
+            for i in range(1, n - 1):
+                idx += f[:, i] * strides[i]
+            mask[idx.astype(np.intp)] = True
+
+        run_tasks([functools.partial(band, s0) for s0 in range(0, t.shape[0], LOOKUP_BLOCK)])
+        m = mask.reshape(lead)
+        for ax in range(n - 1):
+            for _ in range(2):
+                lo, hi = [slice(None)] * (n - 1), [slice(None)] * (n - 1)
+                lo[ax], hi[ax] = slice(None, -1), slice(1, None)
+                m[tuple(hi)] |= m[tuple(lo)]
+        return mask
+
     def corners_flat(self):
         """The coefficient tables of all tables side by side, (entries, C_total padded to a
         multiple of 4) each: scattered pixels take one np.take per coefficient (rows of 16·k
         bytes gather several times faster than rows of 12)."""
-        if self._flat is None:
+        ver = self.version()
+        if self._flat is None or self._flat[0] != ver:
             ctot = sum(self.chans)
             cpad = -(-ctot // 4) * 4
             side = [tb.reshape(self.sizes + [c]) for tb, c in zip(self.tables, self.chans)]
             if cpad > ctot:
                 side.append(np.zeros(self.sizes + [cpad - ctot], np.float32))
             # the differences are per channel: all tables side by side at once
-            self._flat = [c.reshape(-1, cpad) for c in _corner_tables(np.concatenate(side, axis=-1), self.live)]
-        return self._flat
+            lines = self.lines()
+            self._flat = ver, [c.reshape(-1, cpad) for c in _corner_tables(np.concatenate(side, axis=-1), self.live, lines)]
+        return self._flat[1]
 
     def corners(self):
-        if self._corners is None:
-            self._corners = [[c.reshape(self.ny, self.nx, -1) for c in _corner_tables(tb, self.live)]
-                             for tb in self.tables]
-        return self._corners
+        ver = self.version()
+        if self._corners is None or self._corners[0] != ver:
+            lines = self.lines()
+            self._corners = ver, [[c.reshape(self.ny, self.nx, -1) for c in _corner_tables(tb, self.live, lines)]
+                                  for tb in self.tables]
+        return self._corners[1]
+
+    def version(self) -> int:
+        """The owning :class:`Tables`' count of additions (the coefficients are rebuilt after one)."""
+        return 0 if self.owner is None else self.owner.version
+
+    def lines(self) -> np.ndarray | None:
+        """The owning :class:`Tables`' computed lines (None: all)."""
+        return None if self.owner is None or self.n < 2 else self.owner.done.copy()
 
     def coords(self, k, x=None, y=None):
         """Table-image coordinates of the nodes k (M, n) into x, y (M,): matrix-vector products
@@ -614,7 +747,7 @@ def lookup(table, grids, thickness: np.ndarray):
         key = tuple(np.asarray(g, np.float64).tobytes() for g in grids)
         plan = table.plans.get(key)
         if plan is None:
-            plan = table.plans[key] = _Plan(tables, grids)
+            plan = table.plans[key] = _Plan(tables, grids, table)
     else:
         plan = _Plan(tables, grids)
     P = h * w
@@ -624,6 +757,8 @@ def lookup(table, grids, thickness: np.ndarray):
         for o, img in zip(outs, plan.images):
             o[...] = img.reshape(1, -1)
     else:
+        if isinstance(table, Tables):
+            table.cover(t, plan)
         _lookup(plan, t, outs, h, w)
     outs = [o.reshape(h, w, -1) for o in outs]
     return outs if isinstance(table, (list, tuple)) else outs[0]

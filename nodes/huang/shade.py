@@ -318,11 +318,11 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
     sp = fixed.spec
     y0, y1, x0, x1 = sp.box
     s = sp.skin.copy()
-    for i, (box, top, plane) in enumerate(zip(*layers)):
+    for i, (box, top, crop) in enumerate(zip(*layers)):
         b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
         if b0 >= b1 or c0 >= c1:
             continue
-        Ti, own = _layer_terms(p, wl, S[i], K[i], plane, top, (b0, b1, c0, c1), i, sp)
+        Ti, own = _layer_terms(p, wl, S[i], K[i], crop, box, top, (b0, b1, c0, c1), i, sp)
         here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
         np.multiply(here, Ti, out=here)
         np.add(here, own, out=here)
@@ -331,13 +331,14 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
     return out
 
 
-def _layer_terms(p, wl, S, K, plane, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
+def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
     """Layer i's RGB transmittance (h, w, 3) and own specular weighted by its coverage (h, w, 3)
-    in ``box`` (float32), from its thickness ``plane`` (H, W) of maximum ``top``: kept for the
-    last layers seen on this surface (a re-shade after one layer changed does not redo the
-    others; up to 8, ~6 MB each for a face-sized layer at 1280×720)."""
-    key = xxhash.xxh3_128(canonical([i, list(box), top, p.lut_size, p.cover_mm, p.illuminant]))
-    for a in (np.asarray(wl, np.float64), np.asarray(S, np.float64), np.asarray(K, np.float64), plane):
+    in ``box`` (float32; inside the layer's box ``lbox``), from its thicknesses ``crop`` in
+    ``lbox`` (0 outside it) of maximum ``top``: kept for the last layers seen on this surface (a
+    re-shade after one layer changed does not redo the others; up to 8, ~6 MB each for a
+    face-sized layer at 1280×720)."""
+    key = xxhash.xxh3_128(canonical([i, list(box), list(lbox), top, p.lut_size, p.cover_mm, p.illuminant]))
+    for a in (np.asarray(wl, np.float64), np.asarray(S, np.float64), np.asarray(K, np.float64), crop):
         key.update(np.ascontiguousarray(a))
     key = key.hexdigest()
     got = sp.seen.get(key)
@@ -348,7 +349,7 @@ def _layer_terms(p, wl, S, K, plane, top, box, i, sp: _Specular) -> tuple[np.nda
         Wf = Wf / Wf.sum(axis=0)  # T as an RGB filter (see stack.pixel_stack)
         grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S, K, grid[0][:, None])
-        ti = plane[b0:b1, c0:c1, None]
+        ti = crop[b0 - lbox[0]:b1 - lbox[0], c0 - lbox[2]:c1 - lbox[2], None]
         Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float32)
         cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)[..., None]
         own = np.broadcast_to(cover * sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0], Ti.shape)
@@ -369,17 +370,28 @@ def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def _layer_boxes(t: np.ndarray) -> tuple[list, list[float], list[np.ndarray]]:
-    """Per layer, the box of the pixels where it is thicker than 0, its maximum and its plane
-    (each layer copied to a plane first: reductions over a strided channel are ~20× slower)."""
-    boxes, tops = [], []
-    planes = list(np.ascontiguousarray(np.moveaxis(t, 2, 0)))
-    for plane in planes:
-        per_row = plane.max(axis=1) if plane.size else np.zeros(0, plane.dtype)
-        rows, cols = np.flatnonzero(per_row > 0), np.flatnonzero(plane.max(axis=0) > 0) if plane.size else []
-        boxes.append((0, 0, 0, 0) if rows.size == 0 else
-                     (int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1))
-        tops.append(float(per_row.max()) if per_row.size else 0.0)
-    return boxes, tops, planes
+    """Per layer, the box of the pixels where it is thicker than 0, its maximum and its
+    thicknesses in that box (a contiguous copy).  The columns from one reduction over whole
+    rows of (H, W·n) values, the rows from the layer's columns copied out (reductions over a
+    strided channel are ~20× slower)."""
+    h, w, n = t.shape
+    if t.size == 0:
+        return [(0, 0, 0, 0)] * n, [0.0] * n, [np.zeros((0, 0), t.dtype)] * n
+    per_col = t.reshape(h, w * n).max(axis=0).reshape(w, n)
+    boxes, tops, crops = [], [], []
+    for i in range(n):
+        cols = np.flatnonzero(per_col[:, i] > 0)
+        tops.append(float(per_col[:, i].max()))
+        if cols.size == 0:
+            boxes.append((0, 0, 0, 0))
+            crops.append(np.zeros((0, 0), t.dtype))
+            continue
+        c0, c1 = int(cols[0]), int(cols[-1]) + 1
+        strip = np.ascontiguousarray(t[:, c0:c1, i])
+        rows = np.flatnonzero(strip.max(axis=1) > 0)
+        boxes.append((int(rows[0]), int(rows[-1]) + 1, c0, c1))
+        crops.append(strip[rows[0]:rows[-1] + 1])
+    return boxes, tops, crops
 
 
 def _support(boxes) -> tuple[int, int, int, int]:

@@ -37,7 +37,7 @@ def pixel_stack(S, K, wl, thickness, illuminant="D65", lut_size=25, background_s
     n = S.shape[0]
     grids = km.thickness_grid(channel_max(thickness, n), lut_size)
     bg = None if background_spectrum is None else np.asarray(background_spectrum, np.float64)
-    table = km.stack_rgb_table(S, K, wl, grids, illuminant, bg)
+    table = km.stack_rgb_table(S, K, wl, grids, illuminant, bg, full=False)
     names = ("R", "T") if bg is not None else ("Rt", "Rb", "T", "T2")
     return dict(zip(names, km.lookup(table, grids, thickness)))
 
@@ -48,7 +48,7 @@ def stack_over_rgb(S, K, wl, thickness, Rg, illuminant="D65", lut_size=25):
     n = S.shape[0]
     h, w = thickness.shape[:2]
     grids = km.thickness_grid(channel_max(thickness, n), lut_size)
-    table = km.stack_rgb_table(S, K, wl, grids, illuminant, None)
+    table = km.stack_rgb_table(S, K, wl, grids, illuminant, None, full=False)
     R = np.empty((h, w, 3), np.float32)
     Rt, Rb, Tq, T2 = km.lookup(table, grids, thickness)
 
