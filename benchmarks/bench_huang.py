@@ -102,6 +102,9 @@ def peers():
 
 
 def main(argv=None) -> int:
+    from graphkit.memory import tune_malloc
+
+    tune_malloc()  # as the CLI, the studio and Dask workers do
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
     ap.add_argument("--reshade", action="store_true", help="CosmeticShade after a cosmetic change (issue 28)")
