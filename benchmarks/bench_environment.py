@@ -143,6 +143,9 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy")
 
 
 def main(argv=None) -> int:
+    from graphkit.memory import tune_malloc
+
+    tune_malloc()  # as the CLI, the studio and Dask workers do
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--size", type=int, default=1024)

@@ -112,8 +112,10 @@ def peers():
 
 
 def main(argv=None) -> int:
+    from graphkit.memory import tune_malloc
     from graphkit.runner import pin_blas_threads
 
+    tune_malloc()  # as the CLI, the studio and Dask workers do
     pin_blas_threads()  # as the engine runs a node
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)

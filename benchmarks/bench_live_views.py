@@ -81,6 +81,9 @@ def bench(name, view, key, values, n, warmup):
 
 
 def main() -> int:
+    from graphkit.memory import tune_malloc
+
+    tune_malloc()  # as the CLI, the studio and Dask workers do
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=20)
     ap.add_argument("--warmup", type=int, default=2)

@@ -51,6 +51,9 @@ def setup(cache: str, size: int):
 
 
 def main() -> int:
+    from graphkit.memory import tune_malloc
+
+    tune_malloc()  # as the CLI, the studio and Dask workers do
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=15)
     ap.add_argument("--warmup", type=int, default=2)

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from .errors import GraphkitError, UsageError
+from .memory import tune_malloc
 from .nodeinfo import node_info, type_name
 
 DEFAULT_CACHE = ".graphkit-cache"
@@ -196,6 +197,7 @@ def main(argv=None) -> int:
 
         if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:
             _signal.signal(_signal.SIGINT, _on_sigint)
+        tune_malloc()
         code = _main(argv)
         sys.stdout.flush()  # a reader that went away shows here, not at interpreter exit
         return code

@@ -46,9 +46,11 @@ def _worker_session(token, graph, store_location, backend_order) -> Session:
     with _sessions_lock:
         s = _sessions.get(token)
         if s is None:
+            from .memory import tune_malloc
             from .registry import default_registry
             from .store import Store
 
+            tune_malloc()  # this worker's process, as the CLI does for its own
             s = Session(graph, default_registry(), Store(store_location, options=graph.cache_options(store_location)).open(),
                         backend_order)
             _sessions.clear()  # one run at a time per worker keeps memory bounded

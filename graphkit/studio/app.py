@@ -87,8 +87,10 @@ def serve(graph: str, *, host: str = "127.0.0.1", port: int = 0, cache: str = ".
     except ImportError:
         raise UsageError("the studio needs its extra: pip install 'relightkit[studio]' "
                          "(starlette, uvicorn, websockets)") from None
+    from ..memory import tune_malloc
     from .core import Studio
 
+    tune_malloc()  # also when the studio is started from Python rather than `graphkit serve`
     stream = stream or sys.stdout
     token = token or secrets.token_urlsafe(24)
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
