@@ -151,6 +151,11 @@ def cases():
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "lights": [key],
              "detail": detail, "texture_camera": tex_cam, "ambient": side}),
         "environment_only_shadows": (
+            {"shadow_map_size": 256, "clamp": False, "environment_shadows": 0.0},
+            {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
+        # the default environment_shadows (0.2): the key light (0.27 of the brightest's
+        # luminance) casts its shadow, the side light (0.09) lights the wall unshadowed
+        "environment_dominant_shadows": (
             {"shadow_map_size": 256, "clamp": False},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
         "environment_sh_only": (
@@ -214,6 +219,9 @@ def test_cases_exercise_what_they_claim():
         assert np.abs(run("environment_only_shadows") - node(node.Params.model_validate(env[0])).compute(
             **{**env[1], "environment": other})["image"].pixels).max() > 0.02
     assert (run("environment_only_shadows", shadows=False) - run("environment_only_shadows")).max() > 0.1
+    # only the dominant light's shadow: the side light's is gone, the key light's stays
+    assert (run("environment_dominant_shadows") - run("environment_only_shadows")).max() > 0.05
+    assert (run("environment_dominant_shadows", shadows=False) - run("environment_dominant_shadows")).max() > 0.1
     assert np.abs(run("detail_texture_other_camera") - node(node.Params.model_validate(c["detail_texture_other_camera"][0])).compute(
         **{k: v for k, v in c["detail_texture_other_camera"][1].items() if k not in ("detail", "texture_camera")})["image"].pixels).max() > 0.1
 

@@ -138,7 +138,8 @@ def test_render_takes_an_environment_without_lights_and_refuses_neither():
 
 def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
     """An environment light's shadow map: the brightest's side × (luminance ratio)^⅓, at least
-    an eighth of it; the lights on ``lights`` keep ``shadow_map_size`` however dim."""
+    an eighth of it, or none below ``dominant`` × the brightest's luminance (Render's
+    environment_shadows); the lights on ``lights`` keep ``shadow_map_size`` however dim."""
     from graphkit import Light
     from nodes.common import raster
     from nodes.paris.data.make_capture import camera, head_mesh
@@ -153,14 +154,21 @@ def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
     assert shadow_map_sizes(env.lights[1:2], 1024) == [1024]  # alone, it is the brightest
     # lights given as such (the first ``own``) keep the full map; the rest are sized among themselves
     assert shadow_map_sizes(env.lights, 1024, own=2) == [1024, 1024, 1024, 128]
+    # only the dominant ones cast a shadow (side 0: none), and always the brightest
+    assert shadow_map_sizes(env.lights, 1024, dominant=0.125) == [1024, 512, 0, 0]
+    assert shadow_map_sizes(env.lights, 1024, dominant=1.0) == [1024, 0, 0, 0]
+    assert shadow_map_sizes(env.lights, 1024, own=2, dominant=0.5) == [1024, 1024, 1024, 0]
     sizes = []
     real = raster.shadow_map
     monkeypatch.setattr(raster, "shadow_map", lambda V, F, light, size, **kw: sizes.append(size) or real(V, F, light, size, **kw))
     m, _, _ = head_mesh(2)
-    compute_checked(Render(Render.Params(shadow_map_size=96)), mesh=m, camera=camera(16),
-                    material=PhongMaterial(diffuse=E.ALBEDO), lights=[Light(direction=front, intensity=1e-6)],
-                    environment=env)
-    assert sorted(sizes) == sorted([96, 96, 48, 32, 16])  # 96 / 8 = 12 → 16 (the least map)
+    for dominant, want in ((0.0, [96, 96, 48, 32, 16]),  # 96 / 8 = 12 → 16 (the least map)
+                           (0.2, [96, 96])):  # the default: the dim ones cast none
+        sizes.clear()
+        compute_checked(Render(Render.Params(shadow_map_size=96, environment_shadows=dominant)), mesh=m,
+                        camera=camera(16), material=PhongMaterial(diffuse=E.ALBEDO),
+                        lights=[Light(direction=front, intensity=1e-6)], environment=env)
+        assert sorted(sizes) == sorted(want)
 
 
 GRAPH = """graphkit: 1

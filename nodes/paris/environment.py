@@ -1,9 +1,9 @@
 """Relighting to an environment (Paris 2003 Fig. 10-b, §6 "complex lighting environment"):
 an equirectangular map turned into a few dominant directional lights (Debevec's median cut,
-"A median cut algorithm for light probe sampling", 2005) that Render shadows, plus an order-2
-spherical-harmonic ambient (9 coefficients) for the rest of the map, shaded by Ramamoorthi and
-Hanrahan's irradiance formula ("An efficient representation for irradiance environment maps",
-2001).
+"A median cut algorithm for light probe sampling", 2005) that Render shades (the brightest
+of them with shadows), plus an order-2 spherical-harmonic ambient (9 coefficients) for the rest
+of the map, shaded by Ramamoorthi and Hanrahan's irradiance formula ("An efficient
+representation for irradiance environment maps", 2001).
 
 Units: a Light's colour × intensity is the irradiance it gives divided by π, so a white
 Lambertian surface shows the map's own radiance units (under a uniform map of radiance 1 it
@@ -24,8 +24,9 @@ SH_A = np.array([np.pi, 2 * np.pi / 3, np.pi / 4])  # Â_l, the clamped cosine's
 
 class EnvironmentLighting(BaseModel):
     """An environment as lights: dominant directional ``lights`` (world frame; Render shadows
-    them) and ``sh``, 9 RGB spherical-harmonic coefficients (l ≤ 2, real basis, world frame) of
-    the radiance left over, which Render adds unshadowed as an ambient."""
+    those of at least ``environment_shadows`` × the brightest's luminance) and ``sh``, 9 RGB
+    spherical-harmonic coefficients (l ≤ 2, real basis, world frame) of the radiance left
+    over, which Render adds unshadowed as an ambient."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     lights: tuple[Light, ...] = ()
@@ -76,19 +77,23 @@ SIZE_POWER = 1 / 3
 MIN_SIZE = 1 / 8
 
 
-def shadow_map_sizes(lights, size: int, own: int = 0) -> list[int]:
+def shadow_map_sizes(lights, size: int, own: int = 0, dominant: float = 0.0) -> list[int]:
     """The shadow-map side of each of ``lights``: ``size`` for the first ``own`` (lights
     given as such) and for the brightest of the rest (an environment's), smaller for dimmer
-    ones.  A coarser map moves a shadow's edge by up to a texel, an error
-    weighed by the light's energy: the sum over lights of energy / side, for a cost growing
-    with the texels (side²), is least with side ∝ energy^⅓.  Measured against Mitsuba
-    (benchmarks/bench_environment.py, 16 lights): every map within 0.01 dB of full-size maps
-    or better; at 1024² the environment's shadow maps take ~⅓ of their texels."""
+    ones, and 0 (no shadow: the light shades unshadowed) for an environment light whose
+    luminance is below ``dominant`` × the brightest's (issue 26 item 4: "shadows from the
+    dominant ones"; Render's ``environment_shadows``).  A coarser map moves a shadow's edge
+    by up to a texel, an error weighed by the light's energy: the sum over lights of
+    energy / side, for a cost growing with the texels (side²), is least with
+    side ∝ energy^⅓.  Measured against Mitsuba (benchmarks/bench_environment.py, 16 lights):
+    every map within 0.01 dB of full-size maps or better; at 1024² the environment's shadow
+    maps take ~⅓ of their texels."""
     lum = np.array([light.intensity * float(np.dot(light.color, LUMA)) for light in lights[own:]])
     if len(lum) == 0 or lum.max() <= 0:
         return [size] * len(lights)
-    side = size * np.maximum((lum / lum.max()) ** SIZE_POWER, MIN_SIZE)
-    return [size] * own + [int(v) for v in np.clip(np.rint(side), 16, size)]
+    share = lum / lum.max()
+    side = np.clip(np.rint(size * np.maximum(share ** SIZE_POWER, MIN_SIZE)), 16, size)
+    return [size] * own + [int(v) if s >= dominant else 0 for v, s in zip(side, share)]
 
 
 def map_energy(px: np.ndarray) -> np.ndarray:
@@ -199,7 +204,7 @@ class EnvironmentLights(Node):
     """An environment map as lights for Render (Paris 2003 Fig. 10-b): the map's bright parts
     (radiance above ``threshold`` × its mean luminance) as at most ``lights`` directional lights
     by Debevec's median cut (each at its region's energy centroid, holding its energy; Render
-    casts their shadows), the rest as an order-2 spherical-harmonic ambient (9 RGB
+    casts the shadows of the brightest: its ``environment_shadows``), the rest as an order-2 spherical-harmonic ambient (9 RGB
     coefficients, Ramamoorthi–Hanrahan irradiance; no shadows).  Together they hold the map's
     whole energy (∫ L dω, exact pixel solid angles).  The map is analysed at ``width`` pixels
     (solid-angle-weighted block averages).  ``lights: 0`` puts everything in the ambient.

@@ -201,17 +201,20 @@ def light_part(p, V: np.ndarray, F: np.ndarray, lights, up, own: int | None = No
     """(the light-dependent part of the job: ``lights`` uniforms, ``shadow`` frames or None,
     ``sm_sizes`` and ``shadow_key``; per-light shadow-map errors or None) for world-unit
     ``lights`` (scene()'s second result; those after the first ``own`` an environment's, whose
-    maps are sized as numpy's: environment.shadow_map_sizes) and the drawn mesh's
+    maps are sized as numpy's, side 0 for none: environment.shadow_map_sizes) and the drawn mesh's
     vertices/faces; what a light drag recomputes."""
     from nodes.paris.environment import shadow_map_sizes
 
     own = len(lights) if own is None else own
-    sizes = shadow_map_sizes(lights, p.shadow_map_size, own)
+    sizes = shadow_map_sizes(lights, p.shadow_map_size, own, p.environment_shadows)
     part = {"lights": [_light_uniforms(light) for light in lights], "shadow": None, "sm_sizes": sizes}
     sm_errors = [None] * len(lights)
     if p.shadows and lights:  # (none: an environment's SH ambient alone, unshadowed)
         sms = []
         for i, light in enumerate(lights):
+            if not sizes[i]:  # an environment light that casts no shadow (shade.frag: SM_SIZE 0)
+                sms.append(None)
+                continue
             try:
                 sm = _shadow_setup(V, F, light, sizes[i], up=up)
                 sm["key"] = (digest(sm["q"]), digest(sm["faces"]))

@@ -530,10 +530,11 @@ class Render(Node):
       soft shadows, ``nodes.common.shadows``); hard for a point or parallel light.
     * Eye highlights (§5): two purely specular hemispheres of cornea radius 7.8 mm with a high
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
-    * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its dominant lights are
-      shaded and shadowed as the others (they may lie behind the face; the brightest on a
-      ``shadow_map_size``² map, dimmer ones on smaller maps, side ∝ luminance^⅓:
-      ``environment.shadow_map_sizes``), its 9 spherical-
+    * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its lights are shaded as
+      the others (they may lie behind the face); those of at least ``environment_shadows`` ×
+      the brightest's luminance cast shadows (the brightest on a ``shadow_map_size``² map,
+      dimmer ones on smaller maps, side ∝ luminance^⅓), the dimmer ones none
+      (``environment.shadow_map_sizes``, the one rule of both backends); its 9 spherical-
       harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
       Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
       WebGL view does not).
@@ -550,7 +551,7 @@ class Render(Node):
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "4"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light
+    version = "4"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows)
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
@@ -574,6 +575,10 @@ class Render(Node):
         clamp: bool = Field(True, description="sensor saturation: clamp to [0, 1] after the texture")
         shadows: bool = Field(True, description="cast shadows with shadow maps")
         shadow_map_size: int = Field(1024, ge=16, le=8192, description="shadow-map pixels per side")
+        environment_shadows: float = Field(
+            0.2, ge=0, le=1, description="an environment's light casts a shadow only if its luminance is at "
+                                         "least this fraction of its brightest light's (the dominant ones); "
+                                         "the others light the face unshadowed. 0: all cast shadows")
         background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="linear RGB")
         eye_highlights: Literal["auto", "on", "off"] = Field(
             "auto", description="auto: on when the eyes are known (mediapipe mesh or `eyes`)")
@@ -613,7 +618,7 @@ class Render(Node):
         col = np.zeros((M, 3))
         amb = np.zeros(3)
         lit = []  # (light, the points facing it, L, their lobes, shadow-map task, its cost)
-        sizes = shadow_map_sizes(lights, p.shadow_map_size, own)
+        sizes = shadow_map_sizes(lights, p.shadow_map_size, own, p.environment_shadows)
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             # only the points facing the light: elsewhere it adds nothing (+0), whatever its
@@ -627,15 +632,18 @@ class Render(Node):
                 continue
             diff, spec = phong.lobes(s.normals[idx], ldir[idx], s.view[idx], material.shininess)
             # a map's time, measured: ~2.5 ms of set-up (~90k texels' worth) + the texels drawn,
-            # the facing points' share of the map (all of it for soft shadows)
+            # the facing points' share of the map (all of it for soft shadows); no map (None):
+            # shadows off, or an environment light too dim to cast one (side 0)
             cost = 90000 + sizes[i] ** 2 * (1.0 if is_sized(light) else len(idx) / M)
-            lit.append((light, idx, L[idx], diff, spec, functools.partial(
-                self._visibility, mesh, light, camera, s, idx, i, "lights" if i < own else "environment",
-                sizes[i]), cost))
-        # the lights' shadows are independent: on the cores (an environment's dozen lights),
+            task = functools.partial(self._visibility, mesh, light, camera, s, idx, i,
+                                     "lights" if i < own else "environment", sizes[i]) \
+                if p.shadows and sizes[i] else None
+            lit.append((light, idx, L[idx], diff, spec, task, cost))
+        # the lights' shadows are independent: on the cores (an environment's dominant lights),
         # dealt by cost
-        vis = run_balanced([t[5] for t in lit], [t[6] for t in lit]) if p.shadows \
-            else [1.0] * len(lit)
+        cast = [t for t in lit if t[5] is not None]
+        vis = iter(run_balanced([t[5] for t in cast], [t[6] for t in cast]))
+        vis = [1.0 if t[5] is None else next(vis) for t in lit]
         for v in vis:
             if isinstance(v, BadInput):
                 raise v

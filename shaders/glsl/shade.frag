@@ -294,7 +294,7 @@ void main() {
             }
 #endif
 #if SHADOWS
-            if (nl > 0.0) {                   // else diff = spec = 0: no shadow lookup
+            if (nl > 0.0 && SM_SIZE(i) > 0) { // else diff = spec = 0, or no shadow (side 0)
                 float vis = visibility(i, P, n, l);
                 diff *= vis;
                 spec *= vis;
