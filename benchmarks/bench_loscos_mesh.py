@@ -9,8 +9,8 @@ sofa of boxes, lamps (trimesh cylinders), and balls (trimesh icospheres, at most
 triangles each, standing on the floor or on the furniture) whose count brings the mesh to
 about N triangles (50k: 39 balls); a ceiling light and a window light are mesh parts named
 in the scene file (emittances given).  Each size is written as OBJ + scene YAML and
-photographed by Mitsuba 3 (64×48 px, 16 spp: the photo only feeds the textures), then run in a
-fresh process with ``--backend embree`` — LoadScene, ProjectTextures, RadiositySolve,
+photographed by Mitsuba 3 (``--photo``: 64×48 px, 16 spp, the photo only feeds the textures),
+then run in a fresh process with ``--backend embree`` — LoadScene, ProjectTextures, RadiositySolve,
 TextureRefine, Unocclude (the preprocess) and one Relight (the lamp off) — which reports each
 node's CPU seconds and the peak memory (ru_maxrss) after it.  The child is stopped past
 ``--cap-cpu`` CPU seconds (RLIMIT_CPU; 3× that in wall seconds) or ``--cap-mb`` resident MB
@@ -96,8 +96,9 @@ def room_parts(n_tri: int, seed: int = 0) -> dict:
     return parts
 
 
-def write_scene(n_tri: int, folder: str) -> tuple[str, int]:
-    """OBJ + MTL + scene YAML + Mitsuba photo for a room of about n_tri triangles."""
+def write_scene(n_tri: int, folder: str, photo=(64, 48, 16)) -> tuple[str, int]:
+    """OBJ + MTL + scene YAML + Mitsuba photo (width, height, spp) for a room of about n_tri
+    triangles."""
     import yaml
 
     from nodes.io.images import encode_image
@@ -115,7 +116,7 @@ def write_scene(n_tri: int, folder: str) -> tuple[str, int]:
         n += len(F)
     open(os.path.join(folder, "room.obj"), "w").write("\n".join(lines) + "\n")
     open(os.path.join(folder, "room.mtl"), "w").write("\n".join(mtl) + "\n")
-    cam = {"width": 64, "height": 48, "fov_deg": 70, "position": [2.5, 1.5, 1.5],
+    cam = {"width": photo[0], "height": photo[1], "fov_deg": 70, "position": [2.5, 1.5, 1.5],
            "look_at": [2.5, 1.2, -2.0], "up": [0, 1, 0]}
     doc = {"loscos_scene": 1, "camera": cam, "photo": "photo.exr",
            "meshes": [{"file": "room.obj", "parts": {k: [float(x) for x in v[2]]
@@ -124,7 +125,7 @@ def write_scene(n_tri: int, folder: str) -> tuple[str, int]:
                       {"name": "window", "emittance": [20.0, 24.0, 30.0]}]}
     sc, _, _ = parse_scene(doc, base_dir=folder)
     img = MR.render_photo(sc, (cam["position"], cam["look_at"], cam["up"]), cam["fov_deg"],
-                          cam["width"], cam["height"], 16, seed=3)
+                          cam["width"], cam["height"], photo[2], seed=3)
     with open(os.path.join(folder, "photo.exr"), "wb") as f:
         f.write(encode_image(np.asarray(img, np.float32), ".exr", 16))
     with open(os.path.join(folder, "scene.yaml"), "w") as f:
@@ -308,7 +309,7 @@ def peer(folder: str, relit: np.ndarray, inside: np.ndarray) -> None:
 def measure(n: int, a) -> dict:
     """One size: its scene written, run capped in a fresh process (and the peer, if asked)."""
     with tempfile.TemporaryDirectory() as d:
-        path, tris = write_scene(n, d)
+        path, tris = write_scene(n, d, a.photo)
         relit = os.path.join(d, "relit.npy") if n == a.peer else None
         row = dict(run_capped(path, a.cap_cpu, a.cap_mb, relit), triangles=tris)
         print(describe(row), flush=True)
@@ -324,6 +325,8 @@ def main():
     ap.add_argument("--cap-cpu", type=float, default=600.0, help="CPU seconds per size")
     ap.add_argument("--cap-mb", type=float, default=5000.0, help="resident MB per size")
     ap.add_argument("--peer", type=int, default=None, help="the size to run Mitsuba's peer at")
+    ap.add_argument("--photo", nargs=3, type=int, default=[64, 48, 16], metavar=("W", "H", "SPP"),
+                    help="the photo's size and Mitsuba samples per pixel")
     ap.add_argument("--json", default=None, help="write the rows here")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # child: one scene file
     ap.add_argument("--relit", default=None, help=argparse.SUPPRESS)
