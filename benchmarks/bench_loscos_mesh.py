@@ -13,7 +13,7 @@ photographed by Mitsuba 3 (``--photo``: 64×48 px, 16 spp, the photo only feeds 
 then run in a fresh process with ``--backend embree`` — LoadScene, ProjectTextures, RadiositySolve,
 TextureRefine, Unocclude (the preprocess) and one Relight (the lamp off) — which reports each
 node's CPU seconds and the peak memory (ru_maxrss) after it.  The child is stopped past
-``--cap-cpu`` CPU seconds (RLIMIT_CPU; 3× that in wall seconds) or ``--cap-mb`` resident MB
+``--cap-cpu`` CPU seconds (RLIMIT_CPU), ``--cap-wall`` wall seconds or ``--cap-mb`` resident MB
 (sampled every 0.2 s): that size is reported as infeasible, with the node it was in.  The
 box faces pair back into parallelograms, the curved parts stay triangles (the polygons count
 both).  ``--plot`` writes CPU seconds (total and per node) and peak memory against the
@@ -186,10 +186,12 @@ def rss_mb(pid: int) -> float:
         return 0.0
 
 
-def run_capped(path: str, cap_cpu: float, cap_mb: float, relit_out: str | None = None) -> dict:
-    """run_one in a fresh process, stopped past cap_cpu CPU seconds or cap_mb resident MB.
+def run_capped(path: str, caps: tuple, relit_out: str | None = None) -> dict:
+    """run_one in a fresh process, stopped past caps = (CPU seconds, wall seconds, resident MB).
     {node: {cpu_s, maxrss_mb}, polygons, …, "stopped": why (absent if it finished)}."""
     import resource
+
+    cap_cpu, cap_wall, cap_mb = caps
 
     def limit():
         resource.setrlimit(resource.RLIMIT_CPU, (int(cap_cpu), int(cap_cpu) + 5))
@@ -203,8 +205,8 @@ def run_capped(path: str, cap_cpu: float, cap_mb: float, relit_out: str | None =
             peak = max(peak, rss_mb(proc.pid))
             if peak > cap_mb:
                 stopped = f"over {cap_mb:.0f} MB resident"
-            elif time.monotonic() - t0 > 3 * cap_cpu:
-                stopped = f"over {3 * cap_cpu:.0f} s wall"
+            elif time.monotonic() - t0 > cap_wall:
+                stopped = f"over {cap_wall:.0f} s wall"
             if stopped:
                 proc.kill()
                 break
@@ -247,28 +249,32 @@ def growth(rows: list) -> str:
                      for a, b in zip(done, done[1:]))
 
 
-def plot(rows, path, cap_cpu, cap_mb):
+def plot(rows, path):
+    """CPU seconds (preprocess and per node) and peak memory against triangles, log-log; a
+    size that was stopped is a red ▲ at what it had used by then (a lower bound)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     done = [r for r in rows if "stopped" not in r]
+    cut = [r for r in rows if "stopped" in r]
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    n = [r["triangles"] for r in done]
-    ax[0].loglog(n, [r["preprocess_s"] for r in done], "ko-", label="preprocess")
-    for node in PREPROCESS + ("Relight",):
-        ax[0].loglog(n, [r["nodes"][node]["cpu_s"] for r in done], ".--", label=node)
-    ax[1].loglog(n, [r["peak_mb"] for r in done], "ko-", label="peak resident")
-    for r in rows:
-        if "stopped" in r:
-            ax[0].loglog([r["triangles"]], [cap_cpu], "rx", ms=10)
-            ax[0].annotate(r["stopped"], (r["triangles"], cap_cpu), fontsize=6, color="r")
+    for node in ("LoadScene",) + PREPROCESS + ("Relight",):
+        pts = [(r["triangles"], r["nodes"][node]["cpu_s"]) for r in rows if node in r["nodes"]]
+        if pts:
+            ax[0].loglog(*zip(*pts), ".--", lw=0.8, label=node)
+    for k, key in enumerate(("preprocess_s", "peak_mb")):
+        ax[k].loglog([r["triangles"] for r in done], [r[key] for r in done], "ko-",
+                     label="preprocess" if k == 0 else "peak resident")
+        ax[k].loglog([r["triangles"] for r in cut], [r[key] for r in cut], "r^", ms=8,
+                     label="stopped (at least)")
     ax[0].axhline(90, color="grey", lw=0.8)
     ax[1].axhline(4096, color="grey", lw=0.8)
     ax[0].set(xlabel="triangles in the mesh", ylabel="CPU s", title="time (grey: 90 s)")
     ax[1].set(xlabel="triangles in the mesh", ylabel="MB", title="peak memory (grey: 4 GB)")
     ax[0].legend(fontsize=7)
+    ax[1].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 
@@ -311,7 +317,7 @@ def measure(n: int, a) -> dict:
     with tempfile.TemporaryDirectory() as d:
         path, tris = write_scene(n, d, a.photo)
         relit = os.path.join(d, "relit.npy") if n == a.peer else None
-        row = dict(run_capped(path, a.cap_cpu, a.cap_mb, relit), triangles=tris)
+        row = dict(run_capped(path, (a.cap_cpu, a.cap_wall, a.cap_mb), relit), triangles=tris)
         print(describe(row), flush=True)
         if relit and "stopped" not in row:
             peer(d, np.load(relit), np.load(relit.replace(".npy", "_inside.npy")))
@@ -323,6 +329,7 @@ def main():
     ap.add_argument("--sizes", nargs="+", type=int, default=[1000, 2000, 5000, 10000, 20000, 50000])
     ap.add_argument("--plot", default=None)
     ap.add_argument("--cap-cpu", type=float, default=600.0, help="CPU seconds per size")
+    ap.add_argument("--cap-wall", type=float, default=3600.0, help="wall seconds per size")
     ap.add_argument("--cap-mb", type=float, default=5000.0, help="resident MB per size")
     ap.add_argument("--peer", type=int, default=None, help="the size to run Mitsuba's peer at")
     ap.add_argument("--photo", nargs=3, type=int, default=[64, 48, 16], metavar=("W", "H", "SPP"),
@@ -341,7 +348,7 @@ def main():
             json.dump(rows, f, indent=1)
     if a.plot:
         os.makedirs(os.path.dirname(os.path.abspath(a.plot)), exist_ok=True)
-        plot(rows, a.plot, a.cap_cpu, a.cap_mb)
+        plot(rows, a.plot)
         print("wrote", a.plot)
 
 
