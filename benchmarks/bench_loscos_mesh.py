@@ -341,7 +341,7 @@ def main():
     if a.one:
         run_one(a.one, a.relit)
         return
-    rows = [measure(n, a) for n in a.sizes]
+    rows = sorted((measure(n, a) for n in a.sizes), key=lambda r: r["triangles"])
     print("CPU s ∝ triangles^k:", growth(rows))
     if a.json:
         with open(a.json, "w") as f:
