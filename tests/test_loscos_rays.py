@@ -44,6 +44,17 @@ def test_embree_agrees_with_reference_on_room_links():
     assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(p0)} segments differ"
 
 
+def test_reference_answers_alike_in_any_block_size():
+    """The reference takes its blocks by segment–occluder pairs (so 20k mesh polygons do not
+    make a block of segments hold gigabytes): blocks of one, 22 and all segments agree."""
+    occ = _room_occluders()
+    p0, p1, ign = _facing_segments(occ, 3000, seed=5)
+    want = rays._occluded_numpy(p0, p1, *occ, ignore=ign, chunk=1 << 30)
+    for chunk in (1, 1000):
+        assert np.array_equal(rays._occluded_numpy(p0, p1, *occ, ignore=ign, chunk=chunk), want)
+    assert 0.1 < want.mean() < 0.9
+
+
 def test_own_polygons_ignored_and_end_points_excluded():
     # a floor (0) and a wall (1) meeting at an edge, and a blocker (2) between them
     o = np.array([[0, 0, 0], [0, 0, 0], [0.5, 0.0, -1.0]], float)

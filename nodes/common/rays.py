@@ -116,14 +116,17 @@ def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
-                    chunk: int = 100_000):
+                    chunk: int = 1 << 21):
+    """The reference, ``chunk`` segment–occluder pairs at a time (its (n, P, 3) float64
+    temporaries: ~50 MB each, whatever P; 100k segments a block held 48 GB at 20k polygons)."""
     N = len(p0)
     out = np.zeros(N, bool)
     du, dv = dual_basis(occ_u, occ_v)
     pid = np.arange(len(occ_o))
     on = np.einsum("pc,pc->p", occ_o, occ_n)
-    for a in range(0, N, chunk):
-        b = min(N, a + chunk)
+    step = max(1, chunk // len(occ_o))
+    for a in range(0, N, step):
+        b = min(N, a + step)
         o = p0[a:b]
         d = p1[a:b] - o
         den = d @ occ_n.T  # (n,P)
