@@ -215,7 +215,8 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
     # (0.1 % of the rays in embree.ray_examples) is cast again by the reference.  A hit within
     # END_EPS of the ray's end (a polygon touching the receiving one, as a box standing on the
     # floor: float32 puts a grazing ray's end point on either side of it) is decided in float64
-    # against that polygon (:func:`_crosses`): the ray is blocked, or goes on past it
+    # against that polygon alone (:func:`_crosses`; the rest of the segment, under END_EPS of
+    # it, is taken as clear: casting on from a float32 hit so near finds the same polygon again)
     todo = np.flatnonzero(hit)
     t0 = np.zeros(len(p0))
     for _ in range(rounds):
@@ -225,7 +226,7 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
         prim = prim_poly[np.maximum(r["primID"], 0)]
         past = got & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
         near = np.flatnonzero(got & ~past & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS))
-        past[near] = ~_crosses(p0[todo[near]], p1[todo[near]], occ, prim[near])
+        hit[todo[near]] = _crosses(p0[todo[near]], p1[todo[near]], occ, prim[near])
         hit[todo[~got]] = False
         t0[todo[past]] += r["tfar"][past] + T_EPS
         todo = todo[past]
