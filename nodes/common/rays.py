@@ -211,7 +211,8 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
     if ignore is None:
         return hit
     # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
-    # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times; what is left
+    # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times (each step
+    # twice the last: a ray that starts on a mesh's small triangle re-hits it); what is left
     # (0.1 % of the rays in embree.ray_examples) is cast again by the reference.  A hit within
     # END_EPS of the ray's end (a polygon touching the receiving one, as a box standing on the
     # floor: float32 puts a grazing ray's end point on either side of it) is decided in float64
@@ -219,7 +220,7 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
     # it, is taken as clear: casting on from a float32 hit so near finds the same polygon again)
     todo = np.flatnonzero(hit)
     t0 = np.zeros(len(p0))
-    for _ in range(rounds):
+    for k in range(rounds):
         r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
                    dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
         got = r["primID"] >= 0
@@ -228,7 +229,7 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
         near = np.flatnonzero(got & ~past & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS))
         hit[todo[near]] = _crosses(p0[todo[near]], p1[todo[near]], occ, prim[near])
         hit[todo[~got]] = False
-        t0[todo[past]] += r["tfar"][past] + T_EPS
+        t0[todo[past]] += r["tfar"][past] + T_EPS * 2.0 ** k  # a float32 re-hit: larger steps
         todo = todo[past]
         if len(todo) == 0:
             break
