@@ -129,3 +129,28 @@ def test_link_visibility_and_point_form_factors_are_the_same_on_one_or_two_cores
     assert len(r) > 10 * 97 and 0.05 < (got[1][0] < 1).mean() < 0.95
     for a, b in zip(got[1], got[2]):
         assert np.array_equal(a, b)
+
+
+def test_embree_agrees_with_reference_between_touching_triangles():
+    """builtin:room split into triangles (each pair touching along its diagonal, the walls
+    meeting at edges): segments between random points of facing triangles, near-end hits and
+    own re-hits included, answer as the reference does."""
+    sc = LoadScene(LoadScene.Params(path="builtin:room"), Context()).compute()["scene"]
+    v = sc.verts
+    tris = np.concatenate([v[:, [0, 1, 2, 2]], v[:, [0, 2, 3, 3]]])
+    po, pu, pv, pn, _ = G.frame(tris)
+    p0, p1, ign = _facing_segments((po, pu, pv, pn), 60_000, seed=7)
+    occ = (po, pu, pv, pn, np.ones(len(po), bool))
+    inside = lambda s: s.sum(1) <= 1  # noqa: E731  (keep the points on the triangles)
+    rng = np.random.default_rng(7)
+    st0, st1 = rng.random((2, len(p0), 2)) * 0.999
+    st0[~inside(st0)] = 1 - st0[~inside(st0)]
+    st1[~inside(st1)] = 1 - st1[~inside(st1)]
+    a, b = ign[:, 0], ign[:, 1]
+    p0 = po[a] + st0[:, :1] * pu[a] + st0[:, 1:] * pv[a]
+    p1 = po[b] + st1[:, :1] * pu[b] + st1[:, 1:] * pv[b]
+    ref = rays.occluded(p0, p1, occ, ign)
+    with rays.using("embree"):
+        got = rays.occluded(p0, p1, occ, ign)
+    assert 0.05 < ref.mean() < 0.95
+    assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(p0)} segments differ"
