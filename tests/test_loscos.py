@@ -133,6 +133,48 @@ def test_bad_polygons():
         check_polygons(bent[None], ["p"], "path")
 
 
+def test_check_polygons_names_the_first_bad_polygon_as_the_loop_did():
+    """The vectorised pre-test never lets a bad polygon through: polygons just past each limit
+    (and just inside it) among 2,000 good ones, the first bad one named, with the message
+    check_polygon gives alone."""
+    from nodes.loscos.scene import check_polygon
+
+    rng = np.random.default_rng(1)
+    good = [rect(rng.normal(size=3), *rng.normal(size=(2, 3))) for _ in range(2000)]
+    tri = good[5].copy()
+    tri[3] = tri[2]
+    good[5] = tri  # a triangle (a, b, c, c) passes
+
+    def bent(k, by):  # v2 off the plane by ``by`` times the limit
+        v = good[k].copy()
+        u, w = v[1] - v[0], v[3] - v[0]
+        n = np.cross(u, w) / np.linalg.norm(np.cross(u, w))
+        v[2] = v[2] + by * 1e-5 * max(np.linalg.norm(u), np.linalg.norm(w)) * n
+        return v
+
+    def skewed(k, by):  # v2 off v1 + v3 − v0 within the plane by ``by`` times the limit
+        v = good[k].copy()
+        u = v[1] - v[0]
+        size = max(np.linalg.norm(u), np.linalg.norm(v[3] - v[0]))
+        v[2] = v[2] + by * 1e-4 * size * u / np.linalg.norm(u)
+        return v
+
+    names = [f"p{k}" for k in range(len(good))]
+    ok = np.array(good)
+    ok[10], ok[11] = bent(10, 0.9), skewed(11, 0.9)
+    check_polygons(ok, names, "path")
+    for k, v in [(700, bent(700, 1.1)), (900, skewed(900, 1.1)), (300, np.zeros((4, 3))),
+                 (400, np.where(np.eye(4, 3, dtype=bool), np.nan, good[400]))]:
+        bad = ok.copy()
+        bad[k] = v
+        bad[1500] = bent(1500, 5)
+        with pytest.raises(BadInput) as alone:
+            check_polygon(v, names[k], "path")
+        with pytest.raises(BadInput, match=f"'p{k}'") as got:
+            check_polygons(bad, names, "path")
+        assert str(got.value) == str(alone.value)
+
+
 def doc(**kw):
     d = {"loscos_scene": 1, "camera": {"width": 32, "height": 32, "fov_deg": 40,
                                        "position": [0, 0, 3], "look_at": [0, 0, 0]},

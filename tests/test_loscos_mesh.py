@@ -92,6 +92,39 @@ def test_triangle_occluders_in_both_ray_backends():
             assert rays.occluded(p0, p1, occ).tolist() == [True, False, True], b
 
 
+def test_camera_rays_first_polygon_in_both_ray_backends():
+    """textures.first_hit: Embree names the same polygon and (s, t) as the float64 reference on
+    the example room with a box, split into triangles, at 4×4 rays per pixel (the edges of the
+    triangles' diagonals and of the box included)."""
+    from nodes.loscos.textures import first_polygon, rays_at
+
+    sc, cam, _ = example_room([[0.25, 0, 0, -0.2], [0, 0.3, 0, -0.7], [0, 0, 0.25, -0.3],
+                               [0, 0, 0, 1]])
+    verts = as_triangles(sc).verts
+    Y, X = np.mgrid[0:cam.height:0.25, 0:cam.width:0.25] + 0.125
+    o, d = rays_at(cam, X.ravel(), Y.ravel())
+    f = np.linspace(0.05, 0.95, 7)[:, None, None, None]  # and rays at points on every triangle's edges
+    on_edges = (verts[:, [0, 1, 2]] * (1 - f) + verts[:, [1, 2, 0]] * f).reshape(-1, 3)
+    d = np.concatenate([d, on_edges - cam.position])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.broadcast_to(cam.position, d.shape).copy()
+    ref, ref_st = first_polygon(verts, o, d)
+    with rays.using("embree"):
+        got, got_st = first_polygon(verts, o, d)
+    assert (ref >= 0).mean() > 0.6 and len(np.unique(ref)) > 12
+    assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(ref)} rays differ"
+    assert np.allclose(got_st, ref_st, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_poly, side", [(44, 128), (256, 128), (257, 127), (19_417, 14),
+                                          (50_000, 9), (10**6, 4)])
+def test_texture_side_keeps_128_until_the_texel_budget(n_poly, side):
+    from nodes.loscos.textures import ProjectTextures, texture_side
+
+    prm = ProjectTextures.Params()
+    assert texture_side(n_poly, prm.resolution, prm.texel_budget) == side
+
+
 COARSE = {"eps_bf": 0.5, "eps_bfv": 0.05, "min_area": 0.04, "max_level": 3}
 
 

@@ -44,6 +44,17 @@ def test_embree_agrees_with_reference_on_room_links():
     assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(p0)} segments differ"
 
 
+def test_reference_answers_alike_in_any_block_size():
+    """The reference takes its blocks by segment–occluder pairs (so 20k mesh polygons do not
+    make a block of segments hold gigabytes): blocks of one, 22 and all segments agree."""
+    occ = _room_occluders()
+    p0, p1, ign = _facing_segments(occ, 3000, seed=5)
+    want = rays._occluded_numpy(p0, p1, *occ, ignore=ign, chunk=1 << 30)
+    for chunk in (1, 1000):
+        assert np.array_equal(rays._occluded_numpy(p0, p1, *occ, ignore=ign, chunk=chunk), want)
+    assert 0.1 < want.mean() < 0.9
+
+
 def test_own_polygons_ignored_and_end_points_excluded():
     # a floor (0) and a wall (1) meeting at an edge, and a blocker (2) between them
     o = np.array([[0, 0, 0], [0, 0, 0], [0.5, 0.0, -1.0]], float)
@@ -118,3 +129,28 @@ def test_link_visibility_and_point_form_factors_are_the_same_on_one_or_two_cores
     assert len(r) > 10 * 97 and 0.05 < (got[1][0] < 1).mean() < 0.95
     for a, b in zip(got[1], got[2]):
         assert np.array_equal(a, b)
+
+
+def test_embree_agrees_with_reference_between_touching_triangles():
+    """builtin:room split into triangles (each pair touching along its diagonal, the walls
+    meeting at edges): segments between random points of facing triangles, near-end hits and
+    own re-hits included, answer as the reference does."""
+    sc = LoadScene(LoadScene.Params(path="builtin:room"), Context()).compute()["scene"]
+    v = sc.verts
+    tris = np.concatenate([v[:, [0, 1, 2, 2]], v[:, [0, 2, 3, 3]]])
+    po, pu, pv, pn, _ = G.frame(tris)
+    p0, p1, ign = _facing_segments((po, pu, pv, pn), 60_000, seed=7)
+    occ = (po, pu, pv, pn, np.ones(len(po), bool))
+    inside = lambda s: s.sum(1) <= 1  # noqa: E731  (keep the points on the triangles)
+    rng = np.random.default_rng(7)
+    st0, st1 = rng.random((2, len(p0), 2)) * 0.999
+    st0[~inside(st0)] = 1 - st0[~inside(st0)]
+    st1[~inside(st1)] = 1 - st1[~inside(st1)]
+    a, b = ign[:, 0], ign[:, 1]
+    p0 = po[a] + st0[:, :1] * pu[a] + st0[:, 1:] * pv[a]
+    p1 = po[b] + st1[:, :1] * pu[b] + st1[:, 1:] * pv[b]
+    ref = rays.occluded(p0, p1, occ, ign)
+    with rays.using("embree"):
+        got = rays.occluded(p0, p1, occ, ign)
+    assert 0.05 < ref.mean() < 0.95
+    assert np.array_equal(got, ref), f"{(got != ref).sum()} of {len(p0)} segments differ"

@@ -116,14 +116,17 @@ def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
-                    chunk: int = 100_000):
+                    chunk: int = 1 << 21):
+    """The reference, ``chunk`` segment–occluder pairs at a time (its (n, P, 3) float64
+    temporaries: ~50 MB each, whatever P; 100k segments a block held 48 GB at 20k polygons)."""
     N = len(p0)
     out = np.zeros(N, bool)
     du, dv = dual_basis(occ_u, occ_v)
     pid = np.arange(len(occ_o))
     on = np.einsum("pc,pc->p", occ_o, occ_n)
-    for a in range(0, N, chunk):
-        b = min(N, a + chunk)
+    step = max(1, chunk // len(occ_o))
+    for a in range(0, N, step):
+        b = min(N, a + step)
         o = p0[a:b]
         d = p1[a:b] - o
         den = d @ occ_n.T  # (n,P)
@@ -142,6 +145,21 @@ def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
             hit &= (pid[None, :] != ig[:, 0:1]) & (pid[None, :] != ig[:, 1:2])
         out[a:b] = hit.any(1)
     return out
+
+
+def _crosses(p0, p1, occ, k) -> np.ndarray:
+    """Whether segment i (open, as :func:`occluded`'s) crosses occluder k[i]: the reference's
+    float64 test with one occluder per segment (Embree's near-end hits)."""
+    o, u, v, n = (np.asarray(a, np.float64)[k] for a in occ[:4])
+    du, dv = dual_basis(u, v)
+    d = p1 - p0
+    den = np.einsum("nc,nc->n", d, n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("nc,nc->n", o - p0, n) / den
+    ok = (np.abs(den) > 1e-14) & (t > T_EPS) & (t < 1 - T_EPS)
+    q = p0 + np.where(ok, t, 0.0)[:, None] * d - o
+    s, tt = np.einsum("nc,nc->n", q, du), np.einsum("nc,nc->n", q, dv)
+    return ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1) & (~_tri(occ)[k] | (s + tt <= 1))
 
 
 _SCENES: dict[bytes, object] = {}
@@ -193,25 +211,27 @@ def _occluded_embree(p0, p1, occ, ignore=None, rounds: int = 16):
     if ignore is None:
         return hit
     # a blocked ray whose first hit is one of its own two parallelograms (float32 at an end
-    # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times; what is left
-    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference, and so is a
-    # ray whose hit lies within END_EPS of its end (a polygon touching the receiving one, as a
-    # box standing on the floor: float32 puts a grazing ray's end point on either side of it)
+    # point, or grazing its own plane) goes on past that hit, up to ``rounds`` times (each step
+    # twice the last: a ray that starts on a mesh's small triangle re-hits it); what is left
+    # (0.1 % of the rays in embree.ray_examples) is cast again by the reference.  A hit within
+    # END_EPS of the ray's end (a polygon touching the receiving one, as a box standing on the
+    # floor: float32 puts a grazing ray's end point on either side of it) is decided in float64
+    # against that polygon alone (:func:`_crosses`; the rest of the segment, under END_EPS of
+    # it, is taken as clear: casting on from a float32 hit so near finds the same polygon again)
     todo = np.flatnonzero(hit)
     t0 = np.zeros(len(p0))
-    again = []
-    for _ in range(rounds):
+    for k in range(rounds):
         r = sc.run((p0[todo] + (T_EPS + t0[todo, None]) * d[todo]).astype(np.float32),
                    dirs[todo], dists=(tfar[todo] - t0[todo]).astype(np.float32), output=1)
+        got = r["primID"] >= 0
         prim = prim_poly[np.maximum(r["primID"], 0)]
-        own = (r["primID"] >= 0) & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
-        hit[todo[r["primID"] < 0]] = False
-        again.append(todo[(r["primID"] >= 0) & ~own
-                          & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS)])
-        t0[todo[own]] += r["tfar"][own] + T_EPS
-        todo = todo[own]
+        past = got & ((prim == ignore[todo, 0]) | (prim == ignore[todo, 1]))
+        near = np.flatnonzero(got & ~past & (T_EPS + t0[todo] + r["tfar"] > 1 - END_EPS))
+        hit[todo[near]] = _crosses(p0[todo[near]], p1[todo[near]], occ, prim[near])
+        hit[todo[~got]] = False
+        t0[todo[past]] += r["tfar"][past] + T_EPS * 2.0 ** k  # a float32 re-hit: larger steps
+        todo = todo[past]
         if len(todo) == 0:
             break
-    todo = np.concatenate(again + [todo])
     hit[todo] = _occluded_numpy(p0[todo], p1[todo], *occ[:4], tri=_tri(occ), ignore=ignore[todo])
     return hit

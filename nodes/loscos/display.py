@@ -137,14 +137,19 @@ def nearest_seen(h: Hierarchy, seen: np.ndarray) -> np.ndarray:
 
     lv = h.leaves
     c = h.centre(lv)
-    poly = h.poly[lv]
     out = np.arange(len(lv))
-    for p in np.unique(poly[~seen]):
-        on = np.flatnonzero((poly == p) & seen)
-        off = np.flatnonzero((poly == p) & ~seen)
-        if len(on):
+    for idx in polygon_groups(h.poly[lv]):
+        on, off = idx[seen[idx]], idx[~seen[idx]]
+        if len(on) and len(off):
             out[off] = on[cKDTree(c[on]).query(c[off])[1]]
     return out
+
+
+def polygon_groups(poly: np.ndarray) -> list:
+    """The indices of each polygon's entries of ``poly`` (ascending), polygon by polygon: one
+    sort, so a loop over the polygons costs O(L log L), not O(P·L)."""
+    order = np.argsort(poly, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(poly[order])) + 1) if len(poly) else []
 
 
 def surround_radiance(photo: np.ndarray, pure: np.ndarray, sigma: float = 1.0):

@@ -71,10 +71,18 @@ class Hierarchy:
     #: (a scene of parallelograms has them empty) read as False past their end.
     P_tri: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     flip: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    #: cluster links (:mod:`clusters`, scenes of many polygons): V per link, receiver and
+    #: sender members (link, polygon) with their weights; empty where links start at polygons
+    cl_V: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cl_r: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    cl_rw: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cl_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    cl_sw: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     ARRAYS = ("P_o", "P_u", "P_v", "poly", "level", "ij", "parent", "child0",
               "recv", "send", "F", "V", "C")
     TRI_ARRAYS = ("P_tri", "flip")  # kept (in a solution) only where the scene has triangles
+    CLUSTER_ARRAYS = ("cl_V", "cl_r", "cl_rw", "cl_s", "cl_sw")  # kept only where there are some
 
     @classmethod
     def roots(cls, verts: np.ndarray) -> "Hierarchy":
@@ -87,13 +95,24 @@ class Hierarchy:
                    child0=np.full(P, -1), P_tri=tri if tri.any() else np.zeros(0, bool))
 
     def copy(self) -> "Hierarchy":
-        return Hierarchy(**{k: getattr(self, k).copy() for k in self.ARRAYS + self.TRI_ARRAYS})
+        return Hierarchy(**{k: getattr(self, k).copy()
+                            for k in self.ARRAYS + self.TRI_ARRAYS + self.CLUSTER_ARRAYS})
 
     def tri_arrays(self) -> dict:
         """{"P_tri", "flip"} at full length where there are triangles, else {}."""
         if not self.tri_poly.any():
             return {}
         return {"P_tri": self.tri_poly, "flip": self.flipped}
+
+    def cluster_arrays(self) -> dict:
+        """The cluster links' arrays where there are cluster links, else {}."""
+        return {k: getattr(self, k) for k in self.CLUSTER_ARRAYS} if len(self.cl_V) else {}
+
+    def cluster_links(self):
+        """:class:`clusters.ClusterLinks` of h (empty where links start at polygons)."""
+        from .clusters import ClusterLinks
+
+        return ClusterLinks(self.cl_V, self.cl_r, self.cl_rw, self.cl_s, self.cl_sw)
 
     @property
     def tri_poly(self) -> np.ndarray:
@@ -599,11 +618,18 @@ class Operators:
     pull: object  # (N × L) element ← area-weighted leaves
     K: object  # (N × N) receiver ← sender, F·V (spread over the sender's children, below)
     Ku: object  # (N × N) F only (unoccluded)
+    #: cluster links' (W, U, Uu) (:func:`clusters.cluster_matrices`), None where there are none
+    Kc: tuple | None = None
 
     def gather(self, B_leaf: np.ndarray, unoccluded: bool = False) -> np.ndarray:
         """Irradiance at the leaves from leaf radiosities (columns broadcast)."""
         K = self.Ku if unoccluded else self.K
-        return self.push @ (K @ (self.pull @ B_leaf))
+        Be = self.pull @ B_leaf
+        H = K @ Be
+        if self.Kc is not None:
+            W, U, Uu = self.Kc
+            H = H + W @ ((Uu if unoccluded else U) @ Be)
+        return self.push @ H
 
 
 def operators(h: Hierarchy) -> Operators:
@@ -618,7 +644,11 @@ def operators(h: Hierarchy) -> Operators:
     pull = sp.csr_matrix((a[lv][rows] / a[cols], (cols, rows)), shape=(N, L))
     K = link_matrix(h, h.F * h.V, h.C[:, :2])
     Ku = link_matrix(h, h.F, h.C[:, 2:])
-    return Operators(lv, push, pull, K, Ku)
+    if not len(h.cl_V):
+        return Operators(lv, push, pull, K, Ku)
+    from .clusters import cluster_matrices
+
+    return Operators(lv, push, pull, K, Ku, cluster_matrices(h.cluster_links(), N))
 
 
 def link_matrix(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):

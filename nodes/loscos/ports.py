@@ -157,12 +157,19 @@ class RadiositySolution:
     info: dict = field(default_factory=dict)
     P_tri: np.ndarray | None = None  # (P,) bool triangle polygons, (N,) bool flipped
     flip: np.ndarray | None = None  # elements: None where the scene has no triangle
+    #: cluster links (hierarchy.Hierarchy.CLUSTER_ARRAYS): None where links start at polygons
+    cl_V: np.ndarray | None = None
+    cl_r: np.ndarray | None = None
+    cl_rw: np.ndarray | None = None
+    cl_s: np.ndarray | None = None
+    cl_sw: np.ndarray | None = None
 
     def hierarchy(self):
         from .hierarchy import Hierarchy
 
-        tri = {k: getattr(self, k) for k in Hierarchy.TRI_ARRAYS if getattr(self, k) is not None}
-        return Hierarchy(**{k: getattr(self, k) for k in Hierarchy.ARRAYS}, **tri)
+        opt = {k: getattr(self, k) for k in Hierarchy.TRI_ARRAYS + Hierarchy.CLUSTER_ARRAYS
+               if getattr(self, k) is not None}
+        return Hierarchy(**{k: getattr(self, k) for k in Hierarchy.ARRAYS}, **opt)
 
     @property
     def leaves(self):

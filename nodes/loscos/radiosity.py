@@ -8,6 +8,7 @@ import numpy as np
 
 from graphkit import BadInput, Field, Json, Node
 
+from . import geometry as G
 from . import hierarchy as HR
 from .ports import (PROJECTION, RADIOSITY, ROOM_SCENE, Projection, RadiositySolution,
                     RoomScene)
@@ -364,7 +365,7 @@ def finish_solution(scene, h: HR.Hierarchy, proj, rho_mode, rho_hat, n_iter, tol
                 iterations=int(it))
     return RadiositySolution(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS}, rho=rho, T=T,
                              resp=R, resp_H=RH, resp_Hu=RHu, emit=emit, lights=lights, info=info,
-                             **h.tri_arrays())
+                             **h.tri_arrays(), **h.cluster_arrays())
 
 
 def initial_radiosity(scene: RoomScene, h: HR.Hierarchy) -> np.ndarray:
@@ -378,21 +379,48 @@ def initial_radiosity(scene: RoomScene, h: HR.Hierarchy) -> np.ndarray:
     return Bp[h.poly]
 
 
+#: scenes of more polygons than this start their links from a cluster hierarchy
+#: (:mod:`clusters`); fewer, from every pair of polygons
+CLUSTER_ABOVE = 512
+
+
+def start_links(scene: RoomScene, h: HR.Hierarchy, B: np.ndarray, prm: HR.RefineParams, rng):
+    """The candidate polygon links (r, s) the refinement starts from: every ordered pair of
+    distinct polygons, or above ``CLUSTER_ABOVE`` polygons the pairs the cluster refinement
+    leaves (:mod:`clusters`), its cluster links set in h."""
+    P = len(scene.verts)
+    if P <= CLUSTER_ABOVE:
+        r, s = np.meshgrid(np.arange(P), np.arange(P), indexing="ij")
+        r, s = r.ravel(), s.ravel()
+        return r[r != s], s[r != s]
+    from . import clusters as CL
+
+    tri = h.tri_poly
+    corners = G.corners(h.P_o, h.P_u, h.P_v, tri)
+    light = np.array(scene.light + [""] * (P - len(scene.light)), dtype=object) != ""
+    light |= scene.emittance.max(1) > 0
+    t = CL.build_tree(corners, h.P_area, B[:P], light)
+    (r, s), (R, S) = CL.refine_clusters(t, prm.eps_bf, max(float(np.median(B[:P])), 1e-12))
+    cl = CL.link_weights(t, R, S, h.centre(np.arange(P)), h.P_n, h.P_area)
+    scale, cl.V = CL.cluster_transport(cl, h.occluders(), prm.n_rays, rng)
+    cl.sw *= scale[cl.s[:, 0]]
+    h.cl_V, h.cl_r, h.cl_rw, h.cl_s, h.cl_sw = cl.V, cl.r, cl.rw, cl.s, cl.sw
+    return r, s
+
+
 def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol: float,
                        progress=None) -> HR.Hierarchy:
-    """BF(V) refinement from polygon–polygon links, alternating with solves (§2.3)."""
+    """BF(V) refinement from polygon–polygon links (or cluster links, :func:`start_links`),
+    alternating with solves (§2.3)."""
     h = HR.Hierarchy.roots(scene.verts)
     rng = np.random.default_rng(prm.seed)
-    P = len(scene.verts)
-    r, s = np.meshgrid(np.arange(P), np.arange(P), indexing="ij")
-    r, s = r.ravel(), s.ravel()
-    m = r != s
     B = initial_radiosity(scene, h)
+    r, s = start_links(scene, h, B, prm, rng)
     links = None
     for k in range(rounds):
         # a later round refines the last round's links with the new B: what they carry
         # (F, its spread, V, C) depends only on the two elements, so it is not computed again
-        links = HR.refine_links(h, r[m], s[m], B, prm, rng, known=links)
+        links = HR.refine_links(h, r, s, B, prm, rng, known=links)
         h.recv, h.send, h.F, h.V, h.C = links.astuple()
         if progress:
             progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")

@@ -11,7 +11,7 @@ from graphkit import BadInput, Camera, Field, Image, In, Node
 
 from . import checks
 from . import hierarchy as HR
-from .display import modulate_pixels
+from .display import modulate_pixels, polygon_groups
 from .ports import (PROJECTION, RADIOSITY, UNOCCLUDED, Projection, RadiositySolution,
                     Unoccluded)
 from .radiosity import lab, leaf_neighbours, light_visibility
@@ -137,10 +137,12 @@ class Unocclude(Node):
         cen = h.centre(lv)
         poly = h.poly[lv]
         ref = np.full(len(lv), -1)
-        for p in np.unique(poly[occl]):
-            oi = np.flatnonzero(occl & (poly == p))
-            fr = np.flatnonzero(front & (poly == p))
-            cand_def = np.flatnonzero(seen & ~occl & (poly == p))
+        for idx in polygon_groups(poly):
+            oi = idx[occl[idx]]
+            if not len(oi):
+                continue
+            fr = idx[front[idx]]
+            cand_def = idx[seen[idx] & ~occl[idx]]
             if len(fr):
                 d = np.linalg.norm(cen[oi][:, None] - cen[fr][None], axis=2)
                 dc = np.linalg.norm(C[oi][:, None] - C[fr][None], axis=2)

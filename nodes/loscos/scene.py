@@ -84,26 +84,45 @@ def box_faces(to_world, bottom: bool = True):
 
 
 def check_polygons(verts: np.ndarray, names, port: str, rel_tol: float = 1e-6):
-    """Raise BadInput for degenerate, non-planar or non-parallelogram polygons."""
-    for p, (v, name) in enumerate(zip(verts, names)):
-        if not np.all(np.isfinite(v)):
-            raise BadInput(port, f"polygon '{name}' has non-finite vertices")
-        u, w = v[1] - v[0], v[3] - v[0]
-        size = max(np.linalg.norm(u), np.linalg.norm(w), 1e-300)
-        area = np.linalg.norm(np.cross(u, w))
-        if area <= 1e-10 * size * size or size < 1e-9:
-            raise BadInput(port, f"polygon '{name}' is degenerate (zero area: its vertices are "
-                                 "collinear or repeated)")
-        n = np.cross(u, w) / area
-        dev = abs(np.dot(v[2] - v[0], n))
-        if dev > rel_tol * size * 10:
-            raise BadInput(port, f"polygon '{name}' is not planar (4th vertex is {dev:.3g} "
-                                 "off the plane of the other three)")
-        gap = np.linalg.norm(v[2] - (v[1] + w))
-        if gap > 1e-4 * size and not np.array_equal(v[2], v[3]):  # (a, b, c, c): a triangle
-            raise BadInput(port, f"polygon '{name}' is not a parallelogram (v2 must equal "
-                                 f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms "
-                                 "or triangles (3 vertices)")
+    """Raise BadInput for degenerate, non-planar or non-parallelogram polygons (the first in
+    order): :func:`check_polygon` on the polygons a vectorised test with twice the margins
+    names as suspects (a mesh of 50k triangles: 0.1 s, not 9 s of a loop over them all)."""
+    v = np.asarray(verts, np.float64).reshape(-1, 4, 3)
+    with np.errstate(all="ignore"):
+        u, w = v[:, 1] - v[:, 0], v[:, 3] - v[:, 0]
+        size = np.maximum(np.maximum(np.linalg.norm(u, axis=1), np.linalg.norm(w, axis=1)),
+                          1e-300)
+        c = np.cross(u, w)
+        area = np.linalg.norm(c, axis=1)
+        dev = np.abs(np.einsum("pc,pc->p", v[:, 2] - v[:, 0], c)) / area
+        gap = np.linalg.norm(v[:, 2] - (v[:, 1] + w), axis=1)
+        tri = (v[:, 2] == v[:, 3]).all(1)
+        suspect = (~np.isfinite(v).all((1, 2)) | (area <= 2e-10 * size * size) | (size < 2e-9)
+                   | ~(dev <= 0.5 * rel_tol * size * 10) | ((gap > 0.5e-4 * size) & ~tri))
+    for p in np.flatnonzero(suspect):
+        check_polygon(v[p], names[p], port, rel_tol)
+
+
+def check_polygon(v: np.ndarray, name: str, port: str, rel_tol: float = 1e-6):
+    """Raise BadInput if polygon v (4,3) is degenerate, non-planar or not a parallelogram."""
+    if not np.all(np.isfinite(v)):
+        raise BadInput(port, f"polygon '{name}' has non-finite vertices")
+    u, w = v[1] - v[0], v[3] - v[0]
+    size = max(np.linalg.norm(u), np.linalg.norm(w), 1e-300)
+    area = np.linalg.norm(np.cross(u, w))
+    if area <= 1e-10 * size * size or size < 1e-9:
+        raise BadInput(port, f"polygon '{name}' is degenerate (zero area: its vertices are "
+                             "collinear or repeated)")
+    n = np.cross(u, w) / area
+    dev = abs(np.dot(v[2] - v[0], n))
+    if dev > rel_tol * size * 10:
+        raise BadInput(port, f"polygon '{name}' is not planar (4th vertex is {dev:.3g} "
+                             "off the plane of the other three)")
+    gap = np.linalg.norm(v[2] - (v[1] + w))
+    if gap > 1e-4 * size and not np.array_equal(v[2], v[3]):  # (a, b, c, c): a triangle
+        raise BadInput(port, f"polygon '{name}' is not a parallelogram (v2 must equal "
+                             f"v1 + v3 − v0; off by {gap:.3g}); split it into parallelograms "
+                             "or triangles (3 vertices)")
 
 
 def example_room(box: list | None = None) -> tuple[RoomScene, Camera, Image]:
@@ -281,10 +300,17 @@ def check_emitters(verts, emit, names, port):
 
 
 def check_camera_sees(scene: RoomScene, cam: Camera, port: str):
-    """BadInput unless some polygon is in front of the camera and inside its frame."""
+    """BadInput unless some polygon is in front of the camera and inside its frame (every 4th
+    pixel's ray, through Embree where it is installed: textures.first_hit answers as the
+    reference but for near-ties in depth)."""
+    import contextlib
+
+    from nodes.common import rays
+
     from .textures import pixel_map
 
-    pp, _ = pixel_map(scene.verts, cam, step=4)
+    with rays.using("embree") if rays.embree_missing() is None else contextlib.nullcontext():
+        pp, _ = pixel_map(scene.verts, cam, step=4)
     if not (pp >= 0).any():
         raise BadInput(port, "the camera sees no polygon of the scene")
 

@@ -1,6 +1,8 @@
 """ProjectTextures: the photograph de-warped onto each polygon from the fixed viewpoint (§3)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Node
@@ -31,11 +33,43 @@ def camera_rays(cam: Camera, step: int = 1):
     return o, d, (len(ys), len(xs))
 
 
+#: Embree's float32 hits this close (in s or t) to a polygon's edge are cast again in float64
+EDGE_EPS = 1e-4
+
+
+def first_hit(o: np.ndarray, d: np.ndarray, occ) -> tuple:
+    """geometry.ray_first_hit (two-sided) through the ray backend (:mod:`nodes.common.rays`).
+
+    With Embree, the polygon it hits first gives (t, s, tt) in float64; a ray whose hit lies
+    within EDGE_EPS of the polygon's edge (where float32 may pick the neighbour) is cast again
+    by the reference, so the two backends answer alike but for near-ties in depth."""
+    if rays.backend() != "embree" or not len(o) or not len(occ[0]):
+        return G.ray_first_hit(o, d, *occ[:4], two_sided=True, tri=occ[4])
+    po, pu, pv, pn, tri = occ
+    sc, prim_poly = rays.scene(occ)
+    prim = sc.run(o.astype(np.float32), d.astype(np.float32), output=1)["primID"]
+    idx = np.where(prim >= 0, prim_poly[np.maximum(prim, 0)], -1)
+    t, s, tt = np.full(len(o), np.inf), np.zeros(len(o)), np.zeros(len(o))
+    m = np.flatnonzero(idx >= 0)
+    k = idx[m]
+    den = np.einsum("nc,nc->n", d[m], pn[k])
+    ok = np.abs(den) > 1e-14
+    t[m] = np.einsum("nc,nc->n", po[k] - o[m], pn[k]) / np.where(ok, den, 1.0)
+    q = o[m] + t[m, None] * d[m] - po[k]
+    du, dv = G.dual_basis(pu, pv)
+    s[m], tt[m] = np.einsum("nc,nc->n", q, du[k]), np.einsum("nc,nc->n", q, dv[k])
+    rim = np.minimum.reduce([s[m], tt[m], 1 - s[m], 1 - tt[m],
+                             np.where(tri[k], 1 - s[m] - tt[m], 1.0)])
+    redo = np.concatenate([m[~ok | (rim < EDGE_EPS) | (t[m] <= 1e-9)], np.flatnonzero(idx < 0)])
+    idx[redo], t[redo], s[redo], tt[redo] = G.ray_first_hit(o[redo], d[redo], *occ[:4],
+                                                            two_sided=True, tri=tri)
+    return idx, t, np.clip(s, 0, 1), np.clip(tt, 0, 1)
+
+
 def first_polygon(verts: np.ndarray, o: np.ndarray, d: np.ndarray):
     """Polygon index (-1: none or a back face) and (s, t) first hit along each ray."""
     po, pu, pv, pn, _ = G.frame(verts)
-    idx, t, s, tt = G.ray_first_hit(o, d, po, pu, pv, pn, two_sided=True,
-                                    tri=G.is_triangle(verts))
+    idx, t, s, tt = first_hit(o, d, (po, pu, pv, pn, G.is_triangle(verts)))
     m = idx >= 0
     back = np.zeros(len(idx), bool)
     back[m] = np.einsum("nc,nc->n", d[m], pn[idx[m]]) > 0
@@ -308,8 +342,16 @@ def emitter_photo_radiance(photo, pix_poly, sub_pix, em, emitters, P):
     return radiance, seen
 
 
+def texture_side(n_poly: int, resolution: int, budget: int) -> int:
+    """Texels per polygon side: ``resolution``, fewer where n_poly·side² would pass ``budget``
+    (4 at least).  One side for every polygon: Projection is a (P, R, R) array."""
+    return int(min(resolution, max(4, math.isqrt(budget // max(n_poly, 1)))))
+
+
 class ProjectTextures(Node):
-    """Project the photograph onto every polygon: one res×res texture per polygon (§3, §4).
+    """Project the photograph onto every polygon: one res×res texture per polygon (§3, §4),
+    res the ``resolution`` param, or less where the scene's polygons would pass the
+    ``texel_budget`` at that size (a large triangle mesh; :func:`texture_side`).
 
     A texel (s, t) of polygon p is the point o + s·u + t·v (metres); it is seen when it lies in
     the camera frame in front of the polygon, no other polygon blocks the segment to the
@@ -320,7 +362,7 @@ class ProjectTextures(Node):
     to treat mixed pixels by their coverage.
     """
 
-    version = "2"
+    version = "3"
     inputs = {"scene": ROOM_SCENE, "camera": Camera,
               "photo": In(Image, "the photograph (linear RGB; an alpha channel is ignored)",
                           channels=(3, 4), same_size_as="camera")}
@@ -336,12 +378,18 @@ class ProjectTextures(Node):
                  {"scene": e["scene"], "camera": e["camera"], "photo": e["photo"]})]
 
     class Params(Node.Params):
-        resolution: int = Field(128, ge=4, le=1024, description="texels per polygon side")
+        resolution: int = Field(128, ge=4, le=1024,
+                                description="texels per polygon side, at most (see texel_budget)")
+        texel_budget: int = Field(
+            1 << 22, ge=1, le=1 << 28,
+            description="texels of the whole scene: a scene of P polygons gets "
+                        "min(resolution, ⌊√(texel_budget / P)⌋) texels per side, 4 at least "
+                        "(a triangle mesh of 20k polygons: 14² each)")
 
     def compute(self, scene: RoomScene, camera: Camera, photo: Image):
         checks.pinhole(camera, "camera", "the Loscos pipeline needs")
-        pr = project(scene, camera, photo.pixels[:, :, :3].astype(np.float64),
-                     self.params.resolution)
+        res = texture_side(len(scene.verts), self.params.resolution, self.params.texel_budget)
+        pr = project(scene, camera, photo.pixels[:, :, :3].astype(np.float64), res)
         if not (pr.pix_poly >= 0).any():
             raise BadInput("camera", "the camera sees no polygon of the scene")
         return pr
