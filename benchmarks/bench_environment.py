@@ -82,7 +82,7 @@ def _renderer(backend: str):
     return run
 
 
-def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy") -> None:
+def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy", envmap: str = "interior") -> None:
     import cv2
     import skimage.data
 
@@ -108,7 +108,7 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy")
     common = dict(mesh=mesh, camera=cam, material=mat, detail=detail, texture_camera=cam)
 
     def turn(deg):
-        env = LoadEnvironment(LoadEnvironment.Params(path="builtin:envmaps/interior.exr", rotation_deg=deg,
+        env = LoadEnvironment(LoadEnvironment.Params(path=f"builtin:envmaps/{envmap}.exr", rotation_deg=deg,
                                                      scale=1.5), Context())
         e = compute_checked(env, camera=cam)
         lighting = compute_checked(EnvironmentLights(EnvironmentLights.Params(lights=lights)),
@@ -134,7 +134,9 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy")
                         ("Render (1 light, peer)", c4, w4)):
             stages[k].append(c)
             walls[k].append(w)
-    print(f"\nenvironment rotation at {size}², {lights} lights, Render on {backend}, median of {repeat} "
+    shadowed = sum(s > 0 for s in shadow_map_sizes(lighting.lights, 1024, 0, Render.Params().environment_shadows))
+    print(f"\nenvironment rotation at {size}², {envmap}.exr, {lights} lights ({shadowed} cast shadows), "
+          f"Render on {backend}, median of {repeat} "
           f"(load: {os.getloadavg()[0]:.1f})")
     for k in stages:
         print(f"  {k:34s} CPU {1000 * statistics.median(stages[k]):8.0f} ms   wall {1000 * statistics.median(walls[k]):8.0f} ms")
@@ -152,10 +154,13 @@ def main(argv=None) -> int:
     p.add_argument("--lights", type=int, default=16, help="EnvironmentLights' lights in the rotation timing")
     p.add_argument("--backend", choices=("numpy", "opengl"), default="numpy", help="Render's backend in the rotation timing")
     p.add_argument("--skip-psnr", action="store_true")
+    p.add_argument("--map", nargs="+", default=["interior"], metavar="NAME",
+                   help="the rotated map(s), names in nodes/paris/data/envmaps (courtyard: every light casts a shadow)")
     a = p.parse_args(argv)
     if not a.skip_psnr:
         psnr_table()
-    rotation_timing(a.size, a.repeat, a.lights, a.backend)
+    for name in a.map:
+        rotation_timing(a.size, a.repeat, a.lights, a.backend, name)
     return 0
 
 

@@ -551,7 +551,7 @@ class Render(Node):
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "4"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows)
+    version = "5"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows)
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
