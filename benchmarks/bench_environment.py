@@ -93,7 +93,8 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
     from nodes.common.color import srgb_to_linear
     from nodes.io.environment import LoadEnvironment
     from nodes.paris.composite import CompositeFace
-    from nodes.paris.environment import EnvironmentLights
+    from nodes.paris.environment import EnvironmentLights, shadow_map_sizes
+    from nodes.paris.render import Render
     from nodes.paris.mesh import SmoothMesh
     from nodes.paris.models import PhongMaterial
 
