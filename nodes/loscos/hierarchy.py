@@ -505,7 +505,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
 
 def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
                  prm: RefineParams, rng, force=None, progress=None,
-                 known: LinkData | None = None) -> LinkData:
+                 known: LinkData | None = None, frontier: int | None = None) -> LinkData:
     """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4), plus a
     largest element size for links (``prm.max_link_area``).
 
@@ -514,16 +514,20 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     ``known``: the candidates are these links of an earlier round (r, s ignored): their F
     spread, V, C and F are taken from it, not computed again; their children are computed.
     Candidates are refined ``LINKS_AT_ONCE`` at a time (they are independent; a mesh's
-    polygon pairs are millions).  Returns the accepted links; grows h.
+    polygon pairs are millions).  With ``frontier``, also the links a split makes are, that
+    many at a time, once they are more (a clustered scene's peak memory; the random rays are
+    then drawn in another order).  Returns the accepted links; grows h.
     """
     if known is not None:
         r, s = known.r, known.s
-    if len(r) > LINKS_AT_ONCE:
+    at_once = frontier or LINKS_AT_ONCE
+    if len(r) > at_once:
         parts = []
-        for a in range(0, len(r), LINKS_AT_ONCE):
-            b = slice(a, a + LINKS_AT_ONCE)
+        for a in range(0, len(r), at_once):
+            b = slice(a, a + at_once)
             parts.append(refine_links(h, r[b], s[b], _grow(B_elem, h), prm, rng, force,
-                                      progress, None if known is None else known.select(b)))
+                                      progress, None if known is None else known.select(b),
+                                      frontier))
         return LinkData.concat(parts)
     out = []
     it = 0
@@ -589,6 +593,10 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         s = np.concatenate(ns)
         if progress:
             progress(it, len(r))
+        if frontier and len(r) > frontier:
+            out.append(refine_links(h, r, s, B_elem, prm, rng, force, progress,
+                                    frontier=frontier))
+            break
     return LinkData.concat(out)
 
 
