@@ -24,9 +24,12 @@ solver.
   pull: an element's radiosity is the area average of its leaves (§2.3, [23]).
   B_leaf = E_leaf + ρ_leaf H_leaf, iterated until the change is below ``tol``.
 
-Clustering: the hierarchy starts from polygon–polygon links, i.e. the root cluster's
-self-link already refined one level; in an enclosed room every cluster link of Sillion's
-algorithm is refined below the cluster level at once, so no cluster elements are kept.
+Clustering: up to ``radiosity.CLUSTER_ABOVE`` polygons the hierarchy starts from
+polygon–polygon links, i.e. the root cluster's self-link already refined one level (in a
+small enclosed room every cluster link of Sillion's algorithm is refined below the cluster
+level at once).  Past it, links start from a cluster hierarchy (:mod:`clusters`): the
+links it keeps between clusters are stored as their members' weights (``cl_*``) and
+gathered at the root polygons (:class:`Operators`).
 """
 from __future__ import annotations
 
@@ -635,9 +638,13 @@ class Operators:
         Be = self.pull @ B_leaf
         H = K @ Be
         if self.Kc is not None:
-            W, U, Uu = self.Kc
-            H = H + W @ ((Uu if unoccluded else U) @ Be)
+            H = H + self.cluster_gather(Be, unoccluded)
         return self.push @ H
+
+    def cluster_gather(self, Be: np.ndarray, unoccluded: bool = False) -> np.ndarray:
+        """The cluster links' irradiance at the elements from element radiosities Be (Kc)."""
+        W, U, Uu = self.Kc
+        return W @ ((Uu if unoccluded else U) @ Be)
 
 
 def operators(h: Hierarchy) -> Operators:
