@@ -162,16 +162,16 @@ MANY_OCCLUDERS = 4096
 
 
 def _occluded_near(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
-                   group: int = 256):
+                   group: int = 32):
     """:func:`_occluded_numpy` over many occluders: the segments sorted by their midpoints'
-    cells (8³ over their box), ``group`` at a time, each group against the occluders whose
+    cells (16³ over their box), ``group`` at a time, each group against the occluders whose
     boxes meet the group's box (the same answers: an occluder that meets a segment lies in
     its box)."""
     c = np.stack([occ_o, occ_o + occ_u, occ_o + occ_u + occ_v, occ_o + occ_v], 1)
     olo, ohi = c.min(1), c.max(1)
     mid = 0.5 * (p0 + p1)
     lo, hi = mid.min(0), mid.max(0)
-    cell = np.clip(((mid - lo) / np.maximum(hi - lo, 1e-12) * 8).astype(np.int64), 0, 7)
+    cell = np.clip(((mid - lo) / np.maximum(hi - lo, 1e-12) * 16).astype(np.int64), 0, 15)
     order = np.lexsort((cell[:, 2], cell[:, 1], cell[:, 0]))
     out = np.zeros(len(p0), bool)
     tri = np.zeros(len(occ_o), bool) if tri is None else np.asarray(tri, bool)
