@@ -38,6 +38,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import loscos_scenes as LS  # noqa: E402
 from bench_loscos_mesh import SETTINGS, plot, write_scene  # noqa: E402
 
+from nodes.loscos.radiosity import CLUSTER_ABOVE  # noqa: E402
+
 run = LS.run
 
 
@@ -48,8 +50,7 @@ def preprocess(path: str, resolution: int, cluster: bool):
     from nodes.loscos.scene import LoadScene
     from nodes.loscos.textures import ProjectTextures
 
-    if not cluster:
-        R.CLUSTER_ABOVE = 1 << 60
+    R.CLUSTER_ABOVE = CLUSTER_ABOVE if cluster else 1 << 60
     stages = {}
 
     def clock(key, cls, params, **kw):
