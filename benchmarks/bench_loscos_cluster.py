@@ -4,6 +4,7 @@ relit image's PSNR against Mitsuba with and without clustering.
 
     nice .venv/bin/python benchmarks/bench_loscos_cluster.py [--sizes 2000 5000 10000 20000]
                                                            [--psnr 2000] [--no-cluster]
+                                                           [--plot out/loscos_cluster.png]
 
 Each size is bench_loscos_mesh.py's room (its ``room_parts`` and ``write_scene``: OBJ + scene
 YAML + Mitsuba photo), run in a fresh process at bench_loscos_mesh's settings with
@@ -35,7 +36,9 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import loscos_scenes as LS  # noqa: E402
-from bench_loscos_mesh import SETTINGS, write_scene  # noqa: E402
+from bench_loscos_mesh import SETTINGS, plot, write_scene  # noqa: E402
+
+from nodes.loscos.radiosity import CLUSTER_ABOVE  # noqa: E402
 
 run = LS.run
 
@@ -47,8 +50,7 @@ def preprocess(path: str, resolution: int, cluster: bool):
     from nodes.loscos.scene import LoadScene
     from nodes.loscos.textures import ProjectTextures
 
-    if not cluster:
-        R.CLUSTER_ABOVE = 1 << 60
+    R.CLUSTER_ABOVE = CLUSTER_ABOVE if cluster else 1 << 60
     stages = {}
 
     def clock(key, cls, params, **kw):
@@ -128,6 +130,8 @@ def main():
     ap.add_argument("--resolution", type=int, default=16)
     ap.add_argument("--no-cluster", action="store_true")
     ap.add_argument("--psnr", type=int, default=None)
+    ap.add_argument("--plot", default=None, help="PNG: RadiositySolve + TextureRefine CPU s "
+                    "and peak memory against the triangles")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # child: one scene file
     a = ap.parse_args()
     if a.one:
@@ -136,6 +140,7 @@ def main():
     if a.psnr:
         psnr_case(a.psnr, a.resolution)
         return
+    rows = []
     for n in a.sizes:
         with tempfile.TemporaryDirectory() as d:
             path, tris = write_scene(n, d)
@@ -152,6 +157,11 @@ def main():
               + f"; {row['links']} links, {row['cluster_links']} cluster links "
               f"({row['cluster_entries']} member entries); load {os.getloadavg()[0]:.1f}",
               flush=True)
+        rows.append({"triangles": tris, "maxrss_mb": st["TextureRefine"][1],
+                     "preprocess_s": st["RadiositySolve"][0] + st["TextureRefine"][0]})
+    if a.plot and rows:
+        plot(rows, a.plot)
+        print("wrote", a.plot)
 
 
 if __name__ == "__main__":

@@ -100,3 +100,24 @@ def test_clustered_white_furnace():
     assert abs(np.sum(a * rel)) / a.sum() < 0.01
     assert np.sum(a * np.abs(rel)) / a.sum() < 0.03
     assert np.abs(rel).max() < 0.15
+
+
+def test_reference_rays_over_many_occluders_test_only_the_near_ones_with_the_same_answers():
+    """Past rays.MANY_OCCLUDERS the numpy reference groups segments and tests each group only
+    against the occluders its box meets: the same answers as every segment against all."""
+    rng = np.random.default_rng(3)
+    P, N = 5000, 3000
+    o = rng.uniform(0, 5, (P, 3))
+    u, v = rng.normal(0, 0.1, (P, 3)), rng.normal(0, 0.1, (P, 3))
+    n = np.cross(u, v)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    tri = rng.random(P) < 0.5
+    p0 = rng.uniform(0, 5, (N, 3))
+    p1 = p0 + rng.normal(0, 0.5, (N, 3))
+    ignore = rng.integers(-1, P, (N, 2))
+    assert P > rays.MANY_OCCLUDERS
+    got = rays.occluded(p0, p1, (o, u, v, n, tri), ignore)
+    full = rays._occluded_all(p0, p1, o, u, v, n, tri, ignore)
+    assert 100 < full.sum() < N - 100
+    assert np.array_equal(got, full)
+    assert np.array_equal(rays._occluded_near(p0, p1, o, u, v, n, tri, ignore, group=3), full)

@@ -117,8 +117,18 @@ def dual_basis(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _occluded_numpy(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
                     chunk: int = 1 << 21):
-    """The reference, ``chunk`` segment–occluder pairs at a time (its (n, P, 3) float64
-    temporaries: ~50 MB each, whatever P; 100k segments a block held 48 GB at 20k polygons)."""
+    """:func:`occluded`'s reference (:func:`_occluded_all`, or past ``MANY_OCCLUDERS``
+    :func:`_occluded_near`), ``chunk`` segment–occluder pairs at a time."""
+    if len(occ_o) > MANY_OCCLUDERS and len(p0) > 1:
+        return _occluded_near(p0, p1, occ_o, occ_u, occ_v, occ_n, tri, ignore, chunk=chunk)
+    return _occluded_all(p0, p1, occ_o, occ_u, occ_v, occ_n, tri, ignore, chunk)
+
+
+def _occluded_all(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
+                  chunk: int = 1 << 21):
+    """Every segment against every occluder, ``chunk`` segment–occluder pairs at a time (its
+    (n, P, 3) float64 temporaries: ~50 MB each, whatever P; 100k segments a block held 48 GB
+    at 20k polygons)."""
     N = len(p0)
     out = np.zeros(N, bool)
     du, dv = dual_basis(occ_u, occ_v)
@@ -160,6 +170,43 @@ def _crosses(p0, p1, occ, k) -> np.ndarray:
     q = p0 + np.where(ok, t, 0.0)[:, None] * d - o
     s, tt = np.einsum("nc,nc->n", q, du), np.einsum("nc,nc->n", q, dv)
     return ok & (s >= 0) & (s <= 1) & (tt >= 0) & (tt <= 1) & (~_tri(occ)[k] | (s + tt <= 1))
+
+
+#: above this many occluders the reference tests a group of segments only against the
+#: occluders whose bounding boxes meet the group's (:func:`_occluded_near`)
+MANY_OCCLUDERS = 4096
+
+
+def _occluded_near(p0, p1, occ_o, occ_u, occ_v, occ_n, tri=None, ignore=None,
+                   group: int = 32, chunk: int = 1 << 21):
+    """:func:`_occluded_numpy` over many occluders: the segments sorted by their midpoints'
+    cells (16³ over their box), ``group`` at a time, each group against the occluders whose
+    boxes meet the group's box (the same answers: an occluder that meets a segment lies in
+    its box)."""
+    c = np.stack([occ_o, occ_o + occ_u, occ_o + occ_u + occ_v, occ_o + occ_v], 1)
+    olo, ohi = c.min(1), c.max(1)
+    mid = 0.5 * (p0 + p1)
+    lo, hi = mid.min(0), mid.max(0)
+    cell = np.clip(((mid - lo) / np.maximum(hi - lo, 1e-12) * 16).astype(np.int64), 0, 15)
+    order = np.lexsort((cell[:, 2], cell[:, 1], cell[:, 0]))
+    out = np.zeros(len(p0), bool)
+    tri = np.zeros(len(occ_o), bool) if tri is None else np.asarray(tri, bool)
+    local = np.full(len(occ_o) + 1, -1)  # global occluder id → its place in the group's set
+    for a in range(0, len(order), group):
+        k = order[a:a + group]
+        glo = np.minimum(p0[k], p1[k]).min(0)
+        ghi = np.maximum(p0[k], p1[k]).max(0)
+        sub = np.flatnonzero(np.all((olo <= ghi) & (ohi >= glo), 1))
+        if not len(sub):
+            continue
+        ig = None
+        if ignore is not None:
+            local[sub] = np.arange(len(sub))
+            ig = local[ignore[k]]
+            local[sub] = -1
+        out[k] = _occluded_all(p0[k], p1[k], occ_o[sub], occ_u[sub], occ_v[sub], occ_n[sub],
+                               tri[sub], ig, chunk)
+    return out
 
 
 _SCENES: dict[bytes, object] = {}

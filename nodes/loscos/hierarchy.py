@@ -24,9 +24,12 @@ solver.
   pull: an element's radiosity is the area average of its leaves (§2.3, [23]).
   B_leaf = E_leaf + ρ_leaf H_leaf, iterated until the change is below ``tol``.
 
-Clustering: the hierarchy starts from polygon–polygon links, i.e. the root cluster's
-self-link already refined one level; in an enclosed room every cluster link of Sillion's
-algorithm is refined below the cluster level at once, so no cluster elements are kept.
+Clustering: up to ``radiosity.CLUSTER_ABOVE`` polygons the hierarchy starts from
+polygon–polygon links, i.e. the root cluster's self-link already refined one level (in a
+small enclosed room every cluster link of Sillion's algorithm is refined below the cluster
+level at once).  Past it, links start from a cluster hierarchy (:mod:`clusters`): the
+links it keeps between clusters are stored as their members' weights (``cl_*``) and
+gathered at the root polygons (:class:`Operators`).
 """
 from __future__ import annotations
 
@@ -505,7 +508,7 @@ def refine(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
 
 def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
                  prm: RefineParams, rng, force=None, progress=None,
-                 known: LinkData | None = None) -> LinkData:
+                 known: LinkData | None = None, frontier: int | None = None) -> LinkData:
     """BF / BFV refinement of candidate links r ← s (Hanrahan 1991; §2.3, §4.4), plus a
     largest element size for links (``prm.max_link_area``).
 
@@ -514,16 +517,20 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     ``known``: the candidates are these links of an earlier round (r, s ignored): their F
     spread, V, C and F are taken from it, not computed again; their children are computed.
     Candidates are refined ``LINKS_AT_ONCE`` at a time (they are independent; a mesh's
-    polygon pairs are millions).  Returns the accepted links; grows h.
+    polygon pairs are millions).  With ``frontier``, also the links a split makes are, that
+    many at a time, once they are more (a clustered scene's peak memory; the random rays are
+    then drawn in another order).  Returns the accepted links; grows h.
     """
     if known is not None:
         r, s = known.r, known.s
-    if len(r) > LINKS_AT_ONCE:
+    at_once = frontier or LINKS_AT_ONCE
+    if len(r) > at_once:
         parts = []
-        for a in range(0, len(r), LINKS_AT_ONCE):
-            b = slice(a, a + LINKS_AT_ONCE)
+        for a in range(0, len(r), at_once):
+            b = slice(a, a + at_once)
             parts.append(refine_links(h, r[b], s[b], _grow(B_elem, h), prm, rng, force,
-                                      progress, None if known is None else known.select(b)))
+                                      progress, None if known is None else known.select(b),
+                                      frontier))
         return LinkData.concat(parts)
     out = []
     it = 0
@@ -589,6 +596,10 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         s = np.concatenate(ns)
         if progress:
             progress(it, len(r))
+        if frontier and len(r) > frontier:
+            out.append(refine_links(h, r, s, B_elem, prm, rng, force, progress,
+                                    frontier=frontier))
+            break
     return LinkData.concat(out)
 
 
@@ -627,9 +638,13 @@ class Operators:
         Be = self.pull @ B_leaf
         H = K @ Be
         if self.Kc is not None:
-            W, U, Uu = self.Kc
-            H = H + W @ ((Uu if unoccluded else U) @ Be)
+            H = H + self.cluster_gather(Be, unoccluded)
         return self.push @ H
+
+    def cluster_gather(self, Be: np.ndarray, unoccluded: bool = False) -> np.ndarray:
+        """The cluster links' irradiance at the elements from element radiosities Be (Kc)."""
+        W, U, Uu = self.Kc
+        return W @ ((Uu if unoccluded else U) @ Be)
 
 
 def operators(h: Hierarchy) -> Operators:

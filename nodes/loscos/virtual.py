@@ -809,6 +809,8 @@ class VirtualSession:
             Be = np.concatenate([ops.pull @ B[:self.L0], B[self.L0:]])
             H = dK @ Be
             H[:self.N0] += self._gather0(Be[:self.N0], TOL * scale)
+            if ops.Kc is not None:  # a clustered room's cluster links (the object blocks none)
+                H[:self.N0] += ops.cluster_gather(Be[:self.N0])
             Hl = np.concatenate([ops.push @ H[:self.N0], H[self.N0:]])
             Bn = E + rho * Hl
             d = np.abs(Bn - B).max()
