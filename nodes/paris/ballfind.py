@@ -72,8 +72,7 @@ MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
 CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
 NESTED_MIN = 0.5         # a closed circle inside the ball found, this large (in its radii), may be the ball
 REFLECTION_EDGE = 0.25   # …unless within this fraction of its radius: an edge of the ball's reflection
-                         # (where the backdrop seen at grazing ends: closed inner outlines at 0.80–0.84 radii on
-                         # make_probes' TUNING probes, 0.76 on varied_probes' tv00; 0.91–0.94: the rim band)
+                         # (where the backdrop seen at grazing ends: 0.80–0.82 radii on make_probes' CHECK probes)
 SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
