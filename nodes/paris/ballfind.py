@@ -35,10 +35,7 @@ silhouette has:
    families as well supported (within ``AMBIGUITY``) the one centred nearest the highlight
    (nearer by ``CENTRED_MARGIN`` radii): a flash by the lens lights the ball near its middle,
    while the ball's shadow on the backdrop is centred elsewhere.  The others are its
-   ``rivals`` (ProbeLight weighs them by the flash directions they give), and so are the
-   closed circles inside it of ``NESTED_MIN`` to 1 − ``REFLECTION_EDGE`` of its radius: a circle on the backdrop around a ball with a faint silhouette
-   (a printed ring, a round plate) is closed and outermost too, so which is the ball is not
-   told by the outlines.
+   ``rivals`` (ProbeLight weighs them by the flash directions they give).
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
 when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the pixels just
@@ -70,9 +67,6 @@ MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
 MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
 CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
-NESTED_MIN = 0.5         # a closed circle inside the ball found, this large (in its radii), may be the ball
-REFLECTION_EDGE = 0.25   # …unless within this fraction of its radius: an edge of the ball's reflection
-                         # (where the backdrop seen at grazing ends: 0.80–0.82 radii on make_probes' CHECK probes)
 SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
@@ -197,14 +191,12 @@ def _choose(fits: list[BallFit], g, clipped, spot) -> BallFit:
     best, rivals = _rank(balls, spot)
     best.candidates = cand
     doubt = _doubt(best, fits, g, clipped)
-    nested = _nested(best, closed)
-    if (rivals or nested) and not doubt:
+    if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
-        best.rivals = [(f.cx, f.cy, f.r) for f in rivals + nested] if best.confident else []
-        o = (rivals + nested)[0]
-        how = "that are not one ball" if rivals else "one inside the other"
-        doubt = (f"two closed outlines {how}: radius {best.r:.1f} px at ({best.cx:.1f}, "
+        best.rivals = [(f.cx, f.cy, f.r) for f in rivals] if best.confident else []
+        o = rivals[0]
+        doubt = (f"two closed outlines that are not one ball: radius {best.r:.1f} px at ({best.cx:.1f}, "
                  f"{best.cy:.1f}) and radius {o.r:.1f} px at ({o.cx:.1f}, {o.cy:.1f})")
     if doubt:
         best.confident, best.reason = False, doubt
@@ -223,18 +215,6 @@ def _rank(balls: list[BallFit], spot) -> tuple[BallFit, list[BallFit]]:
         return top[0], top[1:]
     top.sort(key=lambda f: _off_centre(f, spot))
     return top[0], [f for f in top[1:] if _off_centre(f, spot) - _off_centre(top[0], spot) < CENTRED_MARGIN]
-
-
-def _nested(best: BallFit, closed: list[BallFit]) -> list[BallFit]:
-    """Closed outlines inside ``best`` that may as well be the ball: NESTED_MIN to
-    1 − REFLECTION_EDGE of its radius.  A circle on the backdrop around the ball (a printed
-    ring, a round plate) is as closed as a ball's silhouette and encloses it, so the outermost
-    closed circle is not always the ball; ProbeLight weighs these by the flash directions they
-    give.  Closer to ``best`` they are taken for its reflection's edge (the backdrop it reflects
-    at grazing ends about 0.8 radii in): a ring within 1/(1 − REFLECTION_EDGE) of the ball's
-    radius is still not told from the ball."""
-    return [f for f in closed if f is not best and _contains(best, f)
-            and NESTED_MIN * best.r <= f.r < (1 - REFLECTION_EDGE) * best.r]
 
 
 def _off_centre(f: BallFit, spot) -> float:
