@@ -259,10 +259,9 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
         return
     e0, e1, e2 = (A[i][t] * px + B[i][t] * py + C[i][t] for i in range(3))
     pix = (py - 0.5).astype(np.int64) * W + (px - 0.5).astype(np.int64)
-    k = slice(None)
-    absa = np.abs(area[t[k]])
-    b = np.stack([e0[k], e1[k], e2[k]], 1) / absa[:, None]  # screen-space barycentrics
-    Z = fz[t[k]]
+    absa = np.abs(area[t])
+    b = np.stack([e0, e1, e2], 1) / absa[:, None]  # screen-space barycentrics
+    Z = fz[t]
     if perspective:
         bz = b / Z
         inv = bz.sum(1)
@@ -274,12 +273,12 @@ def _resolve(t, px, py, A, B, C, fz, area, perspective, W, depth, ids):
     np.minimum.at(depth, pix, zk)
     tri, bary = ids
     wi = np.nonzero(zk == depth[pix])[0]
-    tk = t[k][wi]
+    tk = t[wi]
     best = np.full(len(depth), np.iinfo(np.int64).max)
     np.minimum.at(best, pix[wi], tk)
     sel = wi[tk == best[pix[wi]]]
     pp = pix[sel]
-    tri[pp] = t[k][sel]
+    tri[pp] = t[sel]
     bary[pp] = b[sel]
 
 
