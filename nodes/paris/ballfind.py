@@ -38,7 +38,8 @@ silhouette has:
    ``rivals`` (ProbeLight weighs them by the flash directions they give).
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
-when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the pixels just
+when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the outline found is a thin
+line with the same level on both sides (a ring drawn on the backdrop, :func:`_line_profile`), when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
 the ball is mostly outside the frame.  Tuned on the TUNING probes of
 ``nodes/paris/data/make_probes.py`` and the tune half of ``varied_probes.py``; checked on their
@@ -67,6 +68,8 @@ MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
 MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
 CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
+LINE_RATIO = 3.0         # an outline whose cross-profile rises and falls back this many times more than it
+                         # steps is a line on the backdrop (a printed ring), not a silhouette (see _line_profile)
 SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
@@ -233,6 +236,10 @@ def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
     if ring > 0.2:
         return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
                 "are clipped: the ball's silhouette may be lost in them (over-exposed)")
+    ridge, step = _line_profile(g, best)
+    if ridge >= EDGE_SNR and ridge > LINE_RATIO * step:
+        return (f"the outline found ({best.summary()}) is a thin line with the same level on both sides "
+                f"(it rises {ridge:.0f} noise σ and steps {step:.1f}): a ring on the backdrop, not the ball's edge")
     outer = [(f.r, f.support) for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
     outer += _outer_edges(g, best)
     if not outer:
@@ -240,6 +247,25 @@ def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
     r, sup = max(outer, key=lambda o: o[1])
     return (f"a fainter circle of radius {r:.1f} px (edge on {100 * sup:.0f}%) surrounds "
             f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+
+
+def _line_profile(g, f: BallFit) -> tuple[float, float]:
+    """(ridge, step) across the outline ``f`` on the stabilised image ``g`` (pixel noise σ;
+    medians over the 8° sectors inside the frame): ``step``, the difference between the levels
+    4–6 px outside and 4–6 px inside; ``ridge``, the most the band within 2 px of the outline
+    departs from their mean.  A silhouette is a step (ridge about half the step, at most the
+    step: 0.5-1.0 on make_probes' TUNING probes); a line drawn on the backdrop around the ball
+    (a printed ring) rises and falls back to the same level (ridge/step 100-200 on the
+    synthetic rings of tests/test_paris_probe_ring.py)."""
+    ts = np.arange(f.r - 6, f.r + 6 + 1e-9, 0.5)
+    prof, _, valid = _polar(g, f.cx, f.cy, ts)
+    prof, valid = _sectors(prof, valid)
+    ok = valid.all(1)
+    if not ok.any():
+        return 0.0, 0.0
+    inn, out = prof[ok][:, ts <= f.r - 4].mean(1), prof[ok][:, ts >= f.r + 4].mean(1)
+    ridge = np.abs(prof[ok][:, np.abs(ts - f.r) <= 2] - 0.5 * (inn + out)[:, None]).max(1)
+    return float(np.median(ridge)), float(np.median(np.abs(out - inn)))
 
 
 def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:

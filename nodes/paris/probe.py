@@ -24,9 +24,10 @@ class ProbeLight(Node):
       outermost closed circular edge around the flash's highlight (not the strongest circle,
       which on a dark backdrop is often the environment's reflection or the cast shadow),
       fitted to sub-pixel edges (with ``fov_deg``: as the cone tangent to the sphere).  When
-      it is not sure (no closed outline, a poor fit, the ball cut by the frame, or the circle's
-      standard error ×2 or a rival outline moving the flash's direction by more than
-      ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
+      it is not sure (no closed outline, a poor fit, the ball cut by the frame, an outline that
+      is a thin line on the backdrop rather than a step (a printed ring around the ball), or
+      the circle's standard error ×2 or a rival outline moving the flash's direction by more
+      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
@@ -71,7 +72,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "4"
+    version = "6"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),

@@ -1,0 +1,87 @@
+"""A ring drawn on the backdrop around the mirror ball is not taken for the ball (issue 26 item 7).
+
+find_ball takes the outermost closed circle around the flash's highlight for the ball; a ring
+printed on the backdrop around a ball whose silhouette is faint (its rim reflects the backdrop
+behind it) is such a circle, and ProbeLight 4 returned its flash direction 2.6-10° off with exit 0.
+A silhouette is a step across the outline; a printed line rises and falls back to the backdrop's
+level (ballfind._line_profile): such an outline now makes the node refuse (exit 2, naming the
+params to give).  Synthetic orthographic probes (3×3 supersampled, a little noise): fast.
+"""
+import numpy as np
+import pytest
+
+from graphkit import BadInput, Image
+from nodes.paris import ballfind
+from nodes.paris.probe import ProbeLight, reflected_directions
+
+H, W = 240, 320
+CX, CY, R = 150.3, 118.7, 40.2
+BACKDROP = 0.05
+
+
+def _flash(theta_deg: float, phi_deg: float = 200.0) -> np.ndarray:
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), -np.cos(t)])
+
+
+def _angle(a, b):
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+def _probe(flash, ring_r=0.0, ring_off=(0.0, 0.0), ring_level=0.0) -> Image:
+    """A mirror ball: sky 0.15 above, ground 0.07 below, the flash's clipped highlight, and
+    behind the ball (its rim) the backdrop × 0.8, so the silhouette is a faint step; the
+    backdrop (0.05) carries a bright ring 3 px wide of radius ``ring_r`` (0: none) centred
+    ``ring_off`` px from the ball's centre."""
+    acc = np.zeros((H, W))
+    for oy in (np.arange(3) + 0.5) / 3 - 0.5:
+        for ox in (np.arange(3) + 0.5) / 3 - 0.5:
+            yy, xx = np.mgrid[0:H, 0:W] + 0.5
+            xx, yy = xx + ox, yy + oy
+            d = reflected_directions(xx, yy, CX, CY, R, W, H, None)
+            ang = np.degrees(np.arccos(np.clip(d @ flash, -1, 1)))
+            ball = np.where(d[..., 1] < 0, 0.15, 0.07) + 40.0 * np.exp(-(ang / 3.0) ** 2)
+            ball = np.where(d[..., 2] > 0.3, 0.8 * BACKDROP, ball)
+            rr = np.hypot(xx - CX - ring_off[0], yy - CY - ring_off[1])
+            backdrop = BACKDROP + ring_level * (np.abs(rr - ring_r) <= 1.5)
+            acc += np.where((xx - CX) ** 2 + (yy - CY) ** 2 <= R * R, ball, backdrop) / 9
+    img = np.clip(acc + np.random.default_rng(0).normal(0, 0.002, acc.shape), 0, 1)
+    return Image(np.repeat(img[..., None], 3, 2).astype(np.float32))
+
+
+def _auto(img):
+    try:
+        return ProbeLight().compute(probe=img)["light"].direction, None
+    except BadInput as e:
+        return None, e
+
+
+@pytest.mark.parametrize("ring", [(56.0, (2.0, -1.5), 0.3), (70.0, (6.0, -4.0), 0.5), (70.0, (0.0, 0.0), 0.5)])
+def test_ring_on_the_backdrop_is_not_taken_for_the_ball(ring, monkeypatch):
+    """A flash 6° off the lens: the ring is the outermost closed circle; refused."""
+    flash = _flash(6.0)
+    img = _probe(flash, *ring)
+    direction, refusal = _auto(img)
+    assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
+    assert refusal.port == "probe" and "a ring on the backdrop, not the ball's edge" in refusal.message
+    assert "centre_x, centre_y and radius" in refusal.message
+    # without the rule the ring is taken: 4.2, 10.2 and 2.6° off with exit 0
+    monkeypatch.setattr(ballfind, "LINE_RATIO", 1e9)
+    direction, _ = _auto(img)
+    assert direction is not None and _angle(direction, flash) > 1.0
+
+
+def test_the_balls_silhouette_is_a_step_not_a_line():
+    """No ring: the ball's faint silhouette is a step (ridge about half the step), found ≤ 1°
+    off; the rings are lines (ridge over 100 times the step).  LINE_RATIO (3) lies between."""
+    flash = _flash(6.0)
+    img = _probe(flash)
+    direction, refusal = _auto(img)
+    assert refusal is None, refusal.message
+    assert _angle(direction, flash) <= 1.0
+    for im, lo, hi in ((img, 0.0, 1.0), (_probe(flash, 56.0, (2.0, -1.5), 0.3), 100.0, np.inf)):
+        px = im.pixels
+        fit = ballfind.find_ball(px)
+        ridge, step = ballfind._line_profile(ballfind.stabilise(ballfind.luminance(px)), fit)
+        assert lo <= ridge / step <= hi, (ridge, step)
+    assert 1.0 < ballfind.LINE_RATIO < 100.0
