@@ -123,3 +123,25 @@ def test_a_drag_blocks_cluster_links_moves_the_shadow_and_agrees_with_a_fresh_so
         effect, err = size(S.B[:S.L0] - ref), size(at_b - ref)
         assert effect > 0.01 * size(ref - S.B_ref), effect  # the cluster links matter here
         assert err < effect / 2, (err, effect)
+
+
+def test_relight_boxes_block_cluster_links_too(room, monkeypatch):
+    """Relight's §4.5 path (the graph file's virtual_boxes) in the clustered room: the box
+    blocks cluster links there too (planted: not blocking them changes the image)."""
+    from nodes.loscos import virtual
+    from nodes.loscos.clusters import cluster_matrices
+    from nodes.loscos.relight import Relight
+
+    s, pr, sol, un = room
+    prm = {"virtual_boxes": [dict(name="v", center=A, **BOX)], "force_level": 1,
+           "eps_bf": 0.5, "max_level": 3, "rays": 2}  # (coarse: a test's time)
+
+    def image():
+        with rays.using("embree"):
+            return run(Relight, prm, solution=sol, unoccluded=un, projection=pr,
+                       photo=s["photo"], camera=s["camera"]).pixels
+
+    blocked = image()
+    monkeypatch.setattr(virtual, "blocked_cluster_matrices", lambda h, tris, rng: (
+        cluster_matrices(h.cluster_links(), h.n_elems)))
+    assert np.abs(image() - blocked).max() > 1e-4 * blocked.max()

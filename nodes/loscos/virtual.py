@@ -390,8 +390,21 @@ def cluster_rays(h: HR.Hierarchy, rng) -> ClusterRays | None:
     pts = h.P_o[:, None] + st[..., :1] * h.P_u[:, None] + st[..., 1:] * h.P_v[:, None]
     j = draw_entries(cl.s[:, 0], cl.sw, cl.r[:, 0], k, rng)
     q = np.where(j >= 0, cl.s[np.maximum(j, 0), 1], -1)
-    return ClusterRays(bounds, np.searchsorted(cl.r[:, 0], np.arange(M + 1)), pts,
-                       h.centre(np.arange(len(tri))), q)
+    cent = h.P_o + np.where(tri, 1 / 3, 0.5)[:, None] * (h.P_u + h.P_v)
+    return ClusterRays(bounds, np.searchsorted(cl.r[:, 0], np.arange(M + 1)), pts, cent, q)
+
+
+def blocked_cluster_matrices(h: HR.Hierarchy, tris: np.ndarray, rng):
+    """h's cluster matrices (:func:`clusters.cluster_matrices`) with the triangles in the room:
+    the receiver weights of the links they block scaled as a session scales them
+    (:class:`ClusterRays`); Relight's §4.5 path in a clustered room."""
+    from .clusters import ClusterLinks, cluster_matrices
+
+    cl = h.cluster_links()
+    e, vf = cluster_rays(h, rng).factor(cl, tris)
+    rw = cl.rw.copy()
+    rw[e] *= vf
+    return cluster_matrices(ClusterLinks(cl.V, cl.r, rw, cl.s, cl.sw), h.n_elems)
 
 
 # ------------------------------------------------------------------------------------------
