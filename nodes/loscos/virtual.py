@@ -825,12 +825,13 @@ class VirtualSession:
         r = 0.5 * np.linalg.norm(t.hi - t.lo)
         return np.flatnonzero(np.linalg.norm(self.leaf_c - mid, axis=1) < NEAR * r)
 
-    def _point_to_polygons(self, x, n, so, su, sv, spoly, tri):
+    def _point_to_polygons(self, x, n, so, su, sv, spoly, tri=None):
         """(M,K) form factors from points x (normals n) to polygons (o, u, v; triangles where
         ``tri``) and their visibility by SOURCE_RAYS² rays to stratified points on each.  In
         a clustered room (thousands of small polygons) a polygon whose diameter is below
         FAR × its distance from a point is a point there: its centroid, A cos cos / πr², one
         ray."""
+        tri = np.zeros(len(so), bool) if tri is None else tri
         far = np.zeros((len(x), len(so)), bool)
         if self.clusters is not None:
             cen = so + np.where(tri, 1 / 3, 0.5)[:, None] * (su + sv)
@@ -1019,15 +1020,16 @@ class VirtualSession:
         return self._cover[name][1]
 
     def _room_depth(self, H: int, W: int) -> np.ndarray:
-        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
-        from .textures import rays_at
+        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw),
+        through the ray backend (textures.first_hit; triangles as triangles)."""
+        from .textures import first_hit, rays_at
 
         g = (np.arange(SUB) + 0.5) / SUB
         ys, xs = np.mgrid[0:H, 0:W]
         X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
         Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
         o, d = rays_at(self.camera, X, Y)
-        _, t, _, _ = G.ray_first_hit(o, d, *self.occ, two_sided=True)
+        _, t, _, _ = first_hit(o, d, (*self.occ, self.h.tri_poly))
         return t.reshape(H, W, SUB * SUB)
 
     def _patch_radiance(self, tri: np.ndarray, x: np.ndarray) -> np.ndarray:
