@@ -60,7 +60,7 @@ CASES["room_mesh"] = CASES["room"]
 #: the clustered check room: bench_loscos_mesh's room at about 3000 triangles (another ball
 #: layout), its photo 160×120; a box on the floor, one on the table (1.0, -1.2)
 CASES["furnished_check"] = dict(
-    box=dict(center=(2.3, 0.2, -2.6), size=(0.4, 0.4, 0.4), rotation_deg=25),
+    box=dict(center=(2.0, 0.2, -2.2), size=(0.4, 0.4, 0.4), rotation_deg=25),
     step=(-0.03, 0.0, 0.01),
     table=dict(center=(0.8, 0.85, -1.1), size=(0.2, 0.2, 0.2), rotation_deg=10),
     light=dict(center=(1.5, 2.9, -3.0), size=(0.4, 0.4), normal=(0, -1, 0),

@@ -63,26 +63,33 @@ def shadow_centre(S, B) -> np.ndarray:
     return (w[:, None] * S.leaf_c).sum(0) / w.sum()
 
 
-def reference_delta(S) -> VV._Entries:
+def reference_delta(S, n=4) -> VV._Entries:
     """The cluster links' ΔW computed another way: for EVERY cluster link (no shaft test) and
-    receiver member p, the share of b_q (all sender members q, not a draw) whose centroid p's
-    centroid sees past the objects (numpy rays)."""
+    receiver member p, the share of b_q (all sender members q, not a draw) that n×n
+    stratified points on p see past the objects at q's centroid (numpy rays)."""
+    from nodes.loscos import geometry as G
+
     cl, h = S.cl, S.h
     tris = S._virtual_tris()
-    cen = h.centre(np.arange(len(h.P_o)))
+    tri = h.tri_poly
+    cen = h.P_o + np.where(tri, 1 / 3, 0.5)[:, None] * (h.P_u + h.P_v)
+    st = G.grid_st(n)
     rp, sp = cl.r[:, 1], cl.s[:, 1]
-    order = np.argsort(cl.s[:, 0], kind="stable")
-    first = np.searchsorted(cl.s[order, 0], np.arange(len(cl.V) + 1))
+    first = np.searchsorted(cl.s[:, 0], np.arange(len(cl.V) + 1))
     vf = np.ones(len(rp))
     with rays.using("numpy"):
         for l in np.unique(cl.r[:, 0]):
             e = np.flatnonzero(cl.r[:, 0] == l)
-            q = order[first[l]:first[l + 1]]
-            p0 = np.repeat(cen[rp[e]], len(q), 0)
-            p1 = np.tile(cen[sp[q]], (len(e), 1))
-            v = VV.packed_hit(("numpy", p0, p1), tris).reshape(len(e), len(q))
-            w = cl.sw[q].sum()  # (0: a link whose transport estimate was 0 carries nothing)
-            vf[e] = 1 - (v * cl.sw[q]).sum(1) / w if w > 0 else 1.0
+            q = np.arange(first[l], first[l + 1])
+            w = cl.sw[q]
+            if w.sum() <= 0:  # (a link whose transport estimate was 0 carries nothing)
+                continue
+            f = G.fold(np.broadcast_to(st, (len(e), n * n, 2)), tri[rp[e]][:, None])
+            x = h.P_o[rp[e], None] + f[..., :1] * h.P_u[rp[e], None] + f[..., 1:] * h.P_v[rp[e], None]
+            p0 = np.repeat(x.reshape(-1, 3), len(q), 0)
+            p1 = np.tile(cen[sp[q]], (len(e) * n * n, 1))
+            v = VV.packed_hit(("numpy", p0, p1), tris).reshape(len(e), n * n, len(q))
+            vf[e] = 1 - (v * w).sum(2).mean(1) / w.sum()
     return VV._Entries(cl.r[:, 1], cl.r[:, 0], cl.rw / np.pi * (vf - 1), S.N0)
 
 
@@ -92,8 +99,6 @@ def test_room_is_clustered(room):
 
 
 def test_a_drag_blocks_cluster_links_moves_the_shadow_and_agrees_with_a_fresh_solve(room):
-    from nodes.loscos.relight import emitter_leaves
-
     with rays.using("embree"):
         S = session(room)
         S.insert(box(A))
@@ -109,39 +114,11 @@ def test_a_drag_blocks_cluster_links_moves_the_shadow_and_agrees_with_a_fresh_so
         F.insert(box(B))
         scale = np.abs(at_b).max()
         assert np.abs(F.B[:F.L0] - at_b).max() < SOLVER * scale
-        # …and its cluster links' blocking is the reference's (all member pairs, numpy rays)
-        # within half of what that blocking changes (4 drawn rays per receiver member, not all
-        # pairs: measured 0.40 of it, 1.2 % of all the box changes)
-        F._cluster_delta = lambda: reference_delta(F)
-        F.update()
-        ref = F.B[:F.L0]
-        p = S.things["v"]
-        p.cl_e, p.cl_vf = np.zeros(0, np.int64), np.zeros(0)  # no cluster link blocked
-        S.update()
-        lit = ~emitter_leaves(S.sol)[:, None]  # (the lights' leaves left out: they glow)
-        size = lambda x: np.linalg.norm(np.where(lit, x, 0) @ R.LUM)  # noqa: E731
-        effect, err = size(S.B[:S.L0] - ref), size(at_b - ref)
-        assert effect > 0.01 * size(ref - S.B_ref), effect  # the cluster links matter here
-        assert err < effect / 2, (err, effect)
-
-
-def test_relight_boxes_block_cluster_links_too(room, monkeypatch):
-    """Relight's §4.5 path (the graph file's virtual_boxes) in the clustered room: the box
-    blocks cluster links there too (planted: not blocking them changes the image)."""
-    from nodes.loscos import virtual
-    from nodes.loscos.clusters import cluster_matrices
-    from nodes.loscos.relight import Relight
-
-    s, pr, sol, un = room
-    prm = {"virtual_boxes": [dict(name="v", center=A, **BOX)], "force_level": 1,
-           "eps_bf": 0.5, "max_level": 3, "rays": 2}  # (coarse: a test's time)
-
-    def image():
-        with rays.using("embree"):
-            return run(Relight, prm, solution=sol, unoccluded=un, projection=pr,
-                       photo=s["photo"], camera=s["camera"]).pixels
-
-    blocked = image()
-    monkeypatch.setattr(virtual, "blocked_cluster_matrices", lambda h, tris, rng: (
-        cluster_matrices(h.cluster_links(), h.n_elems)))
-    assert np.abs(image() - blocked).max() > 1e-4 * blocked.max()
+        # …and the irradiance its cluster links' blocking takes away is the reference's (all
+        # member pairs, 4×4 points on each receiver, numpy rays) within 30 % per polygon (rms;
+        # measured 16 %: 4 drawn rays per receiver member), their sums within 5 % (0.2 %)
+        y = S.ops.Kc[1] @ S.ops.pull @ S.B[:S.L0]
+        mine, ref = (S._cluster_delta() @ y) @ R.LUM, (reference_delta(S) @ y) @ R.LUM
+        assert ref.sum() < 0  # the box takes light off cluster links here
+        assert np.linalg.norm(mine - ref) < 0.3 * np.linalg.norm(ref)
+        assert abs(mine.sum() - ref.sum()) < 0.05 * abs(ref.sum())

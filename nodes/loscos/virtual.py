@@ -11,6 +11,10 @@ the pixel plan of the photograph) and inserts, moves and removes virtual things 
   their attenuation re-evaluated: rays between the two elements (``LINK_RAYS``² stratified
   pairs, kernel-weighted as in :func:`hierarchy.link_visibility`) cast against the object's
   triangles, V = V_preprocess × V_object (the object blocks the unblocked share);
+* in a clustered room (past radiosity.CLUSTER_ABOVE polygons) the cluster links whose shafts
+  (their members' bounds) the object's bounds cross get their receiver members' weights scaled
+  by the share of LINK_RAYS² rays the object leaves unblocked (:class:`ClusterRays`), and the
+  object gathers from a small far polygon as from a point (FAR);
 * the object's patches gather from every real polygon and virtual light (point-to-polygon form
   factors from each patch's centre, visibility by rays through :func:`nodes.common.rays.occluded`
   against the real polygons and against every virtual triangle), and give back to the real
