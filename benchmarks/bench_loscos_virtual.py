@@ -61,7 +61,7 @@ CASES["room_mesh"] = CASES["room"]
 #: layout), its photo 160×120; a box on the floor, one on the table (1.0, -1.2)
 CASES["furnished_check"] = dict(
     box=dict(center=(2.0, 0.2, -2.2), size=(0.4, 0.4, 0.4), rotation_deg=25),
-    step=(-0.03, 0.0, 0.01),
+    step=(-0.02, 0.0, -0.02),
     table=dict(center=(0.8, 0.85, -1.1), size=(0.2, 0.2, 0.2), rotation_deg=10),
     light=dict(center=(1.5, 2.9, -3.0), size=(0.4, 0.4), normal=(0, -1, 0),
                emittance=(20.0, 18.0, 14.0)))
