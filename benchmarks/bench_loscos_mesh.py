@@ -51,7 +51,7 @@ def room_parts(n_tri: int, seed: int = 0) -> dict:
     W, H, D = 5.0, 3.0, 4.0
 
     def quad(a, b, c, d):
-        return np.array([a, b, c, d], float), np.array([[0, 1, 2], [0, 2, 3]])
+        return np.array([a, b, c, d], float), np.array([[0, 2, 1], [0, 3, 2]])  # (a, c, b): normal inwards
 
     parts = {  # walls facing inwards (counter-clockwise from inside)
         "floor": quad([0, 0, 0], [0, 0, -D], [W, 0, -D], [W, 0, 0]) + ([0.6, 0.55, 0.5],),
@@ -61,8 +61,8 @@ def room_parts(n_tri: int, seed: int = 0) -> dict:
         "right": quad([W, 0, 0], [W, 0, -D], [W, H, -D], [W, H, 0]) + ([0.3, 0.45, 0.6],),
         "lamp": quad([2.2, H - 1e-3, -1.6], [2.8, H - 1e-3, -1.6], [2.8, H - 1e-3, -2.2],
                      [2.2, H - 1e-3, -2.2]) + ([0.5, 0.5, 0.5],),
-        "window": quad([1e-3, 1.2, -1.0], [1e-3, 1.2, -2.0], [1e-3, 2.2, -2.0],
-                       [1e-3, 2.2, -1.0]) + ([0.5, 0.5, 0.5],),
+        "window": quad([1e-3, 1.2, -1.0], [1e-3, 2.2, -1.0], [1e-3, 2.2, -2.0],
+                       [1e-3, 1.2, -2.0]) + ([0.5, 0.5, 0.5],),
     }
     meshes = []
 

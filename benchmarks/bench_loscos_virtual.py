@@ -11,7 +11,8 @@ the floor in --moves steps, add a virtual light, drag it back, then put a second
 and drag it there.  Each drag reports its median and max move and how each move found its links
 (``kept``: the current reach held; ``ahead``: the reach built ahead of the drag took over;
 ``built``: a reach built on the spot).  ``furnished``: bench_loscos_mesh's furnished room at
-about 2000 triangles (its coarser preprocess settings), ``room_mesh``: builtin:room read as
+about 2000 triangles (its coarser preprocess settings; clustered: past CLUSTER_ABOVE polygons),
+``furnished_check`` the same at about 3000 (another layout, a 160×120 photo), ``room_mesh``: builtin:room read as
 mesh files.  The cases were tuned on ``room``; the others check.  Times are CPU seconds
 (time.process_time; the machine is shared) with the load average printed.  The peer, in the same
 process: Relight's full §4.5 path (relight.relight_virtual: re-refine the links around the
@@ -56,6 +57,16 @@ CASES = {
                                  emittance=(20.0, 18.0, 14.0))),
 }
 CASES["room_mesh"] = CASES["room"]
+#: the clustered check room: bench_loscos_mesh's room at about 3000 triangles (another ball
+#: layout), its photo 160×120; a box on the floor, one on the table (1.0, -1.2)
+CASES["furnished_check"] = dict(
+    box=dict(center=(2.0, 0.2, -2.2), size=(0.4, 0.4, 0.4), rotation_deg=25),
+    step=(-0.02, 0.0, -0.02),
+    table=dict(center=(0.8, 0.85, -1.1), size=(0.2, 0.2, 0.2), rotation_deg=10),
+    light=dict(center=(1.5, 2.9, -3.0), size=(0.4, 0.4), normal=(0, -1, 0),
+               emittance=(20.0, 18.0, 14.0)))
+#: furnished rooms: (triangles, photo (width, height, spp)) of bench_loscos_mesh.write_scene
+FURNISHED = {"furnished": (2000, (64, 48, 16)), "furnished_check": (3000, (160, 120, 64))}
 
 
 def run(cls, params=None, **kw):
@@ -76,12 +87,12 @@ def preprocess(name: str, cache: str) -> dict:
     settings = {"RadiositySolve": dict(eps_bf=0.3, eps_bfv=0.03, min_area=0.002, max_level=6),
                 "TextureRefine": dict(max_level=6, min_area=0.0005, max_rounds=2)}
     scene = f"builtin:{name}"
-    if name == "furnished":
+    if name in FURNISHED:
         import bench_loscos_mesh as BM
 
-        folder = os.path.join(cache, "furnished")
+        folder = os.path.join(cache, name)
         os.makedirs(folder, exist_ok=True)
-        scene, settings = BM.write_scene(2000, folder)[0], BM.SETTINGS
+        scene, settings = BM.write_scene(FURNISHED[name][0], folder, FURNISHED[name][1])[0], BM.SETTINGS
     t0 = time.process_time()
     with rays.using("embree"):
         s = run(LoadScene, {"path": scene})

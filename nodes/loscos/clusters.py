@@ -186,12 +186,18 @@ def link_weights(t: Tree, R, S, x, normal, area) -> ClusterLinks:
 def _draw(link, w, n_links, k, rng):
     """(n_links, k) entry indices drawn per link by weight w (entries sorted by link); -1
     where a link's weights are all 0."""
+    return draw_entries(link, w, np.arange(n_links), k, rng)
+
+
+def draw_entries(link, w, rows, k, rng):
+    """(len(rows), k) entry indices drawn by weight w among the entries of link ``rows[i]``
+    for each i (entries sorted by link); -1 where that link's weights are all 0."""
     cw = np.cumsum(w)
-    first = np.searchsorted(link, np.arange(n_links))
-    last = np.searchsorted(link, np.arange(n_links), side="right")
+    first = np.searchsorted(link, rows)
+    last = np.searchsorted(link, rows, side="right")
     base = np.where(first > 0, cw[np.maximum(first - 1, 0)], 0.0)
     tot = np.where(last > first, cw[np.maximum(last - 1, 0)], 0.0) - base
-    u = base[:, None] + rng.random((n_links, k)) * tot[:, None]
+    u = base[:, None] + rng.random((len(rows), k)) * tot[:, None]
     idx = np.clip(np.searchsorted(cw, u, side="right"), first[:, None],
                   np.maximum(last - 1, first)[:, None])
     return np.where(tot[:, None] > 0, idx, -1)

@@ -186,7 +186,7 @@ class Relight(Node):
     Values are linear radiance.
     """
 
-    version = "3"
+    version = "4"  # 4: in a clustered room virtual boxes block cluster links
     studio_view = "nodes.loscos.studio_view:RoomView"  # graphkit serve: light sliders on the fast path
     inputs = {"solution": RADIOSITY, "unoccluded": UNOCCLUDED, "projection": PROJECTION,
               "photo": Image,
@@ -555,6 +555,11 @@ def relight_virtual(sol: RadiositySolution, un: Unoccluded, proj: Projection, ph
                          np.random.default_rng(prm.seed + 7))
     # 3. leaves inherit ρ, E, T_final/T and D of their preprocessed leaf
     ops = HR.operators(h)
+    if ops.Kc is not None and not vp.light.all():  # a clustered room: boxes block cluster links
+        from .virtual import blocked_cluster_matrices, quad_triangles
+
+        ops.Kc = blocked_cluster_matrices(h, quad_triangles(vp.quads[~vp.light]),
+                                          np.random.default_rng(prm.seed + 11))
     lv = ops.leaves
     old = old_leaf(h, N0, P0, lv0)
     virt = old < 0

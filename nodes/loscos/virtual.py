@@ -11,6 +11,10 @@ the pixel plan of the photograph) and inserts, moves and removes virtual things 
   their attenuation re-evaluated: rays between the two elements (``LINK_RAYS``² stratified
   pairs, kernel-weighted as in :func:`hierarchy.link_visibility`) cast against the object's
   triangles, V = V_preprocess × V_object (the object blocks the unblocked share);
+* in a clustered room (past radiosity.CLUSTER_ABOVE polygons) the cluster links whose shafts
+  (their members' bounds) the object's bounds cross get their receiver members' weights scaled
+  by the share of LINK_RAYS² rays the object leaves unblocked (:class:`ClusterRays`), and the
+  object gathers from a small far polygon as from a point (FAR);
 * the object's patches gather from every real polygon and virtual light (point-to-polygon form
   factors from each patch's centre, visibility by rays through :func:`nodes.common.rays.occluded`
   against the real polygons and against every virtual triangle), and give back to the real
@@ -42,6 +46,7 @@ from .relight import LUM, box_quads, emitter_leaves, fixture_glow, leaf_multipli
 BOX_SPLIT = 4  # a box face → 4×4 patches
 LINK_RAYS = 2  # 2×2 rays per re-evaluated real link (3×3: the same PSNR against Mitsuba, 1.5× the time)
 SOURCE_RAYS = 3  # 3×3 points on each sender polygon seen from a patch / leaf
+FAR = 0.25  # a clustered room's polygon below FAR × its distance from a patch is a point there
 SUB = 3  # 3×3 coverage rays per pixel for drawing virtual things
 NEAR = 3.0  # real leaves within NEAR × the object's radius receive its reflected light
 TOL = 1e-4  # relative change of B at which the update stops
@@ -264,11 +269,17 @@ def link_bounds(h: HR.Hierarchy):
     o1, u1, v1, _, _ = h.geom(h.recv)
     o2, u2, v2, _, _ = h.geom(h.send)
     pts = np.concatenate([G.corners(o1, u1, v1), G.corners(o2, u2, v2)], axis=1)
-    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
-    lo, hi = f(pts.min(1).T), f(pts.max(1).T)
     r1 = 0.5 * np.linalg.norm(u1 + v1, axis=1) + 1e-5  # (+ float32's rounding, to stay safe)
     r2 = 0.5 * np.linalg.norm(u2 + v2, axis=1) + 1e-5
     c1, c2 = o1 + 0.5 * (u1 + v1), o2 + 0.5 * (u2 + v2)
+    return capsule_bounds(pts.min(1), pts.max(1), c1, r1, c2, r2)
+
+
+def capsule_bounds(lo, hi, c1, r1, c2, r2):
+    """:func:`link_bounds`'s tuple from each link's box (lo, hi: (M, 3)) and its two ends'
+    bounding spheres (c₁, r₁), (c₂, r₂)."""
+    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
+    lo, hi = f(lo.T), f(hi.T)
     L = np.maximum(np.linalg.norm(c2 - c1, axis=1), 1e-12)
     k = (r2 - r1) / L
     kc = np.clip(k, -0.999999, 0.999999)
@@ -322,6 +333,82 @@ def weighted_visible(blocked: np.ndarray, w: np.ndarray) -> np.ndarray:
     vis = 1.0 - blocked
     ws = w.sum(1)
     return np.where(ws > 0, (w * vis).sum(1) / np.maximum(ws, 1e-300), vis.mean(1))
+
+
+# ------------------------------------------------------------------------------------------
+# a clustered room's cluster links (clusters.py)
+
+
+@dataclass(eq=False)
+class ClusterRays:
+    """What blocking a clustered room's cluster links needs, once per session.  A cluster link
+    R ← S is a rank-one block: receiver member p takes V/π · a_p · Σ_q b_q B_q.  An object
+    multiplies a_p by the share of p's rays it leaves unblocked: LINK_RAYS² rays from
+    stratified points on p (``pts``) to the centroids (``cent``) of sender members ``q`` drawn
+    by their weights b_q (per receiver entry (link, p), fixed for the session).  ``bounds``:
+    per link, its shaft's (:func:`capsule_bounds`: the box of all its members, the capsule
+    around its receiver members' and its sender members' bounding spheres); ``start``: link l's
+    receiver entries are ``start[l]:start[l + 1]``."""
+
+    bounds: tuple
+    start: np.ndarray
+    pts: np.ndarray
+    cent: np.ndarray
+    q: np.ndarray
+
+    def factor(self, cl, tris: np.ndarray):
+        """The receiver entries (into cl.r) whose rays the triangles block, and the unblocked
+        share of each one's rays, for the links whose shafts the triangles' bounds cross."""
+        v = tris.reshape(-1, 3)
+        links = shaft_crossed(self.bounds, v.min(0), v.max(0))
+        n = self.start[links + 1] - self.start[links]
+        e = np.repeat(self.start[links], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        q = self.q[e]
+        p0 = np.broadcast_to(self.pts[cl.r[e, 1]], (len(e), *self.pts.shape[1:]))
+        b = segments_hit(p0.reshape(-1, 3), self.cent[np.maximum(q, 0)].reshape(-1, 3), tris)
+        vf = 1.0 - (b.reshape(q.shape) & (q >= 0)).mean(1)
+        keep = vf < 1.0
+        return e[keep], vf[keep]
+
+
+def cluster_rays(h: HR.Hierarchy, rng) -> ClusterRays | None:
+    """:class:`ClusterRays` of h's cluster links (None where links start at polygons)."""
+    from .clusters import draw_entries
+
+    cl = h.cluster_links()
+    if not len(cl.V):
+        return None
+    M, tri = len(cl.V), h.tri_poly
+    c = G.corners(h.P_o, h.P_u, h.P_v, tri)
+
+    def box(ent):  # each link's members' box (entries sorted by link, every link has some)
+        at = np.searchsorted(ent[:, 0], np.arange(M))
+        return np.minimum.reduceat(c[ent[:, 1]].min(1), at), np.maximum.reduceat(c[ent[:, 1]].max(1), at)
+
+    (lo1, hi1), (lo2, hi2) = box(cl.r), box(cl.s)
+    bounds = capsule_bounds(np.minimum(lo1, lo2), np.maximum(hi1, hi2), 0.5 * (lo1 + hi1),
+                            0.5 * np.linalg.norm(hi1 - lo1, axis=1) + 1e-5, 0.5 * (lo2 + hi2),
+                            0.5 * np.linalg.norm(hi2 - lo2, axis=1) + 1e-5)
+    k = LINK_RAYS * LINK_RAYS
+    st = G.fold(np.broadcast_to(G.grid_st(LINK_RAYS), (len(tri), k, 2)), tri[:, None])
+    pts = h.P_o[:, None] + st[..., :1] * h.P_u[:, None] + st[..., 1:] * h.P_v[:, None]
+    j = draw_entries(cl.s[:, 0], cl.sw, cl.r[:, 0], k, rng)
+    q = np.where(j >= 0, cl.s[np.maximum(j, 0), 1], -1)
+    cent = h.P_o + np.where(tri, 1 / 3, 0.5)[:, None] * (h.P_u + h.P_v)
+    return ClusterRays(bounds, np.searchsorted(cl.r[:, 0], np.arange(M + 1)), pts, cent, q)
+
+
+def blocked_cluster_matrices(h: HR.Hierarchy, tris: np.ndarray, rng):
+    """h's cluster matrices (:func:`clusters.cluster_matrices`) with the triangles in the room:
+    the receiver weights of the links they block scaled as a session scales them
+    (:class:`ClusterRays`); Relight's §4.5 path in a clustered room."""
+    from .clusters import ClusterLinks, cluster_matrices
+
+    cl = h.cluster_links()
+    e, vf = cluster_rays(h, rng).factor(cl, tris)
+    rw = cl.rw.copy()
+    rw[e] *= vf
+    return cluster_matrices(ClusterLinks(cl.V, cl.r, rw, cl.s, cl.sw), h.n_elems)
 
 
 # ------------------------------------------------------------------------------------------
@@ -394,6 +481,9 @@ class _Placed:
     first: int  # index of its first patch among the extended leaves / elements
     links: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vfac: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: a clustered room's receiver entries of cluster links it blocks, and their factors
+    cl_e: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    cl_vf: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coo: tuple = ()
     reach: "_Reach | None" = None
     ahead: "_Scan | _Reach | None" = None  # the reach a drag will need next (see _look_ahead)
@@ -463,6 +553,7 @@ class VirtualSession:
         every = np.arange(h.n_elems)
         self._ends = (element_points(h, every, LINK_RAYS), element_points(h, every, LINK_RAYS, True))
         self.occ = (h.P_o, h.P_u, h.P_v, h.P_n)
+        self.cl, self.clusters = h.cluster_links(), cluster_rays(h, np.random.default_rng(seed + 1))
         self.roots = np.flatnonzero(h.parent == -1)
         self.root_of_poly = np.full(len(h.P_o), -1)
         self.root_of_poly[h.poly[self.roots]] = self.roots
@@ -580,6 +671,8 @@ class VirtualSession:
                                  R.w[sel], t.tris)
         keep = vf < 1.0  # a link the object does not block has no entry in ΔK
         p.links, p.vfac = idx[keep], vf[keep]
+        if self.clusters is not None:
+            p.cl_e, p.cl_vf = self.clusters.factor(self.cl, t.tris)
         p.coo = self._object_links(p)
         boxes = [(t.lo, t.hi)] + ([old_bounds] if old_bounds is not None else [])
         for q in self._lights():
@@ -677,13 +770,14 @@ class VirtualSession:
         t = p.thing
         pid = self._elem(p.first + np.arange(len(t.centre)))
         h = self.h
-        senders = [(h.P_o, h.P_u, h.P_v, self.root_of_poly, np.arange(len(h.P_o)))]
+        senders = [(h.P_o, h.P_u, h.P_v, self.root_of_poly, np.arange(len(h.P_o)), h.tri_poly)]
         for q in self._lights():
             qo, qu, qv = _light_quad(q.thing)
-            senders.append((qo, qu, qv, self._elem(np.array([q.first])), np.full(1, -1)))
+            senders.append((qo, qu, qv, self._elem(np.array([q.first])), np.full(1, -1),
+                            np.zeros(1, bool)))
         rows, cols, vals = [], [], []
-        for so, su, sv, selem, spoly in senders:
-            F, V = self._point_to_polygons(t.centre, t.normal, so, su, sv, spoly)
+        for so, su, sv, selem, spoly, tri in senders:
+            F, V = self._point_to_polygons(t.centre, t.normal, so, su, sv, spoly, tri)
             r, s = np.nonzero(F * V > 0)
             rows.append(pid[r]); cols.append(selem[s]); vals.append((F * V)[r, s])
         near = self._near_leaves(t)
@@ -735,33 +829,52 @@ class VirtualSession:
         r = 0.5 * np.linalg.norm(t.hi - t.lo)
         return np.flatnonzero(np.linalg.norm(self.leaf_c - mid, axis=1) < NEAR * r)
 
-    def _point_to_polygons(self, x, n, so, su, sv, spoly):
-        """(M,K) form factors from points x (normals n) to parallelograms (o, u, v) and their
-        visibility by SOURCE_RAYS² rays to stratified points on each."""
-        F = self._ff_front(x, n, so, su, sv)
-        r, s = np.nonzero(F > 1e-9)
+    def _point_to_polygons(self, x, n, so, su, sv, spoly, tri=None):
+        """(M,K) form factors from points x (normals n) to polygons (o, u, v; triangles where
+        ``tri``) and their visibility by SOURCE_RAYS² rays to stratified points on each.  In
+        a clustered room (thousands of small polygons) a polygon whose diameter is below
+        FAR × its distance from a point is a point there: its centroid, A cos cos / πr², one
+        ray."""
+        tri = np.zeros(len(so), bool) if tri is None else tri
+        far = np.zeros((len(x), len(so)), bool)
+        if self.clusters is not None:
+            cen = so + np.where(tri, 1 / 3, 0.5)[:, None] * (su + sv)
+            diam = 2 * np.linalg.norm(G.corners(so, su, sv, tri) - cen[:, None], axis=2).max(1)
+            far = diam[None] < FAR * np.linalg.norm(x[:, None] - cen[None], axis=2)
+            cr = np.cross(su, sv)
+            jac = np.linalg.norm(cr, axis=1)
+            Fp = _point_kernel(x + 1e-6 * n, n, cen, cr / jac[:, None], jac * np.where(tri, 0.5, 1))
+        F = self._ff_front(x, n, so, su, sv, tri, ~far)
         V = np.zeros(F.shape)
+        r, s = np.nonzero((F > 1e-9) & ~far)
         if len(r):
-            p0, p1, ig = self._source_rays(x, n, so, su, sv, spoly, r, s)
+            p0, p1, ig = self._source_rays(x, n, so, su, sv, spoly, r, s, tri)
             V[r, s] = 1.0 - self._blocked(p0, p1, ig).reshape(len(r), -1).mean(1)
+        if far.any():
+            F[far] = Fp[far]
+            r, s = np.nonzero(far & (F > 1e-9))
+            V[r, s] = 1.0 - self._blocked(x[r] + 1e-6 * n[r], cen[s], spoly[s])
         return F, V
 
     @staticmethod
-    def _ff_front(x, n, so, su, sv) -> np.ndarray:
-        """(M,K) point-to-parallelogram form factors, 0 where a point is behind one (those
-        pairs are not computed)."""
+    def _ff_front(x, n, so, su, sv, tri=None, pairs=None) -> np.ndarray:
+        """(M,K) point-to-polygon form factors, 0 where a point is behind one (those pairs,
+        and those not in ``pairs`` (M,K), are not computed)."""
         front = np.einsum("mkc,kc->mk", x[:, None] - so[None], np.cross(su, sv)) > 0
-        m, k = np.nonzero(front)
+        m, k = np.nonzero(front if pairs is None else front & pairs)
         F = np.zeros(front.shape)
-        F[m, k] = G.ff_point_polygon(x[m] + 1e-6 * n[m], n[m], G.corners(so, su, sv)[k])
+        F[m, k] = G.ff_point_polygon(x[m] + 1e-6 * n[m], n[m], G.corners(so, su, sv, tri)[k])
         return F
 
     @staticmethod
-    def _source_rays(x, n, so, su, sv, spoly, r, s):
+    def _source_rays(x, n, so, su, sv, spoly, r, s, tri=None):
         """SOURCE_RAYS² rays (flat end points) from points x[r] to stratified points on the
-        parallelograms s, and the polygon each ray is not blocked by (its own)."""
-        st = G.grid_st(SOURCE_RAYS)
-        p1 = so[s][:, None] + st[None, :, 0:1] * su[s][:, None] + st[None, :, 1:2] * sv[s][:, None]
+        polygons s (triangles where ``tri``), and the polygon each ray is not blocked by (its
+        own)."""
+        st = G.grid_st(SOURCE_RAYS)[None]
+        if tri is not None and tri.any():
+            st = G.fold(np.broadcast_to(st, (len(s), *st.shape[1:])), tri[s][:, None])
+        p1 = so[s][:, None] + st[..., 0:1] * su[s][:, None] + st[..., 1:2] * sv[s][:, None]
         p0 = np.broadcast_to((x[r] + 1e-6 * n[r])[:, None], p1.shape)
         return p0.reshape(-1, 3), p1.reshape(-1, 3), np.repeat(spoly[s], p1.shape[1])
 
@@ -796,10 +909,22 @@ class VirtualSession:
             E[sl], rho[sl] = p.thing.emit, p.thing.rho
         return E, rho, K, nv
 
+    def _cluster_delta(self) -> _Entries:
+        """ΔW of a clustered room's cluster links (:class:`ClusterRays`): the receiver weights
+        a_p/π times (the objects' factors − 1) where they block; irradiance ΔW @ (U @ Be)."""
+        objs = self._objects()
+        e, inv = np.unique(np.concatenate([p.cl_e for p in objs] + [np.zeros(0, np.int64)]),
+                           return_inverse=True)
+        vf = np.ones(len(e))
+        np.multiply.at(vf, inv, np.concatenate([p.cl_vf for p in objs] + [np.zeros(0)]))
+        return _Entries(self.cl.r[e, 1], self.cl.r[e, 0], self.cl.rw[e] / np.pi * (vf - 1.0),
+                        self.N0)
+
     def update(self) -> np.ndarray:
         """Iterate B = E + ρ·gather(B) with K₀ + ΔK from the last B; the relit image."""
         E, rho, dK, nv = self._system()
         ops = self.ops
+        dC = None if ops.Kc is None else self._cluster_delta()
         B = E.copy()  # warm start: the last B (patches added since start at E)
         n = min(len(B), len(self.B))
         B[:n] = self.B[:n]
@@ -809,8 +934,9 @@ class VirtualSession:
             Be = np.concatenate([ops.pull @ B[:self.L0], B[self.L0:]])
             H = dK @ Be
             H[:self.N0] += self._gather0(Be[:self.N0], TOL * scale)
-            if ops.Kc is not None:  # a clustered room's cluster links (the object blocks none)
-                H[:self.N0] += ops.cluster_gather(Be[:self.N0])
+            if dC is not None:  # a clustered room's cluster links, less what objects block
+                y = ops.Kc[1] @ Be[:self.N0]
+                H[:self.N0] += ops.Kc[0] @ y + dC @ y
             Hl = np.concatenate([ops.push @ H[:self.N0], H[self.N0:]])
             Bn = E + rho * Hl
             d = np.abs(Bn - B).max()
@@ -898,15 +1024,16 @@ class VirtualSession:
         return self._cover[name][1]
 
     def _room_depth(self, H: int, W: int) -> np.ndarray:
-        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw)."""
-        from .textures import rays_at
+        """(H, W, SUB²) distance to the room along each subsample ray (pixel-major as _draw),
+        through the ray backend (textures.first_hit; triangles as triangles)."""
+        from .textures import first_hit, rays_at
 
         g = (np.arange(SUB) + 0.5) / SUB
         ys, xs = np.mgrid[0:H, 0:W]
         X = (xs.ravel()[:, None] + np.tile(g, SUB)[None]).ravel()
         Y = (ys.ravel()[:, None] + np.repeat(g, SUB)[None]).ravel()
         o, d = rays_at(self.camera, X, Y)
-        _, t, _, _ = G.ray_first_hit(o, d, *self.occ, two_sided=True)
+        _, t, _, _ = first_hit(o, d, (*self.occ, self.h.tri_poly))
         return t.reshape(H, W, SUB * SUB)
 
     def _patch_radiance(self, tri: np.ndarray, x: np.ndarray) -> np.ndarray:
