@@ -330,19 +330,21 @@ def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, dr
     if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
-    p0, p1 = _points(ro, ru, rv, ja), _points(so, su, sv, jb)
+    X0, X1 = _coords(ro, ru, rv, ja), _coords(so, su, sv, jb)
     own = np.stack([h.poly[r], h.poly[s]], 1)
     # only links whose rays' bounding box meets an occluder's (other than their own two
     # polygons) can be blocked: the rest are cast by no backend (the same answers)
-    cast = rays.boxes_meet(np.minimum(p0.min(1), p1.min(1)), np.maximum(p0.max(1), p1.max(1)),
-                           occ, own)
+    cast = rays.boxes_meet(np.minimum(X0.min(2), X1.min(2)).T,
+                           np.maximum(X0.max(2), X1.max(2)).T, occ, own)
     blocked = np.zeros((M, k), bool)
     if cast.any():
-        blocked[cast] = rays.occluded(p0[cast].reshape(-1, 3), p1[cast].reshape(-1, 3), occ,
+        p0, p1 = (np.stack([x[cast] for x in X], -1).reshape(-1, 3) for X in (X0, X1))
+        blocked[cast] = rays.occluded(p0, p1, occ,
                                       ignore=np.repeat(own[cast], k, axis=0)).reshape(-1, k)
     # weight each ray by the point-to-point kernel cos·cos/r², so that F·V estimates the
-    # occluded form factor even where visibility correlates with distance
-    d = p1 - p0
+    # occluded form factor even where visibility correlates with distance (d laid out
+    # (M,k,3) as einsum's sums of 3 products were: the same bits)
+    d = np.ascontiguousarray(np.moveaxis(X1 - X0, 0, -1))
     r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
     rn = h.P_n[h.poly[r]][:, None]
     sn = h.P_n[h.poly[s]][:, None]
@@ -368,12 +370,15 @@ def _jittered(st: np.ndarray, n: int, j: np.ndarray) -> np.ndarray:
     return np.clip(j, 0, 1, out=j)
 
 
-def _points(o, u, v, st) -> np.ndarray:
-    """(M,k,3) points o + s·u + t·v of elements (M,3) at st (M,k,2)."""
-    p = st[..., 0:1] * u[:, None]
-    p += st[..., 1:2] * v[:, None]
-    p += o[:, None]
-    return p
+def _coords(o, u, v, st) -> np.ndarray:
+    """(3,M,k) points o + s·u + t·v of elements (M,3) at st (M,k,2), coordinate first (each
+    coordinate's (M,k) array contiguous: fast products and per-link bounds)."""
+    X = np.empty((3,) + st.shape[:2])
+    for c in range(3):
+        np.multiply(st[..., 0], u[:, c:c + 1], out=X[c])
+        X[c] += st[..., 1] * v[:, c:c + 1]
+        X[c] += o[:, c:c + 1]
+    return X
 
 
 def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
