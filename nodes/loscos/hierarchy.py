@@ -34,6 +34,7 @@ gathered at the root polygons (:class:`Operators`).
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -381,12 +382,32 @@ def _coords(o, u, v, st) -> np.ndarray:
     return X
 
 
-def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+@dataclass
+class LinkGeom:
+    """Links r ← s's end geometry (:meth:`Hierarchy.geom` of r and of s) and corners
+    (:func:`geometry.corners`), for the kernels below: one refinement step computes it once
+    and takes the rows it keeps (the same numbers as computing them again)."""
+
+    r: tuple
+    s: tuple
+    cr: np.ndarray
+    cs: np.ndarray
+
+    @classmethod
+    def of(cls, h: Hierarchy, r: np.ndarray, s: np.ndarray) -> "LinkGeom":
+        gr, gs = h.geom(r), h.geom(s)
+        return cls(gr, gs, G.corners(*gr[:3], h.tri(r)), G.corners(*gs[:3], h.tri(s)))
+
+    def select(self, m) -> "LinkGeom":
+        return LinkGeom(tuple(a[m] for a in self.r), tuple(a[m] for a in self.s),
+                        self.cr[m], self.cs[m])
+
+
+def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray,
+           g: LinkGeom | None = None) -> np.ndarray:
     """False where one element lies wholly behind the other's plane (no exchange)."""
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, sn, _ = h.geom(s)
-    cr = G.corners(ro, ru, rv, h.tri(r))
-    cs = G.corners(so, su, sv, h.tri(s))
+    g = g or LinkGeom.of(h, r, s)
+    (ro, ru, rv, rn, _), (so, su, sv, sn, _), cr, cs = g.r, g.s, g.cr, g.cs
     ds = np.einsum("nkc,nc->nk", cs - ro[:, None], rn)
     dr = np.einsum("nkc,nc->nk", cr - so[:, None], sn)
     return (ds > 1e-9).any(1) & (dr > 1e-9).any(1) & (h.poly[r] != h.poly[s])
@@ -415,10 +436,9 @@ def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2
 
 
 def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int,
-                     far=None) -> np.ndarray:
-    """:func:`link_form_factors` of links r ← s of h."""
-    o1, u1, v1, n1, _ = h.geom(r)
-    o2, u2, v2, n2, _ = h.geom(s)
+                     far=None, g: LinkGeom | None = None) -> np.ndarray:
+    """:func:`link_form_factors` of links r ← s of h (their geometry ``g``, if given)."""
+    (o1, u1, v1, n1, _), (o2, u2, v2, n2, _) = (g.r, g.s) if g else (h.geom(r), h.geom(s))
     tri = h.tri_poly.any()
     return link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff,
                              h.tri(r) if tri else None, h.tri(s) if tri else None, far)
@@ -431,15 +451,14 @@ CORNER_IN = 0.01
 W_CORNERS = 1 / (12 * (0.5 - CORNER_IN) ** 2)
 
 
-def ff_spread(h: Hierarchy, r, s):
+def ff_spread(h: Hierarchy, r, s, g: LinkGeom | None = None):
     """Min, centre and max of the point-to-polygon F_{dx→s} over r's centre and corners
     (moved 1 % inwards), the refinement oracle; and, for a parallelogram receiver, the
     mean F_rs from those five points where each element lies wholly in front of the other
     (exact for F quadratic over r; NaN on a triangle receiver or across a horizon, where F
     is not smooth)."""
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, sn, _ = h.geom(s)
-    P = G.corners(so, su, sv, h.tri(s))
+    g = g or LinkGeom.of(h, r, s)
+    (ro, ru, rv, rn, _), (so, su, sv, sn, _), P = g.r, g.s, g.cs
     a, b = CORNER_IN, 1 - CORNER_IN
     st = np.array([[0.5, 0.5], [a, a], [b, a], [b, b], [a, b]])
     # a triangle's centre, corners (1 % in) and its long edge's midpoint
@@ -542,14 +561,15 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
         it += 1
-        m = facing(h, r, s)
-        r, s = r[m], s[m]
+        g = LinkGeom.of(h, r, s)
+        m = facing(h, r, s, g)
+        r, s, g = r[m], s[m], g.select(m)
         if not len(r):
             break
         if known is not None:
             dF, Fc, V, C = known.dF[m], known.Fc[m], known.V[m], known.C[m]
         else:
-            Fmin, Fc, Fmax, Fq = ff_spread(h, r, s)
+            Fmin, Fc, Fmax, Fq = ff_spread(h, r, s, g)
             dF = Fmax - Fmin
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
@@ -585,7 +605,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         if acc.any():
             ra, sa = r[acc], s[acc]
             F = known.F[m][acc] if known is not None else \
-                element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc])
+                element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc], g=g.select(acc))
             keep = F > 0
             out.append(LinkData(ra[keep], sa[keep], F[keep], V[acc][keep], C[acc][keep],
                                 dF[acc][keep], Fc[acc][keep]))
@@ -641,7 +661,7 @@ class Operators:
         """Irradiance at the leaves from leaf radiosities (columns broadcast)."""
         K = self.Ku if unoccluded else self.K
         Be = self.pull @ B_leaf
-        H = K @ Be
+        H = csr_matmul(K, Be)
         if self.Kc is not None:
             H = H + self.cluster_gather(Be, unoccluded)
         return self.push @ H
@@ -650,6 +670,31 @@ class Operators:
         """The cluster links' irradiance at the elements from element radiosities Be (Kc)."""
         W, U, Uu = self.Kc
         return W @ ((Uu if unoccluded else U) @ Be)
+
+
+#: gather products of at least this many entries run in row bands on the cores
+BANDS_FROM = 1 << 18
+
+
+def csr_matmul(A, x: np.ndarray) -> np.ndarray:
+    """A @ x for a CSR matrix A, past ``BANDS_FROM`` entries in bands of rows on the cores
+    (scipy's sparse products release the GIL; each row is summed as in one product: the same
+    bits).  The bands share A's arrays."""
+    import scipy.sparse as sp
+
+    n = min(os.cpu_count() or 1, 8)
+    if A.nnz < BANDS_FROM or n < 2:
+        return A @ x
+    p = A.indptr
+    cut = np.unique(np.searchsorted(p, np.linspace(0, A.nnz, n + 1)[1:-1]).clip(0, A.shape[0]))
+    rows = np.concatenate([[0], cut, [A.shape[0]]])
+
+    def band(a, b):
+        ip = p[a:b + 1] - p[a]
+        return sp.csr_matrix((A.data[p[a]:p[b]], A.indices[p[a]:p[b]], ip),
+                             shape=(b - a, A.shape[1]), copy=False) @ x
+    return np.concatenate(run_tasks([functools.partial(band, a, b)
+                                     for a, b in zip(rows[:-1], rows[1:])]))
 
 
 def operators(h: Hierarchy) -> Operators:

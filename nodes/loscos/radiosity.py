@@ -427,6 +427,8 @@ def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol:
         h.recv, h.send, h.F, h.V, h.C = links.astuple()
         if progress:
             progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")
+        if k == rounds - 1:
+            break  # the last round's B would refine nothing (finish_solution solves again)
         ops = HR.operators(h)
         emit_leaf = scene.emittance[h.poly[ops.leaves]]
         Bl, _ = HR.solve(ops, emit_leaf, scene.reflectance[h.poly[ops.leaves]], tol=tol)
