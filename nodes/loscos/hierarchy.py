@@ -320,17 +320,30 @@ RAYS_AT_ONCE = 1 << 18
 def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, draws, occ):
     """:func:`link_visibility`'s V and C of one block of links, with its random numbers
     ``draws``: (M,k,2) uniforms for the receiver's points, a permutation of the k cells and
-    (M,k,2) uniforms for the sender's."""
-    ro, ru, rv, _, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
+    (M,k,2) uniforms for the sender's.  The links are cast ``RAYS_IN_CACHE`` rays at a time
+    (:func:`_rays_vc`)."""
     st = G.grid_st(n_rays)
-    k = len(st)
-    M = len(r)
     ja = _jittered(st, n_rays, draws[0])
     jb = _jittered(st[draws[1]], n_rays, draws[2])
     if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
+    step = max(1, RAYS_IN_CACHE // len(st))
+    out = [_rays_vc(h, r[a:a + step], s[a:a + step], ja[a:a + step], jb[a:a + step], occ)
+           for a in range(0, len(r), step)]
+    return np.concatenate([v for v, _ in out]), np.concatenate([c for _, c in out])
+
+
+#: rays per piece of a block in :func:`_link_visibility`: its temporaries (under 1 MB
+#: each) stay in the cores' caches (whole blocks of 2^18 rays: ~6 MB each)
+RAYS_IN_CACHE = 1 << 15
+
+
+def _rays_vc(h: Hierarchy, r: np.ndarray, s: np.ndarray, ja: np.ndarray, jb: np.ndarray, occ):
+    """V and C of links r ← s from their rays' end points at ja on r and jb on s (M,k,2)."""
+    ro, ru, rv, _, _ = h.geom(r)
+    so, su, sv, _, _ = h.geom(s)
+    M, k = ja.shape[:2]
     X0, X1 = _coords(ro, ru, rv, ja), _coords(so, su, sv, jb)
     own = np.stack([h.poly[r], h.poly[s]], 1)
     # only links whose rays' bounding box meets an occluder's (other than their own two
@@ -743,13 +756,15 @@ def link_entries(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
     rows, cols, vals = [r[~has]], [s[~has]], [weight[~has]]
     w = np.stack([0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]
                   for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))], 1)  # order of subdivide()
-    tri = h.tri(s[has])
+    rh, sh, wh = r[has], s[has], weight[has]
+    tri = h.tri(sh)
     if tri.any():
         w[tri] = tri_child_weights(np.asarray(cen, float)[has][tri])
+    c0 = h.child0[sh]
     for c in range(4):
-        rows.append(r[has])
-        cols.append(h.child0[s[has]] + c)
-        vals.append(weight[has] * w[:, c])
+        rows.append(rh)
+        cols.append(c0 + c)
+        vals.append(wh * w[:, c])
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
 
 
