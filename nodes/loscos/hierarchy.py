@@ -551,7 +551,8 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     B_elem: (n_elems,) luminance of each element's radiosity (W/m²).  ``force(r, s)`` may
     return a mask of links that must be split further (used for §4.1 and §4.5).
     ``known``: the candidates are these links of an earlier round (r, s ignored): their F
-    spread, V, C and F are taken from it, not computed again; their children are computed.
+    spread, V, C and F are taken from it, not computed again, nor whether they face each
+    other (they were accepted); their children are computed.
     Candidates are refined ``LINKS_AT_ONCE`` at a time (they are independent; a mesh's
     polygon pairs are millions).  With ``frontier``, also the links a split makes are, that
     many at a time, once they are more (a clustered scene's peak memory; the random rays are
@@ -573,14 +574,14 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
         it += 1
-        g = LinkGeom.of(h, r, s)
-        m = facing(h, r, s, g)
-        r, s, g = r[m], s[m], g.select(m)
-        if not len(r):
-            break
-        if known is not None:
-            dF, Fc, V, C = known.dF[m], known.Fc[m], known.V[m], known.C[m]
+        if known is not None:  # an earlier round's links (they passed facing() there)
+            dF, Fc, V, C = known.dF, known.Fc, known.V, known.C
         else:
+            g = LinkGeom.of(h, r, s)
+            m = facing(h, r, s, g)
+            r, s, g = r[m], s[m], g.select(m)
+            if not len(r):
+                break
             Fmin, Fc, Fmax, Fq = ff_spread(h, r, s, g)
             dF = Fmax - Fmin
         B_elem = _grow(B_elem, h)
@@ -616,7 +617,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            F = known.F[m][acc] if known is not None else \
+            F = known.F[acc] if known is not None else \
                 element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc], g=g.select(acc))
             keep = F > 0
             out.append(LinkData(ra[keep], sa[keep], F[keep], V[acc][keep], C[acc][keep],
