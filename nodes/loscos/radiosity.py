@@ -573,9 +573,10 @@ def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng
         c = h.children(r)
         r, s = c.ravel(), np.repeat(s, 4)
     r, s = np.concatenate(nr), np.concatenate(ns)
-    f = HR.facing(h, r, s)
+    g = HR.LinkGeom.of(h, r, s)
+    f = HR.facing(h, r, s, g)
     r, s = r[f], s[f]
-    F = HR.element_links_ff(h, r, s, prm.n_ff)
+    F = HR.element_links_ff(h, r, s, prm.n_ff, g=g.select(f))
     V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
     m = F > 0
     h.recv = np.concatenate([h.recv[keep], r[m]])
