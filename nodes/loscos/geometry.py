@@ -109,9 +109,10 @@ def ff_point_polygon(x: np.ndarray, nx: np.ndarray, poly: np.ndarray,
     return out
 
 
-def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray) -> np.ndarray:
+def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray, pad: int = 0) -> np.ndarray:
     """Σ_k γ_k (V_k × V_k+1)/|V_k × V_k+1| · nx / 2π over the edges V_k → Vn_k, given
-    component first: V, Vn (3,N,K), nx (3,N,1); K a power of 2.
+    component first: V, Vn (3,N,K), nx (3,N,1), and ``pad`` edges of length 0 after them
+    (each term 0, summed in their places); K + pad a power of 2.
     γ_k = atan2(|V_k × V_k+1|, V_k · V_k+1).  Each product into one scratch array ``t``
     (few fresh temporaries; the same operations in the same order, so the same bits)."""
     (ax, ay, az), (bx, by, bz) = V, Vn
@@ -136,6 +137,8 @@ def _lambert(V: np.ndarray, Vn: np.ndarray, nx: np.ndarray) -> np.ndarray:
     proj /= np.maximum(cn, 1e-300, out=t)
     g *= proj
     g[~(cn > 1e-300)] = 0.0
+    if pad:
+        g = np.concatenate([g, np.zeros((len(g), pad))], axis=1)
     while g.shape[1] > 1:  # pairwise, so the clipped path's 2K slots (every other edge of
         g = g[:, 0::2] + g[:, 1::2]  # length 0) give the same bits as the K edges
     return g[:, 0] / (2 * np.pi)
@@ -162,10 +165,9 @@ def _ff_clipped(R: np.ndarray, d: np.ndarray, nx: np.ndarray) -> np.ndarray:
     # a convex polygon's contour goes behind at most once and comes back once
     out_ = (inter * (front & ~front_n)).sum(2)
     in_ = (inter * (~front & front_n)).sum(2)
-    z = np.zeros((3, N, K - 1))
-    V = np.concatenate([A, out_[..., None], z], axis=2)
-    Vn = np.concatenate([B, in_[..., None], z], axis=2)
-    return np.abs(_lambert(V, Vn, np.ascontiguousarray(nx.T)[:, :, None]))
+    V = np.concatenate([A, out_[..., None]], axis=2)
+    Vn = np.concatenate([B, in_[..., None]], axis=2)
+    return np.abs(_lambert(V, Vn, np.ascontiguousarray(nx.T)[:, :, None], pad=K - 1))
 
 
 def element_form_factors(o_i, u_i, v_i, n_i, o_j, u_j, v_j, n_j, n_samples: int = 3,
