@@ -280,16 +280,18 @@ class Hierarchy:
 
 
 def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng,
-                    occ=None, centroid: bool = False):
+                    occ=None, centroid: bool = False, g: LinkGeom | None = None):
     """Attenuation V for links r ← s: fraction of n_rays² unblocked segments (§2.3).
 
     With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
     points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
     (0.5, 0.5) where no ray carries weight.  Links are taken ``RAYS_AT_ONCE`` rays at a time
     (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory),
-    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.
+    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.  ``g``: the links' geometry, where the
+    caller has it (:class:`LinkGeom`).
     """
     occ = occ if occ is not None else h.occluders()
+    gr, gs = (g.r, g.s) if g is not None else (h.geom(r), h.geom(s))
     k = n_rays * n_rays
     step = max(1, RAYS_AT_ONCE // k)
     V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
@@ -300,7 +302,8 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
         # number of threads
         draws = [(rng.random((b.stop - b.start, k, 2)), rng.permutation(k),
                   rng.random((b.stop - b.start, k, 2))) for b in group]
-        out = run_tasks([functools.partial(_link_visibility, h, r[b], s[b], n_rays, d, occ)
+        out = run_tasks([functools.partial(_link_visibility, h, r[b], s[b], _rows(gr, b),
+                                           _rows(gs, b), n_rays, d, occ)
                          for b, d in zip(group, draws)])
         for b, (v, c) in zip(group, out):
             V[b], C[b] = v, c
@@ -316,11 +319,17 @@ BLOCKS_AT_ONCE = 2
 RAYS_AT_ONCE = 1 << 18
 
 
-def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, draws, occ):
-    """:func:`link_visibility`'s V and C of one block of links, with its random numbers
-    ``draws``: (M,k,2) uniforms for the receiver's points, a permutation of the k cells and
-    (M,k,2) uniforms for the sender's.  The links are cast ``RAYS_IN_CACHE`` rays at a time
-    (:func:`_rays_vc`)."""
+def _rows(geom: tuple, rows) -> tuple:
+    """Rows ``rows`` of each array of a :meth:`Hierarchy.geom` tuple."""
+    return tuple(a[rows] for a in geom)
+
+
+def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, gr: tuple, gs: tuple,
+                     n_rays: int, draws, occ):
+    """:func:`link_visibility`'s V and C of one block of links (their geometry gr, gs), with
+    its random numbers ``draws``: (M,k,2) uniforms for the receiver's points, a permutation
+    of the k cells and (M,k,2) uniforms for the sender's.  The links are cast
+    ``RAYS_IN_CACHE`` rays at a time (:func:`_rays_vc`)."""
     st = G.grid_st(n_rays)
     ja = _jittered(st, n_rays, draws[0])
     jb = _jittered(st[draws[1]], n_rays, draws[2])
@@ -328,8 +337,8 @@ def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, dr
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
     step = max(1, RAYS_IN_CACHE // len(st))
-    out = [_rays_vc(h, r[a:a + step], s[a:a + step], ja[a:a + step], jb[a:a + step], occ)
-           for a in range(0, len(r), step)]
+    out = [_rays_vc(h, r[p], s[p], _rows(gr, p), _rows(gs, p), ja[p], jb[p], occ)
+           for p in (slice(a, a + step) for a in range(0, len(r), step))]
     return np.concatenate([v for v, _ in out]), np.concatenate([c for _, c in out])
 
 
@@ -338,17 +347,16 @@ def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, dr
 RAYS_IN_CACHE = 1 << 15
 
 
-def _rays_vc(h: Hierarchy, r: np.ndarray, s: np.ndarray, ja: np.ndarray, jb: np.ndarray, occ):
-    """V and C of links r ← s from their rays' end points at ja on r and jb on s (M,k,2)."""
-    ro, ru, rv, _, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
+def _rays_vc(h: Hierarchy, r: np.ndarray, s: np.ndarray, gr: tuple, gs: tuple,
+             ja: np.ndarray, jb: np.ndarray, occ):
+    """V and C of links r ← s (their geometry gr, gs) from their rays' end points at ja on r
+    and jb on s (M,k,2)."""
     M, k = ja.shape[:2]
-    X0, X1 = _coords(ro, ru, rv, ja), _coords(so, su, sv, jb)
+    X0, X1 = _coords(*gr[:3], ja), _coords(*gs[:3], jb)
     own = np.stack([h.poly[r], h.poly[s]], 1)
     # only links whose rays' bounding box meets an occluder's (other than their own two
     # polygons) can be blocked: the rest are cast by no backend (the same answers)
-    cast = rays.boxes_meet(np.minimum(X0.min(2), X1.min(2)).T,
-                           np.maximum(X0.max(2), X1.max(2)).T, occ, own)
+    cast = rays.boxes_meet(np.minimum(X0, X1).min(2).T, np.maximum(X0, X1).max(2).T, occ, own)
     blocked = np.zeros((M, k), bool)
     if cast.any():
         p0, p1 = (np.stack([x[cast] for x in X], -1).reshape(-1, 3) for X in (X0, X1))
@@ -608,7 +616,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         if known is None:
             V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
             V[~split], C[~split] = link_visibility(h, r[~split], s[~split], prm.n_rays, rng,
-                                                   centroid=True)
+                                                   centroid=True, g=g.select(~split))
         partial = (V > 1e-9) & (V < 1 - 1e-9)
         trig_c |= ~split & partial & (Fc * Bs > prm.eps_bfv)
         split_r = (trig_r & can_r) | (trig_c & big_r)

@@ -575,9 +575,9 @@ def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng
     r, s = np.concatenate(nr), np.concatenate(ns)
     g = HR.LinkGeom.of(h, r, s)
     f = HR.facing(h, r, s, g)
-    r, s = r[f], s[f]
-    F = HR.element_links_ff(h, r, s, prm.n_ff, g=g.select(f))
-    V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
+    r, s, g = r[f], s[f], g.select(f)
+    F = HR.element_links_ff(h, r, s, prm.n_ff, g=g)
+    V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True, g=g)
     m = F > 0
     h.recv = np.concatenate([h.recv[keep], r[m]])
     h.send = np.concatenate([h.send[keep], s[m]])
