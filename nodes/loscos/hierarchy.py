@@ -34,6 +34,7 @@ gathered at the root polygons (:class:`Operators`).
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -682,7 +683,7 @@ class Operators:
         """Irradiance at the leaves from leaf radiosities (columns broadcast)."""
         K = self.Ku if unoccluded else self.K
         Be = self.pull @ B_leaf
-        H = K @ Be
+        H = csr_matmul(K, Be)
         if self.Kc is not None:
             H = H + self.cluster_gather(Be, unoccluded)
         return self.push @ H
@@ -691,6 +692,31 @@ class Operators:
         """The cluster links' irradiance at the elements from element radiosities Be (Kc)."""
         W, U, Uu = self.Kc
         return W @ ((Uu if unoccluded else U) @ Be)
+
+
+#: gather products of at least this many entries run in row bands on the cores
+BANDS_FROM = 1 << 18
+
+
+def csr_matmul(A, x: np.ndarray) -> np.ndarray:
+    """A @ x for a CSR matrix A, past ``BANDS_FROM`` entries in bands of rows on the cores
+    (scipy's sparse products release the GIL; each row is summed as in one product: the same
+    bits).  The bands share A's arrays."""
+    import scipy.sparse as sp
+
+    n = min(os.cpu_count() or 1, 8)
+    if A.nnz < BANDS_FROM or n < 2:
+        return A @ x
+    p = A.indptr
+    cut = np.unique(np.searchsorted(p, np.linspace(0, A.nnz, n + 1)[1:-1]).clip(0, A.shape[0]))
+    rows = np.concatenate([[0], cut, [A.shape[0]]])
+
+    def band(a, b):
+        ip = p[a:b + 1] - p[a]
+        return sp.csr_matrix((A.data[p[a]:p[b]], A.indices[p[a]:p[b]], ip),
+                             shape=(b - a, A.shape[1]), copy=False) @ x
+    return np.concatenate(run_tasks([functools.partial(band, a, b)
+                                     for a, b in zip(rows[:-1], rows[1:])]))
 
 
 def operators(h: Hierarchy) -> Operators:
