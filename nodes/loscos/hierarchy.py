@@ -734,8 +734,8 @@ def operators(h: Hierarchy) -> Operators:
     push = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(L, N))
     a = h.area()
     pull = sp.csr_matrix((a[lv][rows] / a[cols], (cols, rows)), shape=(N, L))
-    K = link_matrix(h, h.F * h.V, h.C[:, :2])
-    Ku = link_matrix(h, h.F, h.C[:, 2:])
+    K, Ku = run_tasks([functools.partial(link_matrix, h, h.F * h.V, h.C[:, :2]),
+                       functools.partial(link_matrix, h, h.F, h.C[:, 2:])])  # on the cores
     if not len(h.cl_V):
         return Operators(lv, push, pull, K, Ku)
     from .clusters import cluster_matrices
