@@ -129,6 +129,37 @@ def test_link_visibility_and_point_form_factors_are_the_same_on_one_or_two_cores
     assert len(r) > 10 * 97 and 0.05 < (got[1][0] < 1).mean() < 0.95
     for a, b in zip(got[1], got[2]):
         assert np.array_equal(a, b)
+    # each block cast in pieces of RAYS_IN_CACHE rays: the same bits as in one piece
+    monkeypatch.setattr(HR, "RAYS_IN_CACHE", 16 * 13)
+    with rays.using("embree"):
+        V, C = HR.link_visibility(h, r, s, 4, np.random.default_rng(5), centroid=True)
+    assert np.array_equal(V, got[2][0]) and np.array_equal(C, got[2][1])
+
+
+def test_gather_in_row_bands_is_the_product_on_one_or_two_cores(monkeypatch):
+    # Operators.gather multiplies K (Ku) in row bands on the cores (bands_matmul): every row
+    # summed as scipy's one product sums it
+    import os
+
+    from nodes.loscos import hierarchy as HR
+
+    sc = LoadScene(LoadScene.Params(path="builtin:room"), Context()).compute()["scene"]
+    h = HR.Hierarchy.roots(sc.verts)
+    h.subdivide(np.arange(len(sc.verts)))
+    rng = np.random.default_rng(3)
+    h.recv, h.send = rng.integers(0, h.n_elems, (2, 5000))
+    h.F, h.V, h.C = rng.random(5000), rng.random(5000), rng.random((5000, 4))
+    B = rng.random((len(h.leaves), 6))
+    monkeypatch.setattr(HR, "BANDS_FROM", 100)
+    got = {}
+    for cores in (1, 2, 3):
+        monkeypatch.setattr(os, "cpu_count", lambda cores=cores: cores)
+        ops = HR.operators(h)
+        assert len(ops.bands[False]) == cores
+        got[cores] = ops.gather(B), ops.gather(B, unoccluded=True)
+    want = ops.push @ (ops.K @ (ops.pull @ B)), ops.push @ (ops.Ku @ (ops.pull @ B))
+    for cores in (1, 2, 3):
+        assert all(np.array_equal(a, b) for a, b in zip(got[cores], want))
 
 
 def test_embree_agrees_with_reference_between_touching_triangles():

@@ -34,6 +34,7 @@ gathered at the root polygons (:class:`Operators`).
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -280,16 +281,18 @@ class Hierarchy:
 
 
 def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng,
-                    occ=None, centroid: bool = False):
+                    occ=None, centroid: bool = False, g: LinkGeom | None = None):
     """Attenuation V for links r ← s: fraction of n_rays² unblocked segments (§2.3).
 
     With ``centroid``, also returns C (M,4): the kernel-weighted mean (s, t) of the rays' end
     points on the sender, over the unblocked rays (C[:, :2]) and over all rays (C[:, 2:]);
     (0.5, 0.5) where no ray carries weight.  Links are taken ``RAYS_AT_ONCE`` rays at a time
     (their (links, rays, 3) temporaries stay small: less memory traffic and peak memory),
-    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.
+    ``BLOCKS_AT_ONCE`` blocks at a time on the cores.  ``g``: the links' geometry, where the
+    caller has it (:class:`LinkGeom`).
     """
     occ = occ if occ is not None else h.occluders()
+    gr, gs = (g.r, g.s) if g is not None else (h.geom(r), h.geom(s))
     k = n_rays * n_rays
     step = max(1, RAYS_AT_ONCE // k)
     V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
@@ -300,7 +303,8 @@ def link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, rng
         # number of threads
         draws = [(rng.random((b.stop - b.start, k, 2)), rng.permutation(k),
                   rng.random((b.stop - b.start, k, 2))) for b in group]
-        out = run_tasks([functools.partial(_link_visibility, h, r[b], s[b], n_rays, d, occ)
+        out = run_tasks([functools.partial(_link_visibility, h, r[b], s[b], _rows(gr, b),
+                                           _rows(gs, b), n_rays, d, occ)
                          for b, d in zip(group, draws)])
         for b, (v, c) in zip(group, out):
             V[b], C[b] = v, c
@@ -316,33 +320,53 @@ BLOCKS_AT_ONCE = 2
 RAYS_AT_ONCE = 1 << 18
 
 
-def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_rays: int, draws, occ):
-    """:func:`link_visibility`'s V and C of one block of links, with its random numbers
-    ``draws``: (M,k,2) uniforms for the receiver's points, a permutation of the k cells and
-    (M,k,2) uniforms for the sender's."""
-    ro, ru, rv, _, _ = h.geom(r)
-    so, su, sv, _, _ = h.geom(s)
+def _rows(geom: tuple, rows) -> tuple:
+    """Rows ``rows`` of each array of a :meth:`Hierarchy.geom` tuple."""
+    return tuple(a[rows] for a in geom)
+
+
+def _link_visibility(h: Hierarchy, r: np.ndarray, s: np.ndarray, gr: tuple, gs: tuple,
+                     n_rays: int, draws, occ):
+    """:func:`link_visibility`'s V and C of one block of links (their geometry gr, gs), with
+    its random numbers ``draws``: (M,k,2) uniforms for the receiver's points, a permutation
+    of the k cells and (M,k,2) uniforms for the sender's.  The links are cast
+    ``RAYS_IN_CACHE`` rays at a time (:func:`_rays_vc`)."""
     st = G.grid_st(n_rays)
-    k = len(st)
-    M = len(r)
     ja = _jittered(st, n_rays, draws[0])
     jb = _jittered(st[draws[1]], n_rays, draws[2])
     if h.tri_poly.any():  # stratified points of a triangle element: the square's, folded
         ja = G.fold(ja, h.tri(r)[:, None])
         jb = G.fold(jb, h.tri(s)[:, None])
-    p0, p1 = _points(ro, ru, rv, ja), _points(so, su, sv, jb)
+    step = max(1, RAYS_IN_CACHE // len(st))
+    out = [_rays_vc(h, r[p], s[p], _rows(gr, p), _rows(gs, p), ja[p], jb[p], occ)
+           for p in (slice(a, a + step) for a in range(0, len(r), step))]
+    return np.concatenate([v for v, _ in out]), np.concatenate([c for _, c in out])
+
+
+#: rays per piece of a block in :func:`_link_visibility`: its temporaries (under 1 MB
+#: each) stay in the cores' caches (whole blocks of 2^18 rays: ~6 MB each)
+RAYS_IN_CACHE = 1 << 15
+
+
+def _rays_vc(h: Hierarchy, r: np.ndarray, s: np.ndarray, gr: tuple, gs: tuple,
+             ja: np.ndarray, jb: np.ndarray, occ):
+    """V and C of links r ← s (their geometry gr, gs) from their rays' end points at ja on r
+    and jb on s (M,k,2)."""
+    M, k = ja.shape[:2]
+    X0, X1 = _coords(*gr[:3], ja), _coords(*gs[:3], jb)
     own = np.stack([h.poly[r], h.poly[s]], 1)
     # only links whose rays' bounding box meets an occluder's (other than their own two
     # polygons) can be blocked: the rest are cast by no backend (the same answers)
-    cast = rays.boxes_meet(np.minimum(p0.min(1), p1.min(1)), np.maximum(p0.max(1), p1.max(1)),
-                           occ, own)
+    cast = rays.boxes_meet(np.minimum(X0, X1).min(2).T, np.maximum(X0, X1).max(2).T, occ, own)
     blocked = np.zeros((M, k), bool)
     if cast.any():
-        blocked[cast] = rays.occluded(p0[cast].reshape(-1, 3), p1[cast].reshape(-1, 3), occ,
+        p0, p1 = (np.stack([x[cast] for x in X], -1).reshape(-1, 3) for X in (X0, X1))
+        blocked[cast] = rays.occluded(p0, p1, occ,
                                       ignore=np.repeat(own[cast], k, axis=0)).reshape(-1, k)
     # weight each ray by the point-to-point kernel cos·cos/r², so that F·V estimates the
-    # occluded form factor even where visibility correlates with distance
-    d = p1 - p0
+    # occluded form factor even where visibility correlates with distance (d laid out
+    # (M,k,3) as einsum's sums of 3 products were: the same bits)
+    d = np.ascontiguousarray(np.moveaxis(X1 - X0, 0, -1))
     r2 = np.maximum(np.einsum("mkc,mkc->mk", d, d), 1e-12)
     rn = h.P_n[h.poly[r]][:, None]
     sn = h.P_n[h.poly[s]][:, None]
@@ -368,20 +392,43 @@ def _jittered(st: np.ndarray, n: int, j: np.ndarray) -> np.ndarray:
     return np.clip(j, 0, 1, out=j)
 
 
-def _points(o, u, v, st) -> np.ndarray:
-    """(M,k,3) points o + s·u + t·v of elements (M,3) at st (M,k,2)."""
-    p = st[..., 0:1] * u[:, None]
-    p += st[..., 1:2] * v[:, None]
-    p += o[:, None]
-    return p
+def _coords(o, u, v, st) -> np.ndarray:
+    """(3,M,k) points o + s·u + t·v of elements (M,3) at st (M,k,2), coordinate first (each
+    coordinate's (M,k) array contiguous: fast products and per-link bounds)."""
+    X = np.empty((3,) + st.shape[:2])
+    for c in range(3):
+        np.multiply(st[..., 0], u[:, c:c + 1], out=X[c])
+        X[c] += st[..., 1] * v[:, c:c + 1]
+        X[c] += o[:, c:c + 1]
+    return X
 
 
-def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray) -> np.ndarray:
+@dataclass
+class LinkGeom:
+    """Links r ← s's end geometry (:meth:`Hierarchy.geom` of r and of s) and corners
+    (:func:`geometry.corners`), for the kernels below: one refinement step computes it once
+    and takes the rows it keeps (the same numbers as computing them again)."""
+
+    r: tuple
+    s: tuple
+    cr: np.ndarray
+    cs: np.ndarray
+
+    @classmethod
+    def of(cls, h: Hierarchy, r: np.ndarray, s: np.ndarray) -> "LinkGeom":
+        gr, gs = h.geom(r), h.geom(s)
+        return cls(gr, gs, G.corners(*gr[:3], h.tri(r)), G.corners(*gs[:3], h.tri(s)))
+
+    def select(self, m) -> "LinkGeom":
+        return LinkGeom(tuple(a[m] for a in self.r), tuple(a[m] for a in self.s),
+                        self.cr[m], self.cs[m])
+
+
+def facing(h: Hierarchy, r: np.ndarray, s: np.ndarray,
+           g: LinkGeom | None = None) -> np.ndarray:
     """False where one element lies wholly behind the other's plane (no exchange)."""
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, sn, _ = h.geom(s)
-    cr = G.corners(ro, ru, rv, h.tri(r))
-    cs = G.corners(so, su, sv, h.tri(s))
+    g = g or LinkGeom.of(h, r, s)
+    (ro, ru, rv, rn, _), (so, su, sv, sn, _), cr, cs = g.r, g.s, g.cr, g.cs
     ds = np.einsum("nkc,nc->nk", cs - ro[:, None], rn)
     dr = np.einsum("nkc,nc->nk", cr - so[:, None], sn)
     return (ds > 1e-9).any(1) & (dr > 1e-9).any(1) & (h.poly[r] != h.poly[s])
@@ -410,10 +457,9 @@ def link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff: int, tri1=None, tri2
 
 
 def element_links_ff(h: Hierarchy, r: np.ndarray, s: np.ndarray, n_ff: int,
-                     far=None) -> np.ndarray:
-    """:func:`link_form_factors` of links r ← s of h."""
-    o1, u1, v1, n1, _ = h.geom(r)
-    o2, u2, v2, n2, _ = h.geom(s)
+                     far=None, g: LinkGeom | None = None) -> np.ndarray:
+    """:func:`link_form_factors` of links r ← s of h (their geometry ``g``, if given)."""
+    (o1, u1, v1, n1, _), (o2, u2, v2, n2, _) = (g.r, g.s) if g else (h.geom(r), h.geom(s))
     tri = h.tri_poly.any()
     return link_form_factors(o1, u1, v1, n1, o2, u2, v2, n2, n_ff,
                              h.tri(r) if tri else None, h.tri(s) if tri else None, far)
@@ -426,15 +472,14 @@ CORNER_IN = 0.01
 W_CORNERS = 1 / (12 * (0.5 - CORNER_IN) ** 2)
 
 
-def ff_spread(h: Hierarchy, r, s):
+def ff_spread(h: Hierarchy, r, s, g: LinkGeom | None = None):
     """Min, centre and max of the point-to-polygon F_{dx→s} over r's centre and corners
     (moved 1 % inwards), the refinement oracle; and, for a parallelogram receiver, the
     mean F_rs from those five points where each element lies wholly in front of the other
     (exact for F quadratic over r; NaN on a triangle receiver or across a horizon, where F
     is not smooth)."""
-    ro, ru, rv, rn, _ = h.geom(r)
-    so, su, sv, sn, _ = h.geom(s)
-    P = G.corners(so, su, sv, h.tri(s))
+    g = g or LinkGeom.of(h, r, s)
+    (ro, ru, rv, rn, _), (so, su, sv, sn, _), P = g.r, g.s, g.cs
     a, b = CORNER_IN, 1 - CORNER_IN
     st = np.array([[0.5, 0.5], [a, a], [b, a], [b, b], [a, b]])
     # a triangle's centre, corners (1 % in) and its long edge's midpoint
@@ -515,7 +560,8 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     B_elem: (n_elems,) luminance of each element's radiosity (W/m²).  ``force(r, s)`` may
     return a mask of links that must be split further (used for §4.1 and §4.5).
     ``known``: the candidates are these links of an earlier round (r, s ignored): their F
-    spread, V, C and F are taken from it, not computed again; their children are computed.
+    spread, V, C and F are taken from it, not computed again, nor whether they face each
+    other (they were accepted); their children are computed.
     Candidates are refined ``LINKS_AT_ONCE`` at a time (they are independent; a mesh's
     polygon pairs are millions).  With ``frontier``, also the links a split makes are, that
     many at a time, once they are more (a clustered scene's peak memory; the random rays are
@@ -537,14 +583,15 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
     B_ref = max(float(np.median(B_elem[h.parent == -1])), 1e-12)
     while len(r):
         it += 1
-        m = facing(h, r, s)
-        r, s = r[m], s[m]
-        if not len(r):
-            break
-        if known is not None:
-            dF, Fc, V, C = known.dF[m], known.Fc[m], known.V[m], known.C[m]
+        if known is not None:  # an earlier round's links (they passed facing() there)
+            dF, Fc, V, C = known.dF, known.Fc, known.V, known.C
         else:
-            Fmin, Fc, Fmax, Fq = ff_spread(h, r, s)
+            g = LinkGeom.of(h, r, s)
+            m = facing(h, r, s, g)
+            r, s, g = r[m], s[m], g.select(m)
+            if not len(r):
+                break
+            Fmin, Fc, Fmax, Fq = ff_spread(h, r, s, g)
             dF = Fmax - Fmin
         B_elem = _grow(B_elem, h)
         Bs = B_elem[s] / B_ref  # thresholds are relative to the mean radiosity
@@ -570,7 +617,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         if known is None:
             V, C = np.ones(len(r)), np.full((len(r), 4), 0.5)
             V[~split], C[~split] = link_visibility(h, r[~split], s[~split], prm.n_rays, rng,
-                                                   centroid=True)
+                                                   centroid=True, g=g.select(~split))
         partial = (V > 1e-9) & (V < 1 - 1e-9)
         trig_c |= ~split & partial & (Fc * Bs > prm.eps_bfv)
         split_r = (trig_r & can_r) | (trig_c & big_r)
@@ -579,8 +626,8 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         acc = ~go & (V > 0)
         if acc.any():
             ra, sa = r[acc], s[acc]
-            F = known.F[m][acc] if known is not None else \
-                element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc])
+            F = known.F[acc] if known is not None else \
+                element_links_ff(h, ra, sa, prm.n_ff, far=Fq[acc], g=g.select(acc))
             keep = F > 0
             out.append(LinkData(ra[keep], sa[keep], F[keep], V[acc][keep], C[acc][keep],
                                 dF[acc][keep], Fc[acc][keep]))
@@ -632,11 +679,14 @@ class Operators:
     #: cluster links' (W, U, Uu) (:func:`clusters.cluster_matrices`), None where there are none
     Kc: tuple | None = None
 
+    def __post_init__(self):
+        #: K and Ku in row bands (:func:`row_bands`), by ``unoccluded``
+        self.bands = {False: row_bands(self.K), True: row_bands(self.Ku)}
+
     def gather(self, B_leaf: np.ndarray, unoccluded: bool = False) -> np.ndarray:
         """Irradiance at the leaves from leaf radiosities (columns broadcast)."""
-        K = self.Ku if unoccluded else self.K
         Be = self.pull @ B_leaf
-        H = K @ Be
+        H = bands_matmul(self.bands[unoccluded], Be)
         if self.Kc is not None:
             H = H + self.cluster_gather(Be, unoccluded)
         return self.push @ H
@@ -645,6 +695,33 @@ class Operators:
         """The cluster links' irradiance at the elements from element radiosities Be (Kc)."""
         W, U, Uu = self.Kc
         return W @ ((Uu if unoccluded else U) @ Be)
+
+
+#: gather matrices of at least this many entries are multiplied in row bands on the cores
+BANDS_FROM = 1 << 18
+
+
+def row_bands(A) -> list:
+    """CSR A as bands of consecutive rows with about equal entries, one per core (A alone
+    under ``BANDS_FROM`` entries or on one core), sharing A's arrays."""
+    import scipy.sparse as sp
+
+    n = min(os.cpu_count() or 1, 8)
+    if A.nnz < BANDS_FROM or n < 2:
+        return [A]
+    p = A.indptr
+    cut = np.searchsorted(p, np.linspace(0, A.nnz, n + 1)[1:-1]).clip(0, A.shape[0])
+    rows = np.unique(np.concatenate([[0], cut, [A.shape[0]]]))
+    return [sp.csr_matrix((A.data[p[a]:p[b]], A.indices[p[a]:p[b]], p[a:b + 1] - p[a]),
+                          shape=(b - a, A.shape[1]), copy=False)
+            for a, b in zip(rows[:-1], rows[1:])]
+
+
+def bands_matmul(bands: list, x: np.ndarray) -> np.ndarray:
+    """The product of the matrix that ``bands`` (:func:`row_bands`) cut with x, the bands on
+    the cores (scipy's sparse products release the GIL; each row summed as in one product:
+    the same bits; at load 2.4 here 8.4 ms against 14.2 ms for builtin:room's K)."""
+    return np.concatenate(run_tasks([functools.partial(b.__matmul__, x) for b in bands]))
 
 
 def operators(h: Hierarchy) -> Operators:
@@ -657,8 +734,8 @@ def operators(h: Hierarchy) -> Operators:
     push = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(L, N))
     a = h.area()
     pull = sp.csr_matrix((a[lv][rows] / a[cols], (cols, rows)), shape=(N, L))
-    K = link_matrix(h, h.F * h.V, h.C[:, :2])
-    Ku = link_matrix(h, h.F, h.C[:, 2:])
+    K, Ku = run_tasks([functools.partial(link_matrix, h, h.F * h.V, h.C[:, :2]),
+                       functools.partial(link_matrix, h, h.F, h.C[:, 2:])])  # on the cores
     if not len(h.cl_V):
         return Operators(lv, push, pull, K, Ku)
     from .clusters import cluster_matrices
@@ -693,13 +770,15 @@ def link_entries(h: Hierarchy, weight: np.ndarray, cen: np.ndarray):
     rows, cols, vals = [r[~has]], [s[~has]], [weight[~has]]
     w = np.stack([0.25 + (2 * a - 1) * d[:, 0] + (2 * b - 1) * d[:, 1]
                   for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))], 1)  # order of subdivide()
-    tri = h.tri(s[has])
+    rh, sh, wh = r[has], s[has], weight[has]
+    tri = h.tri(sh)
     if tri.any():
         w[tri] = tri_child_weights(np.asarray(cen, float)[has][tri])
+    c0 = h.child0[sh]
     for c in range(4):
-        rows.append(r[has])
-        cols.append(h.child0[s[has]] + c)
-        vals.append(weight[has] * w[:, c])
+        rows.append(rh)
+        cols.append(c0 + c)
+        vals.append(wh * w[:, c])
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
 
 

@@ -427,6 +427,8 @@ def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol:
         h.recv, h.send, h.F, h.V, h.C = links.astuple()
         if progress:
             progress((k + 1) / (rounds + 1), f"refinement round {k + 1}: {len(h.recv)} links")
+        if k == rounds - 1:
+            break  # the last round's B would refine nothing (finish_solution solves again)
         ops = HR.operators(h)
         emit_leaf = scene.emittance[h.poly[ops.leaves]]
         Bl, _ = HR.solve(ops, emit_leaf, scene.reflectance[h.poly[ops.leaves]], tol=tol)
@@ -571,10 +573,11 @@ def push_links_down(h: HR.Hierarchy, mask: np.ndarray, prm: HR.RefineParams, rng
         c = h.children(r)
         r, s = c.ravel(), np.repeat(s, 4)
     r, s = np.concatenate(nr), np.concatenate(ns)
-    f = HR.facing(h, r, s)
-    r, s = r[f], s[f]
-    F = HR.element_links_ff(h, r, s, prm.n_ff)
-    V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True)
+    g = HR.LinkGeom.of(h, r, s)
+    f = HR.facing(h, r, s, g)
+    r, s, g = r[f], s[f], g.select(f)
+    F = HR.element_links_ff(h, r, s, prm.n_ff, g=g)
+    V, C = HR.link_visibility(h, r, s, prm.n_rays, rng, centroid=True, g=g)
     m = F > 0
     h.recv = np.concatenate([h.recv[keep], r[m]])
     h.send = np.concatenate([h.send[keep], s[m]])
