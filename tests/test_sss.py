@@ -126,6 +126,39 @@ def test_scatter_bytes_do_not_depend_on_its_bands(monkeypatch, mpp, crop):
         assert np.array_equal(got, outs[0])
 
 
+@pytest.mark.parametrize("cores", [1, 2, 3])
+def test_scatter_update_blurs_again_only_near_the_change(monkeypatch, cores):
+    """Scatter.update(new, old, on_box(old)) gives on_box(new)'s bytes (a change at the top,
+    the bottom, in the middle, over several bands, none), blurring only the rows within the y
+    passes' reach of the changed rows (per-pixel σ, a mask, the skin's box)."""
+    import os
+
+    from nodes.common import sss
+
+    monkeypatch.setattr(os, "cpu_count", lambda: cores)
+    rng = np.random.default_rng(4)
+    yy, xx = np.mgrid[0:150, 0:110]
+    r2 = ((xx - 55) / 40.0) ** 2 + ((yy - 75) / 55.0) ** 2  # a face taller than the widest kernel
+    img, mask = rng.random((150, 110, 3), dtype=np.float32), (r2 < 1).astype(np.float32)
+    sc = sss.Scatter(img.shape, 0.5, 400.0 - 30.0 * np.sqrt(np.clip(1 - r2, 0, 1)), mask=mask, crop=True)
+    y0, y1, x0, x1 = sc.box
+    old = np.ascontiguousarray(img[y0:y1, x0:x1])
+    before = sc.on_box(old)
+    h = old.shape[0]
+    assert 4 < sc._reach < h // 3
+    blurred = []
+    monkeypatch.setattr(sc, "_rows", lambda sub, out, rows, f=sc._rows: (blurred.append(rows), f(sub, out, rows)))
+    skin = np.flatnonzero(mask[y0:y1, x0:x1].any(axis=1))
+    top, low, mid = int(skin[0]), int(skin[-1]), (y1 - y0) // 2
+    for r0, r1 in [(0, 2), (top, top + 2), (low, low + 1), (mid, mid + 1), (top + 3, low - 4), (0, 0)]:
+        new = old.copy()
+        new[r0:r1] *= 1.5  # (rows 0:2 are off the skin: they change nothing but themselves)
+        blurred.clear()
+        got = sc.update(new, old, before)
+        assert blurred == ([(max(0, r0 - sc._reach), min(h, r1 + sc._reach))] if r1 > r0 else [])
+        assert np.array_equal(got, sc.on_box(new))
+
+
 @pytest.mark.parametrize("mpp, per_pixel, masked, crop", [(0.5, False, False, False), (1.0, True, True, False),
                                                       (1.0, True, True, True), (0.25, True, False, False)])
 def test_one_plane_is_the_scatter_of_its_copies(mpp, per_pixel, masked, crop):

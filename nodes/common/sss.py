@@ -503,6 +503,7 @@ class Scatter:
             for p in passes:
                 p[2:] = [_axis_terms(p[2], 0, valid, hw), _axis_terms(p[3], 1, valid, hw)]
             self._row_cost = _row_costs(passes, hw)
+            self._reach = max((gaussian_kernel(t.sigma).size // 2 for p in passes for t in p[2]), default=0)
         self.passes = passes
 
     def __call__(self, irradiance: np.ndarray) -> np.ndarray:
@@ -550,19 +551,40 @@ class Scatter:
         if self.axis_blur is not None:
             self._hooked(sub, out)
             return out
+        self._rows(sub, out, (0, sub.shape[0]))
+        return out
+
+    def update(self, sub: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+        """``on_box(sub)`` given ``after = on_box(before)`` (all (h, w, C) float32): the rows
+        farther than the y passes' widest reach from every row where ``sub`` differs from
+        ``before`` are ``after``'s, the others are blurred again (a live view changing one
+        cosmetic: the rows around it).  The same bytes as ``on_box(sub)``: each row of a pass is
+        made from the same taps in the same order whatever rows are made with it (as for the
+        bands, tests/test_sss.py).  A new array."""
+        out = np.array(after, np.float32, copy=True)
+        if sub.size == 0 or self.axis_blur is not None or sub.shape != before.shape:
+            return self.on_box(sub, out)
+        h = sub.shape[0]
+        rows = np.flatnonzero(np.not_equal(sub, before).reshape(h, -1).any(axis=1))
+        if rows.size:
+            self._rows(sub, out, (max(0, int(rows[0]) - self._reach), min(h, int(rows[-1]) + 1 + self._reach)))
+        return out
+
+    def _rows(self, sub, out, rows: tuple[int, int]) -> None:
+        """Rows r0:r1 (``rows``) of on_box(sub) into ``out``, in bands of equal work on the cores."""
         h, w, c = sub.shape
-        bands = self._bands()
+        bands = self._bands(rows)
         works = _take_work(len(bands))
         try:  # the planes (times the mask) first: a band's y pass reads the rows around it
             # one contiguous plane not written over (out is not sub) is read where it is
             copy = not (c == 1 and sub[:, :, 0].flags.c_contiguous and not np.may_share_memory(sub, out))
             planes = [works[0].get(("plane", ch), h, w) for ch in range(c)] if copy else [sub[:, :, 0]]
             src = planes if self.valid is None else [works[0].get(("src", ch), h, w) for ch in range(c)]
-            run_tasks([functools.partial(self._split, sub, planes, src, b, copy) for b in bands])
+            read = (max(0, rows[0] - self._reach), min(h, rows[1] + self._reach))  # what the y passes read
+            run_tasks([functools.partial(self._split, sub, planes, src, b, copy) for b in self._bands(read)])
             run_tasks([functools.partial(self._band, planes, src, out, b, wk) for b, wk in zip(bands, works)])
         finally:
             _give_work(works)
-        return out
 
     def _split(self, sub, planes, src, rows, copy: bool) -> None:
         """Rows r0:r1 of each channel's plane (``copy``: copied from ``sub``), and of the plane
@@ -618,13 +640,14 @@ class Scatter:
         else:
             np.copyto(dst[:, :, 0], sums[0])
 
-    def _bands(self) -> list[tuple[int, int]]:
-        """Bands of rows of equal blur work (kernel taps × columns per row), one per core."""
-        cost = self._row_cost
+    def _bands(self, rows: tuple[int, int]) -> list[tuple[int, int]]:
+        """Bands of rows r0:r1 (``rows``) of equal blur work (kernel taps × columns per row), one per core."""
+        r0, r1 = rows
+        cost = self._row_cost[r0:r1]
         n = max(1, min(os.cpu_count() or 1, 8, cost.size))
         cum = np.cumsum(cost)
         cuts = [0] + [int(np.searchsorted(cum, cum[-1] * k / n)) + 1 for k in range(1, n)] + [cost.size]
-        cuts = sorted(set(min(max(x, 0), cost.size) for x in cuts))
+        cuts = sorted(set(min(max(x, 0), cost.size) + r0 for x in cuts))
         return list(zip(cuts[:-1], cuts[1:]))
 
 

@@ -135,7 +135,7 @@ class CosmeticShade(Node):
             spec = None
             if surf.normals is not None and ldir is not None:
                 spec = _specular(p, specs, surf, ldir, lcol)
-            got = _Fixed(surf, E, scatter, spec)
+            got = _Fixed(surf, E, scatter, spec, {})
             with _FIXED_LOCK:  # nodes may run on several threads (graphkit run --jobs)
                 while len(_FIXED) >= 2:
                     _FIXED.pop(next(iter(_FIXED)))
@@ -176,7 +176,7 @@ class CosmeticShade(Node):
             pre = np.asarray(pre, np.float32)
             if sy0 < sy1:
                 here = (slice(sy0 - y0, sy1 - y0), slice(sx0 - x0, sx1 - x0))
-                pre[here] = fixed.scatter.on_box(pre[here])
+                pre[here] = _scattered(fixed, pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
         if box is None:
@@ -244,6 +244,7 @@ class _Fixed(NamedTuple):
     E: np.ndarray | None        # irradiance (H, W, 3) float32 (None: 1 everywhere)
     scatter: Scatter | None     # the reference SSS prepared for the surface (None: the hook, or no SSS)
     spec: _Specular | None      # None: no normals or no directional light
+    last: dict                  # "sss": the last (light entering the skin, scattered) in the scatter's box
 
 
 #: the last _Fixed values by the digest of what they come from (a live view's face, a benchmark's;
@@ -358,6 +359,19 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
             while len(sp.seen) >= 8:
                 sp.seen.pop(next(iter(sp.seen)))
             sp.seen[key] = got
+    return got
+
+
+def _scattered(fixed: _Fixed, sub: np.ndarray) -> np.ndarray:
+    """``fixed.scatter.on_box(sub)``, through the last light scattered on this surface when there
+    is one (:meth:`Scatter.update`: a new thickness or colour of one layer blurs again only the
+    rows around that layer; the same bytes)."""
+    sub = np.array(sub, np.float32, copy=True)  # kept as the next call's 'before'
+    with _FIXED_LOCK:
+        last = fixed.last.get("sss")
+    got = fixed.scatter.on_box(sub) if last is None else fixed.scatter.update(sub, *last)
+    with _FIXED_LOCK:
+        fixed.last["sss"] = (sub, got)
     return got
 
 
