@@ -554,20 +554,23 @@ class Scatter:
         self._rows(sub, out, (0, sub.shape[0]))
         return out
 
-    def update(self, sub: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
-        """``on_box(sub)`` given ``after = on_box(before)`` (all (h, w, C) float32): the rows
-        farther than the y passes' widest reach from every row where ``sub`` differs from
-        ``before`` are ``after``'s, the others are blurred again (a live view changing one
-        cosmetic: the rows around it).  The same bytes as ``on_box(sub)``: each row of a pass is
-        made from the same taps in the same order whatever rows are made with it (as for the
-        bands, tests/test_sss.py).  A new array."""
-        out = np.array(after, np.float32, copy=True)
+    def update(self, sub: np.ndarray, before: np.ndarray, after: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``on_box(sub)`` given ``after = on_box(before)`` (all (h, w, C) float32), written into
+        ``out`` when given (not ``sub``): the rows farther than the y passes' widest reach from
+        every row where ``sub`` differs from ``before`` are ``after``'s, the others are blurred
+        again (a live view changing one cosmetic: the rows around it).  The same bytes as
+        ``on_box(sub)``: each row of a pass is made from the same taps in the same order
+        whatever rows are made with it (as for the bands, tests/test_sss.py)."""
         if sub.size == 0 or self.axis_blur is not None or sub.shape != before.shape:
             return self.on_box(sub, out)
+        out = np.empty(sub.shape, np.float32) if out is None else out
         h = sub.shape[0]
         rows = np.flatnonzero(np.not_equal(sub, before).reshape(h, -1).any(axis=1))
-        if rows.size:
-            self._rows(sub, out, (max(0, int(rows[0]) - self._reach), min(h, int(rows[-1]) + 1 + self._reach)))
+        r0, r1 = (max(0, int(rows[0]) - self._reach), min(h, int(rows[-1]) + 1 + self._reach)) if rows.size else (h, h)
+        np.copyto(out[:r0], after[:r0])
+        np.copyto(out[r1:], after[r1:])
+        if r0 < r1:
+            self._rows(sub, out, (r0, r1))
         return out
 
     def _rows(self, sub, out, rows: tuple[int, int]) -> None:

@@ -98,7 +98,7 @@ class CosmeticShade(Node):
         check_illuminant(p.illuminant)
         specs = resolve_layers(layers, p.cosmetics)
         wl, S, K = layer_arrays(specs)
-        rho = albedo.pixels.astype(np.float32)
+        rho = albedo.pixels  # float32 (Image), read only
         h, w = rho.shape[:2]
         t = layer_thicknesses(thickness, len(specs))
         if connected_together({"mesh": mesh, "camera": camera}) and (normals is not None or depth is not None):
@@ -108,10 +108,12 @@ class CosmeticShade(Node):
         fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
         layers = _layer_boxes(t)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
-        spec = np.zeros((h, w, 3), np.float32)
-        if fixed.spec is not None:
-            spec = _through_layers(p, wl, S, K, t, fixed, layers)
-        return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
+        spec, image = np.zeros((h, w, 3), np.float32), diffuse.copy()
+        if fixed.spec is not None:  # (zero outside its box)
+            y0, y1, x0, x1 = fixed.spec.box
+            _through_layers(p, wl, S, K, t, fixed, layers, spec[y0:y1, x0:x1])
+            image[y0:y1, x0:x1] += spec[y0:y1, x0:x1]
+        return {"image": Image(image), "diffuse": Image(diffuse), "specular": Image(spec)}
 
     def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
         """What does not depend on the cosmetic map or the albedo (surface, irradiance, the skin's
@@ -176,7 +178,7 @@ class CosmeticShade(Node):
             pre = np.asarray(pre, np.float32)
             if sy0 < sy1:
                 here = (slice(sy0 - y0, sy1 - y0), slice(sx0 - x0, sx1 - x0))
-                pre[here] = _scattered(fixed, pre[here])
+                _scattered(fixed, pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
         if box is None:
@@ -311,7 +313,7 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol, {})
 
 
-def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
+def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers, out: np.ndarray) -> None:
     """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
     transmittance and the layer's own specular added, weighted by its coverage (computed in
     the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
@@ -327,9 +329,7 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
         here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
         np.multiply(here, Ti, out=here)
         np.add(here, own, out=here)
-    out = np.zeros(t.shape[:2] + (3,), np.float32)
-    np.multiply(s, sp.lcol, out=out[y0:y1, x0:x1])
-    return out
+    np.multiply(s, sp.lcol, out=out)
 
 
 def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
@@ -362,17 +362,20 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
     return got
 
 
-def _scattered(fixed: _Fixed, sub: np.ndarray) -> np.ndarray:
-    """``fixed.scatter.on_box(sub)``, through the last light scattered on this surface when there
-    is one (:meth:`Scatter.update`: a new thickness or colour of one layer blurs again only the
-    rows around that layer; the same bytes)."""
-    sub = np.array(sub, np.float32, copy=True)  # kept as the next call's 'before'
+def _scattered(fixed: _Fixed, pre: np.ndarray) -> None:
+    """``pre`` (float32, the scatter's box) replaced by ``fixed.scatter.on_box(pre)``, through the
+    last light scattered on this surface when there is one (:meth:`Scatter.update`: a new
+    thickness or colour of one layer blurs again only the rows around that layer; the same
+    bytes).  ``pre`` is kept as the next call's result before: it must not change afterwards."""
+    sub = pre.copy()  # kept as the next call's light before
     with _FIXED_LOCK:
         last = fixed.last.get("sss")
-    got = fixed.scatter.on_box(sub) if last is None else fixed.scatter.update(sub, *last)
+    if last is None:
+        fixed.scatter.on_box(sub, out=pre)
+    else:
+        fixed.scatter.update(sub, *last, out=pre)
     with _FIXED_LOCK:
-        fixed.last["sss"] = (sub, got)
-    return got
+        fixed.last["sss"] = (sub, pre)
 
 
 def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
