@@ -515,6 +515,24 @@ def test_cosmetic_shade_reshade_gives_the_bytes_of_a_fresh_frame(monkeypatch):
     assert all(r[1] - r[0] < (box[1] - box[0]) * 0.7 for r in again[:2] + again[3:])  # the others: fewer
 
 
+def test_cosmetic_shade_image_is_diffuse_plus_specular_bit_for_bit():
+    """image = diffuse + specular, also where the specular is zero (an albedo of −0 gives +0
+    there, as the sum does: the image is not a copy of the diffuse)."""
+    h, w = 24, 32
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - 16) / 10.0) ** 2 + ((yy - 12) / 8.0) ** 2
+    rho = np.full((h, w, 3), 0.5, np.float32)
+    rho[0, 0] = -0.0  # off the skin's box: no normals, no specular, ρ·E kept as it is
+    nrm = np.stack([(xx - 16) / 10.0, (yy - 12) / 8.0, -np.sqrt(np.clip(1 - r2, 0, 1))], -1) * (r2 < 1)[..., None]
+    t = np.stack([0.02 * (r2 < 0.8)], -1).astype(np.float32)
+    got = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm),
+                              "skin": Mask((r2 < 1).astype(np.float32)), "light": Light(direction=(0.3, -0.2, -1.0))},
+              cosmetics=["foundation_light"], relight=False, mm_per_pixel=5.0)  # (narrow kernels: off the SSS's box)
+    want = got["diffuse"].pixels + got["specular"].pixels
+    assert got["specular"].pixels.any() and np.signbit(got["diffuse"].pixels[0, 0]).all()
+    assert np.array_equal(got["image"].pixels.view(np.uint32), want.view(np.uint32))
+
+
 class _Studio:
     """What a live view reads of the studio: a loaded graph and given input values per node."""
 

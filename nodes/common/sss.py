@@ -38,6 +38,7 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
     sss_blur(irradiance, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None) -> ndarray
     sss_blur_plane(plane, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, channels=3) -> ndarray
     Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False)(irradiance)
+    Scatter.on_box(irradiance_on_box, out=None), Scatter.update(irradiance_on_box, before, after, out=None)
 """
 from __future__ import annotations
 

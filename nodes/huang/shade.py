@@ -108,7 +108,8 @@ class CosmeticShade(Node):
         fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
         layers = _layer_boxes(t)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
-        spec, image = np.zeros((h, w, 3), np.float32), diffuse.copy()
+        spec = np.zeros((h, w, 3), np.float32)
+        image = diffuse + np.float32(0)  # diffuse + spec off the specular's box (−0 + 0 is +0: not a copy)
         if fixed.spec is not None:  # (zero outside its box)
             y0, y1, x0, x1 = fixed.spec.box
             _through_layers(p, wl, S, K, t, fixed, layers, spec[y0:y1, x0:x1])
