@@ -277,6 +277,9 @@ def test_cosmetic_shade_uses_the_shared_sss_and_microfacet():
     # compute's diffuse part (CosmeticShade._diffuse) and specular part (shade._specular)
     src = inspect.getsource(CosmeticShade._diffuse)
     assert CosmeticShade.sss_blur is sss.sss_blur and "self.sss_blur(" in src  # the hook backends replace
+    # the profile with its faint channel weights folded (tests/test_sss.py), on both paths
+    assert shade.PROFILE == sss.fold_faint() and "profile=PROFILE" in src
+    assert "surf.depth, PROFILE, mask=" in inspect.getsource(CosmeticShade._fixed)
     assert "from nodes.common.microfacet import kelemen_specular" in inspect.getsource(shade._specular)
 
 

@@ -39,6 +39,7 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
     sss_blur_plane(plane, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, channels=3) -> ndarray
     Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False)(irradiance)
     Scatter.on_box(irradiance_on_box, out=None), Scatter.update(irradiance_on_box, before, after, out=None)
+    fold_faint(profile=SKIN_PROFILE, below=FAINT) -> profile   (CosmeticShade's: fewer channel blurs)
 """
 from __future__ import annotations
 
@@ -61,6 +62,32 @@ SKIN_PROFILE: tuple[tuple[float, tuple[float, float, float]], ...] = (
     (1.99, (0.358, 0.004, 0.000)),
     (7.41, (0.078, 0.000, 0.000)),
 )
+
+#: a channel's weight below this in one Gaussian of a profile is moved to that channel's
+#: nearest Gaussian (in variance) of a larger weight by :func:`fold_faint`
+FAINT = 0.01
+
+
+def fold_faint(profile=SKIN_PROFILE, below: float = FAINT):
+    """``profile`` with each channel's weights below ``below`` moved onto the Gaussian of that
+    channel nearest in log variance among those it keeps (each channel's sum unchanged), so
+    those channels are not blurred at those widths: for SKIN_PROFILE the green and blue 0.7 %
+    at 0.567 mm² (to 0.187 and 0.0484 mm²) and the green 0.4 % at 1.99 mm² (to 0.187), three
+    of the eleven channel blurs, ~28 % of a scatter's work.  The scatter moves by ≤ 0.21 % of
+    a step's height (a unit step on a per-pixel σ, tests/test_sss.py), far under the σ
+    levels' own ~1 % (LEVEL_RATIO); CosmeticShade's scatter uses it."""
+    var = [v for v, _ in profile]
+    w = np.array([rgb for _, rgb in profile], np.float64)
+    out = w.copy()
+    for ch in range(w.shape[1]):
+        keep = [i for i in range(len(var)) if w[i, ch] >= below]
+        for i in np.flatnonzero((w[:, ch] > 0) & (w[:, ch] < below)):
+            if keep:
+                k = min(keep, key=lambda k: abs(np.log(var[k] / var[i])))
+                out[k, ch] += w[i, ch]
+                out[i, ch] = 0.0
+    return tuple((v, tuple(float(x) for x in row)) for v, row in zip(var, out))
+
 
 TRUNCATE = 4.0  # kernel radius in standard deviations (as scipy.ndimage.gaussian_filter)
 #: ratio between successive σ levels of a per-pixel σ (depth gradient, pixel footprint map):
@@ -716,4 +743,4 @@ def _mean_step(step: np.ndarray) -> float:
     return lo if lo == hi else float(np.sqrt(lo * hi))
 
 
-__all__ = ["SKIN_PROFILE", "Scatter", "sss_blur", "sss_blur_plane"]
+__all__ = ["SKIN_PROFILE", "Scatter", "fold_faint", "sss_blur", "sss_blur_plane"]
