@@ -316,12 +316,15 @@ def test_lazy_tables_look_up_the_bytes_of_whole_tables(kinds, seed, n):
     whole = km.stack_rgb_table(S, K, wl, g, "D65", bg)
     km._TABLES.clear()
     lazy = km.stack_rgb_table(S, K, wl, g, "D65", bg, full=False)
-    for kind in kinds:
+    for kind in [*kinds, "some"]:  # (some: pixels on nodes but one, interpolated apart from the band)
         node = rng.integers(0, 25, (2, 3, n)).astype(np.float32)
+        some = node.copy()
+        some[0, 0] += rng.random(n).astype(np.float32)
         t = {"zero": np.zeros((2, 3, n)), "max": np.broadcast_to(mx, (2, 3, n)),
              "below_node": mx * np.nextafter(node / 24, np.float32(0)),  # snapped up to the node
              "near_node": mx * node / 24 * (1 + 1e-7 * rng.normal(size=node.shape)),
-             "random": mx * rng.random((2, 3, n)), "cell": mx * (node + rng.random((2, 3, n))) / 24}[kind]
+             "random": mx * rng.random((2, 3, n)), "cell": mx * (node + rng.random((2, 3, n))) / 24,
+             "some": mx * some / 24}[kind]
         t = np.minimum(np.asarray(t, np.float32), mx)
         for a, b in zip(km.lookup(whole, g, t), km.lookup(lazy, g, t)):
             np.testing.assert_array_equal(a, b)

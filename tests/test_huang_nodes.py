@@ -277,6 +277,9 @@ def test_cosmetic_shade_uses_the_shared_sss_and_microfacet():
     # compute's diffuse part (CosmeticShade._diffuse) and specular part (shade._specular)
     src = inspect.getsource(CosmeticShade._diffuse)
     assert CosmeticShade.sss_blur is sss.sss_blur and "self.sss_blur(" in src  # the hook backends replace
+    # the profile with its faint channel weights folded (tests/test_sss.py), on both paths
+    assert shade.PROFILE == sss.fold_faint() and "profile=PROFILE" in src
+    assert "surf.depth, PROFILE, mask=" in inspect.getsource(CosmeticShade._fixed)
     assert "from nodes.common.microfacet import kelemen_specular" in inspect.getsource(shade._specular)
 
 
@@ -472,6 +475,65 @@ def test_cosmetic_shade_boxes_and_memo_match_the_whole_frame():
         out = ~np.isin(np.arange(h), np.arange(*mine[0].scatter.box[:2]))
         assert out.any() and np.array_equal(got["diffuse"].pixels[out], rho.pixels[out])  # ρ·E off the box
     assert prepared[0] == prepared[1]  # a new map on the same surface: prepared once
+
+
+def test_cosmetic_shade_reshade_gives_the_bytes_of_a_fresh_frame(monkeypatch):
+    """After a first frame on a surface, CosmeticShade blurs again only the rows around what
+    changed (Scatter.update from the last light it scattered there): each frame has, bit for
+    bit, the bytes of that frame shaded with nothing kept (a new blush thickness, a blush
+    colour, the foundation thicker, the blush moved, a lipstick added)."""
+    from nodes.common.sss import Scatter
+    from nodes.huang import shade
+
+    h, w = 150, 110
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - 55) / 40.0) ** 2 + ((yy - 75) / 60.0) ** 2  # a face taller than the widest kernel
+    cheek = ((xx - 35) / 12.0) ** 2 + ((yy - 80) / 8.0) ** 2 < 1
+    lips = ((xx - 55) / 14.0) ** 2 + ((yy - 115) / 5.0) ** 2 < 1
+    ins = {"albedo": Image(np.clip(np.random.default_rng(5).random((h, w, 3)), 0.2, 0.9).astype(np.float32)),
+           "normals": Image(np.stack([(xx - 55) / 40.0, (yy - 75) / 60.0, -np.sqrt(np.clip(1 - r2, 0, 1))], -1)
+                            * (r2 < 1)[..., None]),
+           "depth": Image((400.0 - 30 * np.sqrt(np.clip(1 - r2, 0, 1)))[..., None]),
+           "skin": Mask((r2 < 1).astype(np.float32)), "light": Light(direction=(0.3, -0.2, -1.0))}
+
+    def frame(cos, found=0.02, blush=0.03, shift=0, lip=0.0):
+        t = np.stack([found * (r2 < 0.95), blush * np.roll(cheek, shift, axis=0), lip * lips], -1)
+        return cos, Image(t.astype(np.float32))
+
+    rose, orange = ["foundation_light", "blush_rose", "lipstick_red"], ["foundation_light", "blush_orange", "lipstick_red"]
+    frames = [frame(rose), frame(rose, blush=0.045), frame(orange, blush=0.045), frame(orange, found=0.03),
+              frame(orange, found=0.03, shift=-20), frame(orange, found=0.03, shift=-20, lip=0.05)]
+    rows = []
+    monkeypatch.setattr(Scatter, "_rows", lambda self, sub, out, r, f=Scatter._rows: (rows.append(r), f(self, sub, out, r)))
+    shade._FIXED.clear()
+    kept = [run(CosmeticShade, {**ins, "thickness": t}, cosmetics=cos, mm_per_pixel=0.5, relight=False) for cos, t in frames]
+    again = rows[1:]
+    for (cos, t), got in zip(frames, kept):
+        shade._FIXED.clear()
+        fresh = run(CosmeticShade, {**ins, "thickness": t}, cosmetics=cos, mm_per_pixel=0.5, relight=False)
+        for k in ("image", "diffuse", "specular"):
+            assert np.array_equal(got[k].pixels, fresh[k].pixels), k
+    box = rows[0]  # the first frame: every row of the scatter's box
+    assert len(again) == 5 and again[2] == box  # the foundation: every row again
+    assert all(r[1] - r[0] < (box[1] - box[0]) * 0.7 for r in again[:2] + again[3:])  # the others: fewer
+
+
+def test_cosmetic_shade_image_is_diffuse_plus_specular_bit_for_bit():
+    """image = diffuse + specular, also where the specular is zero (an albedo of −0 gives +0
+    there, as the sum does: the image is not a copy of the diffuse)."""
+    h, w = 24, 32
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - 16) / 10.0) ** 2 + ((yy - 12) / 8.0) ** 2
+    rho = np.full((h, w, 3), 0.5, np.float32)
+    rho[0, 0] = -0.0  # off the skin's box: no normals, no specular, ρ·E kept as it is
+    nrm = np.stack([(xx - 16) / 10.0, (yy - 12) / 8.0, -np.sqrt(np.clip(1 - r2, 0, 1))], -1) * (r2 < 1)[..., None]
+    t = np.stack([0.02 * (r2 < 0.8)], -1).astype(np.float32)
+    got = run(CosmeticShade, {"albedo": Image(rho), "thickness": Image(t), "normals": Image(nrm),
+                              "skin": Mask((r2 < 1).astype(np.float32)), "light": Light(direction=(0.3, -0.2, -1.0))},
+              cosmetics=["foundation_light"], relight=False, mm_per_pixel=5.0)  # (narrow kernels: off the SSS's box)
+    want = got["diffuse"].pixels + got["specular"].pixels
+    assert got["specular"].pixels.any() and np.signbit(got["diffuse"].pixels[0, 0]).all()
+    assert np.array_equal(got["image"].pixels.view(np.uint32), want.view(np.uint32))
 
 
 class _Studio:

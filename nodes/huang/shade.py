@@ -13,12 +13,15 @@ from graphkit.store import value_parts
 
 from nodes.common.checks import connected_together, require_directional
 from nodes.common.parallel import run_bands
-from nodes.common.sss import Scatter, sss_blur
+from nodes.common.sss import Scatter, fold_faint, sss_blur
 
 from . import km
 from .layer import layer_thicknesses
 from .library import KMLayerSpec, check_illuminant, layer_arrays, resolve_layers
 from .stack import pixel_stack
+
+#: the SSS profile of CosmeticShade: d'Eon 2007's with its faint channel weights folded
+PROFILE = fold_faint()
 
 
 class CosmeticShade(Node):
@@ -28,7 +31,8 @@ class CosmeticShade(Node):
     directional ``light``: colour·intensity·max(N·L, 0) + ambient; else 1) is partly reflected by
     the layers (Rt·E) and partly transmitted into the skin, with the inter-reflections between
     skin (albedo ρ) and layers: E_skin = T·E / (1 − Rb·ρ).  E_skin is scattered in the skin with
-    the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile, ``mm_per_pixel``
+    the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile with its channel
+    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step), ``mm_per_pixel``
     mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
     leaves through the layers (RGB(T²)/RGB(T))::
 
@@ -51,7 +55,9 @@ class CosmeticShade(Node):
     # 7: a pixel footprint within NEAR_UNIFORM (2 %) on both axes blurred at one σ (nodes/common/sss.py)
     # 8: the SSS's level blurs made on their weights' boxes and each channel's profile sum by
     #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 1.2e-7)
-    version = "8"
+    # 9: the SSS profile's channel weights under 1 % moved to that channel's nearest Gaussian
+    #    (nodes.common.sss.fold_faint): three of eleven channel blurs fewer, ≤ 0.21 % of a step
+    version = "9"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -98,7 +104,7 @@ class CosmeticShade(Node):
         check_illuminant(p.illuminant)
         specs = resolve_layers(layers, p.cosmetics)
         wl, S, K = layer_arrays(specs)
-        rho = albedo.pixels.astype(np.float32)
+        rho = albedo.pixels  # float32 (Image), read only
         h, w = rho.shape[:2]
         t = layer_thicknesses(thickness, len(specs))
         if connected_together({"mesh": mesh, "camera": camera}) and (normals is not None or depth is not None):
@@ -109,9 +115,12 @@ class CosmeticShade(Node):
         layers = _layer_boxes(t)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
         spec = np.zeros((h, w, 3), np.float32)
-        if fixed.spec is not None:
-            spec = _through_layers(p, wl, S, K, t, fixed, layers)
-        return {"image": Image(diffuse + spec), "diffuse": Image(diffuse), "specular": Image(spec)}
+        image = diffuse + np.float32(0)  # diffuse + spec off the specular's box (−0 + 0 is +0: not a copy)
+        if fixed.spec is not None:  # (zero outside its box)
+            y0, y1, x0, x1 = fixed.spec.box
+            _through_layers(p, wl, S, K, t, fixed, layers, spec[y0:y1, x0:x1])
+            image[y0:y1, x0:x1] += spec[y0:y1, x0:x1]
+        return {"image": Image(image), "diffuse": Image(diffuse), "specular": Image(spec)}
 
     def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
         """What does not depend on the cosmetic map or the albedo (surface, irradiance, the skin's
@@ -131,11 +140,11 @@ class CosmeticShade(Node):
             E = _irradiance(hw, irradiance, lt, lcol, ldir, surf.normals, p.relight)
             scatter = None
             if p.sss and self.sss_blur is sss_blur:  # the reference: prepared once, on the skin's box
-                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, mask=surf.mask, crop=True)
+                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, PROFILE, mask=surf.mask, crop=True)
             spec = None
             if surf.normals is not None and ldir is not None:
                 spec = _specular(p, specs, surf, ldir, lcol)
-            got = _Fixed(surf, E, scatter, spec)
+            got = _Fixed(surf, E, scatter, spec, {})
             with _FIXED_LOCK:  # nodes may run on several threads (graphkit run --jobs)
                 while len(_FIXED) >= 2:
                     _FIXED.pop(next(iter(_FIXED)))
@@ -176,9 +185,9 @@ class CosmeticShade(Node):
             pre = np.asarray(pre, np.float32)
             if sy0 < sy1:
                 here = (slice(sy0 - y0, sy1 - y0), slice(sx0 - x0, sx1 - x0))
-                pre[here] = fixed.scatter.on_box(pre[here])
+                _scattered(fixed, pre[here])
         elif p.sss:
-            pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, mask=surf.mask)
+            pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, profile=PROFILE, mask=surf.mask)
         if box is None:
             out = np.empty(T.shape, np.float32)
         else:
@@ -244,6 +253,7 @@ class _Fixed(NamedTuple):
     E: np.ndarray | None        # irradiance (H, W, 3) float32 (None: 1 everywhere)
     scatter: Scatter | None     # the reference SSS prepared for the surface (None: the hook, or no SSS)
     spec: _Specular | None      # None: no normals or no directional light
+    last: dict                  # "sss": the last (light entering the skin, scattered) in the scatter's box
 
 
 #: the last _Fixed values by the digest of what they come from (a live view's face, a benchmark's;
@@ -310,7 +320,7 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol, {})
 
 
-def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
+def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers, out: np.ndarray) -> None:
     """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
     transmittance and the layer's own specular added, weighted by its coverage (computed in
     the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
@@ -326,9 +336,7 @@ def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers) -> np.ndarray:
         here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
         np.multiply(here, Ti, out=here)
         np.add(here, own, out=here)
-    out = np.zeros(t.shape[:2] + (3,), np.float32)
-    np.multiply(s, sp.lcol, out=out[y0:y1, x0:x1])
-    return out
+    np.multiply(s, sp.lcol, out=out)
 
 
 def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
@@ -359,6 +367,22 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
                 sp.seen.pop(next(iter(sp.seen)))
             sp.seen[key] = got
     return got
+
+
+def _scattered(fixed: _Fixed, pre: np.ndarray) -> None:
+    """``pre`` (float32, the scatter's box) replaced by ``fixed.scatter.on_box(pre)``, through the
+    last light scattered on this surface when there is one (:meth:`Scatter.update`: a new
+    thickness or colour of one layer blurs again only the rows around that layer; the same
+    bytes).  ``pre`` is kept as the next call's result before: it must not change afterwards."""
+    sub = pre.copy()  # kept as the next call's light before
+    with _FIXED_LOCK:
+        last = fixed.last.get("sss")
+    if last is None:
+        fixed.scatter.on_box(sub, out=pre)
+    else:
+        fixed.scatter.update(sub, *last, out=pre)
+    with _FIXED_LOCK:
+        fixed.last["sss"] = (sub, pre)
 
 
 def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
