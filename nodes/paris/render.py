@@ -534,7 +534,7 @@ class Render(Node):
       the others (they may lie behind the face); those of at least ``environment_shadows`` ×
       the brightest's luminance cast shadows (``environment.shadow_map_sizes``, the one rule
       of both backends), the dimmer ones none.  With ``environment_basis`` n > 0 (default
-      1024) a shadow is soft, from a visibility basis (``nodes.paris.visibility``): each
+      2048) a shadow is soft, from a visibility basis (``nodes.paris.visibility``): each
       point's visibility towards n fixed directions, by rays through the mesh, each direction
       drawn when a light first needs it and kept with the surface, so a turning environment
       draws no shadow map; a light takes the cosine-weighted visibility of the directions
@@ -603,7 +603,7 @@ class Render(Node):
         antialias: bool = Field(False, description="fractional coverage along the silhouette (0.5 ± the "
                                                    "distance to the mesh's outline): no staircase border")
         environment_basis: int = Field(
-            1024, ge=0, le=4096, description="an environment's shadows from the visibility towards this many fixed "
+            2048, ge=0, le=4096, description="an environment's shadows from the visibility towards this many fixed "
                                             "directions (soft; each direction drawn when a light first needs it and "
                                             "kept per mesh and camera: no shadow map per rotation); 0: a shadow "
                                             "map per light")
