@@ -8,9 +8,14 @@ of turning the environment.
    ambient hold over the map's ∫ L dω.
 2. An environment rotation at 1024² after the preprocess is cached: the astronaut photo
    upsampled to 1024², its FaceMesh mesh and camera (the preprocess, done once), then per
-   rotation LoadEnvironment (builtin:envmaps/interior.exr) → EnvironmentLights → Render
-   (``--backend`` numpy or opengl — there with ``mouth: skin``, the GL programs' mouth; 16
-   shadowed lights + SH, detail texture) → CompositeFace.
+   rotation LoadEnvironment (builtin:envmaps/NAME.exr, ``--map``) → EnvironmentLights → Render
+   (``--backend`` numpy or opengl — there with ``mouth: skin``, the GL programs' mouth, and
+   ``environment_basis: 0``, the GL programs' shadow map per light; 16 lights + SH, those of
+   at least environment_shadows × the brightest's luminance shadowed, detail texture) →
+   CompositeFace.  On numpy the shadows come from Render's visibility basis, whose directions
+   are drawn when a light first needs them: the rotations (15°, 30°, …) are timed on their
+   first visit (new directions drawn) and again (``revisit``: every direction drawn, the
+   steady state of a turning environment).
    Median CPU seconds (time.process_time: this process, all its threads — with opengl also
    Mesa llvmpipe's, which run in this process) and wall seconds over ``--repeat`` rotations,
    with Render under one light (as face_relight.yaml's portraits, same backend) as the peer.
@@ -78,7 +83,7 @@ def _renderer(backend: str):
         dig = {k: f"bench:{k}" for k in ("mesh", "camera", "detail", "texture_camera")}  # fixed inputs
         # the GL programs do not draw the mouth from the photo's detail (Render's default
         # mouth: photo): the opengl Render shades it as skin
-        return gl(Render.Params(mouth="skin"), Context(inputs=dig)).compute(**kw)
+        return gl(Render.Params(mouth="skin", environment_basis=0), Context(inputs=dig)).compute(**kw)
     return run
 
 
@@ -118,11 +123,11 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
 
     stages = {"LoadEnvironment+EnvironmentLights": [], "Render (environment)": [], "CompositeFace": [],
               "rotation total": [], "Render (1 light, peer)": []}
-    walls = {k: [] for k in stages}
     light = Light(direction=(0.3, -0.2, -0.93))
     render(environment=turn(0.0), **common)  # warm-up (GL programs, kept set-up), not timed
     render(lights=[light], **common)
-    for i in range(repeat):
+
+    def rotate(i):
         deg = 15.0 * (i + 1)
         lighting, c1, w1 = _timed(lambda: turn(deg))
         out, c2, w2 = _timed(lambda: render(environment=lighting, **common))
@@ -130,19 +135,32 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
                                                    coverage=out["coverage"]))
         moved = Light(direction=(0.3 - 0.02 * i, -0.2, -0.93))  # a new light each time (kept nothing)
         _, c4, w4 = _timed(lambda: render(lights=[moved], **common))
-        for k, c, w in (("LoadEnvironment+EnvironmentLights", c1, w1), ("Render (environment)", c2, w2),
-                        ("CompositeFace", c3, w3), ("rotation total", c1 + c2 + c3, w1 + w2 + w3),
-                        ("Render (1 light, peer)", c4, w4)):
-            stages[k].append(c)
-            walls[k].append(w)
+        return lighting, {"LoadEnvironment+EnvironmentLights": (c1, w1), "Render (environment)": (c2, w2),
+                          "CompositeFace": (c3, w3), "rotation total": (c1 + c2 + c3, w1 + w2 + w3),
+                          "Render (1 light, peer)": (c4, w4)}
+
+    passes = ("first visit", "revisit") if backend == "numpy" else ("rotation",)
+    times = {}
+    for name in passes:
+        times[name] = [rotate(i) for i in range(repeat)]
+    lighting = times[passes[0]][-1][0]
     shadowed = sum(s > 0 for s in shadow_map_sizes(lighting.lights, 1024, 0, Render.Params().environment_shadows))
     print(f"\nenvironment rotation at {size}², {envmap}.exr, {lights} lights ({shadowed} cast shadows), "
-          f"Render on {backend}, median of {repeat} "
-          f"(load: {os.getloadavg()[0]:.1f})")
-    for k in stages:
-        print(f"  {k:34s} CPU {1000 * statistics.median(stages[k]):8.0f} ms   wall {1000 * statistics.median(walls[k]):8.0f} ms")
-    ratio = statistics.median(stages["rotation total"]) / statistics.median(stages["Render (1 light, peer)"])
-    print(f"  rotation total / Render with one light (CPU): {ratio:.2f}")
+          f"Render on {backend}, median of {repeat} (load: {os.getloadavg()[0]:.1f})")
+    for name in passes:
+        print(f" {name}:")
+        for k in stages:
+            c = statistics.median(t[k][0] for _, t in times[name])
+            w = statistics.median(t[k][1] for _, t in times[name])
+            print(f"  {k:34s} CPU {1000 * c:8.0f} ms   wall {1000 * w:8.0f} ms")
+        ratio = statistics.median(t["rotation total"][0] for _, t in times[name]) / \
+            statistics.median(t["Render (1 light, peer)"][0] for _, t in times[name])
+        print(f"  rotation total / Render with one light (CPU): {ratio:.2f}")
+    from nodes.paris import render as R
+
+    drawn = [int(b.drawn.sum()) for g in R._GEOMETRY.values() for b in g.bases.values()]
+    if drawn:
+        print(f"  visibility basis: {drawn[0]} of {Render.Params().environment_basis} directions drawn")
 
 
 def main(argv=None) -> int:
