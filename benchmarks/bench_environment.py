@@ -1,11 +1,13 @@
 """Relighting to an environment (issue 26 items 4 and 6): accuracy against Mitsuba and the cost
 of turning the environment.
 
-1. For every map of nodes/paris/data/make_envmaps.py (TUNE maps chose EnvironmentLights'
-   defaults, CHECK maps did not): the relit head's PSNR against Mitsuba's render of the same
-   diffuse head under the same ``envmap`` emitter (tests/data/envmap_refs.npz), with the SH
-   ambient alone (0 lights) and with 8, 16 (default) and 32 lights; and the energy the lights +
-   ambient hold over the map's ∫ L dω.
+1. For every map of nodes/paris/data/make_envmaps.py (TUNE maps chose EnvironmentLights' and
+   Render's environment defaults, CHECK maps did not): the relit head's PSNR against Mitsuba's
+   render of the same diffuse head under the same ``envmap`` emitter
+   (tests/data/envmap_refs.npz), with the SH ambient alone (0 lights) and with 8, 16 (default)
+   and 32 lights, and with 16 lights shadowed by a shadow map each (Render's
+   ``environment_basis: 0``, as before Render 6); and the energy the lights + ambient hold
+   over the map's ∫ L dω.
 2. An environment rotation at 1024² after the preprocess is cached: the astronaut photo
    upsampled to 1024², its FaceMesh mesh and camera (the preprocess, done once), then per
    rotation LoadEnvironment (builtin:envmaps/NAME.exr, ``--map``) → EnvironmentLights → Render
@@ -23,7 +25,7 @@ of turning the environment.
    so it keeps its light-independent set-up between rotations; a first untimed call warms it.
 
 Run:  .venv/bin/python benchmarks/bench_environment.py [--repeat 5] [--size 1024] [--lights 16]
-      [--backend numpy|opengl] [--skip-psnr]
+      [--backend numpy|opengl] [--environment-basis N] [--map NAME …] [--skip-psnr]
 """
 from __future__ import annotations
 
@@ -46,13 +48,16 @@ def psnr_table() -> None:
     from nodes.paris.environment import map_energy
 
     refs = np.load(E.REFS)
-    print("map        set    " + "  ".join(f"{n:>5d} lights" for n in (0, 8, 16, 32)) + "   energy ratio (16)")
+    print("map        set    " + "  ".join(f"{n:>5d} lights" for n in (0, 8, 16, 32))
+          + "  16, shadow maps   energy ratio (16)")
     for name in E.TUNE + E.CHECK:
         px = read_hdr(os.path.join(E.HERE, "envmaps", name + ".exr"))
         row = []
         for n in (0, 8, 16, 32):
             img, cov = E.relight(px, lights=n)
-            row.append(f"{E.skin_psnr(img, refs[name], cov):8.1f} dB")
+            row.append(f"{E.skin_psnr(img, refs[name], cov):8.2f} dB")
+        img, cov = E.relight(px, render={"environment_basis": 0}, lights=16)  # Render 5's way: the peer
+        row.append(f"{E.skin_psnr(img, refs[name], cov):11.2f} dB   ")
         ratio = E.lighting(px).energy() / map_energy(px)
         print(f"{name:10s} {'tune' if name in E.TUNE else 'check':5s} " + "  ".join(row)
               + "   " + " ".join(f"{r:.6f}" for r in ratio))
@@ -64,15 +69,16 @@ def _timed(fn):
     return out, time.process_time() - c, time.perf_counter() - w
 
 
-def _renderer(backend: str):
-    """A function (inputs → Render's outputs) on ``backend``, checked as the engine does."""
+def _renderer(backend: str, basis: int | None = None):
+    """A function (inputs → Render's outputs) on ``backend``, checked as the engine does
+    (``basis``: Render's environment_basis, its default if None; 0 on opengl)."""
     from graphkit import Context
     from graphkit.contract import check_inputs, compute_checked
     from graphkit.registry import default_registry
     from nodes.paris.render import Render
 
     if backend == "numpy":
-        render = Render()
+        render = Render(Render.Params() if basis is None else Render.Params(environment_basis=basis))
         return lambda **kw: compute_checked(render, **kw)
     gl = default_registry().backend_class("Render", backend)
     if not gl.available():
@@ -87,7 +93,8 @@ def _renderer(backend: str):
     return run
 
 
-def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy", envmap: str = "interior") -> None:
+def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy", envmap: str = "interior",
+                    basis: int | None = None) -> None:
     import cv2
     import skimage.data
 
@@ -110,7 +117,7 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
     cam = fm["camera"]
     detail = Image(np.random.default_rng(0).uniform(0.8, 1.2, (size, size, 3)).astype(np.float32))
     mat = PhongMaterial(diffuse=(0.55, 0.4, 0.33), specular=0.05, shininess=8.0)
-    render = _renderer(backend)
+    render = _renderer(backend, basis)
     common = dict(mesh=mesh, camera=cam, material=mat, detail=detail, texture_camera=cam)
 
     def turn(deg):
@@ -139,14 +146,16 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
                           "CompositeFace": (c3, w3), "rotation total": (c1 + c2 + c3, w1 + w2 + w3),
                           "Render (1 light, peer)": (c4, w4)}
 
-    passes = ("first visit", "revisit") if backend == "numpy" else ("rotation",)
+    lazy = backend == "numpy" and basis != 0
+    passes = ("first visit", "revisit") if lazy else ("rotation",)
     times = {}
     for name in passes:
         times[name] = [rotate(i) for i in range(repeat)]
     lighting = times[passes[0]][-1][0]
     shadowed = sum(s > 0 for s in shadow_map_sizes(lighting.lights, 1024, 0, Render.Params().environment_shadows))
     print(f"\nenvironment rotation at {size}², {envmap}.exr, {lights} lights ({shadowed} cast shadows), "
-          f"Render on {backend}, median of {repeat} (load: {os.getloadavg()[0]:.1f})")
+          f"Render on {backend}{'' if lazy else ' with a shadow map per light'}, median of {repeat} "
+          f"(load: {os.getloadavg()[0]:.1f})")
     for name in passes:
         print(f" {name}:")
         for k in stages:
@@ -158,9 +167,9 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
         print(f"  rotation total / Render with one light (CPU): {ratio:.2f}")
     from nodes.paris import render as R
 
-    drawn = [int(b.drawn.sum()) for g in R._GEOMETRY.values() for b in g.bases.values()]
-    if drawn:
-        print(f"  visibility basis: {drawn[0]} of {Render.Params().environment_basis} directions drawn")
+    bases = [b for b in R._GEOMETRY[next(reversed(R._GEOMETRY))].bases.values()]  # (the face's: the last)
+    if lazy and bases:
+        print(f"  visibility basis: {int(bases[0].drawn.sum())} of {len(bases[0].drawn)} directions drawn")
 
 
 def main(argv=None) -> int:
@@ -173,13 +182,15 @@ def main(argv=None) -> int:
     p.add_argument("--lights", type=int, default=16, help="EnvironmentLights' lights in the rotation timing")
     p.add_argument("--backend", choices=("numpy", "opengl"), default="numpy", help="Render's backend in the rotation timing")
     p.add_argument("--skip-psnr", action="store_true")
+    p.add_argument("--environment-basis", type=int, default=None, metavar="N",
+                   help="numpy Render's environment_basis (0: a shadow map per light, Render 5's way: the peer)")
     p.add_argument("--map", nargs="+", default=["interior"], metavar="NAME",
                    help="the rotated map(s), names in nodes/paris/data/envmaps (courtyard: every light casts a shadow)")
     a = p.parse_args(argv)
     if not a.skip_psnr:
         psnr_table()
     for name in a.map:
-        rotation_timing(a.size, a.repeat, a.lights, a.backend, name)
+        rotation_timing(a.size, a.repeat, a.lights, a.backend, name, a.environment_basis)
     return 0
 
 

@@ -175,8 +175,9 @@ def lighting(px: np.ndarray, **params):
                            image=Image(np.asarray(px, np.float32)), frame=EnvironmentFrame())
 
 
-def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.ndarray]:
-    """(Render of the same head under EnvironmentLights(px) — numpy reference —, its coverage)."""
+def relight(px: np.ndarray, size: int = SIZE, render: dict | None = None, **params) -> tuple[np.ndarray, np.ndarray]:
+    """(Render (more params: ``render``) of the same head under EnvironmentLights(px) — numpy
+    reference —, its coverage)."""
     from graphkit.contract import compute_checked
     from nodes.paris.data.make_capture import camera, head_mesh
     from nodes.paris.models import PhongMaterial
@@ -184,7 +185,7 @@ def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.
 
     env = lighting(px, **params)
     m, _, _ = head_mesh(4)
-    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size)), mesh=m, camera=camera(size),
+    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size, **(render or {}))), mesh=m, camera=camera(size),
                           material=PhongMaterial(diffuse=ALBEDO, specular=0.0), environment=env)
     return out["image"].pixels, out["coverage"].alpha > 0.5
 
