@@ -165,11 +165,11 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
         ratio = statistics.median(t["rotation total"][0] for _, t in times[name]) / \
             statistics.median(t["Render (1 light, peer)"][0] for _, t in times[name])
         print(f"  rotation total / Render with one light (CPU): {ratio:.2f}")
-    from nodes.paris import render as R
+    if lazy:
+        from nodes.paris import render as R
 
-    bases = [b for b in R._GEOMETRY[next(reversed(R._GEOMETRY))].bases.values()]  # (the face's: the last)
-    if lazy and bases:
-        print(f"  visibility basis: {int(bases[0].drawn.sum())} of {len(bases[0].drawn)} directions drawn")
+        basis = next(iter(R._GEOMETRY[next(reversed(R._GEOMETRY))].bases.values()))  # (the face's: the last)
+        print(f"  visibility basis: {int(basis.drawn.sum())} of {len(basis.drawn)} directions drawn")
 
 
 def main(argv=None) -> int:
