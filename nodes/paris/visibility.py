@@ -19,7 +19,6 @@ at every covered pixel bilinearly from its covered grid neighbours (1 where none
 """
 from __future__ import annotations
 
-import functools
 import threading
 
 import numpy as np
@@ -61,7 +60,8 @@ class VisibilityBasis:
         self.normals = surface.normals[keep]
         self._n = np.ascontiguousarray(self.normals.T, np.float32)  # 3×P: a row per axis
         V = np.asarray(mesh.vertices, np.float64)
-        self._origins = surface.points[keep] + OFFSET * float(np.linalg.norm(np.ptp(V, axis=0))) * self.normals
+        lift = OFFSET * float(np.linalg.norm(np.ptp(V, axis=0)))
+        self._origins = (surface.points[keep] + lift * self.normals).astype(np.float32)
         self._scene = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(self._scene, V[np.asarray(mesh.faces, np.int64)].astype(np.float32))
         self.vis = np.zeros((count, len(self.normals)), np.uint8)  # a row per direction: 1 where the ray escapes
@@ -77,23 +77,17 @@ class VisibilityBasis:
 
     def draw(self, directions) -> None:
         """Draw the basis directions the cones round ``directions`` (unit, world) need and
-        that are not drawn yet, on the cores."""
-        from nodes.common.parallel import run_tasks
-
+        that are not drawn yet (in this thread: embreex holds the GIL, two threads cast no
+        faster)."""
         with self._lock:  # (Render computes on several threads draw each direction once)
             need = np.unique(np.concatenate([self.cone_of(d)[0] for d in directions] or [np.zeros(0, int)]))
-            need = need[~self.drawn[need]]
-            step = max(1, -(-len(need) // 8))
-            run_tasks([functools.partial(self._rays, need[i:i + step]) for i in range(0, len(need), step)])
-            self.drawn[need] = True
-
-    def _rays(self, ks: np.ndarray) -> None:
-        for k in ks:
-            idx = np.flatnonzero(self.normals @ self.dirs[k] > 0)
-            if len(idx):
-                org = self._origins[idx].astype(np.float32)
-                d = np.broadcast_to(self.dirs[k].astype(np.float32), org.shape).copy()
-                self.vis[k, idx] = self._scene.run(org, d, query="OCCLUDED") < 0
+            for k in need[~self.drawn[need]]:
+                idx = np.flatnonzero(self.normals @ self.dirs[k] > 0)
+                if len(idx):
+                    org = self._origins[idx]
+                    d = np.broadcast_to(self.dirs[k].astype(np.float32), org.shape).copy()
+                    self.vis[k, idx] = self._scene.run(org, d, query="OCCLUDED") < 0
+                self.drawn[k] = True
 
     def light(self, direction: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """The fraction of an environment light round the unit ``direction`` (world; drawn:
@@ -121,8 +115,7 @@ def _grid_reader(cov: np.ndarray, keep: np.ndarray, s: int):
     H, W = cov.shape
     slot = np.full(((H - 1) // s + 2, (W - 1) // s + 2), -1, np.int64)  # grid point → kept row
     ys, xs = np.nonzero(cov)
-    on = keep
-    slot[ys[on] // s, xs[on] // s] = np.arange(int(on.sum()))
+    slot[ys[keep] // s, xs[keep] // s] = np.arange(int(keep.sum()))
     gy, gx = ys / s, xs / s
     y0, x0 = np.floor(gy).astype(np.int64), np.floor(gx).astype(np.int64)
     ty, tx = gy - y0, gx - x0
