@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from graphkit import Camera, Light
+from graphkit.node import Context
 from nodes.paris import visibility as VB
 from nodes.paris.environment import EnvironmentLighting
 from nodes.paris.models import PhongMaterial
@@ -80,10 +81,10 @@ def test_a_balls_soft_shadow_sits_on_its_hard_one():
     assert abs(shadow / hard_shadow - 1) < 0.1, (shadow, hard_shadow)
 
 
-def render(basis: int, lighting, **kw):
+def render(basis: int, lighting, ctx: Context | None = None, **kw):
     mat = PhongMaterial(diffuse=(0.6, 0.45, 0.35), specular=0.2, shininess=20.0)
     p = Render.Params(shadow_map_size=256, clamp=False, environment_basis=basis, **kw)
-    return Render(p).compute(mesh=ball_and_wall(), camera=CAM, material=mat, environment=lighting)["image"].pixels
+    return Render(p, ctx).compute(mesh=ball_and_wall(), camera=CAM, material=mat, environment=lighting)["image"].pixels
 
 
 def lighting(turn: float = 0.0):
@@ -114,6 +115,42 @@ def test_render_from_the_basis_follows_the_shadow_maps_and_draws_lazily():
     R._GEOMETRY.clear()
     render(2048, lighting(0.4))
     assert np.array_equal(render(2048, lighting()), a)  # drawn in another order
+
+
+def face_basis():
+    import nodes.paris.render as R
+
+    return [g for g in R._GEOMETRY.values() if g.bases][0].bases[2048]
+
+
+def test_a_live_session_fills_the_basis_in_the_background_without_stalling_a_render(monkeypatch):
+    """In a batch run Render draws only its lights' directions; in a live session
+    (Context.interactive, the studio) its first render starts a thread drawing the rest, a chunk
+    at a time, so a render meanwhile is not held until the fill ends; the filled basis holds
+    the bytes a lazily drawn one does, and a rotation after it draws nothing and renders the
+    same bytes."""
+    import nodes.paris.render as R
+
+    R._GEOMETRY.clear()
+    render(2048, lighting())
+    assert face_basis()._filler is None and not face_basis().drawn.all()  # a batch run: lazy
+    render(2048, lighting(0.4))
+    turned = render(2048, lighting(1.1))
+    lazy = face_basis()
+    R._GEOMETRY.clear()
+    monkeypatch.setattr(VB, "FILL_CHUNK", 64)  # 32 chunks, 40 ms apart: a render in between
+    monkeypatch.setattr(VB, "FILL_PAUSE", 0.04)
+    render(2048, lighting(), Context(interactive=True))
+    b = face_basis()
+    assert b._filler is not None
+    render(2048, lighting(0.4), Context(interactive=True))  # (draws its own directions between chunks)
+    assert b._filler.is_alive() and not b.drawn.all()  # not held until the fill ended
+    b._filler.join(30)
+    assert b.drawn.all()
+    rows = np.flatnonzero(lazy.drawn)
+    assert np.array_equal(b.vis[rows], lazy.vis[rows])
+    assert np.array_equal(render(2048, lighting(1.1)), turned)
+    assert b.fill() == 0  # nothing left to draw
 
 
 def test_the_coarse_grid_reads_back_its_points_and_interpolates_between():

@@ -536,14 +536,16 @@ class Render(Node):
       of both backends), the dimmer ones none.  With ``environment_basis`` n > 0 (default
       2048) a shadow is soft, from a visibility basis (``nodes.paris.visibility``): each
       point's visibility towards n fixed directions, by rays through the mesh, each direction
-      drawn when a light first needs it and kept with the surface, so a turning environment
-      draws no shadow map; a light takes the cosine-weighted visibility of the directions
-      within ~√(4π/n) of it (an area light's soft shadow).  With 0, a shadow map per light
-      (the brightest ``shadow_map_size``², dimmer ones smaller, side ∝ luminance^⅓).  Its 9
-      spherical-harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without
-      shadows.  Then ``lights`` may be empty.  The numpy and opengl backends take it (the
-      opengl one with ``environment_basis: 0`` when it casts shadows; the studio's WebGL view
-      does not).
+      drawn when a light first needs it and kept with the surface (in this process's memory,
+      not the cache), so a turning environment draws no shadow map; in a live session (the
+      studio: ``Context.interactive``) the rest are drawn in the background after the first
+      render, ~4 s of CPU at 1024², so later rotations draw none; a light takes the
+      cosine-weighted visibility of the directions within ~√(4π/n) of it (an area light's
+      soft shadow).  With 0, a shadow map per light (the brightest ``shadow_map_size``²,
+      dimmer ones smaller, side ∝ luminance^⅓).  Its 9 spherical-harmonic coefficients add
+      kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.  Then ``lights`` may be
+      empty.  The numpy and opengl backends take it (the opengl one with ``environment_basis:
+      0`` when it casts shadows; the studio's WebGL view does not).
     * The mouth (``mouth: photo``, on a mediapipe mesh): a fitted mesh's lips miss the photo's,
       so the mouth region (the outer lip contour, widened by 30 % of its height, feathered) takes
       the smooth shading of the skin around it, and the photo's lips and teeth come from the
@@ -658,6 +660,8 @@ class Render(Node):
             lit.append((light, idx, L[idx], diff, spec, task, cost))
         if round_:  # the basis directions those lights read, drawn once
             self._basis(g).draw(round_)
+            if self.ctx.interactive:  # a live session: the rest drawn before the next rotation needs it
+                self._basis(g).fill_in_background()
         # the lights' shadows are independent: on the cores (an environment's dominant lights),
         # dealt by cost
         cast = [t for t in lit if t[5] is not None]
