@@ -20,7 +20,8 @@ of turning the environment.
    steady state of a turning environment).  With ``--prefill`` the basis is filled first,
    every direction drawn (as the studio does in the background after its first render: the
    interactive session's preprocess, its CPU and wall time reported apart), then the rotations
-   are timed at angles never visited (15°, 30°, …; the warm-up was at 0°).
+   are timed at angles never visited (15°, 30°, …; the warm-up was at 0°).  Each map starts
+   from a cold Render (its kept geometry cleared: no directions drawn by another map's turns).
    Median CPU seconds (time.process_time: this process, all its threads — with opengl also
    Mesa llvmpipe's, which run in this process) and wall seconds over ``--repeat`` rotations,
    with Render under one light (as face_relight.yaml's portraits, same backend) as the peer.
@@ -116,6 +117,7 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
     from nodes.io.environment import LoadEnvironment
     from nodes.paris.composite import CompositeFace
     from nodes.paris.environment import EnvironmentLights, shadow_map_sizes
+    from nodes.paris import render as R
     from nodes.paris.render import Render
     from nodes.paris.mesh import SmoothMesh
     from nodes.paris.models import PhongMaterial
@@ -128,6 +130,7 @@ def rotation_timing(size: int, repeat: int, lights: int, backend: str = "numpy",
     detail = Image(np.random.default_rng(0).uniform(0.8, 1.2, (size, size, 3)).astype(np.float32))
     mat = PhongMaterial(diffuse=(0.55, 0.4, 0.33), specular=0.05, shininess=8.0)
     render = _renderer(backend, basis)
+    R._GEOMETRY.clear()  # each map from a cold Render (no directions drawn for another map's turns)
     common = dict(mesh=mesh, camera=cam, material=mat, detail=detail, texture_camera=cam)
 
     def turn(deg):
