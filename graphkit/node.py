@@ -112,6 +112,10 @@ class Context:
     # one line the run shows its user (an assumption made, data left out); computed once, so
     # a cached result does not repeat it
     tell: Callable[[str], None] = field(default=lambda msg: None)
+    # a live session (the studio): the next change is likely soon, so a node may go on, in a
+    # background thread of its own, preparing in-process state for it (its outputs must not
+    # depend on whether it did); False in a batch run, where that would only cost CPU
+    interactive: bool = False
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Report progress of a long compute (0…1); shown by the CLI."""

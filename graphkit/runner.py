@@ -97,6 +97,7 @@ class Session:
         #: outputs are checked and hashed, before they are stored (the studio pushes a preview
         #: from the in-memory value while the store writes run); an error in it fails the node
         self.on_outputs = on_outputs
+        self.interactive = False  # a live session's run (the studio): Context.interactive
         if store.on_notice is None:
             store.on_notice = notice
         self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
@@ -354,7 +355,8 @@ class Session:
                       recipe_digest=parts.get("recipe_digest", ""), base_dir=self.graph.base_dir,
                       inputs=dict(input_digests),
                       report=lambda frac, msg: self.report(g.name, frac, msg),
-                      tell=lambda msg: self.notice(f"notice: {g.name} ({g.type}): {msg}"))
+                      tell=lambda msg: self.notice(f"notice: {g.name} ({g.type}): {msg}"),
+                      interactive=self.interactive)
         t0 = time.perf_counter()
         result = _call_compute(g, bcls, ctx, inputs)
         seconds = time.perf_counter() - t0

@@ -151,19 +151,19 @@ def cases():
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "lights": [key],
              "detail": detail, "texture_camera": tex_cam, "ambient": side}),
         "environment_only_shadows": (
-            {"shadow_map_size": 256, "clamp": False, "environment_shadows": 0.0},
+            {"shadow_map_size": 256, "clamp": False, "environment_shadows": 0.0, "environment_basis": 0},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
         # the default environment_shadows (0.2): the key light (0.27 of the brightest's
         # luminance) casts its shadow, the side light (0.09) lights the wall unshadowed
         "environment_dominant_shadows": (
-            {"shadow_map_size": 256, "clamp": False},
+            {"shadow_map_size": 256, "clamp": False, "environment_basis": 0},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat, "environment": environment()}),
         "environment_sh_only": (
             {"shadow_map_size": 256},
             {"mesh": floor_and_ball(), "camera": CAM, "material": mat,
              "environment": environment().model_copy(update={"lights": ()})}),
         "environment_and_lights_detail_eyes": (
-            {"shadow_map_size": 256, "eye_highlights": "on", "eyes": eyes, "mm_per_unit": 100.0},
+            {"shadow_map_size": 256, "eye_highlights": "on", "eyes": eyes, "mm_per_unit": 100.0, "environment_basis": 0},
             {"mesh": S, "camera": rot_cam, "material": mat, "lights": [point], "environment": environment(),
              "detail": detail, "texture_camera": tex_cam}),
         "eye_highlights": (

@@ -139,7 +139,8 @@ def test_render_takes_an_environment_without_lights_and_refuses_neither():
 def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
     """An environment light's shadow map: the brightest's side × (luminance ratio)^⅓, at least
     an eighth of it, or none below ``dominant`` × the brightest's luminance (Render's
-    environment_shadows); the lights on ``lights`` keep ``shadow_map_size`` however dim."""
+    environment_shadows); the lights on ``lights`` keep ``shadow_map_size`` however dim.
+    (Render with ``environment_basis: 0``, shadow maps per light; the GL backend's rule.)"""
     from graphkit import Light
     from nodes.common import raster
     from nodes.paris.data.make_capture import camera, head_mesh
@@ -165,7 +166,8 @@ def test_dimmer_environment_lights_take_smaller_shadow_maps(monkeypatch):
     for dominant, want in ((0.0, [96, 96, 48, 32, 16]),  # 96 / 8 = 12 → 16 (the least map)
                            (0.2, [96, 96])):  # the default: the dim ones cast none
         sizes.clear()
-        compute_checked(Render(Render.Params(shadow_map_size=96, environment_shadows=dominant)), mesh=m,
+        compute_checked(Render(Render.Params(shadow_map_size=96, environment_shadows=dominant,
+                                             environment_basis=0)), mesh=m,  # (shadow maps, not the basis)
                         camera=camera(16), material=PhongMaterial(diffuse=E.ALBEDO),
                         lights=[Light(direction=front, intensity=1e-6)], environment=env)
         assert sorted(sizes) == sorted(want)

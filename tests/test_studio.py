@@ -446,6 +446,29 @@ def test_newer_change_supersedes_a_stale_run(tmp_path, engine_registry):
         st.close()
 
 
+def test_a_studio_run_tells_its_nodes_they_are_in_a_live_session(tmp_path, engine_registry, monkeypatch):
+    """Python-level: Context.interactive is True in the studio's runs (a node may prepare for
+    the next change in the background, as Render fills its visibility basis) and False in a
+    batch run of the same graph."""
+    import studionodes
+
+    from graphkit.api import run_graph
+
+    seen, real = [], studionodes.Nap.compute
+
+    def compute(self, image):
+        seen.append(self.ctx.interactive)
+        return real(self, image)
+    monkeypatch.setattr(studionodes.Nap, "compute", compute)
+    st = napping_studio(tmp_path, engine_registry)
+    try:
+        assert st.wait_idle(30)["status"] == "ok"
+    finally:
+        st.close()
+    run_graph(tmp_path / "g.yaml", cache=tmp_path / "batch", registry=engine_registry)
+    assert seen == [True, False]
+
+
 def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):
     """Python-level: Stop (the editor's button, /api/stop) ends the run going; what it finished
     stays cached and the node it was in never is."""

@@ -109,6 +109,7 @@ def run_graph(studio, gen: int, graph) -> dict:
     session = Session(graph, studio.registry, GuardedStore(studio.store, studio), studio.backends,
                       notice=progress.notice, report=progress.report, on_outputs=progress.outputs)
     session.memo = studio.memo  # values stay in memory between runs of the studio
+    session.interactive = True  # nodes may prepare for the next change in the background
     targets = sorted({n for n, _ in graph.outputs.values()})
     studio.reset_states(graph.upstream(targets))
     failed, global_error = _run_targets(studio, session, graph, targets, progress)

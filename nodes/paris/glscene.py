@@ -30,11 +30,13 @@ _STATIC_KEEP = 4
 _STATIC_LOCK = threading.Lock()  # node threads and the studio's view threads share it
 
 
-def not_drawn(p, mesh, lights=()) -> str | None:
+def not_drawn(p, mesh, lights=(), environment=None) -> str | None:
     """What Render's params ``p`` ask of ``mesh`` and ``lights`` that the GL programs (the opengl
     backend, the studio's WebGL face view) do not draw, as a sentence, or None: ``antialias``,
-    ``mouth: photo`` on a mediapipe mesh (where the numpy reference keeps the photo's mouth), and
-    the soft shadows of a light with a size (LightSize; the GL programs draw hard shadow maps)."""
+    ``mouth: photo`` on a mediapipe mesh (where the numpy reference keeps the photo's mouth),
+    the soft shadows of a light with a size (LightSize; the GL programs draw hard shadow maps),
+    and an ``environment``'s shadows from the visibility basis (``environment_basis`` > 0)."""
+    from nodes.paris.environment import shadow_map_sizes
     from nodes.paris.render import _mediapipe_ids
 
     missing = []
@@ -46,10 +48,14 @@ def not_drawn(p, mesh, lights=()) -> str | None:
     sized = [i for i, light in enumerate(lights) if light is not None and light.has_size]
     if p.shadows and sized:
         missing.append(f"the soft shadows of light {sized[0]} (it has a size)")
+    if p.shadows and p.environment_basis and environment is not None and \
+            any(shadow_map_sizes(environment.lights, p.shadow_map_size, 0, p.environment_shadows)):
+        missing.append(f"the environment's shadows from a visibility basis (environment_basis: {p.environment_basis})")
     if not missing:
         return None
     return (f"{' and '.join(missing)} are drawn by the numpy reference only; set mouth: skin, "
-            f"antialias: false and lights without a size (or shadows: false) to use the GL programs")
+            f"antialias: false, lights without a size and environment_basis: 0 (or shadows: false) to use "
+            "the GL programs")
 
 
 def scene(p, mesh, camera: Camera, material, lights, detail=None, texture_camera=None, ambient=None,

@@ -532,12 +532,20 @@ class Render(Node):
       exponent, added on top (from the mediapipe eye contours or the ``eyes`` param).
     * An ``environment`` (EnvironmentLights, Paris 2003 Fig. 10-b): its lights are shaded as
       the others (they may lie behind the face); those of at least ``environment_shadows`` ×
-      the brightest's luminance cast shadows (the brightest on a ``shadow_map_size``² map,
-      dimmer ones on smaller maps, side ∝ luminance^⅓), the dimmer ones none
-      (``environment.shadow_map_sizes``, the one rule of both backends); its 9 spherical-
-      harmonic coefficients add kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.
-      Then ``lights`` may be empty.  The numpy and opengl backends take it (the studio's
-      WebGL view does not).
+      the brightest's luminance cast shadows (``environment.shadow_map_sizes``, the one rule
+      of both backends), the dimmer ones none.  With ``environment_basis`` n > 0 (default
+      2048) a shadow is soft, from a visibility basis (``nodes.paris.visibility``): each
+      point's visibility towards n fixed directions, by rays through the mesh, each direction
+      drawn when a light first needs it and kept with the surface (in this process's memory,
+      not the cache), so a turning environment draws no shadow map; in a live session (the
+      studio: ``Context.interactive``) the rest are drawn in the background after the first
+      render, ~4 s of CPU at 1024², so later rotations draw none; a light takes the
+      cosine-weighted visibility of the directions within ~√(4π/n) of it (an area light's
+      soft shadow).  With 0, a shadow map per light (the brightest ``shadow_map_size``²,
+      dimmer ones smaller, side ∝ luminance^⅓).  Its 9 spherical-harmonic coefficients add
+      kd × irradiance/π (Ramamoorthi–Hanrahan) without shadows.  Then ``lights`` may be
+      empty.  The numpy and opengl backends take it (the opengl one with ``environment_basis:
+      0`` when it casts shadows; the studio's WebGL view does not).
     * The mouth (``mouth: photo``, on a mediapipe mesh): a fitted mesh's lips miss the photo's,
       so the mouth region (the outer lip contour, widened by 30 % of its height, feathered) takes
       the smooth shading of the skin around it, and the photo's lips and teeth come from the
@@ -551,7 +559,7 @@ class Render(Node):
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "5"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows)
+    version = "6"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows); 6: environment shadows from a visibility basis (environment_basis)
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
@@ -596,6 +604,11 @@ class Render(Node):
                                  "does not follow the photo's lips; skin: shaded as skin like the rest")
         antialias: bool = Field(False, description="fractional coverage along the silhouette (0.5 ± the "
                                                    "distance to the mesh's outline): no staircase border")
+        environment_basis: int = Field(
+            2048, ge=0, le=4096, description="an environment's shadows from the visibility towards this many fixed "
+                                            "directions (soft; each direction drawn when a light first needs it and "
+                                            "kept per mesh and camera: no shadow map per rotation); 0: a shadow "
+                                            "map per light")
 
     def compute(self, mesh, camera: Camera, material: PhongMaterial, lights=None,
                 detail: Image | None = None, texture_camera: Camera | None = None,
@@ -619,6 +632,7 @@ class Render(Node):
         amb = np.zeros(3)
         lit = []  # (light, the points facing it, L, their lobes, shadow-map task, its cost)
         sizes = shadow_map_sizes(lights, p.shadow_map_size, own, p.environment_shadows)
+        round_ = []  # the directions of the environment lights shadowed from the visibility basis
         for i, light in enumerate(lights):
             ldir, L = light_vectors(light, s.points)
             # only the points facing the light: elsewhere it adds nothing (+0), whatever its
@@ -635,10 +649,19 @@ class Render(Node):
             # the facing points' share of the map (all of it for soft shadows); no map (None):
             # shadows off, or an environment light too dim to cast one (side 0)
             cost = 90000 + sizes[i] ** 2 * (1.0 if is_sized(light) else len(idx) / M)
-            task = functools.partial(self._visibility, mesh, light, camera, s, idx, i,
-                                     "lights" if i < own else "environment", sizes[i]) \
-                if p.shadows and sizes[i] else None
+            if not (p.shadows and sizes[i]):
+                task = None
+            elif i >= own and p.environment_basis:  # from the visibility basis: no map
+                task, cost = functools.partial(self._basis(g).light, np.asarray(light.direction), idx), len(idx)
+                round_.append(task.args[0])
+            else:
+                task = functools.partial(self._visibility, mesh, light, camera, s, idx, i,
+                                         "lights" if i < own else "environment", sizes[i])
             lit.append((light, idx, L[idx], diff, spec, task, cost))
+        if round_:  # the basis directions those lights read, drawn once
+            self._basis(g).draw(round_)
+            if self.ctx.interactive:  # a live session: the rest drawn before the next rotation needs it
+                self._basis(g).fill_in_background()
         # the lights' shadows are independent: on the cores (an environment's dominant lights),
         # dealt by cost
         cast = [t for t in lit if t[5] is not None]
@@ -705,6 +728,16 @@ class Render(Node):
         except ValueError as e:
             return BadInput(port, f"light {i}: {e}")
 
+    def _basis(self, g: "_Geometry"):
+        """The geometry's visibility basis for ``environment_basis`` directions (made once)."""
+        from .visibility import VisibilityBasis
+
+        n = self.params.environment_basis
+        with _GEOMETRY_LOCK:  # (nodes may run on several threads: made once)
+            if n not in g.bases:
+                g.bases[n] = VisibilityBasis(g.mesh, g.surface, n)
+        return g.bases[n]
+
     def _geometry(self, eye_mesh, camera: Camera, detail, texture_camera) -> "_Geometry":
         """What does not depend on the lights or the material (the surface, its detail texture,
         the eyes' ray hits, the mouth, the silhouette's coverage): memoised on the inputs and
@@ -743,7 +776,7 @@ class Render(Node):
             edges = raster.edge_coverage(xy, mesh.faces, s.coverage)
         depth = np.where(s.coverage, s.raster.depth, 0.0).astype(np.float32)
         box, eyes = _image_box(s.coverage, eyes, whole=edges is not None)
-        return _Geometry(mesh, s, tex, eyes, mouth, edges, depth, box)
+        return _Geometry(mesh, s, tex, eyes, mouth, edges, depth, box, {})
 
     @classmethod
     def examples(cls):
@@ -772,7 +805,7 @@ class Render(Node):
                 ({"shadow_map_size": 128},
                  {"mesh": m, "camera": cam, "material": mat, "lights": lights[1:], "detail": detail,
                   "texture_camera": ortho}),
-                ({"shadow_map_size": 128},
+                ({"shadow_map_size": 128, "environment_basis": 0},  # (shadow maps: the GL programs draw them)
                  {"mesh": m, "camera": cam, "material": mat, "environment": _example_environment()})]
 
     def _eye_hits(self, mesh, camera, s: Surface) -> list | None:
@@ -836,6 +869,7 @@ class _Geometry(NamedTuple):
     edges: tuple[np.ndarray, np.ndarray] | None  # raster.edge_coverage
     depth: np.ndarray  # the depth output (float32, 0 where uncovered)
     box: tuple[slice, slice]  # _image_box: the pixels that are not the background
+    bases: dict  # visibility.VisibilityBasis by its number of directions, made when first asked
 
 
 def _image_box(coverage: np.ndarray, eyes: list | None, whole: bool) -> tuple[tuple[slice, slice], list | None]:

@@ -1,14 +1,15 @@
 """Environment maps and Mitsuba 3 references for relighting to an environment (issue 26 item 4).
 
-``python nodes/paris/data/make_envmaps.py`` writes
+``python nodes/paris/data/make_envmaps.py [NAME …]`` writes (NAME: only those maps, the other references kept)
 
 * ``envmaps/*.exr`` beside this file (``builtin:envmaps/NAME.exr``), 128×64 half-float
   equirectangular maps in LoadEnvironment's convention (nodes/io/environment.py):
   studio, interior, city, courtyard, forest — Blender's CC0 studio-light HDRIs (Debian
   ``blender-data``, /usr/share/blender/datafiles/studiolights/world/, Greg Zaal / HDRI Haven),
   block-averaged; ``sky`` — Mitsuba's ``sunsky`` emitter evaluated per pixel (the sun's disc,
-  far smaller than a pixel, integrated on a fine grid and put into its pixel); ``window`` — a
-  dim room with one bright window (analytic);
+  far smaller than a pixel, integrated on a fine grid and put into its pixel); ``sun`` — the
+  same emitter with the sun elsewhere (front left, lower; a tune map: the others tuned on have
+  no sun); ``window`` — a dim room with one bright window (analytic);
 * ``tests/data/envmap_refs.npz``: Mitsuba renders (``path``, direct light only, 512 spp) of the
   head of make_capture.head_mesh, diffuse with the uniform skin albedo ALBEDO, seen by
   make_capture.camera(SIZE), under an ``envmap`` emitter of each map (to_world: the map's
@@ -19,6 +20,7 @@ TUNE maps chose EnvironmentLights' defaults; CHECK maps only check them.
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -26,7 +28,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 WORLD_DIR = "/usr/share/blender/datafiles/studiolights/world"
 BLENDER = ("studio", "interior", "city", "courtyard", "forest")
-TUNE = ("studio", "city", "window")
+TUNE = ("studio", "city", "window", "sun")
 CHECK = ("interior", "courtyard", "forest", "sky")
 ALBEDO = (0.60, 0.40, 0.31)
 SIZE = 64  # pixels of the reference renders
@@ -65,6 +67,10 @@ def _eval(emitter, d_local: np.ndarray) -> np.ndarray:
         si.wi = mi.Vector3f(float(-x), float(-z), float(-y))
         out[i] = np.asarray(emitter.eval(si))[:3]
     return out
+
+
+#: the tune map ``sun``'s sun, map-local (right, up, centre): front left, 35° up
+SUN = (-0.45, 0.57, 0.69)
 
 
 def sky_map(sun=(0.55, 0.5, -0.67)) -> np.ndarray:
@@ -112,11 +118,10 @@ def window_map() -> np.ndarray:
     return np.clip(px, 0, None).astype(np.float32)
 
 
-def maps() -> dict[str, np.ndarray]:
-    out = {n: blender_map(n) for n in BLENDER}
-    out["sky"] = sky_map()
-    out["window"] = window_map()
-    return out
+def maps(names=None) -> dict[str, np.ndarray]:
+    make = {**{n: functools.partial(blender_map, n) for n in BLENDER}, "sky": sky_map,
+            "sun": functools.partial(sky_map, SUN), "window": window_map}
+    return {n: f() for n, f in make.items() if names is None or n in names}
 
 
 def render_reference(px: np.ndarray, spp: int = SPP, size: int = SIZE, seed: int = 3) -> np.ndarray:
@@ -137,13 +142,14 @@ def render_reference(px: np.ndarray, spp: int = SPP, size: int = SIZE, seed: int
     return np.asarray(mi.render(mi.load_dict(scene), spp=spp), np.float32)[..., :3]
 
 
-def main() -> None:
+def main(names=None) -> None:
+    """Write the maps ``names`` (all by default) and their references (the others' kept)."""
     from nodes.io.images import encode_image
 
     out = os.path.join(HERE, "envmaps")
     os.makedirs(out, exist_ok=True)
-    refs = {}
-    for name, px in maps().items():
+    refs = dict(np.load(REFS)) if names and os.path.exists(REFS) else {}
+    for name, px in maps(names).items():
         with open(os.path.join(out, name + ".exr"), "wb") as f:
             f.write(encode_image(px, ".exr", 32))
         refs[name] = render_reference(px).astype(np.float16)
@@ -153,7 +159,9 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(sys.argv[1:] or None)
 
 
 def lighting(px: np.ndarray, **params):
@@ -167,8 +175,9 @@ def lighting(px: np.ndarray, **params):
                            image=Image(np.asarray(px, np.float32)), frame=EnvironmentFrame())
 
 
-def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.ndarray]:
-    """(Render of the same head under EnvironmentLights(px) — numpy reference —, its coverage)."""
+def relight(px: np.ndarray, size: int = SIZE, render: dict | None = None, **params) -> tuple[np.ndarray, np.ndarray]:
+    """(Render (more params: ``render``) of the same head under EnvironmentLights(px) — numpy
+    reference —, its coverage)."""
     from graphkit.contract import compute_checked
     from nodes.paris.data.make_capture import camera, head_mesh
     from nodes.paris.models import PhongMaterial
@@ -176,7 +185,7 @@ def relight(px: np.ndarray, size: int = SIZE, **params) -> tuple[np.ndarray, np.
 
     env = lighting(px, **params)
     m, _, _ = head_mesh(4)
-    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size)), mesh=m, camera=camera(size),
+    out = compute_checked(Render(Render.Params(clamp=False, eye_highlights="off", shadow_map_size=4 * size, **(render or {}))), mesh=m, camera=camera(size),
                           material=PhongMaterial(diffuse=ALBEDO, specular=0.0), environment=env)
     return out["image"].pixels, out["coverage"].alpha > 0.5
 

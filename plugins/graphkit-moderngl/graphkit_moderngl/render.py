@@ -47,8 +47,10 @@ The same image, depth and coverage as the numpy reference (``nodes/paris/render.
 
 Differences: GL's fill rule and float32 arithmetic move a few silhouette / shadow-edge /
 texture-occlusion-edge pixels (see ``tolerance``); at most 32 lights (BadInput beyond).
-Not drawn: ``antialias``, ``mouth: photo`` on a mediapipe mesh, and the soft shadows of lights
-with a size (``LightSize``) while shadows are on (``glscene.not_drawn``): ``BackendCannotRun``,
+Not drawn: ``antialias``, ``mouth: photo`` on a mediapipe mesh, and, while shadows are on, the
+soft shadows of lights with a size (``LightSize``) and an environment's shadows from the
+visibility basis (Render's ``environment_basis`` > 0; 0 draws a shadow map per environment
+light here as in numpy) (``glscene.not_drawn``): ``BackendCannotRun``,
 so the engine computes the node with numpy (one notice) or, where the graph pins
 ``backend: opengl``, exits 2 saying why.
 """
@@ -94,7 +96,7 @@ class RenderGL(Backend):
         from nodes.paris.glscene import not_drawn, scene, static_key
 
         p = self.params
-        why = not_drawn(p, mesh, lights or ())
+        why = not_drawn(p, mesh, lights or (), environment)
         if why:  # never a silently different image: the engine falls back to numpy, or refuses if pinned
             raise BackendCannotRun(why)
         H, W = camera.height, camera.width
