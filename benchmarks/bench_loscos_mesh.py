@@ -12,7 +12,7 @@ in the scene file (emittances given).  Each size is written as OBJ + scene YAML 
 photographed by Mitsuba 3 (``--photo``: 64×48 px, 16 spp, the photo only feeds the textures),
 then run in a fresh process with ``--backend embree`` — LoadScene, ProjectTextures, RadiositySolve,
 TextureRefine, Unocclude (the preprocess) and one Relight (the lamp off) — which reports each
-node's CPU seconds and the peak memory (ru_maxrss) after it.  The child is stopped past
+node's CPU and wall seconds and the peak memory (ru_maxrss) after it.  The child is stopped past
 ``--cap-cpu`` CPU seconds (RLIMIT_CPU), ``--cap-wall`` wall seconds or ``--cap-mb`` resident MB
 (sampled every 0.2 s): that size is reported as infeasible, with the node it was in.  The
 box faces pair back into parallelograms, the curved parts stay triangles (the polygons count
@@ -153,9 +153,10 @@ def run_one(path: str, relit_out: str | None = None) -> None:
     from nodes.loscos.textures import ProjectTextures
 
     def run(cls, params=None, **kw):
-        c = time.process_time()
+        c, w = time.process_time(), time.perf_counter()
         out = cls(cls.Params(**(params or {})), Context()).compute(**kw)
         print(json.dumps({"node": cls.__name__, "cpu_s": time.process_time() - c,
+                          "wall_s": time.perf_counter() - w,
                           "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}),
               flush=True)
         return out
@@ -228,6 +229,7 @@ def run_capped(path: str, caps: tuple, relit_out: str | None = None) -> dict:
         row["stopped"] = f"{stopped}, in {at}"
     row["peak_mb"] = max([peak] + [d["maxrss_mb"] for d in row["nodes"].values()])
     row["preprocess_s"] = sum(row["nodes"].get(n, {}).get("cpu_s", 0.0) for n in PREPROCESS)
+    row["preprocess_wall_s"] = sum(row["nodes"].get(n, {}).get("wall_s", 0.0) for n in PREPROCESS)
     return row
 
 
@@ -237,7 +239,8 @@ def describe(row: dict) -> str:
     state = f"STOPPED ({row['stopped']})" if "stopped" in row else "done"
     return (f"{row['triangles']:6d} triangles → {row.get('polygons', '?')} polygons "
             f"({row.get('triangle_polygons', '?')} triangles): {state}; preprocess "
-            f"{row['preprocess_s']:.1f} s CPU ({parts}), {row.get('links', '?')} links, "
+            f"{row['preprocess_s']:.1f} s CPU, {row['preprocess_wall_s']:.1f} s wall ({parts}), "
+            f"{row.get('links', '?')} links, "
             f"peak {row['peak_mb']:.0f} MB; load {os.getloadavg()[0]:.1f}")
 
 

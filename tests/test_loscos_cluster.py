@@ -121,3 +121,49 @@ def test_reference_rays_over_many_occluders_test_only_the_near_ones_with_the_sam
     assert 100 < full.sum() < N - 100
     assert np.array_equal(got, full)
     assert np.array_equal(rays._occluded_near(p0, p1, o, u, v, n, tri, ignore, group=3), full)
+
+
+def ball_in_plain_box():
+    """A 2 m closed box of six single quads (inward, 4 m² each) around an icosphere of 1,280
+    triangles (radius 0.3 m, outward, 0.0009 m² each): past CLUSTER_ABOVE, every polygon
+    emitting 1 W/m² with reflectance 0.5."""
+    import trimesh
+
+    quads = []
+    e = np.eye(3) * 2.0
+    for k in range(3):
+        u, v = e[(k + 1) % 3], e[(k + 2) % 3]
+        for o, a, b in ((np.zeros(3), u, v), (e[k], v, u)):  # normals +e_k at 0, −e_k at 2
+            quads.append([o, o + a, o + a + b, o + b])
+    ball = trimesh.creation.icosphere(3, 0.3)
+    tri = ball.vertices[ball.faces] + 1.0
+    verts = np.array(quads + [[a, b, c, c] for a, b, c in tri])
+    P = len(verts)
+    return RoomScene([f"p{k}" for k in range(P)], verts, np.full((P, 3), 0.5),
+                     np.ones((P, 3)), [""] * P)
+
+
+def test_small_polygons_do_not_split_a_big_partner_by_size_alone():
+    """In a clustered scene a link whose smaller end is at most min_area (it cannot be split)
+    is not split on the other end for max_link_area alone (BF still splits it): a mesh's
+    small triangles would each get a link from every ≤ 0.5 m² piece of every wall.  Links
+    between two large elements still are; the furnace still holds."""
+    sc = ball_in_plain_box()
+    o, u, v, n, a = G.frame(sc.verts)
+    assert np.all(np.einsum("pc,pc->p", n[:6], 1.0 - o[:6] - 0.5 * (u[:6] + v[:6])) > 0)  # inward
+    prm = HR.RefineParams(eps_bf=1.0, eps_bfv=1.0, min_area=0.01, max_level=2, n_rays=2,
+                          n_ff=3, seed=0, max_link_area=0.5)
+    with rays.using("embree"):
+        h = R.hierarchical_solve(sc, prm, rounds=1, tol=1e-6)
+    ar, as_ = h.area(h.recv), h.area(h.send)
+    small = np.minimum(ar, as_) <= prm.min_area
+    assert small.any() and (np.maximum(ar, as_)[small] > prm.max_link_area).any()
+    assert np.all(np.maximum(ar, as_)[~small] <= prm.max_link_area)
+    ops = HR.operators(h)
+    L = len(ops.leaves)
+    B, _ = HR.solve(ops, np.ones((L, 1)), np.full((L, 1), 0.5), tol=1e-8)
+    w = h.area(ops.leaves)
+    rel = B[:, 0] / 2.0 - 1
+    assert abs(np.sum(w * rel)) / w.sum() < 0.01
+    assert np.sum(w * np.abs(rel)) / w.sum() < 0.03
+    assert np.abs(rel).max() < 0.15

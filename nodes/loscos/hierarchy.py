@@ -507,6 +507,8 @@ class RefineParams:
     n_ff: int = 3  # n_ff² receiver points for F
     seed: int = 0
     max_link_area: float = np.inf  # m²: larger elements never carry a link
+    #: m²: …unless the link's other end is at most this (a clustered scene's small polygons)
+    small_end: float = 0.0
 
 
 @dataclass
@@ -609,7 +611,7 @@ def refine_links(h: Hierarchy, r: np.ndarray, s: np.ndarray, B_elem: np.ndarray,
         # (d) links between elements larger than max_link_area are always split: BF bounds
         #     F·B̄ but not how B curves over a big sender (a wall peaks under the light, and
         #     the kernel from the opposite wall peaks there too), an error of one sign
-        trig_c |= np.maximum(ar, as_) > prm.max_link_area
+        trig_c |= (np.maximum(ar, as_) > prm.max_link_area) & (np.minimum(ar, as_) > prm.small_end)
         big_r = np.where(ar >= as_, can_r, ~can_s & can_r)
         # only the links that these leave unsplit need their visibility (and BFV: a PARTIAL
         # link that can be split is)

@@ -1,6 +1,7 @@
 """RadiositySolve and TextureRefine (Loscos 2000 §2.3–2.4, §4, §4.1)."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -419,6 +420,8 @@ def hierarchical_solve(scene: RoomScene, prm: HR.RefineParams, rounds: int, tol:
     B = initial_radiosity(scene, h)
     r, s = start_links(scene, h, B, prm, rng)
     frontier = FRONTIER if len(h.cl_V) else None
+    if len(scene.verts) > CLUSTER_ABOVE:  # a mesh's small polygons: BF alone splits their partners
+        prm = dataclasses.replace(prm, small_end=prm.min_area)
     links = None
     for k in range(rounds):
         # a later round refines the last round's links with the new B: what they carry
@@ -469,11 +472,13 @@ class RadiositySolve(Node):
     its links from a cluster hierarchy of the polygons instead of every pair of them
     (clusters.py: Smits, Arvo & Greenberg 1994; Sillion 1995): clusters far enough apart
     exchange light through one link (each member's own cosine towards the other end, Embree
-    visibility), links from lights always reach the polygons; its preprocess grows about
-    linearly with the polygons, not with their square.  Fewer polygons: as before.
+    visibility), links from lights always reach the polygons, and a link whose smaller end is
+    at most ``min_area`` (a mesh's small triangle) is split on its other end by BF alone, not
+    down to ``max_link_area``; its preprocess grows about linearly with the polygons, not with
+    their square.  Fewer polygons: as before.
     """
 
-    version = "4"
+    version = "5"
     inputs = {"scene": ROOM_SCENE, "projection": PROJECTION}
     outputs = {"solution": RADIOSITY, "lights": Json}
     tolerance = {"rtol": 1e-4, "atol": 1e-6}
