@@ -14,7 +14,8 @@ and drag it there.  Each drag reports its median and max move and how each move 
 about 2000 triangles (its coarser preprocess settings; clustered: past CLUSTER_ABOVE polygons),
 ``furnished_check`` the same at about 3000 (another layout, a 160×120 photo), ``room_mesh``: builtin:room read as
 mesh files.  The cases were tuned on ``room``; the others check.  Times are CPU seconds
-(time.process_time; the machine is shared) with the load average printed.  The peer, in the same
+(time.process_time; the machine is shared) with the load average printed; each drag also
+prints its moves' wall time (what a hand sees, meaningful on free cores).  The peer, in the same
 process: Relight's full §4.5 path (relight.relight_virtual: re-refine the links around the
 object and solve again) for the same box.  Paper (§6, a 195 MHz R10000): move 0.3 s/frame,
 insert 1.42 s, virtual light 7.8 s.  Targets: insert ≤ 1 s, move ≤ 0.1 s, light ≤ 2 s.
@@ -123,14 +124,18 @@ def report(res: dict, key: str, value: float) -> None:
 def drag(S, res: dict, key: str, name: str, steps) -> None:
     """Moves of ``name`` by each of ``steps``: the median and max move, and how the moves found
     their links (VirtualSession.stats["reach"])."""
-    times, how = [], []
+    times, walls, how = [], [], []
     for step in steps:
+        w0 = time.perf_counter()
         times.append(timed(S.move, name, offset=step)[1])
+        walls.append(time.perf_counter() - w0)
         how.append(S.stats["reach"])
     report(res, f"{key} (median)", float(np.median(times)))
     report(res, f"{key} (max)", max(times))
     print(f"    per move (ms): {' '.join(f'{1e3 * t:.0f}' for t in times)}; reach: "
           + ", ".join(f"{k} {how.count(k)}" for k in ("kept", "ahead", "built") if k in how))
+    print(f"    wall per move (ms; the latency a dragging hand sees on free cores): median "
+          f"{1e3 * np.median(walls):.0f}, max {1e3 * max(walls):.0f}")
 
 
 def main():
