@@ -291,18 +291,39 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     [lo, hi]: their bounding boxes overlap, and the box's bounding sphere (m, r) meets the
     tapered capsule around the elements' bounding spheres (c₁, r₁), (c₂, r₂) — which holds
     the hull: min over λ ∈ [0, L] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
-    function of λ, minimised in closed form)."""
-    blo, bhi, c1, ax, L, r1, k, slope = bounds
-    cand = np.flatnonzero((blo[0] <= hi[0]) & (bhi[0] >= lo[0]))
+    function of λ, minimised in closed form).  The capsule is measured on every link where
+    most boxes overlap (a reach's links: no gathers), else on those that do."""
+    blo, bhi = bounds[:2]
+    below, above = _f32_at_most(hi), _f32_at_least(lo)  # (float32 thresholds, the same tests)
+    ok = (blo[0] <= below[0]) & (bhi[0] >= above[0])
     for j in (1, 2):
-        cand = cand[(blo[j][cand] <= hi[j]) & (bhi[j][cand] >= lo[j])]
+        ok &= (blo[j] <= below[j]) & (bhi[j] >= above[j])
     m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
-    w = m - c1[cand]
-    a = np.einsum("nc,nc->n", w, ax[cand])  # along the axis
+    cand = np.flatnonzero(ok)
+    if 2 * len(cand) > len(ok):
+        return np.flatnonzero(ok & (_capsule_gap(m, *bounds[2:]) <= r))
+    return cand[_capsule_gap(m, *(np.take(x, cand, axis=0) for x in bounds[2:])) <= r]
+
+
+def _capsule_gap(m, c1, ax, L, r1, k, slope) -> np.ndarray:
+    """|m − c(λ)| − r(λ) at its minimum over the capsule's axis (see :func:`shaft_crossed`)."""
+    w = m - c1
+    a = np.einsum("nc,nc->n", w, ax)  # along the axis
     hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
-    s = np.clip(a + slope[cand] * hh, 0, L[cand])
-    gap = np.sqrt((a - s) ** 2 + hh * hh) - r1[cand] - k[cand] * s
-    return cand[gap <= r]
+    s = np.clip(a + slope * hh, 0, L)
+    return np.sqrt((a - s) ** 2 + hh * hh) - r1 - k * s
+
+
+def _f32_at_most(x) -> np.ndarray:
+    """The largest float32 values ≤ x (float64): ``y <= x`` ⇔ ``y <= this`` for float32 y."""
+    y = np.asarray(x).astype(np.float32)
+    return np.where(y > x, np.nextafter(y, np.float32(-np.inf)), y)
+
+
+def _f32_at_least(x) -> np.ndarray:
+    """The smallest float32 values ≥ x (float64)."""
+    y = np.asarray(x).astype(np.float32)
+    return np.where(y < x, np.nextafter(y, np.float32(np.inf)), y)
 
 
 def link_rays(h: HR.Hierarchy, r, s, n: int):
