@@ -211,7 +211,7 @@ def packed_hit(pack: tuple, tris: np.ndarray) -> np.ndarray:
         return out
     v = tris.reshape(-1, 3)
     m = np.flatnonzero(near_box(p0, p1 if kind == "embree" else p1 - p0, v.min(0), v.max(0)))
-    p0, p1 = p0[m], p1[m]
+    p0, p1 = np.take(p0, m, axis=0), np.take(p1, m, axis=0)  # (take: ~4× fancy indexing)
     if kind == "embree":
         from embreex import mesh_construction, rtcore_scene
 
@@ -687,9 +687,9 @@ class VirtualSession:
             p.ahead = None
             self.stats["reach"] = "ahead" if ready else "built"
         sel = shaft_crossed(R.bounds, lo, hi)
-        idx = R.links[sel]
-        vf = self._object_factor((R.pack[0], *(x[sel].reshape(-1, 3) for x in R.pack[1:])),
-                                 R.w[sel], t.tris)
+        idx, w = np.take(R.links, sel), np.take(R.w, sel, axis=0)
+        vf = self._object_factor((R.pack[0], *(np.take(x, sel, axis=0).reshape(-1, 3)
+                                               for x in R.pack[1:])), w, t.tris)
         keep = vf < 1.0  # a link the object does not block has no entry in ΔK
         p.links, p.vfac = idx[keep], vf[keep]
         if self.clusters is not None:
@@ -715,7 +715,7 @@ class VirtualSession:
         b = packed_hit(pack, tris).reshape(w.shape)
         out = np.ones(len(w))
         m = np.flatnonzero(b.any(1))  # the kernel only where a ray is blocked
-        out[m] = weighted_visible(b[m], w[m])
+        out[m] = weighted_visible(np.take(b, m, axis=0), np.take(w, m, axis=0))
         return out
 
     def _look_ahead(self, p: _Placed, step: np.ndarray) -> None:
@@ -772,7 +772,7 @@ class VirtualSession:
                     for j in range(len(parts[0][2])))
         k, new, h = LINK_RAYS * LINK_RAYS, np.flatnonzero(pos < 0), self.h
         r, s = h.recv[links[new]], h.send[links[new]]
-        p0, p1 = self._ends[0][r], self._ends[1][s]
+        p0, p1 = np.take(self._ends[0], r, axis=0), np.take(self._ends[1], s, axis=0)
         kind, o, d = ray_pack(p0.reshape(-1, 3), p1.reshape(-1, 3))
         fresh = (o.reshape(-1, k, 3), d.reshape(-1, k, 3), ray_weights(h, r, s, p0, p1))
         out = []
@@ -911,9 +911,9 @@ class VirtualSession:
         vf = np.ones(len(idx))
         np.multiply.at(vf, inv, np.concatenate([p.vfac for p in objs] + [np.zeros(0)]))
         sub = HR.Hierarchy(**{k: getattr(h, k) for k in HR.Hierarchy.ARRAYS})
-        sub.recv, sub.send = h.recv[idx], h.send[idx]
-        rows, cols, vals = (
-            [x] for x in HR.link_entries(sub, h.F[idx] * h.V[idx] * (vf - 1.0), h.C[idx, :2]))
+        sub.recv, sub.send = np.take(h.recv, idx), np.take(h.send, idx)
+        rows, cols, vals = ([x] for x in HR.link_entries(
+            sub, np.take(h.F, idx) * np.take(h.V, idx) * (vf - 1.0), np.take(h.C, idx, axis=0)[:, :2]))
         for p in self._objects():
             rows.append(p.coo[0]); cols.append(p.coo[1]); vals.append(p.coo[2])
         for p in self._lights():
