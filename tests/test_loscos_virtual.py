@@ -54,6 +54,44 @@ def test_shaft_test_keeps_every_link_the_box_blocks():
     assert len(crossed) < 0.5 * len(h.recv)  # …and it is a real cut
 
 
+def test_shaft_test_paths_agree_with_the_plain_test():
+    """shaft_crossed's float32 thresholds and both of its paths (capsule on every link where
+    most boxes overlap, on the overlapping ones' rows else) find what the plain test finds:
+    float64 box comparisons, then the capsule on the links that pass."""
+    from nodes.loscos import virtual as VV
+
+    S = session()
+    blo, bhi = S.bounds[:2]
+    rng = np.random.default_rng(5)
+    big = 0
+    for size in (0.02, 0.3, 3.0) * 6:
+        c = rng.uniform(-1, 1, 3)
+        g = size * rng.random(3)
+        lo, hi = c - g, c + g * rng.random()
+        ok = np.all((blo <= hi[:, None]) & (bhi >= lo[:, None]), 0)
+        cand = np.flatnonzero(ok)
+        m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
+        want = cand[VV._capsule_gap(m, *(x[cand] for x in S.bounds[2:])) <= r]
+        np.testing.assert_array_equal(VV.shaft_crossed(S.bounds, lo, hi), want)
+        big += 2 * len(cand) > len(ok)
+    assert 0 < big < 18  # both paths taken
+    x = np.float64(np.float32(0.1)) + np.array([-1e-12, 0.0, 1e-12])  # at a float32 value
+    f = np.float32(0.1)
+    assert ((f <= VV._f32_at_most(x)) == (f <= x)).all() and ((f >= VV._f32_at_least(x)) == (f >= x)).all()
+
+
+def test_union_of_link_runs_is_np_unique():
+    from nodes.loscos import virtual as VV
+
+    rng = np.random.default_rng(2)
+    runs = [np.sort(rng.choice(500, k, replace=False)) for k in (40, 0, 90, 7)]
+    idx, inv = VV._union(runs)
+    want = np.unique(np.concatenate(runs), return_inverse=True)
+    np.testing.assert_array_equal(idx, want[0])
+    np.testing.assert_array_equal(inv, want[1])
+    assert len(VV._union([])[0]) == 0
+
+
 #: what stopping the update at TOL (relative to the brightest emittance) leaves, in radiance
 #: (the image peaks at about 0.7)
 SOLVER = 5e-3
