@@ -61,7 +61,7 @@ def test_shaft_test_paths_agree_with_the_plain_test():
     from nodes.loscos import virtual as VV
 
     S = session()
-    blo, bhi = S.bounds[:2]
+    blo, bhi = S.bounds[0:3], S.bounds[3:6]
     rng = np.random.default_rng(5)
     big = 0
     for size in (0.02, 0.3, 3.0) * 6:
@@ -71,7 +71,7 @@ def test_shaft_test_paths_agree_with_the_plain_test():
         ok = np.all((blo <= hi[:, None]) & (bhi >= lo[:, None]), 0)
         cand = np.flatnonzero(ok)
         m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
-        want = cand[VV._capsule_gap(m, *(x[cand] for x in S.bounds[2:])) <= r]
+        want = cand[VV._capsule_gap(m, S.bounds[6:, cand]) <= r]
         np.testing.assert_array_equal(VV.shaft_crossed(S.bounds, lo, hi), want)
         big += 2 * len(cand) > len(ok)
     assert 0 < big < 18  # both paths taken

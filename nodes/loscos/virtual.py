@@ -260,9 +260,10 @@ def _triangle_t(o: np.ndarray, d: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return np.where(ok, t, np.nan)
 
 
-def link_bounds(h: HR.Hierarchy):
-    """Per link what the shaft tests need, once per session (float32, half the memory traffic):
-    the bounding box (lo, hi: (3, M), axis by axis) of both elements, and the tapered capsule
+def link_bounds(h: HR.Hierarchy) -> np.ndarray:
+    """Per link what the shaft tests need, once per session (float32, half the memory traffic;
+    (16, M), one row per quantity, see :func:`capsule_bounds`): the bounding box of both
+    elements, and the tapered capsule
     around their bounding spheres (c₁, r₁), (c₂, r₂): c₁, the unit axis, its length L, the
     radius growth per metre k and the slope where the nearest point of the capsule leaves the
     axis (k/√(1−k²), k clipped below 1: |k| ≥ 1 is monotone, the clip reaches an end)."""
@@ -275,15 +276,16 @@ def link_bounds(h: HR.Hierarchy):
     return capsule_bounds(pts.min(1), pts.max(1), c1, r1, c2, r2)
 
 
-def capsule_bounds(lo, hi, c1, r1, c2, r2):
-    """:func:`link_bounds`'s tuple from each link's box (lo, hi: (M, 3)) and its two ends'
-    bounding spheres (c₁, r₁), (c₂, r₂)."""
-    f = lambda x: np.ascontiguousarray(x, np.float32)  # noqa: E731
-    lo, hi = f(lo.T), f(hi.T)
+def capsule_bounds(lo, hi, c1, r1, c2, r2) -> np.ndarray:
+    """:func:`link_bounds`'s rows from each link's box (lo, hi: (M, 3)) and its two ends'
+    bounding spheres (c₁, r₁), (c₂, r₂): lo (rows 0–2), hi (3–5), c₁ (6–8), the unit axis
+    (9–11), L, r₁, k, slope (12–15), float32, each link a column (a link's rows are one
+    gather, each quantity's values contiguous)."""
     L = np.maximum(np.linalg.norm(c2 - c1, axis=1), 1e-12)
     k = (r2 - r1) / L
     kc = np.clip(k, -0.999999, 0.999999)
-    return lo, hi, f(c1), f((c2 - c1) / L[:, None]), f(L), f(r1), f(k), f(kc / np.sqrt(1 - kc * kc))
+    return np.vstack([lo.T, hi.T, c1.T, ((c2 - c1) / L[:, None]).T, L, r1, k,
+                      kc / np.sqrt(1 - kc * kc)]).astype(np.float32)
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
@@ -293,7 +295,7 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     the hull: min over λ ∈ [0, L] of |m − c(λ)| − r(λ) ≤ r, c and r linear in λ (a convex
     function of λ, minimised in closed form).  The capsule is measured on every link where
     most boxes overlap (a reach's links: no gathers), else on those that do."""
-    blo, bhi = bounds[:2]
+    blo, bhi = bounds[0:3], bounds[3:6]
     below, above = _f32_at_most(hi), _f32_at_least(lo)  # (float32 thresholds, the same tests)
     ok = (blo[0] <= below[0]) & (bhi[0] >= above[0])
     for j in (1, 2):
@@ -301,17 +303,18 @@ def shaft_crossed(bounds, lo, hi) -> np.ndarray:
     m, r = (0.5 * (lo + hi)).astype(np.float32), 0.5 * np.linalg.norm(hi - lo)
     cand = np.flatnonzero(ok)
     if 2 * len(cand) > len(ok):
-        return np.flatnonzero(ok & (_capsule_gap(m, *bounds[2:]) <= r))
-    return cand[_capsule_gap(m, *(np.take(x, cand, axis=0) for x in bounds[2:])) <= r]
+        return np.flatnonzero(ok & (_capsule_gap(m, bounds[6:]) <= r))
+    return cand[_capsule_gap(m, np.take(bounds[6:], cand, axis=1)) <= r]
 
 
-def _capsule_gap(m, c1, ax, L, r1, k, slope) -> np.ndarray:
-    """|m − c(λ)| − r(λ) at its minimum over the capsule's axis (see :func:`shaft_crossed`)."""
-    w = m - c1
-    a = np.einsum("nc,nc->n", w, ax)  # along the axis
-    hh = np.sqrt(np.maximum(np.einsum("nc,nc->n", w, w) - a * a, 0.0))  # off the axis
-    s = np.clip(a + slope * hh, 0, L)
-    return np.sqrt((a - s) ** 2 + hh * hh) - r1 - k * s
+def _capsule_gap(m, cap: np.ndarray) -> np.ndarray:
+    """|m − c(λ)| − r(λ) at its minimum over the capsule's axis (see :func:`shaft_crossed`);
+    ``cap``: :func:`capsule_bounds`' rows 6–15."""
+    w0, w1, w2 = m[0] - cap[0], m[1] - cap[1], m[2] - cap[2]
+    a = w0 * cap[3] + w1 * cap[4] + w2 * cap[5]  # along the axis
+    hh = np.sqrt(np.maximum(w0 * w0 + w1 * w1 + w2 * w2 - a * a, 0.0))  # off the axis
+    s = np.clip(a + cap[9] * hh, 0, cap[6])
+    return np.sqrt((a - s) ** 2 + hh * hh) - cap[7] - cap[8] * s
 
 
 def _f32_at_most(x) -> np.ndarray:
@@ -371,7 +374,7 @@ class ClusterRays:
     around its receiver members' and its sender members' bounding spheres); ``start``: link l's
     receiver entries are ``start[l]:start[l + 1]``."""
 
-    bounds: tuple
+    bounds: np.ndarray
     start: np.ndarray
     pts: np.ndarray
     cent: np.ndarray
@@ -524,7 +527,7 @@ class _Reach:
     lo: np.ndarray
     hi: np.ndarray
     links: np.ndarray
-    bounds: tuple
+    bounds: np.ndarray
     pack: tuple
     w: np.ndarray
 
@@ -745,7 +748,7 @@ class VirtualSession:
             return
         n = -(-(M - A.done) // max(1, left - 1))  # (the last move for the rays)
         b = min(M, A.done + -(-n // SCAN_ALIGN) * SCAN_ALIGN)
-        part = tuple(x[:, A.done:b] if j < 2 else x[A.done:b] for j, x in enumerate(self.bounds))
+        part = self.bounds[:, A.done:b]
         A.found.append(self._part(A.done + shaft_crossed(part, A.lo, A.hi), R))
         A.done = b
 
@@ -761,15 +764,14 @@ class VirtualSession:
         if old is not None and old.pack[0] == _ray_kind() and len(old.links):
             at = np.minimum(np.searchsorted(old.links, links), len(old.links) - 1)
             pos = np.where(old.links[at] == links, at, -1)
-        sub = tuple(np.take(x, links, axis=int(j < 2)) for j, x in enumerate(self.bounds))
+        sub = np.take(self.bounds, links, axis=1)
         return links, pos, sub
 
     def _reach_of(self, lo, hi, old: _Reach | None, parts: list) -> _Reach:
         """The reach [lo, hi] of the links in ``parts`` (see _part): the rays of those the old
         reach has taken from it, the others' cast anew."""
         links, pos = (np.concatenate([q[j] for q in parts]) for j in (0, 1))
-        sub = tuple(np.concatenate([q[2][j] for q in parts], axis=int(j < 2))
-                    for j in range(len(parts[0][2])))
+        sub = np.concatenate([q[2] for q in parts], axis=1)
         k, new, h = LINK_RAYS * LINK_RAYS, np.flatnonzero(pos < 0), self.h
         r, s = h.recv[links[new]], h.send[links[new]]
         p0, p1 = np.take(self._ends[0], r, axis=0), np.take(self._ends[1], s, axis=0)
