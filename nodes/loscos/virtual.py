@@ -284,8 +284,8 @@ def capsule_bounds(lo, hi, c1, r1, c2, r2) -> np.ndarray:
     L = np.maximum(np.linalg.norm(c2 - c1, axis=1), 1e-12)
     k = (r2 - r1) / L
     kc = np.clip(k, -0.999999, 0.999999)
-    return np.vstack([lo.T, hi.T, c1.T, ((c2 - c1) / L[:, None]).T, L, r1, k,
-                      kc / np.sqrt(1 - kc * kc)]).astype(np.float32)
+    return np.ascontiguousarray(np.vstack([lo.T, hi.T, c1.T, ((c2 - c1) / L[:, None]).T, L, r1,
+                                           k, kc / np.sqrt(1 - kc * kc)]), np.float32)
 
 
 def shaft_crossed(bounds, lo, hi) -> np.ndarray:
