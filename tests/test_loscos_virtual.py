@@ -80,6 +80,21 @@ def test_shaft_test_paths_agree_with_the_plain_test():
     assert ((f <= VV._f32_at_most(x)) == (f <= x)).all() and ((f >= VV._f32_at_least(x)) == (f >= x)).all()
 
 
+def test_near_leaves_left_out_receive_nothing():
+    """The leaves _near_leaves leaves out (behind every vertex of the object) have all-zero
+    kernel rows: the object's reflected light is the same without them."""
+    from nodes.loscos import virtual as VV
+
+    S = session()
+    for t in (box(), box(center=(0.1, -0.9, -0.1), size=(0.6, 0.2, 0.4))):
+        mid, r = 0.5 * (t.lo + t.hi), 0.5 * np.linalg.norm(t.hi - t.lo)
+        every = np.flatnonzero(np.linalg.norm(S.leaf_c - mid, axis=1) < VV.NEAR * r)
+        out = np.setdiff1d(every, S._near_leaves(t))
+        assert len(out) and len(out) < len(every)
+        F = VV._point_kernel(S.leaf_c[out], S.leaf_n[out], t.centre, t.normal, t.area)
+        assert not F.any()
+
+
 def test_union_of_link_runs_is_np_unique():
     from nodes.loscos import virtual as VV
 

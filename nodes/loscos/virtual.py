@@ -848,9 +848,15 @@ class VirtualSession:
         return np.asarray(leaf_idx) - self.L0 + self.N0
 
     def _near_leaves(self, t: Thing) -> np.ndarray:
+        """Real leaves within NEAR × t's radius that face it: a leaf whose plane has every
+        vertex of t 1 µm or more behind it sees none of t's patches (their centres lie in
+        t's hull), so its kernel row would be all zeros."""
         mid = 0.5 * (t.lo + t.hi)
         r = 0.5 * np.linalg.norm(t.hi - t.lo)
-        return np.flatnonzero(np.linalg.norm(self.leaf_c - mid, axis=1) < NEAR * r)
+        near = np.flatnonzero(np.linalg.norm(self.leaf_c - mid, axis=1) < NEAR * r)
+        c, n = self.leaf_c[near], self.leaf_n[near]
+        ahead = n @ t.tris.reshape(-1, 3).T - np.einsum("mc,mc->m", n, c)[:, None]
+        return near[ahead.max(1, initial=-np.inf) > -1e-6]
 
     def _point_to_polygons(self, x, n, so, su, sv, spoly, tri=None):
         """(M,K) form factors from points x (normals n) to polygons (o, u, v; triangles where
