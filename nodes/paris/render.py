@@ -539,7 +539,7 @@ class Render(Node):
       drawn when a light first needs it and kept with the surface (in this process's memory,
       not the cache), so a turning environment draws no shadow map; in a live session (the
       studio: ``Context.interactive``) the rest are drawn in the background after the first
-      render, ~4 s of CPU at 1024², so later rotations draw none; a light takes the
+      render, ~6–7 s of CPU at 1024² (bench_environment.py --prefill), so later rotations draw none; a light takes the
       cosine-weighted visibility of the directions within ~√(4π/n) of it (an area light's
       soft shadow).  With 0, a shadow map per light (the brightest ``shadow_map_size``²,
       dimmer ones smaller, side ∝ luminance^⅓).  Its 9 spherical-harmonic coefficients add
@@ -652,8 +652,9 @@ class Render(Node):
             if not (p.shadows and sizes[i]):
                 task = None
             elif i >= own and p.environment_basis:  # from the visibility basis: no map
-                task, cost = functools.partial(self._basis(g).light, np.asarray(light.direction), idx), len(idx)
-                round_.append(task.args[0])
+                d = np.asarray(light.direction)
+                task, cost = functools.partial(self._basis(g).light, d, idx), len(idx)
+                round_.append(d)
             else:
                 task = functools.partial(self._visibility, mesh, light, camera, s, idx, i,
                                          "lights" if i < own else "environment", sizes[i])
