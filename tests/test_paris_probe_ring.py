@@ -1,11 +1,16 @@
-"""A ring drawn on the backdrop around the mirror ball is not taken for the ball (issue 26 item 7).
+"""A ring, disc or band drawn on the backdrop around the mirror ball is not taken for the ball
+(issue 26 item 7).
 
 find_ball takes the outermost closed circle around the flash's highlight for the ball; a ring
 printed on the backdrop around a ball whose silhouette is faint (its rim reflects the backdrop
 behind it) is such a circle, and ProbeLight 4 returned its flash direction 2.6-10° off with exit 0.
 A silhouette is a step across the outline; a printed line rises and falls back to the backdrop's
 level (ballfind._line_profile): such an outline now makes the node refuse (exit 2, naming the
-params to give).  Synthetic orthographic probes (3×3 supersampled, a little noise): fast.
+params to give).  A disc or wide band printed around the ball has a step at its edge like a
+silhouette, but a mirror ball's rim reflects the backdrop beyond its outline (the grazing rays),
+so it is never brighter than what lies outside nor darker than half of it; a print's inside is
+its own level (ballfind._unreflected): refused too; ProbeLight 6 answered 2.4-5.1° off with
+exit 0.  Synthetic orthographic probes (3×3 supersampled, a little noise): fast.
 """
 import numpy as np
 import pytest
@@ -28,11 +33,13 @@ def _angle(a, b):
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
-def _probe(flash, ring_r=0.0, ring_off=(0.0, 0.0), ring_level=0.0) -> Image:
+def _probe(flash, ring_r=0.0, ring_off=(0.0, 0.0), ring_level=0.0, ring_w=3.0) -> Image:
     """A mirror ball: sky 0.15 above, ground 0.07 below, the flash's clipped highlight, and
     behind the ball (its rim) the backdrop × 0.8, so the silhouette is a faint step; the
-    backdrop (0.05) carries a bright ring 3 px wide of radius ``ring_r`` (0: none) centred
-    ``ring_off`` px from the ball's centre."""
+    backdrop (0.05) carries a ring ``ring_w`` px wide (``ring_level`` brighter) of radius
+    ``ring_r`` (0: none) centred ``ring_off`` px from the ball's centre (a disc: ``ring_w`` =
+    2 ``ring_r``).  The rim shows the backdrop beyond the ring: the ring's reflection is
+    squeezed into the outline's last fraction of a pixel (see ballfind._unreflected)."""
     acc = np.zeros((H, W))
     for oy in (np.arange(3) + 0.5) / 3 - 0.5:
         for ox in (np.arange(3) + 0.5) / 3 - 0.5:
@@ -43,7 +50,7 @@ def _probe(flash, ring_r=0.0, ring_off=(0.0, 0.0), ring_level=0.0) -> Image:
             ball = np.where(d[..., 1] < 0, 0.15, 0.07) + 40.0 * np.exp(-(ang / 3.0) ** 2)
             ball = np.where(d[..., 2] > 0.3, 0.8 * BACKDROP, ball)
             rr = np.hypot(xx - CX - ring_off[0], yy - CY - ring_off[1])
-            backdrop = BACKDROP + ring_level * (np.abs(rr - ring_r) <= 1.5)
+            backdrop = BACKDROP + ring_level * (np.abs(rr - ring_r) <= ring_w / 2)
             acc += np.where((xx - CX) ** 2 + (yy - CY) ** 2 <= R * R, ball, backdrop) / 9
     img = np.clip(acc + np.random.default_rng(0).normal(0, 0.002, acc.shape), 0, 1)
     return Image(np.repeat(img[..., None], 3, 2).astype(np.float32))
@@ -65,8 +72,12 @@ def test_ring_on_the_backdrop_is_not_taken_for_the_ball(ring, monkeypatch):
     assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
     assert refusal.port == "probe" and "a ring on the backdrop, not the ball's edge" in refusal.message
     assert "centre_x, centre_y and radius" in refusal.message
-    # without the rule the ring is taken: 4.2, 10.2 and 2.6° off with exit 0
+    # without the rule the rim test (a disc's, below) refuses it too: a ring's inside is not a mirror's
     monkeypatch.setattr(ballfind, "LINE_RATIO", 1e9)
+    direction, refusal = _auto(img)
+    assert direction is None and "a disc or band on the backdrop" in refusal.message
+    # without both the ring is taken: 4.2, 10.2 and 2.6° off with exit 0
+    monkeypatch.setattr(ballfind, "NOT_MIRROR", 2.0)
     direction, _ = _auto(img)
     assert direction is not None and _angle(direction, flash) > 1.0
 
@@ -85,3 +96,44 @@ def test_the_balls_silhouette_is_a_step_not_a_line():
         ridge, step = ballfind._line_profile(ballfind.stabilise(ballfind.luminance(px)), fit)
         assert lo <= ridge / step <= hi, (ridge, step)
     assert 1.0 < ballfind.LINE_RATIO < 100.0
+
+
+# (outer radius, width, offset from the ball's centre, level over the backdrop's 0.05)
+DISCS = [(56.0, 56.0, (2.0, -1.5), 0.3), (56.0, 56.0, (2.0, -1.5), 0.05), (60.0, 60.0, (2.0, 1.0), -0.03),
+         (60.0, 16.0, (3.0, 2.0), 0.1)]
+
+
+def _disc_probe(flash, outer, width, off, level):
+    return _probe(flash, outer - width / 2, off, level, ring_w=width)
+
+
+@pytest.mark.parametrize("disc", DISCS, ids=["bright disc", "faint disc", "dark disc", "band"])
+def test_disc_or_band_on_the_backdrop_is_not_taken_for_the_ball(disc, monkeypatch):
+    """A disc or band around the ball: its edge is the outermost closed circle, a step like a
+    silhouette; refused because its inside is no mirror's rim."""
+    flash = _flash(6.0)
+    img = _disc_probe(flash, *disc)
+    direction, refusal = _auto(img)
+    assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
+    assert refusal.port == "probe" and "a disc or band on the backdrop, not the ball's edge" in refusal.message
+    assert "centre_x, centre_y and radius" in refusal.message
+    # without the rule the disc's edge is taken: 4.3, 4.3, 2.4 and 5.1° off with exit 0
+    monkeypatch.setattr(ballfind, "NOT_MIRROR", 2.0)
+    direction, _ = _auto(img)
+    assert direction is not None and _angle(direction, flash) > 1.0
+
+
+def test_the_balls_rim_is_a_mirrors():
+    """The ball's own rim (the backdrop × 0.8) breaks the mirror's bounds on no sector; each
+    disc's rim on every sector, brighter or darker as printed.  NOT_MIRROR (0.7) lies between
+    (true rims of the Mitsuba probes: up to 38 %)."""
+    flash = _flash(6.0)
+    lum = ballfind.luminance(_probe(flash).pixels)
+    assert ballfind._unreflected(lum, ballfind.BallFit(CX, CY, R, True))[0] == 0.0
+    for disc in DISCS:
+        px = _disc_probe(flash, *disc).pixels
+        fit = ballfind.find_ball(px)
+        assert abs(fit.r - disc[0]) < 1.0, fit.summary()      # the disc's edge was the outline found
+        share, way = ballfind._unreflected(ballfind.luminance(px), fit)
+        assert share == 1.0 and way == ("darker" if disc[3] < 0 else "brighter"), (disc, share, way)
+    assert 0.38 < ballfind.NOT_MIRROR < 1.0

@@ -39,7 +39,8 @@ silhouette has:
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
 when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the outline found is a thin
-line with the same level on both sides (a ring drawn on the backdrop, :func:`_line_profile`), when the pixels just
+line with the same level on both sides (a ring drawn on the backdrop, :func:`_line_profile`), when its rim is
+brighter or darker than a mirror's rim can be (a disc or band printed on the backdrop, :func:`_unreflected`), when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
 the ball is mostly outside the frame.  Tuned on the TUNING probes of
 ``nodes/paris/data/make_probes.py`` and the tune half of ``varied_probes.py``; checked on their
@@ -70,6 +71,10 @@ MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
 CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
 LINE_RATIO = 3.0         # an outline whose cross-profile rises and falls back this many times more than it
                          # steps is a line on the backdrop (a printed ring), not a silhouette (see _line_profile)
+MIN_REFLECTANCE = 0.5    # a mirror ball's reflectance at grazing incidence is at least this (chrome ~0.55 head-on,
+                         # a metal's rises towards 1 at grazing)
+NOT_MIRROR = 0.7         # an outline whose rim a mirror could not show on this fraction of its sectors is not a
+                         # mirror ball's (see _unreflected)
 SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
@@ -138,7 +143,7 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
     fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
-    return _choose(fits, g, clipped, spots[0] if spots else None)
+    return _choose(fits, lum if highlight else None, g, clipped, spots[0] if spots else None)
 
 
 def _candidates(g, seeds, spots) -> list[dict]:
@@ -170,9 +175,10 @@ def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
     return fits
 
 
-def _choose(fits: list[BallFit], g, clipped, spot) -> BallFit:
+def _choose(fits: list[BallFit], lum, g, clipped, spot) -> BallFit:
     """Step 5: the ball among the fitted circles, with why it may not be (``spot``: the
-    flash's highlight (x, y), the largest clipped blob, or None)."""
+    flash's highlight (x, y), the largest clipped blob, or None; ``lum``: the linear
+    luminance of a mirror-ball photo, None for a white ball)."""
     where = " around the highlight" if spot is not None else ""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
     closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
@@ -193,7 +199,7 @@ def _choose(fits: list[BallFit], g, clipped, spot) -> BallFit:
             balls.append(f)
     best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, fits, g, clipped)
+    doubt = _doubt(best, fits, lum, g, clipped)
     if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
@@ -224,9 +230,10 @@ def _off_centre(f: BallFit, spot) -> float:
     return float(np.hypot(spot[0] - f.cx, spot[1] - f.cy) / max(f.r, 1e-9))
 
 
-def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
+def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped) -> str:
     """Why ``best``, while its own fit is confident, may not be the ball ('' if nothing speaks
-    against it): clipped pixels just outside it, or a fainter circle around it (among the
+    against it): clipped pixels just outside it, a rim that is not a mirror's (``lum``: the
+    linear luminance of a mirror-ball photo, :func:`_unreflected`), or a fainter circle around it (among the
     ``fits``, or a concentric edge on the stabilised image ``g`` up to 1.4 radii out: a
     mirror ball's rim, reflecting the backdrop behind it, can be too faint to be a candidate
     while an edge of its reflection inside is closed)."""
@@ -240,6 +247,12 @@ def _doubt(best: BallFit, fits: list[BallFit], g, clipped) -> str:
     if ridge >= EDGE_SNR and ridge > LINE_RATIO * step:
         return (f"the outline found ({best.summary()}) is a thin line with the same level on both sides "
                 f"(it rises {ridge:.0f} noise σ and steps {step:.1f}): a ring on the backdrop, not the ball's edge")
+    if lum is not None:
+        share, way = _unreflected(lum, best)
+        if share >= NOT_MIRROR:
+            return (f"just inside the outline found ({best.summary()}) the image is {way} than a mirror ball's rim "
+                    f"can be on {100 * share:.0f}% of it (a mirror's rim reflects the backdrop beyond its outline): "
+                    "a disc or band on the backdrop, not the ball's edge")
     outer = [(f.r, f.support) for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
     outer += _outer_edges(g, best)
     if not outer:
@@ -266,6 +279,38 @@ def _line_profile(g, f: BallFit) -> tuple[float, float]:
     inn, out = prof[ok][:, ts <= f.r - 4].mean(1), prof[ok][:, ts >= f.r + 4].mean(1)
     ridge = np.abs(prof[ok][:, np.abs(ts - f.r) <= 2] - 0.5 * (inn + out)[:, None]).max(1)
     return float(np.median(ridge)), float(np.median(np.abs(out - inn)))
+
+
+def _unreflected(lum, f: BallFit) -> tuple[float, str]:
+    """(fraction, "brighter" or "darker"): the share of the 8° sectors of the outline ``f``
+    (inside the frame) whose rim — the band 1–2 px inside — a mirror ball could not show.  At
+    its silhouette a mirror ball's reflected rays graze it: the rim shows the backdrop *beyond*
+    the outline (radially squeezed: t px inside shows the backdrop about c·√t px outside, c set
+    by the backdrop's distance), times the ball's reflectance (``MIN_REFLECTANCE`` … 1).  So in
+    a sector the rim is neither brighter than the brightest of the backdrop 1 px to one radius
+    outside along its rays, nor darker than ``MIN_REFLECTANCE`` × its darkest, each by over 3
+    noise σ (linear luminance; σ from :func:`noise_curve`).  A disc or wide band printed on the
+    backdrop around the ball has a step at its edge like a silhouette, but inside it the
+    print's own level, no reflection: on the synthetic discs of tests/test_paris_probe_ring.py
+    every sector breaks the bound.  A true rim may reflect backdrop from further out, brighter
+    or darker (a checked backdrop's squares, another lamp's light): up to 33 % of the sectors
+    on the tune probes (make_probes' TUNING, found; varied_probes' tune half, true circle), 38 %
+    on the CHECK probes (found; read after choosing ``NOT_MIRROR``)."""
+    x, sg = noise_curve(lum)
+    ts = np.arange(f.r - 2, 2 * f.r + 1 + 1e-9, 0.5)
+    prof, _, valid = _polar(lum, f.cx, f.cy, ts)
+    prof, valid = _sectors(prof, valid)
+    rim, out = ts <= f.r - 1, ts >= f.r + 1
+    ok = valid[:, rim].all(1) & (valid[:, out].sum(1) >= 4)
+    if not ok.any():
+        return 0.0, ""
+    a = prof[ok][:, rim].mean(1)
+    beyond = np.where(valid[ok][:, out], prof[ok][:, out], np.nan)
+    # the rim band's noise: one pixel's σ over the ~0.14 r pixels of an 8° arc
+    tol = 3.0 * np.interp(a, x, sg) / np.sqrt(max(0.14 * f.r, 1.0))
+    brighter = float(np.mean(a > np.nanmax(beyond, 1) + tol))
+    darker = float(np.mean(a < MIN_REFLECTANCE * np.nanmin(beyond, 1) - tol))
+    return max((brighter, "brighter"), (darker, "darker"))
 
 
 def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:

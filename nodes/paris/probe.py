@@ -25,7 +25,9 @@ class ProbeLight(Node):
       which on a dark backdrop is often the environment's reflection or the cast shadow),
       fitted to sub-pixel edges (with ``fov_deg``: as the cone tangent to the sphere).  When
       it is not sure (no closed outline, a poor fit, the ball cut by the frame, an outline that
-      is a thin line on the backdrop rather than a step (a printed ring around the ball), or
+      is a thin line on the backdrop rather than a step (a printed ring around the ball), a
+      rim brighter or darker than a mirror's rim can be (a disc or band printed around the
+      ball: a mirror's rim reflects the backdrop beyond its outline), or
       the circle's standard error ×2 or a rival outline moving the flash's direction by more
       than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
@@ -72,7 +74,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "6"
+    version = "7"
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),
