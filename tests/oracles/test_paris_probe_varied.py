@@ -52,16 +52,24 @@ def test_check_half_found_or_refused(record_property):
     # test_ball_found_on_dark_rimmed_probes: at least 12 of its 20 CHECK probes)
 
 
-def test_two_rival_outlines_refused():
-    """Two equal overlapping discs, the flash's highlight between their centres: either may be
-    the ball and they give directions 10° apart, so the node refuses and names both."""
+def _two_discs(backdrop, disc):
     h, w = 200, 240
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    img = np.full((h, w), 0.05)
+    img = np.full((h, w), backdrop)
     for cx in (110.0, 126.0):
-        img += 0.25 * ((xx - cx) ** 2 + (yy - 100) ** 2 <= 45.0 ** 2)
+        img += disc * ((xx - cx) ** 2 + (yy - 100) ** 2 <= 45.0 ** 2)
     img[98:102, 116:120] = 1.0
     img = np.clip(img + np.random.default_rng(0).normal(0, 0.003, img.shape), 0, 1)
-    direction, refusal = _auto(np.repeat(img[..., None], 3, 2).astype(np.float32), None)
+    return np.repeat(img[..., None], 3, 2).astype(np.float32)
+
+
+def test_two_rival_outlines_refused():
+    """Two equal overlapping discs, the flash's highlight between their centres: either may be
+    the ball and they give directions 10° apart, so the node refuses and names both.  The discs
+    are a little darker than the backdrop (a mirror reflecting it, ×0.73): flat discs brighter
+    than everything around them are refused before (no mirror's rim, ProbeLight 7)."""
+    direction, refusal = _auto(_two_discs(0.3, -0.08), None)
     assert direction is None and refusal.port == "probe", direction
     assert "two closed outlines" in refusal.message and "centre_x, centre_y and radius" in refusal.message
+    direction, refusal = _auto(_two_discs(0.05, 0.25), None)
+    assert direction is None and "a disc or band on the backdrop" in refusal.message
