@@ -132,7 +132,7 @@ class ProbeLight(Node):
         if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
-        sat = _flash_highlight(sat)
+        sat = _flash_highlight(sat, dirs, *self._flash_prior(cx, cy, r, w, h, fov_deg))
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -197,6 +197,26 @@ class ProbeLight(Node):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
         return _find_ball_or_refuse(px, port, fov_deg, highlight=True)
+
+    def _flash_prior(self, cx, cy, r, w, h, fov_deg) -> tuple[np.ndarray, float, str]:
+        """Where the flash's highlight is expected when several lights clip on the ball: the
+        direction from the ball to the flash, the most the flash may be seen away from it
+        (degrees), and what that prediction rests on (for messages).  With ``flash_offset_m`` and
+        ``ball_position_m``: towards the stated flash, within ``max_disagreement_deg`` (the
+        agreement asked of them anyway, see :meth:`_light`).  Otherwise the flash is by the lens:
+        towards the lens (from ``ball_position_m``, else from the ball's place in the photo), within
+        the angle ``FLASH_FROM_LENS_M`` subtends at the ball's distance (at ``MIN_BALL_DISTANCE_M``
+        when the distance is not given)."""
+        p = self.params
+        B = None if p.ball_position_m is None else np.asarray(p.ball_position_m, np.float64)
+        if B is not None and p.flash_offset_m is not None:
+            v = np.asarray(p.flash_offset_m, np.float64) - B
+            return v / max(np.linalg.norm(v), 1e-12), p.max_disagreement_deg, "the flash at flash_offset_m"
+        if B is not None:
+            dist, lens = float(np.linalg.norm(B)), -B / max(float(np.linalg.norm(B)), 1e-12)
+        else:
+            dist, lens = MIN_BALL_DISTANCE_M, _lens_direction(cx, cy, r, w, h, fov_deg)
+        return lens, float(np.degrees(np.arctan(FLASH_FROM_LENS_M / max(dist, 1e-12)))), "a flash by the lens"
 
     def _probe_fov(self, camera: Camera | None) -> float | None:
         """The probe photo's vertical field of view: ``fov_deg``, else the camera's (None:
@@ -309,28 +329,72 @@ def flash_irradiance(px: np.ndarray, dirs: np.ndarray, core: np.ndarray, ambient
     lum = px @ _Y
     if _clipped(px, inside):
         return None
-    gx = np.gradient(dirs, axis=1)
-    gy = np.gradient(dirs, axis=0)
-    domega = np.linalg.norm(np.cross(gx, gy), axis=-1)
+    domega = solid_angles(dirs)
     e = float(np.sum(np.clip(lum[core] - float(ambient @ _Y), 0, None) * domega[core]))
     return e if e > 0 else None
 
 
-def _flash_highlight(sat: np.ndarray) -> np.ndarray:
+def solid_angles(dirs: np.ndarray) -> np.ndarray:
+    """Each pixel's solid angle of reflected directions, |∂d/∂x × ∂d/∂y| (sr)."""
+    return np.linalg.norm(np.cross(np.gradient(dirs, axis=1), np.gradient(dirs, axis=0)), axis=-1)
+
+
+def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound_deg: float, basis: str) -> np.ndarray:
     """The flash's highlight: the one clipped blob on the ball, or the largest when the others
-    are specks (under ``OTHER_HIGHLIGHT`` of its size or under 3 px); BadInput when another
-    light (a lamp, a lit backdrop) clips as well, since which one is the flash is then unclear."""
+    are specks (under ``OTHER_HIGHLIGHT`` of its size or under 3 px).  When another light (a
+    lamp, a lit backdrop) clips as well, the one highlight (≥ 3 px) seen within ``bound_deg`` of
+    ``prior`` (:meth:`ProbeLight._flash_prior`), if it is a disc on the sphere of directions (a
+    round flash's reflection) rather than the flash's joined with other clipped light; BadInput
+    when none or several are seen there, or the one seen is not a disc."""
     from scipy import ndimage
 
     lab, n = ndimage.label(sat)
     if n <= 1:
         return sat
-    sizes = np.sort(ndimage.sum(sat, lab, index=np.arange(1, n + 1)))[::-1]
-    if sizes[1] >= max(3, OTHER_HIGHLIGHT * sizes[0]):
-        raise BadInput("probe", f"the ball shows {n} clipped highlights (the largest {int(sizes[0])} and "
-                                f"{int(sizes[1])} px): which one is the flash is unclear; take the probe with "
-                                "the flash as the only light that clips (other lamps off, or a shorter exposure)")
-    return _largest_component(sat)
+    sizes = ndimage.sum(sat, lab, index=np.arange(1, n + 1))
+    order = np.argsort(-sizes, kind="stable")   # largest first; of equal ones the first labelled
+    if sizes[order[1]] < max(3, OTHER_HIGHLIGHT * sizes[order[0]]):
+        return lab == 1 + order[0]
+    blobs = [lab == 1 + i for i in order if sizes[i] >= 3]
+    means = [dirs[b].mean(0) / np.linalg.norm(dirs[b].mean(0)) for b in blobs]
+    off = [float(np.degrees(np.arccos(np.clip(m @ prior, -1, 1)))) for m in means]
+    fit = [i for i, a in enumerate(off) if a <= bound_deg]
+    seen = ", ".join(f"{int(blobs[i].sum())} px at {off[i]:.1f}° ({', '.join(f'{x:+.2f}' for x in means[i])})"
+                     for i in range(min(len(blobs), 6))) + (", …" if len(blobs) > 6 else "")
+    retake = "take the probe with the flash as the only light that clips (other lamps off, or a shorter exposure)"
+    if len(fit) != 1:
+        raise BadInput("probe", f"the ball shows {len(blobs)} clipped highlights of 3 px or more ({seen}; angles "
+                                f"from where {basis} would be seen) and {len(fit) or 'none'} within "
+                                f"{bound_deg:.1f}° of it: which one is the flash is unclear; give flash_offset_m "
+                                f"and ball_position_m (metres, camera frame) if the flash is elsewhere, or {retake}")
+    blob = blobs[fit[0]]
+    spread = _spread(dirs, blob, means[fit[0]])
+    if spread > MAX_HIGHLIGHT_SPREAD:
+        raise BadInput("probe", f"the one clipped highlight near where {basis} would be seen ({int(blob.sum())} px "
+                                f"at {off[fit[0]]:.1f}°) is not round (spread {spread:.2f} × a disc's, more than "
+                                f"{MAX_HIGHLIGHT_SPREAD}): the flash's highlight is joined with other clipped light, "
+                                f"its direction unknown; {retake}")
+    return blob
+
+
+def _spread(dirs: np.ndarray, blob: np.ndarray, mean: np.ndarray) -> float:
+    """The blob's second moment about its mean direction over a disc's of the same solid angle
+    (2π·E[δ²]/Ω: 1 for a disc, (a² + b²)/2ab for an a:b ellipse)."""
+    w = solid_angles(dirs)[blob]
+    delta = np.arccos(np.clip(dirs[blob] @ mean, -1, 1))
+    return float(2 * np.pi * (w * delta ** 2).sum() / w.sum() ** 2)
+
+
+#: a flash by the lens is at most this far from it (metres: a hot-shoe flash is ~8–12 cm above
+#: the lens, a bracket's ~15 cm) …
+FLASH_FROM_LENS_M = 0.15
+#: … seen from a ball at least this far (metres; a probe ball by a face in a portrait): 20.6°,
+#: while the varied probes' other lamps are 30–75° off the camera's axis
+MIN_BALL_DISTANCE_M = 0.4
+#: the most a flash's clipped highlight may spread (its second moment over a disc's): a 2:1
+#: ellipse (tuned on the tune half of varied_probes.py: flash discs 0.97–1.10, the flash's
+#: joined with a lit wall's clipped reflection 1.40 and 1.46)
+MAX_HIGHLIGHT_SPREAD = 1.25
 
 
 #: the most the halo's excess-weighted mean may move the clipped blob's direction (degrees); a
@@ -391,6 +455,14 @@ def reflected_directions(u, v, cx, cy, r, w, h, fov_deg=None):
     d, _ = _rays_and_centre(u, v, cx, cy, r, w, h, fov_deg)
     view = -d
     return 2 * np.sum(n * view, -1, keepdims=True) * n - view
+
+
+def _lens_direction(cx, cy, r, w, h, fov_deg) -> np.ndarray:
+    """The direction from the ball's centre to the lens (camera frame; −z for a distant camera)."""
+    if fov_deg is None:
+        return np.array([0.0, 0.0, -1.0])
+    c = _rays_and_centre(np.array(cx), np.array(cy), cx, cy, r, w, h, fov_deg)[1]
+    return -c / np.linalg.norm(c)
 
 
 def _rays_and_centre(u, v, cx, cy, r, w, h, fov_deg):
