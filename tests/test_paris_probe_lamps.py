@@ -98,3 +98,25 @@ def test_highlight_joined_with_other_light_refused(monkeypatch):
         _light(img)
     monkeypatch.setattr(probe_mod, "MAX_HIGHLIGHT_SPREAD", np.inf)
     assert _angle(_light(img).direction, FLASH) > 2.0            # what the rule keeps from coming back
+
+
+def _turn_y(deg):
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def test_perspective_prior_is_towards_the_lens():
+    """A perspective probe with the ball 21.5° off the camera's axis: the flash is looked for
+    around the direction from the ball to the lens, not around −z (where the lamp is here)."""
+    w, h, fov, cx, cy, r = 320, 240, 40.0, 290.0, 120.0, 25.0
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    d = reflected_directions(xx, yy, cx, cy, r, w, h, fov)
+    f = 0.5 * h / np.tan(np.radians(fov / 2))
+    lens = -np.array([(cx - w / 2) / f, 0.0, 1.0]) / np.hypot((cx - w / 2) / f, 1.0)
+    flash, lamp = _turn_y(8) @ lens, _turn_y(-40) @ lens           # 8° further out, 40° towards the axis
+    assert _angle(flash, [0, 0, -1]) > 25 and _angle(lamp, [0, 0, -1]) < 20
+    img = 0.02 + sum(40.0 * np.exp(-(np.degrees(np.arccos(np.clip(d @ v, -1, 1))) / 6.0) ** 2) for v in (flash, lamp))
+    img[(xx - cx) ** 2 + (yy - cy) ** 2 > r * r] = 0.0
+    probe = Image(np.repeat(np.clip(img, 0, 1)[..., None], 3, 2).astype(np.float32))
+    light = ProbeLight(ProbeLight.Params(centre_x=cx, centre_y=cy, radius=r, fov_deg=fov)).compute(probe=probe)["light"]
+    assert _angle(light.direction, flash) <= 1.0
