@@ -6,7 +6,8 @@ Renders nodes/paris/data/varied_probes.py's probes (``--cache``: keeps the rende
 DIR and reuses them), runs ProbeLight without the ball's circle (``find_ball`` inside) and
 prints, per probe: the true and the found radius, the centre error, the direction error of
 the flash (degrees; against make_probes.truth), or the refusal (exit 2) with its reason; then
-the same with the true circle given, and a summary per half.  CPU seconds of the finding.
+the same with the true circle given (as a person marking the ball would), and a summary of both
+per half.  CPU seconds of the finding.
 """
 from __future__ import annotations
 
@@ -93,10 +94,11 @@ def main(argv=None):
         for spec in varied(half):
             rows.append(run_probe(spec, probe_image(spec, a.cache)))
             print(_fmt(rows[-1], half), flush=True)
-        errs = [r["err_deg"] for r in rows if r["err_deg"] is not None]
-        summary.append(f"{half}: {len(errs)}/{len(rows)} found, max error "
-                       f"{max(errs) if errs else float('nan'):.2f}°, {sum(e > 1.0 for e in errs)} over 1°, "
-                       f"{len(rows) - len(errs)} refused")
+        for what, key in (("found", "err_deg"), ("answered with the true circle given", "given_deg")):
+            errs = [r[key] for r in rows if isinstance(r[key], float)]
+            summary.append(f"{half}: {len(errs)}/{len(rows)} {what}, max error "
+                           f"{max(errs) if errs else float('nan'):.2f}°, {sum(e > 1.0 for e in errs)} over 1°, "
+                           f"{len(rows) - len(errs)} refused")
     print("\n".join(summary))
     return 0
 

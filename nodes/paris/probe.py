@@ -41,8 +41,15 @@ class ProbeLight(Node):
       directions.  The excess-weighted mean over the highlight and its halo refines it
       (``refine_with_halo``), except when the highlight is clipped and the refinement moves
       it by more than ``MAX_HALO_SHIFT_DEG`` (1°): other light in the halo (a lit backdrop's
-      reflection) then pulls it, and the blob's mean is kept.  It is returned in the probe camera's frame (OpenCV: x right, y down,
-      z forward), pointing towards the light.  A light on the far side of the subject
+      reflection) then pulls it, and the blob's mean is kept.  When another light clips on the
+      ball as well (a second clipped blob of 3 px or more, at least ``OTHER_HIGHLIGHT`` of the
+      largest), the flash's is the one blob whose direction is within the bound of where the
+      flash is predicted (:meth:`_flash_prior`: by the lens, within the 20.6° that 15 cm
+      subtend at 0.4 m or at ``ball_position_m``'s distance; or at ``flash_offset_m``, within
+      ``max_disagreement_deg``), and only if it is round on the sphere of directions (not the
+      flash's joined with other clipped light, ``MAX_HIGHLIGHT_SPREAD``); none or several
+      there, or one not round, is refused.  The direction is returned in the probe camera's
+      frame (OpenCV: x right, y down, z forward), pointing towards the light.  A light on the far side of the subject
       (direction with z > 0, away from the camera) is refused.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
       ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
