@@ -107,9 +107,11 @@ class ProbeLight(Node):
         edge_margin: float = Field(0.97, gt=0, le=1, description="use ball pixels within this fraction of the radius")
         flash_offset_m: Optional[tuple[float, float, float]] = Field(
             None, description="the flash's position from the lens (metres, probe camera frame: x right, "
-                              "y down, z forward; (0, -0.06, 0) = 6 cm above): the flash becomes a point light")
+                              "y down, z forward; (0, -0.06, 0) = 6 cm above): the flash becomes a point light; with "
+                              "ball_position_m it also tells the flash's highlight from other lamps' that clip")
         ball_position_m: Optional[tuple[float, float, float]] = Field(
-            None, description="the probe ball's centre (metres, probe camera frame), for the parallax correction")
+            None, description="the probe ball's centre (metres, probe camera frame), for the parallax correction "
+                        "(and the distance at which a flash by the lens is looked for when several lights clip)")
         face_position_m: Optional[tuple[float, float, float]] = Field(
             None, description="the face's centre (metres, probe camera frame); default: at the ball")
         max_disagreement_deg: float = Field(
