@@ -49,8 +49,8 @@ class ProbeLight(Node):
       ``max_disagreement_deg``), and only if it is round on the sphere of directions (not the
       flash's joined with other clipped light, ``MAX_HIGHLIGHT_SPREAD``); none or several
       there, or one not round, is refused.  The direction is returned in the probe camera's
-      frame (OpenCV: x right, y down, z forward), pointing towards the light.  A light on the far side of the subject
-      (direction with z > 0, away from the camera) is refused.
+      frame (OpenCV: x right, y down, z forward), pointing towards the light.  A light on the
+      far side of the subject (direction with z > 0, away from the camera) is refused.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
       ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
       value": the flash is the unit of the photo) unless a ``white`` matte-ball photo of the
