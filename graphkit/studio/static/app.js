@@ -407,7 +407,7 @@ async function mountView(n) {
     mod.mount(body, {
       node: n.name, data: res.data, exposure: () => +$('exposure').value,
       frame: values => sendFrame(n.name, values),
-      commit: values => studio.ws?.send(JSON.stringify({ type: 'commit', node: n.name, values })),
+      commit: (values, save) => sendCommit(n.name, values, save),
       token,
     });
   } catch (e) { body.textContent = `the view failed: ${e}`; }
@@ -418,6 +418,15 @@ function sendFrame(node, values) {
   return new Promise(resolve => {
     frameWaiters.set(id, resolve);
     studio.ws.send(JSON.stringify({ type: 'frame', node, values, id, exposure: +$('exposure').value }));
+  });
+}
+
+// → Promise of the studio's answer ({ok, errors, saved}); save: a file name to save the graph to after
+function sendCommit(node, values, save) {
+  const id = ++frameId;
+  return new Promise(resolve => {
+    frameWaiters.set(id, resolve);
+    studio.ws.send(JSON.stringify({ type: 'commit', node, values, id, save }));
   });
 }
 
@@ -475,6 +484,9 @@ function onEvent(m) {
       if (w) w({ url: '', info: m });
     } else if (m.type === 'commit') {
       if (!m.ok) log((m.errors || []).map(e => e.text).join('\n'));
+      const w = frameWaiters.get(m.id);
+      frameWaiters.delete(m.id);
+      if (w) w(m);
     } else if (m.type === 'params') {
       const w = paramsWaiters.get(m.id);
       paramsWaiters.delete(m.id);
