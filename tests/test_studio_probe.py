@@ -78,6 +78,7 @@ def test_probe_view_refuses_bad_circles_with_probelights_messages(studio):
     assert "cannot find the mirror ball with confidence" in d["reason"]
     assert "mark the ball in the studio" in d["reason"]  # the refusal points to this view
     assert (d["width"], d["height"], d["probe"]) == (128, 128, {"node": "probe_photo", "port": "image"})
+    assert d["exposure"] == 3.2  # the probe's median 0.020 shown at 0.18
     good = {"centre_x": 64.0, "centre_y": 64.0, "radius": 28.45}
     f = v.frame(good)
     assert f["direction"] == list(probelight_direction(64.0, 64.0, 28.45))

@@ -27,7 +27,8 @@ class ProbeLight(Node):
       it is not sure (no closed outline, a poor fit, the ball cut by the frame, an outline that
       is a thin line on the backdrop rather than a step (a printed ring around the ball), or
       the circle's standard error ×2 or a rival outline moving the flash's direction by more
-      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
+      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params, which a person
+      may mark in the studio (its live view, :class:`nodes.paris.studio_view.ProbeView`).
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and

@@ -28,9 +28,9 @@ export function mount(el, api) {
 
   // zoom and exposure of the photo
   const tools = node('div', { class: 'preview-head' });
-  const zoom = node('select', { class: 'probe-zoom', title: 'screen pixels per probe pixel' });
+  const zoom = node('select', { class: 'probe-zoom', title: 'screen pixels per probe pixel', style: 'flex:0' });
   for (const z of ['fit', '1', '2', '4', '8', '16']) zoom.append(new Option(z === 'fit' ? 'fit' : `${z}:1`, z));
-  const expo = node('input', { type: 'number', step: '0.5', value: api.exposure(), class: 'probe-exposure',
+  const expo = node('input', { type: 'number', step: '0.5', value: api.data.exposure, class: 'probe-exposure',
                                title: 'exposure of the photo (stops)' });
   tools.append('zoom ', zoom, ' exposure ', expo);
 

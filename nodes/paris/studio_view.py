@@ -11,6 +11,9 @@ itself (studio_view.js lightFrame, float64, from :meth:`FaceView._frame_constant
 formulas of :meth:`FaceView.frame`, which the page asks instead where a value is not valid, for
 its error; tests/test_studio_face.py compares the two), then re-renders the shadow map and the
 lighting pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
+
+Also here: CompositeFace's view (:class:`CompositeView`, the whole photo relit as a light moves)
+and ProbeLight's (:class:`ProbeView`, the mirror ball marked by hand).
 """
 from __future__ import annotations
 
@@ -306,7 +309,8 @@ class CompositeView(LiveView):
 class ProbeView(LiveView):
     """The studio's live view of ProbeLight: the mirror ball marked by hand where the node
     refuses to find it (or to check the circle it found).  The page shows the whole probe
-    photo (the preview of the node's ``probe`` input, at any zoom) with a circle in the
+    photo (the preview of the node's ``probe`` input, its median at mid grey to start with, at
+    any zoom) with a circle in the
     node's pixel convention (continuous coordinates, pixel centres at +0.5: the image's own
     coordinates, as the page's SVG overlay has them); dragging it or typing its numbers asks
     :meth:`frame` for the flash direction ProbeLight computes with ``centre_x``,
@@ -332,9 +336,12 @@ class ProbeView(LiveView):
                 self._start_memo.clear()
             self._start_memo[key] = self._start(v, w, h)
         circle, how, reason = self._start_memo[key]
+        # the photo shown with its median at mid grey (an HDR probe's level is anything)
+        med = float(np.median(v["probe"].pixels.reshape(h, w, -1).mean(-1)))
+        exposure = round(float(np.clip(np.log2(0.18 / med), -8, 8)), 1) if med > 0 else 0.0
         return {"probe": {"node": src, "port": sport}, "width": int(w), "height": int(h),
                 "circle": dict(zip(self.KEYS, circle)), "how": how, "reason": reason,
-                "file": os.path.basename(self.studio.path)}
+                "exposure": exposure, "file": os.path.basename(self.studio.path)}
 
     def _start(self, v: dict, w: int, h: int):
         """(circle, how, refusal): the circle given in the graph or found by the node's own
