@@ -182,7 +182,7 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
     """The refused probe in the page: the refusal shown, the whole photo at full size; at 4:1 a
     drag of the centre handle by (+8, −4) screen px moves the centre by exactly (+2, −1) probe
     px, one of the radius handle by −14 px makes the radius 28.5; the readout is ProbeLight's
-    direction for that circle; Apply writes ball_x/ball_y/ball_radius into the graph file
+    direction for that circle (a radius typed < 0: ProbeLight's message); Apply writes ball_x/ball_y/ball_radius into the graph file
     (comments and order kept), `graphkit validate` accepts it and the re-run succeeds."""
     p = tmp_path / "g.yaml"
     p.write_text(GRAPH)
@@ -223,6 +223,11 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
         text = f"flash direction (probe camera (x right, y down, z forward) frame): ({', '.join(f'{x:.4f}' for x in want)})"
         wait_for(lambda: readout(n)[0] == text, 10, "ProbeLight's direction for the dragged circle")
         assert text != first
+        page.fill('.probe-view input[data-key="radius"]', "-3")  # typed: ProbeLight's own message
+        wait_for(lambda: "port 'radius': Input should be greater than 0" in page.inner_text(".probe-readout"), 10,
+                 "the message for a negative radius")
+        page.fill('.probe-view input[data-key="radius"]', "28.5")
+        wait_for(lambda: page.inner_text(".probe-readout") == text, 10, "the direction again")
         gen = s.api("/api/state")["run"]["gen"]
         page.click(".probe-apply")
         wait_for(lambda: "written to" in page.inner_text(".probe-applied"), 30, "the graph written")

@@ -374,8 +374,9 @@ class ProbeView(LiveView):
             raise BadInput(str(err["loc"][0]), f"{err['msg']} (got {err.get('input')!r})") from None
 
     def frame(self, values: dict):
-        light = self.compute(params=self._params(values), **self.inputs())["light"]
-        frame = "world" if self.inputs().get("camera") is not None else "probe camera (x right, y down, z forward)"
+        given = self.inputs()
+        light = self.compute(params=self._params(values), **given)["light"]
+        frame = "world" if given.get("camera") is not None else "probe camera (x right, y down, z forward)"
         return {"image": np.zeros((1, 1, 3), np.float32), "direction": _vec(light.direction), "frame": frame}
 
     def commit(self, values: dict) -> list[dict]:
