@@ -121,6 +121,29 @@ def test_a_circle_written_as_node_params_is_added_to_the_node(tmp_path):
         st.close()
 
 
+def test_the_view_starts_from_the_circle_probelight_found(tmp_path):
+    """Where ProbeLight finds the ball (a synthetic probe of tests/test_paris_probe_ring.py,
+    no ring), the view starts from the circle it found, with no refusal."""
+    from graphkit.studio.core import Studio
+    from nodes.io.images import encode_image
+    from nodes.paris.studio_view import ProbeView
+    from test_paris_probe_ring import CX, CY, R, _flash, _probe
+
+    (tmp_path / "probe.exr").write_bytes(encode_image(_probe(_flash(20.0)).pixels, ".exr", 32))
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH.replace("${params.data}/probe.exr", "probe.exr").replace(
+        '    params: {centre_x: "${params.ball_x}", centre_y: "${params.ball_y}", radius: "${params.ball_radius}"}\n',
+        ""))
+    st = Studio(p, cache=str(tmp_path / "c"), out=None)
+    try:
+        assert st.wait_idle(60)["status"] == "ok"
+        d = ProbeView(st, "probe").data()
+        assert d["how"] == "found" and d["reason"] == ""
+        assert np.allclose([d["circle"][k] for k in ("centre_x", "centre_y", "radius")], [CX, CY, R], atol=0.5)
+    finally:
+        st.close()
+
+
 def ws_commit(s, values, save, want_id=1):
     """Apply over the studio's websocket (as the page's Apply button): its answer."""
     from websockets.sync.client import connect

@@ -146,8 +146,9 @@ class LiveView:
         from ..node import Context
 
         g = self.gnode
-        return compute_checked(g.cls(g.params if params is None else params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
-                                                       base_dir=self.studio.graph.base_dir)), **inputs)
+        ctx = Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
+                      base_dir=self.studio.graph.base_dir)
+        return compute_checked(g.cls(g.params if params is None else params, ctx), **inputs)
 
     @classmethod
     def js_path(cls) -> Path:

@@ -310,9 +310,10 @@ class ProbeView(LiveView):
     """The studio's live view of ProbeLight: the mirror ball marked by hand where the node
     refuses to find it (or to check the circle it found).  The page shows the whole probe
     photo (the preview of the node's ``probe`` input, its median at mid grey to start with, at
-    any zoom) with a circle in the
-    node's pixel convention (continuous coordinates, pixel centres at +0.5: the image's own
-    coordinates, as the page's SVG overlay has them); dragging it or typing its numbers asks
+    any zoom) with a circle in the node's pixel convention (continuous coordinates, pixel
+    centres at +0.5: the image's own coordinates, as the page's SVG overlay has them): the
+    circle given, the one found, or after a refusal a starting guess and the refusal's text.
+    Dragging it or typing its numbers asks
     :meth:`frame` for the flash direction ProbeLight computes with ``centre_x``,
     ``centre_y``, ``radius`` given (the node's own compute, on the server), or its message.
     "Apply" writes the three params into the graph (or the graph params they are bound to)
