@@ -46,7 +46,7 @@ function render(state) {
   if (studio.state && state.revision < studio.state.revision) return;
   studio.state = state;
   $('graph-name').textContent = state.graph.name;
-  $('graph-path').textContent = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
+  $('graph-path').textContent = $('graph-path').title = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
   $('autorun').checked = state.autorun;
   showRun(state.run);
   dag.draw(state.nodes);
@@ -75,7 +75,7 @@ function showRun(run) {
   if (st === 'ok') t = `ok ${run.seconds?.toFixed(2)}s · ${run.computed?.length ?? 0} computed, ${run.cached?.length ?? 0} cached`;
   if (st === 'failed') t = `failed: ${Object.keys(run.failed || {}).join(', ') || run.message}`;
   if (st === 'invalid') t = 'graph does not validate';
-  el.textContent = t;
+  el.textContent = el.title = t;
   el.dataset.gen = run?.gen ?? 0;
   el.dataset.status = st;
 }
