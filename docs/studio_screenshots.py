@@ -1,10 +1,11 @@
 """Screenshots of the studio on the four paper graphs (README), with Debian's headless Chromium.
 
-    .venv/bin/python docs/studio_screenshots.py [--cache DIR]
+    .venv/bin/python docs/studio_screenshots.py [--cache DIR] [--probe-view]
 
 Each graph is opened with `graphkit serve`, run through the cache (the first time takes
 minutes: FaceMesh, fits, radiosity), a node with a live view is selected, and the page is
-saved as docs/studio_<graph>.png.
+saved as docs/studio_<graph>.png.  ``--probe-view``: only docs/studio_probe_view.png, ProbeLight's
+view on the sample capture's probe (which the finder refuses) with the ball marked by hand.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ SHOTS = {  # graph: (node to select, preview)
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", str(ROOT / ".graphkit-cache")))
+    ap.add_argument("--probe-view", action="store_true", help="only the probe view's screenshot")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -37,6 +39,8 @@ def main():
 
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as pw:
         b, ctx = browser_page(pw, webgl=True, viewport=(1400, 860))
+        if args.probe_view:
+            return probe_view(ctx, Path(tmp))
         for g, (node, preview) in SHOTS.items():
             s = Server(ROOT / "graphs" / f"{g}.yaml", Path(tmp) / g, plugins="", cache=args.cache)
             try:
@@ -67,6 +71,46 @@ def main():
         ctx.close()
         b.close()
 
+
+def probe_view(ctx, tmp: Path):
+    """ProbeLight's view (nodes/paris/probe_view.js) on a varied Mitsuba probe the finder refuses
+    (nodes/paris/data/varied_probes.py, tune tv01, 384×288, ~2 s to render): the refusal, and
+    the true circle (make_probes.truth) typed in with the direction ProbeLight gives for it."""
+    from nodes.io.images import encode_image
+    from nodes.paris.data.make_probes import render, truth
+    from nodes.paris.data.varied_probes import varied
+
+    spec = varied("tune", 2)[1]
+    (tmp / "probe.exr").write_bytes(encode_image(render(spec), ".exr", 16))
+    t = truth(spec)
+    g = tmp / "probe_mark.yaml"
+    g.write_text(f"""graphkit: 1
+name: probe_mark
+nodes:
+  probe_photo: {{type: LoadImage, params: {{path: probe.exr}}}}
+  probe: {{type: ProbeLight, inputs: {{probe: probe_photo.image}}, params: {{fov_deg: {t['fov_deg']}}}}}
+  save: {{type: SaveImage, inputs: {{image: probe.classes}}, params: {{path: classes.exr}}}}
+outputs: {{classes: save.file}}
+""")
+    s = Server(g, tmp, plugins="", cache=tmp / "cache")
+    try:
+        page = ctx.new_page()
+        page.goto(s.url)
+        wait_graph(page)
+        page.wait_for_function("() => document.getElementById('run-status').dataset.status === 'failed'",
+                               timeout=60_000)
+        click_node(page, "probe")
+        page.wait_for_selector(".probe-view .probe-reason", timeout=60_000)
+        n = page.get_attribute(".probe-readout", "data-frames")
+        for k in ("centre_x", "centre_y", "radius"):
+            page.fill(f'.probe-view input[data-key="{k}"]', f"{t[k]:.2f}")
+        page.wait_for_function("n => +document.querySelector('.probe-readout').dataset.frames > n + 2", arg=int(n))
+        page.wait_for_timeout(500)
+        out = ROOT / "docs" / "studio_probe_view.png"
+        page.locator("#view-panel").screenshot(path=str(out))
+        print(out, out.stat().st_size // 1024, "KiB; true direction", t["direction"])
+    finally:
+        s.stop()
 
 if __name__ == "__main__":
     main()

@@ -121,7 +121,10 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
             page.click("#delete-btn")
             wait_for(lambda: "loadImage1" not in drawn_nodes(page), what="the duplicate deleted")
             wait_for(lambda: page.evaluate("studio.state.graph.valid"), what="a valid graph")
-            wait_run(page, timeout=120)
+            # the run of the graph as built (an earlier run's "ok", with the duplicate, may still be on show)
+            built = sorted(name for name, _ in NODES)
+            wait_for(lambda: page.evaluate("(r => r.status === 'ok' && [...r.computed, ...r.cached].sort())(studio.state.run)")
+                     == built, 120, "the run of the built graph")
 
             page.once("dialog", lambda d: d.accept("built.yaml"))
             page.click("#save-btn")
@@ -134,11 +137,13 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
             _same_shape(saved, ROOT / "graphs" / "quickstart.yaml")
 
             # its preview: the contact sheet, then a drag on the blur's slider changes its pixels
+            click_node(page, "smooth")  # (a click shows the node's own image: the sheet chosen after it)
             page.select_option("#preview-select", "sheet.image")
-            wait_for(lambda: page.evaluate("document.getElementById('preview').dataset.digest"), what="preview")
+            wait_for(lambda: page.evaluate("(c => c.dataset.digest && c.dataset.digest === studio.state.nodes"
+                                           ".find(n => n.name === 'sheet').digests.image)(document.getElementById('preview'))"),
+                     what="the sheet's preview")
             w, before = preview_pixels(page)
             assert w > 500
-            click_node(page, "smooth")
             gen = page.evaluate("+document.getElementById('run-status').dataset.gen")
             box = page.locator('#node-panel .ctl[data-param="sigma_px"] input[type=range]').bounding_box()
             page.mouse.move(box["x"] + 4, box["y"] + box["height"] / 2)
@@ -146,13 +151,19 @@ def test_build_quickstart_on_an_empty_canvas(tmp_path):
             page.mouse.move(box["x"] + box["width"] * 0.3, box["y"] + box["height"] / 2, steps=5)
             page.mouse.up()
             wait_run(page, after_gen=gen, timeout=120)
-            wait_for(lambda: preview_pixels(page)[1] != before, what="the preview's pixels to change")
+            wait_for(lambda: preview_pixels(page)[1] != before, 120, "the preview's pixels to change")
             # the viewer: 1:1 shows the image pixel for pixel, B compares a second output
             page.check("#one-to-one")
             assert page.evaluate("(c => c.clientWidth === c.width)(document.getElementById('preview'))")
             page.select_option("#compare-select", "smooth.image")
             wait_for(lambda: page.evaluate("document.getElementById('preview-b').width") > 0, what="the B image")
             assert page.is_visible("#compare-split")
+            # the header stays one line whatever the path and the run's status say: the page below
+            # does not move when a run starts or ends (a click or a drag then would land off)
+            heights = [page.evaluate("t => { const e = document.getElementById('run-status'); e.textContent = t;"
+                                     " return document.querySelector('header').offsetHeight; }", t)
+                       for t in ("running", "failed: " + ", ".join(n for n, _ in NODES) * 3)]
+            assert heights[0] == heights[1], heights
             assert errors == []
             b.close()
     finally:

@@ -82,7 +82,8 @@ def test_drag_a_virtual_box_over_the_floor(pw, tmp_path):
         wait_for(lambda: page.evaluate("() => +document.querySelector('#view-body canvas.room-img').dataset.frames") > 1,
                  60, "a frame of the drag")
         wait_for(lambda: "links re-evaluated" in page.inner_text("#view-body .room-info"), 30, "the drag's info")
-        page.wait_for_timeout(500)
+        wait_for(lambda: page.evaluate("() => document.querySelector('#view-body canvas.room-img').dataset.busy") == "0",
+                 60, "the frame of the drag's last position")
         _, _, after = page.evaluate(PIXELS)
         a = np.array(before, float).reshape(H, W, 4)[..., :3]
         c = np.array(after, float).reshape(H, W, 4)[..., :3]

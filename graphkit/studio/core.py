@@ -212,8 +212,9 @@ class Studio:
         if on and self.graph is not None:
             self.request_run()
 
-    def save_as(self, path: str | os.PathLike) -> str:
-        """Write the current graph (params as edited, comments kept) to ``path``."""
+    def save_path(self, path: str | os.PathLike) -> Path:
+        """Where ``path`` (relative to the graph's folder) saves: a .yaml/.yml file in the
+        graph's folder, else UsageError."""
         p = Path(path)
         if not p.is_absolute():
             p = Path(self.path).parent / p
@@ -222,6 +223,11 @@ class Studio:
         folder = Path(self.path).parent.resolve()
         if p.resolve().parent != folder:
             raise UsageError(f"{p}: the studio saves only into the graph's folder ({folder})")
+        return p
+
+    def save_as(self, path: str | os.PathLike) -> str:
+        """Write the current graph (params as edited, comments kept) to ``path``."""
+        p = self.save_path(path)
         with self._lock:
             text = self.doc.text
         # the saved file must load where it is (relative paths start at its folder)
@@ -240,6 +246,9 @@ class Studio:
         except OSError as e:
             tmp.unlink(missing_ok=True)
             raise UsageError(f"cannot write {p}: {e.strerror or e}") from None
+        if p.resolve() == Path(self.path).resolve():
+            with self._lock:
+                self.saved_text = text  # the page no longer says "edited, not saved"
         return str(p)
 
     # -- runs -----------------------------------------------------------------------------

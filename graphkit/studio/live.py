@@ -10,7 +10,8 @@
   bursts (one JSON text message per burst, ``{"type": "batch", "events": [...]}`` when there
   are several), and binary messages (a little-endian u32 header length, the JSON header, then
   the image bytes) for pushed previews and live-view frames.  In: ``params`` (a param
-  change, as POST /api/params), ``frame`` and ``commit`` (a node's live view, views.py) and
+  change, as POST /api/params), ``frame`` and ``commit`` (a node's live view, views.py; a
+  commit may also save the graph) and
   ``shown`` (a pushed preview reached the page).
 
 The websocket side needs the studio extra (starlette), imported when a page connects.
@@ -339,15 +340,24 @@ class LiveSocket:
         await self.ws.send_bytes(binary_message({**head, **info}, png))
 
     async def _commit(self, msg: dict) -> None:
-        name = msg.get("node", "")
+        """A live view's values written into the graph (LiveView.commit, then set_params as
+        any edit); with ``save`` (a file name) the graph is then saved there (as POST
+        /api/save: only into the graph's folder), the name checked before anything changes.
+        The answer carries the message's id."""
+        name, save = msg.get("node", ""), msg.get("save")
+        head = {"type": "commit", "node": name, "id": msg.get("id")}
         v = self.views.get(name) or live_view(self.studio, name)
         if v is None:
-            return
+            return await self.ws.send_text(json.dumps({**head, "ok": False,
+                                                       "errors": [{"text": f"node '{name}' has no live view"}]}))
         try:
+            if save is not None:
+                self.studio.save_path(str(save))
             changes = await self._thread(v.commit, msg.get("values") or {})
+            res = await self._thread(self.studio.set_params, changes) if changes else {"ok": True}
+            if res.get("ok") and save is not None:
+                res["saved"] = await self._thread(self.studio.save_as, str(save))
         except GraphkitError as e:
-            return await self.ws.send_text(json.dumps({"type": "commit", "node": name, "ok": False,
-                                                       "errors": [{"text": str(e)}]}))
-        res = await self._thread(self.studio.set_params, changes) if changes else {"ok": True}
+            res = {"ok": False, "errors": [{"text": str(e)}]}
         self.views.pop(name, None)
-        await self.ws.send_text(json.dumps({"type": "commit", "node": name, **res}))
+        await self.ws.send_text(json.dumps({**head, **res}, default=str))

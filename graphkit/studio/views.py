@@ -138,15 +138,17 @@ class LiveView:
 
         return {k: cut(v) for k, v in values.items()}
 
-    def compute(self, **inputs):
+    def compute(self, *, params=None, **inputs):
         """Run the node's own compute (its reference backend) on ``inputs``, outside the cache,
-        after its declared port constraints (as the engine does)."""
+        after its declared port constraints (as the engine does); ``params``: its checked
+        Params instead of the graph's."""
         from ..contract import compute_checked
         from ..node import Context
 
         g = self.gnode
-        return compute_checked(g.cls(g.params, Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
-                                                       base_dir=self.studio.graph.base_dir)), **inputs)
+        ctx = Context(node=self.node, node_type=g.type, graph_name=self.studio.graph.name,
+                      base_dir=self.studio.graph.base_dir)
+        return compute_checked(g.cls(g.params if params is None else params, ctx), **inputs)
 
     @classmethod
     def js_path(cls) -> Path:

@@ -49,6 +49,7 @@ function roomView(el, api, room) {
   async function show(values) {
     if (inflight) { queued = values; return; }
     inflight = true;
+    img.dataset.busy = '1';  // '0' once the frame of the latest values is drawn
     try {
       const { url, info: i } = await api.frame(values);
       if (i.error) { info.textContent = i.error; return; }
@@ -63,7 +64,7 @@ function roomView(el, api, room) {
       info.textContent = `${i.width}×${i.height}: ${i.compute_ms} ms (${i.links_reevaluated ?? 0} links re-evaluated, ${i.iterations ?? 0} iterations)`;
     } finally {
       inflight = false;
-      if (queued) { const v = queued; queued = null; show(v); }
+      if (queued) { const v = queued; queued = null; show(v); } else img.dataset.busy = '0';
     }
   }
 

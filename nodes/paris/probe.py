@@ -29,7 +29,8 @@ class ProbeLight(Node):
       rim brighter or darker than a mirror's rim can be (a disc or band printed around the
       ball: a mirror's rim reflects the backdrop beyond its outline), or
       the circle's standard error ×2 or a rival outline moving the flash's direction by more
-      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params.
+      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params, which a person
+      may mark in the studio (its live view, :class:`nodes.paris.studio_view.ProbeView`).
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
       ray to (θ_l, φ_l) = (2θ_h, φ_h) (the paper's (2θ_h, 2φ_h), written with azimuth and
@@ -82,6 +83,7 @@ class ProbeLight(Node):
     """
 
     version = "7"
+    studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
                           optional=True),
@@ -519,6 +521,11 @@ def _direction_doubt(px: np.ndarray, fit, fov_deg) -> float:
     return max(float(np.degrees(np.arccos(np.clip(direction(*c) @ d0, -1, 1)))) for c in others)
 
 
+#: the refusal's pointer to the studio's probe view (nodes/paris/studio_view.py ProbeView)
+MARK_IN_STUDIO = (", or mark the ball in the studio: `graphkit serve GRAPH`, click this node, drag the "
+                  "circle of its probe view onto the ball's outline and apply")
+
+
 def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) -> tuple[float, float, float]:
     """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
     why it is not sure and which params to give."""
@@ -536,7 +543,7 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) ->
             f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
             f"found ({fit.summary()})")
         raise BadInput(port, f"cannot find the {'mirror ball'} with confidence: {why}; give centre_x, centre_y "
-                             "and radius (pixels)")
+                             f"and radius (pixels){MARK_IN_STUDIO}")
     if fit.confident:
         return fit.cx, fit.cy, fit.r
     if highlight and 0.05 < share < 0.98:  # (a flat image is all 'at its maximum')
@@ -544,6 +551,6 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) ->
                f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
     else:
         why = fit.reason
-    params = "centre_x, centre_y and radius (pixels)" if port == "probe" else \
+    params = f"centre_x, centre_y and radius (pixels){MARK_IN_STUDIO}" if port == "probe" else \
         "a white-ball photo of the probe's size (it then uses the probe's circle)"
     raise BadInput(port, f"cannot find the {what} with confidence: {why}; give {params}")

@@ -11,6 +11,9 @@ itself (studio_view.js lightFrame, float64, from :meth:`FaceView._frame_constant
 formulas of :meth:`FaceView.frame`, which the page asks instead where a value is not valid, for
 its error; tests/test_studio_face.py compares the two), then re-renders the shadow map and the
 lighting pass; the surface pass is kept.  Letting go writes nothing: the lights are other nodes' outputs.
+
+Also here: CompositeFace's view (:class:`CompositeView`, the whole photo relit as a light moves)
+and ProbeLight's (:class:`ProbeView`, the mirror ball marked by hand).
 """
 from __future__ import annotations
 
@@ -301,3 +304,84 @@ class CompositeView(LiveView):
         az, el = self._angles()
         return (self.change(light, "azimuth_deg", float(values.get("azimuth", az)))
                 + self.change(light, "elevation_deg", float(values.get("elevation", el))))
+
+
+class ProbeView(LiveView):
+    """The studio's live view of ProbeLight: the mirror ball marked by hand where the node
+    refuses to find it (or to check the circle it found).  The page shows the whole probe
+    photo (the preview of the node's ``probe`` input, its median at mid grey to start with, at
+    any zoom) with a circle in the node's pixel convention (continuous coordinates, pixel
+    centres at +0.5: the image's own coordinates, as the page's SVG overlay has them): the
+    circle given, the one found, or after a refusal a starting guess and the refusal's text.
+    Dragging it or typing its numbers asks
+    :meth:`frame` for the flash direction ProbeLight computes with ``centre_x``,
+    ``centre_y``, ``radius`` given (the node's own compute, on the server), or its message.
+    "Apply" writes the three params into the graph (or the graph params they are bound to)
+    and saves the graph file, after the node accepted the circle."""
+
+    title = "probe ball (mark the mirror ball)"
+    js = "probe_view.js"
+    KEYS = ("centre_x", "centre_y", "radius")
+    _start_memo: dict = {}  # (input digests, params) → the starting circle: the finder runs once
+
+    def data(self) -> dict:
+        import os
+
+        v = self.inputs()
+        src, sport = self.gnode.inputs["probe"]
+        h, w = v["probe"].pixels.shape[:2]
+        key = (repr(self.gnode.map_inputs(
+            lambda s, sp: (self.studio.nodes.get(s) or {}).get("digests", {}).get(sp))), repr(self.params))
+        if key not in self._start_memo:
+            if len(self._start_memo) > 8:
+                self._start_memo.clear()
+            self._start_memo[key] = self._start(v, w, h)
+        circle, how, reason = self._start_memo[key]
+        # the photo shown with its median at mid grey (an HDR probe's level is anything)
+        med = float(np.median(v["probe"].pixels.reshape(h, w, -1).mean(-1)))
+        exposure = round(float(np.clip(np.log2(0.18 / med), -8, 8)), 1) if med > 0 else 0.0
+        return {"probe": {"node": src, "port": sport}, "width": int(w), "height": int(h),
+                "circle": dict(zip(self.KEYS, circle)), "how": how, "reason": reason,
+                "exposure": exposure, "file": os.path.basename(self.studio.path)}
+
+    def _start(self, v: dict, w: int, h: int):
+        """(circle, how, refusal): the circle given in the graph or found by the node's own
+        finder, else ProbeLight's refusal and a starting guess (the frame's middle)."""
+        from .checks import rgb_pixels
+
+        p = self.params
+        node = self.gnode.cls(p)
+        try:
+            px = rgb_pixels(v["probe"], "probe", grey=True)
+            c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(v.get("camera")))
+            return [float(x) for x in c], "given" if p.radius is not None else "found", ""
+        except BadInput as e:
+            return [w / 2, h / 2, min(w, h) / 4], "guess", str(e)
+
+    def _params(self, values: dict):
+        """The node's Params with the circle of ``values`` (checked as the graph's are)."""
+        from pydantic import ValidationError
+
+        circle = {}
+        for k in self.KEYS:
+            x = values.get(k)
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+                raise BadInput(k, f"give a number (got {x!r})")
+            circle[k] = float(x)
+        try:
+            return type(self.params).model_validate({**self.params.model_dump(), **circle})
+        except ValidationError as e:
+            err = e.errors()[0]
+            raise BadInput(str(err["loc"][0]), f"{err['msg']} (got {err.get('input')!r})") from None
+
+    def frame(self, values: dict):
+        given = self.inputs()
+        light = self.compute(params=self._params(values), **given)["light"]
+        frame = "world" if given.get("camera") is not None else "probe camera (x right, y down, z forward)"
+        return {"image": np.zeros((1, 1, 3), np.float32), "direction": _vec(light.direction), "frame": frame}
+
+    def commit(self, values: dict) -> list[dict]:
+        p = self._params(values)
+        values = {k: round(getattr(p, k), 2) for k in self.KEYS}  # 1/100 px
+        self.frame(values)  # ProbeLight refuses a circle it cannot use (its message): nothing written
+        return [c for k in self.KEYS for c in self.change(self.node, k, values[k])]

@@ -46,7 +46,7 @@ function render(state) {
   if (studio.state && state.revision < studio.state.revision) return;
   studio.state = state;
   $('graph-name').textContent = state.graph.name;
-  $('graph-path').textContent = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
+  $('graph-path').textContent = $('graph-path').title = state.graph.path + (state.graph.dirty ? ' (edited, not saved)' : '');
   $('autorun').checked = state.autorun;
   showRun(state.run);
   dag.draw(state.nodes);
@@ -75,7 +75,7 @@ function showRun(run) {
   if (st === 'ok') t = `ok ${run.seconds?.toFixed(2)}s · ${run.computed?.length ?? 0} computed, ${run.cached?.length ?? 0} cached`;
   if (st === 'failed') t = `failed: ${Object.keys(run.failed || {}).join(', ') || run.message}`;
   if (st === 'invalid') t = 'graph does not validate';
-  el.textContent = t;
+  el.textContent = el.title = t;
   el.dataset.gen = run?.gen ?? 0;
   el.dataset.status = st;
 }
@@ -407,7 +407,7 @@ async function mountView(n) {
     mod.mount(body, {
       node: n.name, data: res.data, exposure: () => +$('exposure').value,
       frame: values => sendFrame(n.name, values),
-      commit: values => studio.ws?.send(JSON.stringify({ type: 'commit', node: n.name, values })),
+      commit: (values, save) => sendCommit(n.name, values, save),
       token,
     });
   } catch (e) { body.textContent = `the view failed: ${e}`; }
@@ -418,6 +418,15 @@ function sendFrame(node, values) {
   return new Promise(resolve => {
     frameWaiters.set(id, resolve);
     studio.ws.send(JSON.stringify({ type: 'frame', node, values, id, exposure: +$('exposure').value }));
+  });
+}
+
+// → Promise of the studio's answer ({ok, errors, saved}); save: a file name to save the graph to after
+function sendCommit(node, values, save) {
+  const id = ++frameId;
+  return new Promise(resolve => {
+    frameWaiters.set(id, resolve);
+    studio.ws.send(JSON.stringify({ type: 'commit', node, values, id, save }));
   });
 }
 
@@ -475,6 +484,9 @@ function onEvent(m) {
       if (w) w({ url: '', info: m });
     } else if (m.type === 'commit') {
       if (!m.ok) log((m.errors || []).map(e => e.text).join('\n'));
+      const w = frameWaiters.get(m.id);
+      frameWaiters.delete(m.id);
+      if (w) w(m);
     } else if (m.type === 'params') {
       const w = paramsWaiters.get(m.id);
       paramsWaiters.delete(m.id);

@@ -2,7 +2,9 @@
 // A view module exports `mount(element, api)`; api gives:
 //   api.node, api.data          the node's name and what its LiveView.data() returned
 //   api.frame(values)           → Promise<{url, info}>: LiveView.frame(values) as an image
-//   api.commit(values)          write LiveView.commit(values) into the graph (re-runs via the cache)
+//   api.commit(values, save)    write LiveView.commit(values) into the graph (re-runs via the cache); with
+//                               save (a file name in the graph's folder) then save the graph there;
+//                               → Promise<{ok, errors, saved}>
 //   api.exposure()              the page's preview exposure (stops)
 // sliderView() builds the common case: sliders + a live image, committing on release.
 
