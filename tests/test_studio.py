@@ -515,6 +515,22 @@ def test_background_progress_reaches_the_node_after_its_run(tmp_path, engine_reg
     Context(background=boom).background_progress(0.5, "x")  # does not raise
 
 
+def test_background_progress_is_shown_on_the_node(browser, server, tmp_path):
+    """A node's background work (Context.background_progress) in the page: on the node (the
+    editor's state) and in its panel while it runs, gone once it reports 1."""
+    ctx, errors = browser
+    s, _ = server(GRAPH.replace("    type: Gain\n", "    type: Warm\n").replace("    params: {stops: 0.0}   # exposure change\n", ""))
+    page = open_page(ctx, s)
+    wait_run(page)
+    click_node(page, "gain")
+    wait_for(lambda: page.inner_text("#node-msg") == "warming up 50 %", what="the warm-up in the panel")
+    assert page.evaluate("studio.editor.state.gain.background") == 0.5
+    (tmp_path / "warm.done").write_text("")
+    wait_for(lambda: page.evaluate("studio.editor.state.gain.background") == 1, what="the warm-up's end")
+    assert page.inner_text("#node-msg") == ""
+    assert not errors
+
+
 def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):
     """Python-level: Stop (the editor's button, /api/stop) ends the run going; what it finished
     stays cached and the node it was in never is."""
