@@ -24,6 +24,7 @@ the node's own ``compute`` is always the ``numpy`` reference backend.
 """
 from __future__ import annotations
 
+import contextlib
 import re
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable, ClassVar
@@ -116,10 +117,18 @@ class Context:
     # background thread of its own, preparing in-process state for it (its outputs must not
     # depend on whether it did); False in a batch run, where that would only cost CPU
     interactive: bool = False
+    background: Callable[[float, str], None] = field(default=lambda frac, msg: None)
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Report progress of a long compute (0…1); shown by the CLI."""
         self.report(fraction, message)
+
+    def background_progress(self, fraction: float, message: str = "") -> None:
+        """Report progress (0…1, 1 when done) of work this node goes on with in a background
+        thread after its compute returned (``interactive``); the studio shows it on the node.
+        Callable from any thread, after the run ended too; it never raises."""
+        with contextlib.suppress(Exception):
+            self.background(fraction, message)
 
     def notice(self, message: str) -> None:
         """Tell the user something about this computation (shown as a ``notice:`` line, also

@@ -98,6 +98,8 @@ class Session:
         #: from the in-memory value while the store writes run); an error in it fails the node
         self.on_outputs = on_outputs
         self.interactive = False  # a live session's run (the studio): Context.interactive
+        #: background(node, fraction, message): Context.background_progress (from any thread)
+        self.background: Callable[[str, float, str], None] = lambda node, frac, msg: None
         if store.on_notice is None:
             store.on_notice = notice
         self._outcomes: dict[str, NodeOutcome] = {}  # this process's outcomes (regeneration)
@@ -356,7 +358,8 @@ class Session:
                       inputs=dict(input_digests),
                       report=lambda frac, msg: self.report(g.name, frac, msg),
                       tell=lambda msg: self.notice(f"notice: {g.name} ({g.type}): {msg}"),
-                      interactive=self.interactive)
+                      interactive=self.interactive,
+                      background=lambda frac, msg: self.background(g.name, frac, msg))
         t0 = time.perf_counter()
         result = _call_compute(g, bcls, ctx, inputs)
         seconds = time.perf_counter() - t0

@@ -130,17 +130,17 @@ def drawn_nodes(page):
 
 def click_node(page, name):
     """A real mouse click on node ``name``'s title bar in the graph canvas, until the editor
-    has it selected (a click the canvas took for the second half of a double-click selects
-    nothing: it is clicked again half a second later)."""
+    has it selected.  The canvas selects on the button's release, which ``mouse.click`` waits
+    for, so the selection is checked at once, with no time limit (a busy machine makes any
+    limit a guess); a click the canvas took for the second half of a double-click selects
+    nothing: it is clicked again once litegraph's double-click time (300 ms) has passed."""
     want = name.split("[")[0]
     for _ in range(3):
         x, y = page.evaluate("n => studio.editor.nodePoint(n)", want)
         page.mouse.click(x, y)
-        try:
-            page.wait_for_function("n => studio.editor.selected === n", arg=want, timeout=500)
+        if page.evaluate("n => studio.editor.selected === n", want):
             return
-        except Exception:  # noqa: BLE001 - playwright's TimeoutError
-            continue
+        page.wait_for_timeout(350)
     raise AssertionError(f"a click on node {name!r} does not select it")
 
 

@@ -128,7 +128,8 @@ def test_a_live_session_fills_the_basis_in_the_background_without_stalling_a_ren
     (Context.interactive, the studio) its first render starts a thread drawing the rest, a chunk
     at a time, so a render meanwhile is not held until the fill ends; the filled basis holds
     the bytes a lazily drawn one does, and a rotation after it draws nothing and renders the
-    same bytes."""
+    same bytes.  The fill's progress goes to Context.background_progress (the studio shows it
+    on the node): whole per cents, rising, the last one 1.0."""
     import nodes.paris.render as R
 
     R._GEOMETRY.clear()
@@ -140,13 +141,18 @@ def test_a_live_session_fills_the_basis_in_the_background_without_stalling_a_ren
     R._GEOMETRY.clear()
     monkeypatch.setattr(VB, "FILL_CHUNK", 64)  # 32 chunks, 40 ms apart: a render in between
     monkeypatch.setattr(VB, "FILL_PAUSE", 0.04)
-    render(2048, lighting(), Context(interactive=True))
+    told = []
+    render(2048, lighting(), Context(interactive=True, background=lambda f, m: told.append((f, m))))
     b = face_basis()
     assert b._filler is not None
     render(2048, lighting(0.4), Context(interactive=True))  # (draws its own directions between chunks)
     assert b._filler.is_alive() and not b.drawn.all()  # not held until the fill ended
     b._filler.join(30)
     assert b.drawn.all()
+    fractions = [f for f, _ in told]
+    assert len(told) > 10 and fractions == sorted(fractions) and fractions[-1] == 1.0 and fractions[-2] < 1.0
+    assert len({int(f * 100) for f in fractions}) == len(fractions)  # one report per whole per cent at most
+    assert {m for _, m in told} == {VB.FILL_MESSAGE}
     rows = np.flatnonzero(lazy.drawn)
     assert np.array_equal(b.vis[rows], lazy.vis[rows])
     assert np.array_equal(render(2048, lighting(1.1)), turned)

@@ -10,6 +10,7 @@ import collections
 import json
 import os
 import signal
+import threading
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -467,6 +468,67 @@ def test_a_studio_run_tells_its_nodes_they_are_in_a_live_session(tmp_path, engin
         st.close()
     run_graph(tmp_path / "g.yaml", cache=tmp_path / "batch", registry=engine_registry)
     assert seen == [True, False]
+
+
+def test_background_progress_reaches_the_node_after_its_run(tmp_path, engine_registry, monkeypatch):
+    """Python-level: a node's work in a thread of its own after its compute returned reports
+    through Context.background_progress; the studio sends it as the node's background /
+    background_message (events and state: the page shows it on the node) after the run ended.
+    In a batch run, and with a hook that raises, the call does nothing and never raises."""
+    import studionodes
+
+    from graphkit.api import run_graph
+    from graphkit.node import Context
+
+    real, threads = studionodes.Nap.compute, []
+
+    def compute(self, image):
+        out = real(self, image)
+        ctx, go = self.ctx, threading.Event()
+        threads.append((go, threading.Thread(target=lambda: go.wait(30) and [
+            ctx.background_progress(f, "warming up") for f in (0.25, 1.0)])))
+        threads[-1][1].start()
+        return out
+    monkeypatch.setattr(studionodes.Nap, "compute", compute)
+    st = napping_studio(tmp_path, engine_registry)
+    events = []
+    try:
+        assert st.wait_idle(30)["status"] == "ok"
+        st.subscribe(lambda ev: events.append(ev) if ev.get("name") == "nap" else None)
+        go, t = threads[0]
+        go.set()  # (after the run)
+        t.join(30)
+        assert [(e["background"], e["background_message"]) for e in events] == [(0.25, "warming up"), (1.0, "warming up")]
+        assert all(e["state"] == "done" for e in events)
+        nap = next(n for n in st.state()["nodes"] if n["name"] == "nap")
+        assert (nap["background"], nap["background_message"]) == (1.0, "warming up")
+    finally:
+        st.close()
+    run_graph(tmp_path / "g.yaml", cache=tmp_path / "batch", registry=engine_registry)
+    go, t = threads[1]
+    go.set()
+    t.join(30)
+    assert not t.is_alive()
+
+    def boom(fraction, message):
+        raise RuntimeError("a page went away")
+    Context(background=boom).background_progress(0.5, "x")  # does not raise
+
+
+def test_background_progress_is_shown_on_the_node(browser, server, tmp_path):
+    """A node's background work (Context.background_progress) in the page: on the node (the
+    editor's state) and in its panel while it runs, gone once it reports 1."""
+    ctx, errors = browser
+    s, _ = server(GRAPH.replace("    type: Gain\n", "    type: Warm\n").replace("    params: {stops: 0.0}   # exposure change\n", ""))
+    page = open_page(ctx, s)
+    wait_run(page)
+    click_node(page, "gain")
+    wait_for(lambda: page.inner_text("#node-msg") == "warming up 50 %", what="the warm-up in the panel")
+    assert page.evaluate("studio.editor.state.gain.background") == 0.5
+    (tmp_path / "warm.done").write_text("")
+    wait_for(lambda: page.evaluate("studio.editor.state.gain.background") == 1, what="the warm-up's end")
+    assert page.inner_text("#node-msg") == ""
+    assert not errors
 
 
 def test_stop_ends_a_run_at_the_next_node(tmp_path, engine_registry):

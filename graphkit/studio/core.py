@@ -110,6 +110,11 @@ class Studio:
             ev = {"type": "node", "name": name, **{k: v for k, v in st.items() if k != "t0"}}
         self.emit(ev)
 
+    def background_event(self, name: str, fraction: float, message: str) -> None:
+        """Progress of node ``name``'s work in the background (Context.background_progress),
+        shown on the node beside its state, whichever run started it."""
+        self.node_event(name, background=round(float(fraction), 3), background_message=message)
+
     # -- loading --------------------------------------------------------------------------
     def _try_load(self, doc: YamlDoc):
         """(graph, errors) for a document."""

@@ -110,6 +110,7 @@ def run_graph(studio, gen: int, graph) -> dict:
                       notice=progress.notice, report=progress.report, on_outputs=progress.outputs)
     session.memo = studio.memo  # values stay in memory between runs of the studio
     session.interactive = True  # nodes may prepare for the next change in the background
+    session.background = studio.background_event
     targets = sorted({n for n, _ in graph.outputs.values()})
     studio.reset_states(graph.upstream(targets))
     failed, global_error = _run_targets(studio, session, graph, targets, progress)

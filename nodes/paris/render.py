@@ -539,7 +539,8 @@ class Render(Node):
       drawn when a light first needs it and kept with the surface (in this process's memory,
       not the cache), so a turning environment draws no shadow map; in a live session (the
       studio: ``Context.interactive``) the rest are drawn in the background after the first
-      render, ~6–7 s of CPU at 1024² (bench_environment.py --prefill), so later rotations draw none; a light takes the
+      render, ~6–7 s of CPU at 1024² (bench_environment.py --prefill; its progress shown on the node),
+      so later rotations draw none; a light takes the
       cosine-weighted visibility of the directions within ~√(4π/n) of it (an area light's
       soft shadow).  With 0, a shadow map per light (the brightest ``shadow_map_size``²,
       dimmer ones smaller, side ∝ luminance^⅓).  Its 9 spherical-harmonic coefficients add
@@ -662,7 +663,7 @@ class Render(Node):
         if round_:  # the basis directions those lights read, drawn once
             self._basis(g).draw(round_)
             if self.ctx.interactive:  # a live session: the rest drawn before the next rotation needs it
-                self._basis(g).fill_in_background()
+                self._basis(g).fill_in_background(self.ctx.background_progress)
         # the lights' shadows are independent: on the cores (an environment's dominant lights),
         # dealt by cost
         cast = [t for t in lit if t[5] is not None]

@@ -34,6 +34,7 @@ BASIS_POINTS = 1 << 15
 #: for the lock or the GIL takes it then)
 FILL_CHUNK = 8
 FILL_PAUSE = 0.002
+FILL_MESSAGE = "filling environment shadows"  # what the studio shows on the node while fill() runs
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -89,26 +90,32 @@ class VisibilityBasis:
             need = np.unique(np.concatenate([self.cone_of(d)[0] for d in directions] or [np.zeros(0, int)]))
             self._cast(need[~self.drawn[need]])
 
-    def fill(self, chunk: int = FILL_CHUNK) -> int:
+    def fill(self, chunk: int = FILL_CHUNK, report=lambda fraction, message: None) -> int:
         """Draw every direction not drawn yet, ``chunk`` at a time, the lock and the GIL let go
         between chunks (a render's :meth:`draw` waits at most a chunk: ~2 ms a direction at
-        1024²); the number drawn."""
-        drawn = 0
+        1024²); the number drawn.  ``report(fraction drawn, FILL_MESSAGE)`` at each whole
+        per cent and when done."""
+        drawn, told = 0, -1
         while True:
             with self._lock:
                 todo = np.flatnonzero(~self.drawn)[:chunk]
                 self._cast(todo)
+                done = float(self.drawn.mean())
+            if int(done * 100) > told:
+                told = int(done * 100)
+                report(done, FILL_MESSAGE)
             if not len(todo):
                 return drawn
             drawn += len(todo)
             time.sleep(FILL_PAUSE)
 
-    def fill_in_background(self) -> None:
+    def fill_in_background(self, report=lambda fraction, message: None) -> None:
         """:meth:`fill` on a daemon thread, started once (a live session's preprocess: every
-        later rotation finds its directions drawn)."""
+        later rotation finds its directions drawn); its progress to ``report`` (fill)."""
         with self._lock:
             if self._filler is None and not self.drawn.all():
-                self._filler = threading.Thread(target=self.fill, name="visibility-basis-fill", daemon=True)
+                self._filler = threading.Thread(target=self.fill, kwargs={"report": report},
+                                                name="visibility-basis-fill", daemon=True)
                 self._filler.start()
 
     def _cast(self, ks: np.ndarray) -> None:

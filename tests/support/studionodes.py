@@ -1,7 +1,9 @@
 """Small image nodes for the studio's tests (loaded through GRAPHKIT_PLUGINS=studionodes)."""
 from __future__ import annotations
 
+import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -69,6 +71,31 @@ class Nap(Node):
             self.ctx.progress((i + 1) / n, "napping")
         return Image(image.pixels + np.float32(self.params.salt * 0))
 
+
+
+class Warm(Node):
+    """Passes the image through; in a live session it then "warms up" on a thread of its own:
+    background progress 0.5, and 1.0 once the file ``until`` exists (a test makes it)."""
+
+    inputs = {"image": Image}
+    outputs = {"image": Image}
+
+    class Params(Node.Params):
+        until: str = Field("warm.done", description="file whose appearance ends the warm-up")
+
+    def compute(self, image):
+        if self.ctx.interactive:
+            flag, report = Path(self.ctx.base_dir) / self.params.until, self.ctx.background_progress
+
+            def warm():
+                report(0.5, "warming up")
+                for _ in range(1200):
+                    if flag.exists():
+                        break
+                    time.sleep(0.05)
+                report(1.0, "warming up")
+            threading.Thread(target=warm, daemon=True).start()
+        return Image(image.pixels)
 
 
 def _gain_view():

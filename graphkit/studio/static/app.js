@@ -1,5 +1,5 @@
 // graphkit studio page: state over a websocket, DAG, controls, previews, live views.
-import { Editor } from './graph.js';
+import { Editor, backgroundText } from './graph.js';
 import { mountPalette } from './palette.js';
 import { makeControl, boundParam } from './controls.js';
 
@@ -160,7 +160,11 @@ function renderNodePanel(n, rebuild) {
     for (const k of Object.keys(props)) controls[n.name + '/' + k]?.set((n.params || {})[k]);
   }
   const msg = $('node-msg');
-  if (msg) msg.textContent = (n.state === 'failed' || n.state === 'blocked') ? n.message : '';
+  if (msg) {
+    const bad = n.state === 'failed' || n.state === 'blocked';
+    msg.textContent = bad ? n.message : backgroundText(n);
+    msg.classList.toggle('background', !bad);
+  }
   renderThumbs(n);
 }
 
@@ -466,7 +470,8 @@ function onEvent(m) {
     } else if (m.type === 'node') {
       const n = nodeByName(m.name);
       if (n) {
-        Object.assign(n, { state: m.state, seconds: m.seconds, message: m.message, progress: m.progress });
+        Object.assign(n, { state: m.state, seconds: m.seconds, message: m.message, progress: m.progress,
+          background: m.background, background_message: m.background_message });
         if (m.digests) n.digests = m.digests;
         dag.update(n);
         if (studio.selected === m.name) renderNodePanel(n);

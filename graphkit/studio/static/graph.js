@@ -75,6 +75,12 @@ function collapse(nodes) {
   return [...out.values()];
 }
 
+// what a node does in the background after its run (Context.background_progress), '' when nothing
+export function backgroundText(n) {
+  return n.background !== undefined && n.background !== null && n.background < 1
+    ? `${n.background_message || 'background work'} ${Math.floor(n.background * 100)} %` : '';
+}
+
 // ``text`` broken into lines no wider than ``width`` (after '_', '-', ' ', '×' where it can,
 // else anywhere); null where one character is already too wide
 function wrapText(ctx, text, width) {
@@ -249,6 +255,14 @@ export class Editor {
     ctx.textAlign = 'right';
     ctx.fillText(secs, W - 8, y);
     ctx.textAlign = 'left';
+    const bg = backgroundText(n);
+    if (bg) {  // between the state line and the thumbnail
+      ctx.font = '10px system-ui, sans-serif';
+      ctx.fillStyle = STATE_COLOURS.running;
+      let t = bg;
+      while (t.length > 4 && ctx.measureText(t).width > W - 16) t = '…' + t.slice(2);
+      ctx.fillText(t, 8, y + 12);
+    }
     y += 16;
     if (st === 'failed' || st === 'blocked') {
       ctx.fillStyle = '#ff8080';
