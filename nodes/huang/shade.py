@@ -114,12 +114,7 @@ class CosmeticShade(Node):
         fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
         layers = _layer_boxes(t)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
-        spec = np.zeros((h, w, 3), np.float32)
-        image = diffuse + np.float32(0)  # diffuse + spec off the specular's box (−0 + 0 is +0: not a copy)
-        if fixed.spec is not None:  # (zero outside its box)
-            y0, y1, x0, x1 = fixed.spec.box
-            _through_layers(p, wl, S, K, t, fixed, layers, spec[y0:y1, x0:x1])
-            image[y0:y1, x0:x1] += spec[y0:y1, x0:x1]
+        spec, image = _with_specular(p, wl, S, K, fixed, layers, diffuse)
         return {"image": Image(image), "diffuse": Image(diffuse), "specular": Image(spec)}
 
     def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
@@ -169,7 +164,7 @@ class CosmeticShade(Node):
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        rows = max(1, km.LOOKUP_BLOCK // max(T.shape[1], 1))  # bands whose temporaries stay in the cache
+        rows = rows_per_band(T.shape[1])
         pre = np.empty(T.shape, np.result_type(T, Rb, rho_b, *([] if E_b is None else [E_b])))
 
         def entering(r0, r1):  # T·E / (1 − Rb·ρ)
@@ -188,10 +183,16 @@ class CosmeticShade(Node):
                 _scattered(fixed, pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, profile=PROFILE, mask=surf.mask)
-        if box is None:
-            out = np.empty(T.shape, np.float32)
-        else:
-            out = rho.astype(np.float32) if E is None else np.multiply(rho, E, dtype=np.float32)
+        out = np.empty(rho.shape, np.float32)
+        if box is not None:  # ρ·E off the box (E None: ρ)
+            def lit(r0, r1):
+                for rows, cols in _off_box(box, r0, r1, out.shape[1]):
+                    if E is None:
+                        np.copyto(out[rows, cols], rho[rows, cols])
+                    else:
+                        np.multiply(rho[rows, cols], E[rows, cols], out=out[rows, cols])
+
+            run_bands(lit, out.shape[0], rows_per_band(out.shape[1]))
         inner = out if box is None else out[y0:y1, x0:x1]
 
         def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
@@ -320,23 +321,73 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol, {})
 
 
-def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers, out: np.ndarray) -> None:
-    """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
-    transmittance and the layer's own specular added, weighted by its coverage (computed in
-    the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
-    T = 1 and the coverage 0 leave the specular as it is).  ``layers``: :func:`_layer_boxes`."""
+def _with_specular(p, wl, S, K, fixed: _Fixed, layers, diffuse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(specular, image = diffuse + specular) over the frame, on bands of rows on the cores: the
+    specular of §3.3 (:func:`_through_layers`) in its box, zero elsewhere (there the image is
+    diffuse + 0: −0 + 0 is +0).  The layers' terms are made (or found) first."""
+    h, w = diffuse.shape[:2]
+    spec = np.empty((h, w, 3), np.float32)
+    image = np.empty((h, w, 3), np.float32)
     sp = fixed.spec
+    box = (0, 0, 0, 0) if sp is None else sp.box
+    terms = [] if sp is None else _terms_in_box(p, wl, S, K, sp, layers)
+
+    def band(r0, r1):
+        for rows, cols in _off_box(box, r0, r1, w):
+            spec[rows, cols] = 0.0
+        a, b = max(r0, box[0]), min(r1, box[1])
+        if a < b:
+            _through_layers(sp, terms, (a, b), spec[a:b, box[2]:box[3]])
+        np.add(diffuse[r0:r1], spec[r0:r1], out=image[r0:r1])
+
+    run_bands(band, h, rows_per_band(w))
+    return spec, image
+
+
+def _terms_in_box(p, wl, S, K, sp: _Specular, layers) -> list:
+    """Per layer present in the specular's box: (its part of the box (b0, b1, c0, c1), its RGB
+    transmittance there, its own specular weighted by its coverage there), bottom first
+    (:func:`_layer_terms`).  ``layers``: :func:`_layer_boxes`."""
     y0, y1, x0, x1 = sp.box
-    s = sp.skin.copy()
+    terms = []
     for i, (box, top, crop) in enumerate(zip(*layers)):
         b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
-        if b0 >= b1 or c0 >= c1:
+        if b0 < b1 and c0 < c1:
+            part = (b0, b1, c0, c1)
+            terms.append((part, *_layer_terms(p, wl, S[i], K[i], crop, box, top, part, i, sp)))
+    return terms
+
+
+def _through_layers(sp: _Specular, terms, rows: tuple[int, int], out: np.ndarray) -> None:
+    """§3.3 on the rows a:b (``rows``, frame rows within the specular's box) into ``out`` (those
+    rows of the box): the skin's specular, then for each layer bottom to top attenuated by the
+    layer's transmittance and the layer's own specular added, weighted by its coverage (where
+    any of them is not zero: zero elsewhere; a layer only where it is: off it T = 1 and the
+    coverage 0 leave the specular as it is), times the light.  ``terms``: :func:`_terms_in_box`.
+    The skin's specular is read where it is kept: a first layer over all of ``out`` multiplies
+    it into ``out``, else it is copied there first."""
+    a, b = rows
+    y0, x0, x1 = sp.box[0], sp.box[2], sp.box[3]
+    skin = sp.skin[a - y0:b - y0]
+    s = None  # out once it holds the specular so far
+    for (b0, b1, c0, c1), Ti, own in terms:
+        r0, r1 = max(b0, a), min(b1, b)
+        if r0 >= r1:
             continue
-        Ti, own = _layer_terms(p, wl, S[i], K[i], crop, box, top, (b0, b1, c0, c1), i, sp)
-        here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
-        np.multiply(here, Ti, out=here)
+        Ti, own = Ti[r0 - b0:r1 - b0], own[r0 - b0:r1 - b0]
+        if s is None and (r0, r1, c0, c1) == (a, b, x0, x1):
+            np.multiply(skin, Ti, out=out)
+            here = s = out
+        else:
+            if s is None:
+                s = out
+                np.copyto(s, skin)
+            here = s[r0 - a:r1 - a, c0 - x0:c1 - x0]
+            np.multiply(here, Ti, out=here)
         np.add(here, own, out=here)
-    np.multiply(s, sp.lcol, out=out)
+    if s is None:
+        np.copyto(out, skin)
+    np.multiply(out, sp.lcol, out=out)
 
 
 def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
@@ -383,6 +434,23 @@ def _scattered(fixed: _Fixed, pre: np.ndarray) -> None:
         fixed.scatter.update(sub, *last, out=pre)
     with _FIXED_LOCK:
         fixed.last["sss"] = (sub, pre)
+
+
+def rows_per_band(w: int) -> int:
+    """Rows per band of a frame w pixels wide whose per-pixel temporaries stay in the cache."""
+    return max(1, km.LOOKUP_BLOCK // max(w, 1))
+
+
+def _off_box(box, r0: int, r1: int, w: int) -> list[tuple[slice, slice]]:
+    """The parts of rows r0:r1 (of a frame w pixels wide) off ``box`` (y0, y1, x0, x1; an empty
+    box: all of them), as (rows, columns) slices."""
+    y0, y1, x0, x1 = box
+    a, b = max(r0, y0), min(r1, y1)
+    if a >= b or x0 >= x1:
+        return [(slice(r0, r1), slice(0, w))]
+    parts = [(slice(r0, a), slice(0, w)), (slice(b, r1), slice(0, w)),
+             (slice(a, b), slice(0, x0)), (slice(a, b), slice(x1, w))]
+    return [(r, c) for r, c in parts if r.start < r.stop and c.start < c.stop]
 
 
 def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
