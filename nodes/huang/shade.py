@@ -340,12 +340,12 @@ def _with_specular(p, wl, S, K, fixed: _Fixed, layers, diffuse: np.ndarray) -> t
     terms = [] if sp is None else _terms_in_box(p, wl, S, K, sp, layers)
 
     def band(r0, r1):
-        for rows, cols in _off_box(box, r0, r1, w):  # (cv2: see _diffuse)
-            cv2.add(diffuse[rows, cols], 0.0, dst=image[rows, cols])
+        for rows, cols in _off_box(box, r0, r1, w):
+            np.add(diffuse[rows, cols], np.float32(0), out=image[rows, cols])
         a, b = max(r0, y0), min(r1, y1)
         if a < b:
             _through_layers(sp, terms, (a, b), spec[a:b, x0:x1])
-            cv2.add(diffuse[a:b, x0:x1], spec[a:b, x0:x1], dst=image[a:b, x0:x1])
+            cv2.add(diffuse[a:b, x0:x1], spec[a:b, x0:x1], dst=image[a:b, x0:x1])  # (boxes: see _diffuse)
 
     run_bands(band, h, rows_per_band(w))
     return spec, image
