@@ -404,6 +404,8 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
     ``lbox`` (0 outside it) of maximum ``top``: kept for the last layers seen on this surface (a
     re-shade after one layer changed does not redo the others; up to 8, ~6 MB each for a
     face-sized layer at 1280×720)."""
+    import cv2
+
     key = xxhash.xxh3_128(canonical([i, list(box), list(lbox), top, p.lut_size, p.cover_mm, p.illuminant]))
     for a in (np.asarray(wl, np.float64), np.asarray(S, np.float64), np.asarray(K, np.float64), crop):
         key.update(np.ascontiguousarray(a))
@@ -417,10 +419,10 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
         grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S, K, grid[0][:, None])
         ti = crop[b0 - lbox[0]:b1 - lbox[0], c0 - lbox[2]:c1 - lbox[2], None]
-        Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float32)
-        cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)[..., None]
-        own = np.broadcast_to(cover * sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0], Ti.shape)
-        got = (Ti, np.ascontiguousarray(own))
+        Ti = np.asarray(km.lookup(Tg @ Wf, grid, ti), np.float32)
+        cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)
+        own = np.multiply(cover, sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0, 0])
+        got = (Ti, cv2.merge([own] * 3))  # (numpy's copy of a broadcast channel: ~13× slower)
         with _FIXED_LOCK:
             while len(sp.seen) >= 8:
                 sp.seen.pop(next(iter(sp.seen)))
