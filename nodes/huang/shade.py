@@ -32,8 +32,8 @@ class CosmeticShade(Node):
     the layers (Rt·E) and partly transmitted into the skin, with the inter-reflections between
     skin (albedo ρ) and layers: E_skin = T·E / (1 − Rb·ρ).  E_skin is scattered in the skin with
     the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile with its channel
-    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step), ``mm_per_pixel``
-    mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
+    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step) and its narrow
+    passes as per-pixel tap maps (``Scatter``'s ``taps``), ``mm_per_pixel`` mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
     leaves through the layers (RGB(T²)/RGB(T))::
 
         diffuse = Rt·E + (T²/T)·ρ·SSS(T·E / (1 − Rb·ρ))
@@ -57,7 +57,9 @@ class CosmeticShade(Node):
     #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 1.2e-7)
     # 9: the SSS profile's channel weights under 1 % moved to that channel's nearest Gaussian
     #    (nodes.common.sss.fold_faint): three of eleven channel blurs fewer, ≤ 0.21 % of a step
-    version = "9"
+    # 10: the SSS's narrow passes (reach ≤ 6 px) as per-pixel tap maps (nodes.common.sss.Scatter's
+    #    taps): the same per-pixel kernels as the σ levels, outputs move by float rounding (≤ 1e-6)
+    version = "10"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -135,7 +137,8 @@ class CosmeticShade(Node):
             E = _irradiance(hw, irradiance, lt, lcol, ldir, surf.normals, p.relight)
             scatter = None
             if p.sss and self.sss_blur is sss_blur:  # the reference: prepared once, on the skin's box
-                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, PROFILE, mask=surf.mask, crop=True)
+                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, PROFILE, mask=surf.mask, crop=True,
+                                  taps=True)
             spec = None
             if surf.normals is not None and ldir is not None:
                 spec = _specular(p, specs, surf, ldir, lcol)
