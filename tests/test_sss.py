@@ -340,3 +340,18 @@ def test_tap_maps_give_the_levels_kernels(mpp):
     err = np.abs(got - ref)[mask > 0]
     print(f"taps against the exact per-pixel Gaussians, {mpp} mm/px: max {err.max():.3f}, mean {err.mean():.2e}")
     assert err.max() <= 0.03 and err.mean() <= 3e-3
+
+
+def test_tap_maps_leave_passes_at_the_frame_edge_to_the_levels():
+    """Skin at the frame's edge (the levels reflect the border there, tap maps would read off
+    the plane): those y passes stay levels, the scatter is still the levels' to float rounding."""
+    from nodes.common.sss import Scatter, _Taps
+
+    img, depth, mask = _face()
+    mask[:30] = mask[30]  # the skin reaches row 0
+    levels = Scatter(img.shape, 1.0, depth, mask=mask, crop=True)
+    taps = Scatter(img.shape, 1.0, depth, mask=mask, crop=True, taps=True)
+    assert taps.box[0] == 0
+    assert not any(isinstance(p[2], _Taps) and p[2].radius > 0 for p in taps.passes)
+    assert any(isinstance(p[3], _Taps) for p in taps.passes)
+    np.testing.assert_allclose(taps(img), levels(img), rtol=0, atol=1e-6)

@@ -25,8 +25,8 @@ on a photo (measured against the gather and against the sum of erfs of a step in
 tests/test_jimenez_nodes.py and tests/test_sss.py).  With ``taps`` (a Scatter cropped to a
 skin mask; CosmeticShade's) the passes that reach at most TAP_RADIUS pixels are instead
 evaluated as per-pixel tap maps summed from the levels' weights (:func:`_tap_maps`): the same
-per-pixel kernels, float rounding apart, at about half the cost.  At a pixel the standard deviation in
-pixels along an image axis is
+per-pixel kernels, float rounding apart, at about half the cost.  At a pixel the standard
+deviation in pixels along an image axis is
 
     σ_px = √v_i / ℓ,     ℓ = √(mm_per_pixel² + (∂depth/∂axis)²)   [mm per pixel step on the surface]
 
@@ -40,7 +40,8 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
     SKIN_PROFILE: tuple[(variance_mm2, (w_r, w_g, w_b)), ...]
     sss_blur(irradiance, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None) -> ndarray
     sss_blur_plane(plane, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, channels=3) -> ndarray
-    Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False, taps=False)(irradiance)
+    Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False,
+            taps=False)(irradiance)
     Scatter.on_box(irradiance_on_box, out=None), Scatter.update(irradiance_on_box, before, after, out=None)
     fold_faint(profile=SKIN_PROFILE, below=FAINT) -> profile   (CosmeticShade's: fewer channel blurs)
 """
@@ -257,8 +258,9 @@ TAP_RADIUS = 6
 
 
 class _Taps(NamedTuple):
-    """An axis pass as per-pixel tap maps: out(x) = c₀(x)·src(x) + Σ_j c_j(x)·(src(x − j) + src(x + j)),
-    j = 1 … ``radius`` along the axis; ``coef`` the (H, W) float32 maps c₀ … c_radius."""
+    """An axis pass as per-pixel tap maps along the axis:
+    out(x) = c₀(x)·src(x) + Σ_j c_j(x)·(src(x − j) + src(x + j)), j = 1 … ``radius``;
+    ``coef`` the (H, W) float32 maps c₀ … c_radius."""
     radius: int
     coef: list
 
@@ -283,7 +285,8 @@ def _tap_maps(terms: list[_Term], axis: int, shape) -> _Taps | None:
         wt = np.ones((y1 - y0, x1 - x0), np.float32) if weight is None else weight
         for j in range(r + 1):
             coef[j][y0:y1, x0:x1] += wt * k[r + j]
-    edge = [slice(0, R), slice(h - R, h)] if axis == 0 else [(slice(None), slice(0, R)), (slice(None), slice(w - R, w))]
+    ends = [slice(0, R), slice((h if axis == 0 else w) - R, None)]
+    edge = ends if axis == 0 else [(slice(None), e) for e in ends]
     if R and any(np.any(c[e]) for c in coef for e in edge):
         return None
     return _Taps(R, coef)

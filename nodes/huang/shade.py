@@ -32,9 +32,10 @@ class CosmeticShade(Node):
     the layers (Rt·E) and partly transmitted into the skin, with the inter-reflections between
     skin (albedo ρ) and layers: E_skin = T·E / (1 − Rb·ρ).  E_skin is scattered in the skin with
     the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile with its channel
-    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step) and its narrow
-    passes as per-pixel tap maps (``Scatter``'s ``taps``), ``mm_per_pixel`` mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
-    leaves through the layers (RGB(T²)/RGB(T))::
+    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step) and its
+    narrow passes as per-pixel tap maps (``Scatter``'s ``taps``), ``mm_per_pixel`` mm, optional
+    ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and leaves
+    through the layers (RGB(T²)/RGB(T))::
 
         diffuse = Rt·E + (T²/T)·ρ·SSS(T·E / (1 − Rb·ρ))
 
@@ -169,7 +170,7 @@ class CosmeticShade(Node):
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        rows = rows_per_band(T.shape[1])
+        rows = _rows_per_band(T.shape[1])
         pre = np.empty(T.shape, np.result_type(T, Rb, rho_b, *([] if E_b is None else [E_b])))
 
         # (ρ, E and the output are boxes of frames: cv2 reads and writes them at the speed of
@@ -199,7 +200,7 @@ class CosmeticShade(Node):
                     else:
                         np.multiply(rho[rows, cols], E[rows, cols], out=out[rows, cols])
 
-            run_bands(lit, out.shape[0], rows_per_band(out.shape[1]))
+            run_bands(lit, out.shape[0], _rows_per_band(out.shape[1]))
         inner = out if box is None else out[y0:y1, x0:x1]
 
         def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
@@ -350,7 +351,7 @@ def _with_specular(p, wl, S, K, fixed: _Fixed, layers, diffuse: np.ndarray) -> t
             _through_layers(sp, terms, (a, b), spec[a:b, x0:x1])
             cv2.add(diffuse[a:b, x0:x1], spec[a:b, x0:x1], dst=image[a:b, x0:x1])  # (boxes: see _diffuse)
 
-    run_bands(band, h, rows_per_band(w))
+    run_bands(band, h, _rows_per_band(w))
     return spec, image
 
 
@@ -449,7 +450,7 @@ def _scattered(fixed: _Fixed, pre: np.ndarray) -> None:
         fixed.last["sss"] = (sub, pre)
 
 
-def rows_per_band(w: int) -> int:
+def _rows_per_band(w: int) -> int:
     """Rows per band of a frame w pixels wide whose per-pixel temporaries stay in the cache."""
     return max(1, km.LOOKUP_BLOCK // max(w, 1))
 
