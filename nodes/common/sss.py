@@ -260,9 +260,10 @@ TAP_RADIUS = 6
 class _Taps(NamedTuple):
     """An axis pass as per-pixel tap maps along the axis:
     out(x) = c₀(x)·src(x) + Σ_j c_j(x)·(src(x − j) + src(x + j)), j = 1 … ``radius``;
-    ``coef`` the (H, W) float32 maps c₀ … c_radius."""
+    ``coef`` the (H, W) float32 maps c₀ … c_radius, all 0 off ``box`` (y0, y1, x0, x1)."""
     radius: int
     coef: list
+    box: tuple
 
 
 def _tap_maps(terms: list[_Term], axis: int, shape) -> _Taps | None:
@@ -289,7 +290,8 @@ def _tap_maps(terms: list[_Term], axis: int, shape) -> _Taps | None:
     edge = ends if axis == 0 else [(slice(None), e) for e in ends]
     if R and any(np.any(c[e]) for c in coef for e in edge):
         return None
-    return _Taps(R, coef)
+    box = _grown_box(np.logical_or.reduce([cj != 0 for cj in coef]), 0)
+    return _Taps(R, coef, box if box[0] < box[1] else (0, 0, 0, 0))
 
 
 def _reach(terms) -> int:
@@ -366,37 +368,33 @@ def _band_terms(src: np.ndarray, off: int, terms: list[_Term], axis: int, rows: 
 def _band_taps(src: np.ndarray, off: int, taps: _Taps, axis: int, rows: tuple[int, int], work: _Work,
                name: str) -> np.ndarray:
     """Rows r0:r1 (``rows``) of an axis pass by tap maps (:class:`_Taps`), ``src`` holding the
-    plane's rows from ``off`` (as :func:`_band_terms`).  The maps are zero within the reach of
-    the plane's edges (:func:`_tap_maps`), where the result is 0."""
+    plane's rows from ``off`` (as :func:`_band_terms`): made on the maps' box (0 off it, where
+    every map is 0; it lies within the reach of the plane's edges, :func:`_tap_maps`)."""
     import cv2
 
     r0, r1 = rows
     R, c = taps.radius, taps.coef
+    y0, y1, x0, x1 = taps.box
     acc = work.get(name, r1 - r0, src.shape[1])
-    if axis == 0:
-        a, b = max(r0, R), min(r1, c[0].shape[0] - R)
-        acc[:max(0, a - r0)] = 0.0
-        acc[max(0, b - r0):] = 0.0
-        if a >= b:
-            return acc
-        out, here = acc[a - r0:b - r0], (slice(a, b), slice(None))
-        pair = work.get(name + "s", b - a, src.shape[1])
-        cv2.multiply(src[a - off:b - off], c[0][here], dst=out)
-        for j in range(1, R + 1):
-            cv2.add(src[a - j - off:b - j - off], src[a + j - off:b + j - off], dst=pair)
-            cv2.accumulateProduct(pair, c[j][here], out)
+    a, b = max(r0, y0), min(r1, y1)
+    if a >= b:
+        acc.fill(0.0)
         return acc
-    w = src.shape[1]
-    acc[:, :R] = 0.0
-    acc[:, w - R:] = 0.0
-    if 2 * R >= w:
-        return acc
-    band = src[r0 - off:r1 - off]
-    out, here = acc[:, R:w - R], (slice(r0, r1), slice(R, w - R))
-    pair = work.get(name + "s", r1 - r0, w - 2 * R)
-    cv2.multiply(band[:, R:w - R], c[0][here], dst=out)
+    acc[:a - r0] = 0.0
+    acc[b - r0:] = 0.0
+    acc[a - r0:b - r0, :x0] = 0.0
+    acc[a - r0:b - r0, x1:] = 0.0
+
+    def at(j):  # the source j pixels along the axis from the box's rows a:b and columns
+        if axis == 0:
+            return src[a + j - off:b + j - off, x0:x1]
+        return src[a - off:b - off, x0 + j:x1 + j]
+
+    out, here = acc[a - r0:b - r0, x0:x1], (slice(a, b), slice(x0, x1))
+    pair = work.get(name + "s", b - a, x1 - x0)
+    cv2.multiply(at(0), c[0][here], dst=out)
     for j in range(1, R + 1):
-        cv2.add(band[:, R - j:w - R - j], band[:, R + j:w - R + j], dst=pair)
+        cv2.add(at(-j), at(j), dst=pair)
         cv2.accumulateProduct(pair, c[j][here], out)
     return acc
 
