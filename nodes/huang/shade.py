@@ -206,7 +206,8 @@ class CosmeticShade(Node):
         def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
             with np.errstate(divide="ignore", invalid="ignore"):
                 t_exit = np.divide(T2[r0:r1], T[r0:r1])
-            t_exit[~(T[r0:r1] > 1e-12)] = 0.0
+            if not T[r0:r1].min() > 1e-12:  # (one pass where no T is that small)
+                t_exit[~(T[r0:r1] > 1e-12)] = 0.0
             cv2.multiply(t_exit, rho_b[r0:r1], dst=t_exit)
             t_exit *= pre[r0:r1]
             if E_b is None:
