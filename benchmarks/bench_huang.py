@@ -192,6 +192,8 @@ def reshade(runs: int, opencl: bool = False) -> int:
     orange = CosmeticShade(CosmeticShade.Params(**{**cos, "cosmetics": ["foundation_light", "blush_orange", "lipstick_red"]}))
     stack = KMStack(KMStack.Params(cosmetics=COSMETICS))
     fixed = {"albedo": albedo, "normals": nrm, "depth": depth, "skin": skin, "light": light}
+    for a in (albedo.pixels, nrm.pixels, depth.pixels, skin.alpha):  # read-only, as the engine passes a node
+        a.flags.writeable = False                                    # its inputs (outputs are made so)
     scale = np.ones(3, np.float32)
 
     def blush(f, layer=1):

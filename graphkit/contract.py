@@ -22,6 +22,7 @@ refuse NaN and infinities.
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
@@ -147,8 +148,10 @@ class Finite:
     types: ClassVar[tuple] = (IMAGE, MASK, SPECTRUM, SCALAR, VECTOR, ARRAY, MESH)
 
     def check(self, value, inputs) -> str | None:
-        problem = finite_or_message(_array(value))  # None for integers
-        return f"holds {problem}" if problem else None
+        arr = _array(value)
+        if arr.dtype.kind != "f" or arr.size == 0 or np.isfinite(_extremes(arr)).all():
+            return None  # integers hold no NaN or Inf; min and max are finite only then
+        return f"holds {finite_or_message(arr)}"
 
     def describe(self) -> str:
         return "finite (no NaN or Inf)"
@@ -184,7 +187,7 @@ class Bound:
         low = self.op in ("ge", "gt")
         # one pass when nothing is wrong: the extreme on the bound's side keeps it (a NaN makes
         # the extreme NaN, which does not: the full check below then leaves the NaN out)
-        if arr.size == 0 or ok(arr.min() if low else arr.max(), self.limit):
+        if arr.size == 0 or ok(_extremes(arr)[0 if low else 1], self.limit):
             return None
         bad = ~ok(arr, self.limit) & ~np.isnan(arr) if arr.dtype.kind == "f" else ~ok(arr, self.limit)
         if not bad.any():
@@ -316,8 +319,33 @@ def _problem(rule, port: str, value, inputs: dict) -> str | None:
     return msg.replace("{port}", port) if msg else None
 
 
+def _extremes(arr: np.ndarray) -> tuple:
+    """(min, max) of a non-empty ``arr`` (a NaN makes both NaN: numpy propagates it).  Within one
+    :func:`port_problem` call they are computed once for all its rules (finite, ge, le: two passes
+    over a frame instead of four); the memo is dropped when that call returns, so a value
+    changed in place between checks is read again."""
+    memo = getattr(_MEMO, "extremes", None)
+    got = None if memo is None else memo.get(id(arr))
+    if got is None or got[0] is not arr:
+        got = (arr, arr.min(), arr.max())
+        if memo is not None:
+            memo[id(arr)] = got
+    return got[1], got[2]
+
+
+_MEMO = threading.local()  # _extremes' memo during one port_problem call (per thread)
+
+
 def port_problem(port, value: Any, inputs: dict) -> str | None:
     """What is wrong with ``value`` on ``port`` (a :class:`graphkit.node.Port`), or None."""
+    _MEMO.extremes = {}
+    try:
+        return _port_problem(port, value, inputs)
+    finally:
+        _MEMO.extremes = None
+
+
+def _port_problem(port, value: Any, inputs: dict) -> str | None:
     for rule in port.constraints.rules():
         if isinstance(rule, MinItems) or not port.variadic:
             msg = _problem(rule, port.name, value, inputs)

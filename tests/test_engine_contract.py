@@ -236,3 +236,24 @@ def test_conform_fails_when_a_constraint_is_not_enforced(tmp_path, env, monkeypa
     found = conformance.check_contracts(reg, plugin="contractnodes")
     assert found and not any(f.ok for f in found), [str(f) for f in found]
     assert "accepted a value that breaks it" in found[0].message
+
+
+def test_finite_and_bounds_read_a_value_changed_in_place_again():
+    """finite / ge / le share one min and max per check of a port (graphkit.contract._extremes):
+    an array checked, then changed in place, is checked afresh; ±Inf and NaN anywhere refused."""
+    from graphkit import Image, In, Node
+    from graphkit.contract import check_inputs
+    from graphkit.errors import BadInput
+
+    Node_ = type("Bounded", (Node,), {"inputs": {"x": In(Image, finite=True, ge=0, le=1)},
+                                      "outputs": {"o": Image}, "compute": lambda self, x: {"o": x}})
+    img = Image(np.full((4, 5, 3), 0.5, np.float32))
+    check_inputs(Node_, {"x": img})
+    for bad, needle in ((np.nan, "1 NaN and 0 Inf"), (np.inf, "0 NaN and 1 Inf"), (-np.inf, "0 NaN and 1 Inf"),
+                        (2.0, "above 1"), (-1.0, "negative")):
+        img.pixels[2, 3, 1] = bad
+        with pytest.raises(BadInput) as e:
+            check_inputs(Node_, {"x": img})
+        assert needle in str(e.value), (bad, e.value)
+        img.pixels[2, 3, 1] = 0.5
+        check_inputs(Node_, {"x": img})

@@ -518,6 +518,40 @@ def test_cosmetic_shade_reshade_gives_the_bytes_of_a_fresh_frame(monkeypatch):
     assert all(r[1] - r[0] < (box[1] - box[0]) * 0.7 for r in again[:2] + again[3:])  # the others: fewer
 
 
+def test_cosmetic_shade_hashes_a_frozen_input_once_and_a_writeable_one_every_frame(monkeypatch):
+    """CosmeticShade's memo of the surface (normals, depth, skin, light) is keyed by their
+    digests: a read-only input (as the engine passes them) is hashed once and known again by its
+    objects; normals changed in place (writeable) or replaced give the frame of the new normals."""
+    from nodes.huang import shade
+
+    params, ins = CosmeticShade.examples()[1]
+    node = CosmeticShade(CosmeticShade.Params(**params))
+    nrm = Image(ins["normals"].pixels.copy())
+    hashed = []
+    monkeypatch.setattr(shade, "value_parts", lambda t, v, f=shade.value_parts: (hashed.append(v), f(t, v))[1])
+
+    def fresh(normals):
+        shade._FIXED.clear()
+        return node.compute(**{**ins, "normals": Image(normals.copy())})["specular"].pixels
+
+    before = node.compute(**{**ins, "normals": nrm})["specular"].pixels
+    nrm.pixels[:, :, :2] *= -1.0  # in place, writeable: hashed again, the new specular
+    hashed.clear()
+    got = node.compute(**{**ins, "normals": nrm})["specular"].pixels
+    assert any(v is nrm for v in hashed) and not np.array_equal(got, before)
+    assert np.array_equal(got, fresh(nrm.pixels))
+    nrm.pixels.flags.writeable = False
+    for _ in range(2):
+        hashed.clear()
+        node.compute(**{**ins, "normals": nrm})
+    assert not any(v is nrm for v in hashed)  # frozen: known by its objects
+    nrm.pixels = ins["normals"].pixels.copy()  # another array on the same Image: hashed
+    nrm.pixels.flags.writeable = False
+    hashed.clear()
+    got = node.compute(**{**ins, "normals": nrm})["specular"].pixels
+    assert any(v is nrm for v in hashed) and np.array_equal(got, before)
+
+
 def test_cosmetic_shade_image_is_diffuse_plus_specular_bit_for_bit():
     """image = diffuse + specular, also where the specular is zero (an albedo of −0 gives +0
     there, as the sum does: the image is not a copy of the diffuse)."""

@@ -22,8 +22,11 @@ between the two levels around its σ, with per-pixel weights made once per surfa
 (:func:`_axis_terms`): exact on the levels (the extremes, two-valued footprints,
 σ < IDENTITY_SIGMA ≈ 0.17 px), elsewhere within ~1 % of a step edge's height and ≥ 55 dB PSNR
 on a photo (measured against the gather and against the sum of erfs of a step in
-tests/test_jimenez_nodes.py and tests/test_sss.py).  At a pixel the standard deviation in
-pixels along an image axis is
+tests/test_jimenez_nodes.py and tests/test_sss.py).  With ``taps`` (a Scatter cropped to a
+skin mask; CosmeticShade's) the passes that reach at most TAP_RADIUS pixels are instead
+evaluated as per-pixel tap maps summed from the levels' weights (:func:`_tap_maps`): the same
+per-pixel kernels, float rounding apart, at about half the cost.  At a pixel the standard
+deviation in pixels along an image axis is
 
     σ_px = √v_i / ℓ,     ℓ = √(mm_per_pixel² + (∂depth/∂axis)²)   [mm per pixel step on the surface]
 
@@ -37,7 +40,8 @@ Public, stable API (also used by the Huang 2013 cosmetics nodes)::
     SKIN_PROFILE: tuple[(variance_mm2, (w_r, w_g, w_b)), ...]
     sss_blur(irradiance, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None) -> ndarray
     sss_blur_plane(plane, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, channels=3) -> ndarray
-    Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False)(irradiance)
+    Scatter(shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, crop=False,
+            taps=False)(irradiance)
     Scatter.on_box(irradiance_on_box, out=None), Scatter.update(irradiance_on_box, before, after, out=None)
     fold_faint(profile=SKIN_PROFILE, below=FAINT) -> profile   (CosmeticShade's: fewer channel blurs)
 """
@@ -248,6 +252,55 @@ def _trimmed(sigma: float, weight: np.ndarray) -> _Term:
     return _Term(sigma, np.ascontiguousarray(weight[y0:y1, x0:x1]), (y0, y1, x0, x1))
 
 
+#: a per-pixel σ pass whose widest kernel reaches at most this far (pixels) is evaluated as tap
+#: maps (:func:`_tap_maps`, Scatter's ``taps``) instead of one uniform blur per σ level
+TAP_RADIUS = 6
+
+
+class _Taps(NamedTuple):
+    """An axis pass as per-pixel tap maps along the axis:
+    out(x) = c₀(x)·src(x) + Σ_j c_j(x)·(src(x − j) + src(x + j)), j = 1 … ``radius``;
+    ``coef`` the (H, W) float32 maps c₀ … c_radius, all 0 off ``box`` (y0, y1, x0, x1)."""
+    radius: int
+    coef: list
+    box: tuple
+
+
+def _tap_maps(terms: list[_Term], axis: int, shape) -> _Taps | None:
+    """The weighted uniform blurs ``terms`` (:func:`_axis_terms`) as per-pixel tap maps: c_j =
+    Σ_terms weight · tap j of the term's Gaussian (the Gaussians are symmetric, and the weights
+    already hold the mask's normalisation and are zero off it, so the source is the plane times
+    the mask as for the terms): the same kernel at every pixel, float rounding apart.  One
+    multiply-add per tap and pixel instead of a blur and a weighted sum per level: cheaper while
+    the kernels are short.  None when the widest reaches past TAP_RADIUS, when there is a single
+    uniform blur, or when a pixel with weight lies within the reach of the plane's edge (there
+    the blurs reflect the border)."""
+    R = max(gaussian_kernel(t.sigma).size // 2 for t in terms)
+    if R > TAP_RADIUS or (len(terms) == 1 and terms[0].weight is None):
+        return None
+    h, w = shape
+    coef = [np.zeros(shape, np.float32) for _ in range(R + 1)]
+    for sigma, weight, (y0, y1, x0, x1) in terms:
+        k = gaussian_kernel(sigma)
+        r = k.size // 2
+        wt = np.ones((y1 - y0, x1 - x0), np.float32) if weight is None else weight
+        for j in range(r + 1):
+            coef[j][y0:y1, x0:x1] += wt * k[r + j]
+    ends = [slice(0, R), slice((h if axis == 0 else w) - R, None)]
+    edge = ends if axis == 0 else [(slice(None), e) for e in ends]
+    if R and any(np.any(c[e]) for c in coef for e in edge):
+        return None
+    box = _grown_box(np.logical_or.reduce([cj != 0 for cj in coef]), 0)
+    return _Taps(R, coef, box if box[0] < box[1] else (0, 0, 0, 0))
+
+
+def _reach(terms) -> int:
+    """How far (pixels) an axis pass reads from a pixel (:func:`_axis_terms` or :func:`_tap_maps`)."""
+    if isinstance(terms, _Taps):
+        return terms.radius
+    return max((gaussian_kernel(t.sigma).size // 2 for t in terms), default=0)
+
+
 class _Work:
     """Float32 buffers kept between calls, by name: a fresh 1280×720 plane costs ~1 ms of page
     faults when first written (the kernel zeroes its pages), as much as a short blur of it, and
@@ -281,6 +334,8 @@ def _band_terms(src: np.ndarray, off: int, terms: list[_Term], axis: int, rows: 
 
     r0, r1 = rows
     width = src.shape[1]
+    if isinstance(terms, _Taps):
+        return _band_taps(src, off, terms, axis, rows, work, name)
     if len(terms) == 1 and terms[0].weight is None:
         return _blur_rows(src, off, terms[0].sigma, axis, (r0, r1, 0, width), work, name + "t")
     acc = work.get(name, r1 - r0, width)
@@ -307,6 +362,40 @@ def _band_terms(src: np.ndarray, off: int, terms: list[_Term], axis: int, rows: 
         started = True
     if not started:
         acc.fill(0.0)
+    return acc
+
+
+def _band_taps(src: np.ndarray, off: int, taps: _Taps, axis: int, rows: tuple[int, int], work: _Work,
+               name: str) -> np.ndarray:
+    """Rows r0:r1 (``rows``) of an axis pass by tap maps (:class:`_Taps`), ``src`` holding the
+    plane's rows from ``off`` (as :func:`_band_terms`): made on the maps' box (0 off it, where
+    every map is 0; it lies within the reach of the plane's edges, :func:`_tap_maps`)."""
+    import cv2
+
+    r0, r1 = rows
+    R, c = taps.radius, taps.coef
+    y0, y1, x0, x1 = taps.box
+    acc = work.get(name, r1 - r0, src.shape[1])
+    a, b = max(r0, y0), min(r1, y1)
+    if a >= b:
+        acc.fill(0.0)
+        return acc
+    acc[:a - r0] = 0.0
+    acc[b - r0:] = 0.0
+    acc[a - r0:b - r0, :x0] = 0.0
+    acc[a - r0:b - r0, x1:] = 0.0
+
+    def at(j):  # the source j pixels along the axis from the box's rows a:b and columns
+        if axis == 0:
+            return src[a + j - off:b + j - off, x0:x1]
+        return src[a - off:b - off, x0 + j:x1 + j]
+
+    out, here = acc[a - r0:b - r0, x0:x1], (slice(a, b), slice(x0, x1))
+    pair = work.get(name + "s", b - a, x1 - x0)
+    cv2.multiply(at(0), c[0][here], dst=out)
+    for j in range(1, R + 1):
+        cv2.add(at(-j), at(j), dst=pair)
+        cv2.accumulateProduct(pair, c[j][here], out)
     return acc
 
 
@@ -477,11 +566,11 @@ class Scatter:
     kernel, not the whole frame.  Pixels outside the mask are returned unchanged and get no
     weight, so this is the same blur; only the floating-point rounding of the filters may differ
     in the last bits (a pixel's place in cv2's vector loops, a level's pixels gathered densely or
-    sparsely).
+    sparsely).  ``taps`` (with ``crop``): the narrow passes as per-pixel tap maps (:func:`_tap_maps`).
     """
 
     def __init__(self, shape, mm_per_pixel, depth=None, profile=SKIN_PROFILE, mask=None, axis_blur=None,
-                 crop: bool = False):
+                 crop: bool = False, taps: bool = False):
         self.shape = tuple(shape)
         h, w = self.shape[:2]
         c = 1 if len(self.shape) == 2 else self.shape[2]
@@ -530,8 +619,10 @@ class Scatter:
             hw = (h, w) if self.box is None else (self.box[1] - self.box[0], self.box[3] - self.box[2])
             for p in passes:
                 p[2:] = [_axis_terms(p[2], 0, valid, hw), _axis_terms(p[3], 1, valid, hw)]
+                if taps and self.box is not None:  # narrow per-pixel kernels as tap maps
+                    p[2:] = [_tap_maps(p[2], 0, hw) or p[2], _tap_maps(p[3], 1, hw) or p[3]]
             self._row_cost = _row_costs(passes, hw)
-            self._reach = max((gaussian_kernel(t.sigma).size // 2 for p in passes for t in p[2]), default=0)
+            self._reach = max((_reach(terms) for p in passes for terms in p[2:3]), default=0)
         self.passes = passes
 
     def __call__(self, irradiance: np.ndarray) -> np.ndarray:
@@ -687,6 +778,9 @@ def _row_costs(passes, shape) -> np.ndarray:
     cost = np.ones(shape[0])
     for chans, _, ty, tx in passes:
         for terms in (ty, tx):
+            if isinstance(terms, _Taps):
+                cost += len(chans) * (3 * terms.radius + 5) * shape[1]
+                continue
             for s, _, (y0, y1, x0, x1) in terms:
                 cost[y0:y1] += len(chans) * (gaussian_kernel(s).size + 4) * (x1 - x0)
     return cost

@@ -641,11 +641,10 @@ class _Plan:
         f = np.multiply(t.reshape(-1), st)       # position in cells
         np.minimum(f, lt, out=f)
         k = np.rint(f)                           # nearest node
-        d = np.subtract(f, k, out=f)
-        if d.max() <= SNAP and d.min() >= -SNAP:  # every pixel on a node (binary maps)
+        ad = np.abs(np.subtract(f, k, out=f), out=f).reshape(B, n)
+        if ad.max() <= SNAP:                     # every pixel on a node (binary maps)
             cnt = 0
         else:
-            ad = np.abs(d, out=d).reshape(B, n)
             off = (ad @ np.ones(n, np.float32) if n > 1 else ad[:, 0]) > SNAP
             cnt = int(np.count_nonzero(off))
         if cnt > B // 2:

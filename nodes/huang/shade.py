@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import threading
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -32,9 +33,10 @@ class CosmeticShade(Node):
     the layers (Rt·E) and partly transmitted into the skin, with the inter-reflections between
     skin (albedo ρ) and layers: E_skin = T·E / (1 − Rb·ρ).  E_skin is scattered in the skin with
     the shared screen-space SSS (``nodes.common.sss.sss_blur``, d'Eon 2007 profile with its channel
-    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step), ``mm_per_pixel``
-    mm, optional ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and
-    leaves through the layers (RGB(T²)/RGB(T))::
+    weights under 1 % folded onto nearby Gaussians (``fold_faint``: ≤ 0.21 % of a step) and its
+    narrow passes as per-pixel tap maps (``Scatter``'s ``taps``), ``mm_per_pixel`` mm, optional
+    ``depth`` in mm and ``skin`` mask), multiplied by ρ (post-scatter texturing) and leaves
+    through the layers (RGB(T²)/RGB(T))::
 
         diffuse = Rt·E + (T²/T)·ρ·SSS(T·E / (1 − Rb·ρ))
 
@@ -57,7 +59,9 @@ class CosmeticShade(Node):
     #    cv2.scaleAdd (nodes/common/sss.py): outputs move in the last bits (≤ 1.2e-7)
     # 9: the SSS profile's channel weights under 1 % moved to that channel's nearest Gaussian
     #    (nodes.common.sss.fold_faint): three of eleven channel blurs fewer, ≤ 0.21 % of a step
-    version = "9"
+    # 10: the SSS's narrow passes (reach ≤ 6 px) as per-pixel tap maps (nodes.common.sss.Scatter's
+    #    taps): the same per-pixel kernels as the σ levels, outputs move by float rounding (≤ 1e-6)
+    version = "10"
     studio_view = "nodes.huang.studio_view:MakeupView"  # graphkit serve: layer sliders
     inputs = {
         "albedo": In(Image, "skin diffuse reflectance ρ, linear RGB in [0, 1] (e.g. a photo)",
@@ -114,12 +118,7 @@ class CosmeticShade(Node):
         fixed = self._fixed(specs, (h, w), irradiance, normals, light, depth, skin, mesh, camera)
         layers = _layer_boxes(t)
         diffuse = self._diffuse(wl, S, K, t, rho, fixed, _support(layers[0]))
-        spec = np.zeros((h, w, 3), np.float32)
-        image = diffuse + np.float32(0)  # diffuse + spec off the specular's box (−0 + 0 is +0: not a copy)
-        if fixed.spec is not None:  # (zero outside its box)
-            y0, y1, x0, x1 = fixed.spec.box
-            _through_layers(p, wl, S, K, t, fixed, layers, spec[y0:y1, x0:x1])
-            image[y0:y1, x0:x1] += spec[y0:y1, x0:x1]
+        spec, image = _with_specular(p, wl, S, K, fixed, layers, diffuse)
         return {"image": Image(image), "diffuse": Image(diffuse), "specular": Image(spec)}
 
     def _fixed(self, specs, hw, irradiance, normals, light, depth, skin, mesh, camera) -> _Fixed:
@@ -130,7 +129,7 @@ class CosmeticShade(Node):
         given = {"irradiance": irradiance, "normals": normals, "light": light, "depth": depth, "skin": skin,
                  "mesh": mesh, "camera": camera}
         key = xxhash.xxh3_128(canonical([
-            list(hw), {k: None if v is None else value_parts(self.in_ports[k].type, v)[2] for k, v in given.items()},
+            list(hw), {k: None if v is None else _digest(self.in_ports[k].type, v) for k, v in given.items()},
             p.mm_per_pixel, list(p.view), p.skin_m, p.skin_rho_s, p.skin_f0, p.relight, p.sss,
             self.sss_blur is sss_blur, [[L.m, L.rho_s, L.f0] for L in specs]])).hexdigest()
         got = _FIXED.get(key)
@@ -140,7 +139,8 @@ class CosmeticShade(Node):
             E = _irradiance(hw, irradiance, lt, lcol, ldir, surf.normals, p.relight)
             scatter = None
             if p.sss and self.sss_blur is sss_blur:  # the reference: prepared once, on the skin's box
-                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, PROFILE, mask=surf.mask, crop=True)
+                scatter = Scatter(hw + (3,), surf.mm_per_pixel, surf.depth, PROFILE, mask=surf.mask, crop=True,
+                                  taps=True)
             spec = None
             if surf.normals is not None and ldir is not None:
                 spec = _specular(p, specs, surf, ldir, lcol)
@@ -158,6 +158,8 @@ class CosmeticShade(Node):
         ``pixel_stack`` and ``sss_blur``.  With the reference SSS only the box around the layers
         and the skin is shaded (``support``: the layers' box): elsewhere no layer (Rt = Rb = 0,
         T = T² = 1) and no scattering leave ρ·E, which is what the formula gives there."""
+        import cv2
+
         p, surf, E = self.params, fixed.surf, fixed.E
         box = None  # the whole frame (no skin mask: the SSS reaches every pixel)
         if fixed.scatter is not None and fixed.scatter.box is not None:
@@ -169,11 +171,13 @@ class CosmeticShade(Node):
             rho_b, E_b = rho, E
         q = self.pixel_stack(S, K, wl, t, p.illuminant, p.lut_size)
         Rt, Rb, T, T2 = q["Rt"], q["Rb"], q["T"], q["T2"]
-        rows = max(1, km.LOOKUP_BLOCK // max(T.shape[1], 1))  # bands whose temporaries stay in the cache
+        rows = _rows_per_band(T.shape[1])
         pre = np.empty(T.shape, np.result_type(T, Rb, rho_b, *([] if E_b is None else [E_b])))
 
+        # (ρ, E and the output are boxes of frames: cv2 reads and writes them at the speed of
+        # contiguous arrays, numpy 2–3× slower; the same float32 products and sums)
         def entering(r0, r1):  # T·E / (1 − Rb·ρ)
-            den = Rb[r0:r1] * rho_b[r0:r1]
+            den = cv2.multiply(Rb[r0:r1], rho_b[r0:r1])
             lit = T[r0:r1] if E_b is None else T[r0:r1] * E_b[r0:r1]
             np.divide(lit, np.subtract(1.0, den, out=den), out=pre[r0:r1])
 
@@ -188,23 +192,30 @@ class CosmeticShade(Node):
                 _scattered(fixed, pre[here])
         elif p.sss:
             pre = self.sss_blur(pre, surf.mm_per_pixel, surf.depth, profile=PROFILE, mask=surf.mask)
-        if box is None:
-            out = np.empty(T.shape, np.float32)
-        else:
-            out = rho.astype(np.float32) if E is None else np.multiply(rho, E, dtype=np.float32)
+        out = np.empty(rho.shape, np.float32)
+        if box is not None:  # ρ·E off the box (E None: ρ)
+            def lit(r0, r1):
+                for rows, cols in _off_box(box, r0, r1, out.shape[1]):
+                    if E is None:
+                        np.copyto(out[rows, cols], rho[rows, cols])
+                    else:
+                        np.multiply(rho[rows, cols], E[rows, cols], out=out[rows, cols])
+
+            run_bands(lit, out.shape[0], _rows_per_band(out.shape[1]))
         inner = out if box is None else out[y0:y1, x0:x1]
 
         def leaving(r0, r1):  # Rt·E + (T²/T)·ρ·SSS(…)
             with np.errstate(divide="ignore", invalid="ignore"):
                 t_exit = np.divide(T2[r0:r1], T[r0:r1])
-            t_exit[~(T[r0:r1] > 1e-12)] = 0.0
-            t_exit *= rho_b[r0:r1]
+            if not T[r0:r1].min() > 1e-12:  # (one pass where no T is that small)
+                t_exit[~(T[r0:r1] > 1e-12)] = 0.0
+            cv2.multiply(t_exit, rho_b[r0:r1], dst=t_exit)
             t_exit *= pre[r0:r1]
             if E_b is None:
-                np.add(Rt[r0:r1], t_exit, out=inner[r0:r1])
+                cv2.add(Rt[r0:r1], t_exit, dst=inner[r0:r1])
             else:
                 np.multiply(Rt[r0:r1], E_b[r0:r1], out=inner[r0:r1])
-                inner[r0:r1] += t_exit
+                cv2.add(inner[r0:r1], t_exit, dst=inner[r0:r1])
 
         run_bands(leaving, T.shape[0], rows)
         return out
@@ -260,6 +271,39 @@ class _Fixed(NamedTuple):
 #: ~170 MB each for a 1280×720 face)
 _FIXED: dict = {}
 _FIXED_LOCK = threading.Lock()
+_DIGESTS: dict = {}  # id(value): (weakref to it, its meta, weakrefs to its arrays, its digest)
+
+
+def _digest(ptype, value) -> str:
+    """``value_parts(ptype, value)``'s digest, remembered for a value whose arrays are all frozen
+    (:func:`_frozen`: as the engine hands a node its inputs) and found again only for the same
+    object with the same meta and the same array objects: a re-shade does not hash the same
+    normals, depth and skin again (~0.7 ms a frame at 1280×720).  A writeable array is hashed
+    every time (it may have been changed in place)."""
+    meta, arrays = ptype.to_parts(value)
+    if not arrays or not all(isinstance(a, np.ndarray) and _frozen(a) for a in arrays):
+        return value_parts(ptype, value)[2]
+    with _FIXED_LOCK:
+        got = _DIGESTS.get(id(value))
+    if got is not None and got[0]() is value and got[1] == meta and len(got[2]) == len(arrays) \
+            and all(r() is a for r, a in zip(got[2], arrays)):
+        return got[3]
+    digest = value_parts(ptype, value)[2]
+    with _FIXED_LOCK:
+        while len(_DIGESTS) >= 16:
+            _DIGESTS.pop(next(iter(_DIGESTS)))
+        _DIGESTS[id(value)] = (weakref.ref(value), meta, [weakref.ref(a) for a in arrays], digest)
+    return digest
+
+
+def _frozen(a: np.ndarray) -> bool:
+    """Whether ``a`` and every array it is a view of are read-only, down to one that owns its
+    memory: nothing can change its values without first making one of them writeable again."""
+    while isinstance(a, np.ndarray):
+        if a.flags.writeable:
+            return False
+        a = a.base
+    return a is None
 
 
 def _surface(mm_per_pixel: float, normals, depth, skin, mesh, camera) -> _Surface:
@@ -320,23 +364,77 @@ def _specular(p, specs, surf: _Surface, ldir, lcol) -> _Specular:
     return _Specular(skin[y0:y1, x0:x1], [k[y0:y1, x0:x1] for k in layers], box, lcol, {})
 
 
-def _through_layers(p, wl, S, K, t, fixed: _Fixed, layers, out: np.ndarray) -> None:
-    """§3.3: the skin's specular, then for each layer bottom to top attenuated by the layer's
-    transmittance and the layer's own specular added, weighted by its coverage (computed in
-    the box where any of them is not zero: zero elsewhere; a layer only where it is: off it
-    T = 1 and the coverage 0 leave the specular as it is).  ``layers``: :func:`_layer_boxes`."""
+def _with_specular(p, wl, S, K, fixed: _Fixed, layers, diffuse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(specular, image = diffuse + specular) over the frame, on bands of rows on the cores: the
+    specular of §3.3 (:func:`_through_layers`) in its box, zero elsewhere (there the image is
+    diffuse + 0: −0 + 0 is +0; the zeros are not written or read here).  The layers' terms are
+    made (or found) first."""
+    import cv2
+
+    h, w = diffuse.shape[:2]
+    spec = np.zeros((h, w, 3), np.float32)
+    image = np.empty((h, w, 3), np.float32)
     sp = fixed.spec
+    y0, y1, x0, x1 = box = (0, 0, 0, 0) if sp is None else sp.box
+    terms = [] if sp is None else _terms_in_box(p, wl, S, K, sp, layers)
+
+    def band(r0, r1):
+        for rows, cols in _off_box(box, r0, r1, w):
+            np.add(diffuse[rows, cols], np.float32(0), out=image[rows, cols])
+        a, b = max(r0, y0), min(r1, y1)
+        if a < b:
+            _through_layers(sp, terms, (a, b), spec[a:b, x0:x1])
+            cv2.add(diffuse[a:b, x0:x1], spec[a:b, x0:x1], dst=image[a:b, x0:x1])  # (boxes: see _diffuse)
+
+    run_bands(band, h, _rows_per_band(w))
+    return spec, image
+
+
+def _terms_in_box(p, wl, S, K, sp: _Specular, layers) -> list:
+    """Per layer present in the specular's box: (its part of the box (b0, b1, c0, c1), its RGB
+    transmittance there, its own specular weighted by its coverage there), bottom first
+    (:func:`_layer_terms`).  ``layers``: :func:`_layer_boxes`."""
     y0, y1, x0, x1 = sp.box
-    s = sp.skin.copy()
+    terms = []
     for i, (box, top, crop) in enumerate(zip(*layers)):
         b0, b1, c0, c1 = max(box[0], y0), min(box[1], y1), max(box[2], x0), min(box[3], x1)
-        if b0 >= b1 or c0 >= c1:
+        if b0 < b1 and c0 < c1:
+            part = (b0, b1, c0, c1)
+            terms.append((part, *_layer_terms(p, wl, S[i], K[i], crop, box, top, part, i, sp)))
+    return terms
+
+
+def _through_layers(sp: _Specular, terms, rows: tuple[int, int], out: np.ndarray) -> None:
+    """§3.3 on the rows a:b (``rows``, frame rows within the specular's box) into ``out`` (those
+    rows of the box): the skin's specular, then for each layer bottom to top attenuated by the
+    layer's transmittance and the layer's own specular added, weighted by its coverage (where
+    any of them is not zero: zero elsewhere; a layer only where it is: off it T = 1 and the
+    coverage 0 leave the specular as it is), times the light.  ``terms``: :func:`_terms_in_box`.
+    Worked in a contiguous buffer of those rows (cache-sized; numpy writes a frame's box ~3×
+    slower), the skin's specular read where it is kept: a first layer over all of the rows
+    multiplies it into the buffer, else it is copied there first."""
+    import cv2
+
+    a, b = rows
+    y0, x0, x1 = sp.box[0], sp.box[2], sp.box[3]
+    skin = sp.skin[a - y0:b - y0]
+    s = None  # the buffer once it holds the specular so far
+    for (b0, b1, c0, c1), Ti, own in terms:
+        r0, r1 = max(b0, a), min(b1, b)
+        if r0 >= r1:
             continue
-        Ti, own = _layer_terms(p, wl, S[i], K[i], crop, box, top, (b0, b1, c0, c1), i, sp)
-        here = s[b0 - y0:b1 - y0, c0 - x0:c1 - x0]
-        np.multiply(here, Ti, out=here)
-        np.add(here, own, out=here)
-    np.multiply(s, sp.lcol, out=out)
+        Ti, own = Ti[r0 - b0:r1 - b0], own[r0 - b0:r1 - b0]
+        if s is None and (r0, r1, c0, c1) == (a, b, x0, x1):
+            here = s = np.multiply(skin, Ti)
+        else:
+            if s is None:
+                s = skin.copy()
+            here = s[r0 - a:r1 - a, c0 - x0:c1 - x0]
+            cv2.multiply(here, Ti, dst=here)  # (a box of the buffer: see _diffuse)
+        cv2.add(here, own, dst=here)
+    src = skin if s is None else s
+    # times the light's colour: rows by a tiled row (~10× faster than by a (3,) vector)
+    np.multiply(src.reshape(b - a, -1), np.tile(sp.lcol, x1 - x0), out=out.reshape(b - a, -1))
 
 
 def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[np.ndarray, np.ndarray]:
@@ -345,6 +443,8 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
     ``lbox`` (0 outside it) of maximum ``top``: kept for the last layers seen on this surface (a
     re-shade after one layer changed does not redo the others; up to 8, ~6 MB each for a
     face-sized layer at 1280×720)."""
+    import cv2
+
     key = xxhash.xxh3_128(canonical([i, list(box), list(lbox), top, p.lut_size, p.cover_mm, p.illuminant]))
     for a in (np.asarray(wl, np.float64), np.asarray(S, np.float64), np.asarray(K, np.float64), crop):
         key.update(np.ascontiguousarray(a))
@@ -358,10 +458,10 @@ def _layer_terms(p, wl, S, K, crop, lbox, top, box, i, sp: _Specular) -> tuple[n
         grid = km.thickness_grid([top], p.lut_size)
         _, Tg = km.layer_R0_T(S, K, grid[0][:, None])
         ti = crop[b0 - lbox[0]:b1 - lbox[0], c0 - lbox[2]:c1 - lbox[2], None]
-        Ti = km.lookup(Tg @ Wf, grid, ti).astype(np.float32)
-        cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)[..., None]
-        own = np.broadcast_to(cover * sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0], Ti.shape)
-        got = (Ti, np.ascontiguousarray(own))
+        Ti = np.asarray(km.lookup(Tg @ Wf, grid, ti), np.float32)
+        cover = np.clip(ti[..., 0] / np.float32(p.cover_mm), 0.0, 1.0)
+        own = np.multiply(cover, sp.layers[i][b0 - y0:b1 - y0, c0 - x0:c1 - x0, 0])
+        got = (Ti, cv2.merge([own] * 3))  # (numpy's copy of a broadcast channel: ~13× slower)
         with _FIXED_LOCK:
             while len(sp.seen) >= 8:
                 sp.seen.pop(next(iter(sp.seen)))
@@ -383,6 +483,23 @@ def _scattered(fixed: _Fixed, pre: np.ndarray) -> None:
         fixed.scatter.update(sub, *last, out=pre)
     with _FIXED_LOCK:
         fixed.last["sss"] = (sub, pre)
+
+
+def _rows_per_band(w: int) -> int:
+    """Rows per band of a frame w pixels wide whose per-pixel temporaries stay in the cache."""
+    return max(1, km.LOOKUP_BLOCK // max(w, 1))
+
+
+def _off_box(box, r0: int, r1: int, w: int) -> list[tuple[slice, slice]]:
+    """The parts of rows r0:r1 (of a frame w pixels wide) off ``box`` (y0, y1, x0, x1; an empty
+    box: all of them), as (rows, columns) slices."""
+    y0, y1, x0, x1 = box
+    a, b = max(r0, y0), min(r1, y1)
+    if a >= b or x0 >= x1:
+        return [(slice(r0, r1), slice(0, w))]
+    parts = [(slice(r0, a), slice(0, w)), (slice(b, r1), slice(0, w)),
+             (slice(a, b), slice(0, x0)), (slice(a, b), slice(x1, w))]
+    return [(r, c) for r, c in parts if r.start < r.stop and c.start < c.stop]
 
 
 def _nonzero_box(a: np.ndarray) -> tuple[int, int, int, int]:
