@@ -68,15 +68,25 @@ def test_ring_on_the_backdrop_is_not_taken_for_the_ball(ring, monkeypatch):
     """A flash 6° off the lens: the ring is the outermost closed circle; refused."""
     flash = _flash(6.0)
     img = _probe(flash, *ring)
-    direction, refusal = _auto(img)
-    assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
-    assert refusal.port == "probe" and "a ring on the backdrop, not the ball's edge" in refusal.message
-    assert "centre_x, centre_y and radius" in refusal.message
+    _refused(img, flash, "a ring on the backdrop, not the ball's edge")
     # without the rule the rim test (a disc's, below) refuses it too: a ring's inside is not a mirror's
     monkeypatch.setattr(ballfind, "LINE_RATIO", 1e9)
     direction, refusal = _auto(img)
     assert direction is None and "a disc or band on the backdrop" in refusal.message
     # without both the ring is taken: 4.2, 10.2 and 2.6° off with exit 0
+    _taken_without(img, flash, monkeypatch)
+
+
+def _refused(img, flash, why):
+    """``img`` refused on ``probe`` for ``why``, asking for the ball's circle."""
+    direction, refusal = _auto(img)
+    assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
+    assert refusal.port == "probe" and why in refusal.message
+    assert "centre_x, centre_y and radius" in refusal.message
+
+
+def _taken_without(img, flash, monkeypatch):
+    """With the mirror-rim rule off, ``img``'s outline is taken and answered more than 1° off."""
     monkeypatch.setattr(ballfind, "NOT_MIRROR", 2.0)
     direction, _ = _auto(img)
     assert direction is not None and _angle(direction, flash) > 1.0
@@ -113,14 +123,9 @@ def test_disc_or_band_on_the_backdrop_is_not_taken_for_the_ball(disc, monkeypatc
     silhouette; refused because its inside is no mirror's rim."""
     flash = _flash(6.0)
     img = _disc_probe(flash, *disc)
-    direction, refusal = _auto(img)
-    assert direction is None, f"a direction {_angle(direction, flash):.2f}° off came back with exit 0"
-    assert refusal.port == "probe" and "a disc or band on the backdrop, not the ball's edge" in refusal.message
-    assert "centre_x, centre_y and radius" in refusal.message
+    _refused(img, flash, "a disc or band on the backdrop, not the ball's edge")
     # without the rule the disc's edge is taken: 4.3, 4.3, 2.4 and 5.1° off with exit 0
-    monkeypatch.setattr(ballfind, "NOT_MIRROR", 2.0)
-    direction, _ = _auto(img)
-    assert direction is not None and _angle(direction, flash) > 1.0
+    _taken_without(img, flash, monkeypatch)
 
 
 def test_the_balls_rim_is_a_mirrors():
