@@ -157,11 +157,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--half", default="tune", choices=["tune", "check"])
     ap.add_argument("--cache", default=None)
+    ap.add_argument("--scale", type=int, default=1, help="each probe rendered at this many times its size")
     a = ap.parse_args(argv)
     print("| probe | r (px) | D true | scan, true D: argmin offset (score ±1.5 px / at truth) | D of least score "
           "(max/min) | err, true circle (°) | refine from ±1 px: centre err, r err, D: direction err (CPU) |\n"
           "|---|---|---|---|---|---|---|")
-    for spec in varied(a.half):
+    for spec in varied(a.half, scale=a.scale):
         print(probe_rows(spec, probe_image(spec, a.cache)), flush=True)
     return 0
 

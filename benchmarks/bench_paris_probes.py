@@ -84,6 +84,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--half", default="both", choices=["tune", "check", "both"])
     ap.add_argument("--cache", default=None)
+    ap.add_argument("--scale", type=int, default=1,
+                    help="render every probe at this many times its width and height (the ball as large a "
+                         "share of the frame, more pixels across it: 3 gives 1152×864 to 1536×1152 px)")
+    ap.add_argument("--n", type=int, default=None, help="probes per half (default: varied_probes.N_PER_HALF)")
     a = ap.parse_args(argv)
     halves = ["tune", "check"] if a.half == "both" else [a.half]
     print("| half | probe | r true (px) | r found | centre err (px) | direction err, found (°) | "
@@ -91,7 +95,7 @@ def main(argv=None):
     summary = []
     for half in halves:
         rows = []
-        for spec in varied(half):
+        for spec in varied(half, **({'n': a.n} if a.n else {}), scale=a.scale):
             rows.append(run_probe(spec, probe_image(spec, a.cache)))
             print(_fmt(rows[-1], half), flush=True)
         for what, key in (("found", "err_deg"), ("answered with the true circle given", "given_deg")):

@@ -31,10 +31,18 @@ N_PER_HALF = 12
 SPP = 4
 
 
-def varied(half: str, n: int = N_PER_HALF, spp: int = SPP) -> list[ProbeSpec]:
-    """``n`` probes of ``half`` ('tune' or 'check'), the same on every call."""
+def varied(half: str, n: int = N_PER_HALF, spp: int = SPP, scale: int = 1) -> list[ProbeSpec]:
+    """``n`` probes of ``half`` ('tune' or 'check'), the same on every call; ``scale``: each
+    rendered at that many times its width and height (the same scene, the ball the same share
+    of the frame, ``scale`` times as many pixels across it)."""
+    import dataclasses
+
     cfg = HALVES[half]
-    return [_spec(f"{half[0]}v{i:02d}", np.random.default_rng(cfg["seed0"] + i), cfg, spp) for i in range(n)]
+    specs = [_spec(f"{half[0]}v{i:02d}", np.random.default_rng(cfg["seed0"] + i), cfg, spp) for i in range(n)]
+    if scale != 1:
+        specs = [dataclasses.replace(s, name=f"{s.name}x{scale}", width=s.width * scale, height=s.height * scale)
+                 for s in specs]
+    return specs
 
 
 def _spec(name, rng, cfg, spp) -> ProbeSpec:
