@@ -82,7 +82,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "7"
+    version = "8"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
@@ -124,7 +124,8 @@ class ProbeLight(Node):
         px = rgb_pixels(probe, "probe", grey=True)
         h, w = px.shape[:2]
         fov_deg = self._probe_fov(camera)
-        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg)
+        found = []
+        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg, found=found)
         yy, xx = np.mgrid[0:h, 0:w]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
@@ -143,7 +144,11 @@ class ProbeLight(Node):
         if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
+        _refuse_if_overexposed(px)
         sat = _flash_highlight(sat, dirs, *self._flash_prior(cx, cy, r, w, h, fov_deg))
+        if found:
+            # the ball was found: how far its uncertainty moves this highlight's direction
+            _refuse_if_doubtful(px, found[0], fov_deg, sat)
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -200,14 +205,17 @@ class ProbeLight(Node):
             cls[m] = CLASS_COLOURS[name]
         return {"light": light, "classes": Image(cls)}
 
-    def _ball(self, px, port, cx, cy, r, fov_deg=None):
+    def _ball(self, px, port, cx, cy, r, fov_deg=None, found: list | None = None):
+        """(cx, cy, r) given or found; ``found``: a list that receives the finder's fit, whose
+        doubt the caller then checks on the flash's own highlight (:func:`_refuse_if_doubtful`);
+        without it the doubt is checked here on the largest clipped blob."""
         given = [x is not None for x in (cx, cy, r)]
         if all(given):
             return float(cx), float(cy), float(r)
         if any(given):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
-        return _find_ball_or_refuse(px, port, fov_deg, highlight=True)
+        return _find_ball_or_refuse(px, port, fov_deg, highlight=True, found=found)
 
     def _flash_prior(self, cx, cy, r, w, h, fov_deg) -> tuple[np.ndarray, float, str]:
         """Where the flash's highlight is expected when several lights clip on the ball: the
@@ -370,6 +378,10 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
     means = [dirs[b].mean(0) / np.linalg.norm(dirs[b].mean(0)) for b in blobs]
     off = [float(np.degrees(np.arccos(np.clip(m @ prior, -1, 1)))) for m in means]
     fit = [i for i, a in enumerate(off) if a <= bound_deg]
+    if fit:
+        # specks beside a highlight there (other clipped light's crumbs) do not make it unclear
+        big = max(int(blobs[i].sum()) for i in fit)
+        fit = [i for i in fit if blobs[i].sum() >= OTHER_HIGHLIGHT * big]
     seen = ", ".join(f"{int(blobs[i].sum())} px at {off[i]:.1f}° ({', '.join(f'{x:+.2f}' for x in means[i])})"
                      for i in range(min(len(blobs), 6))) + (", …" if len(blobs) > 6 else "")
     retake = "take the probe with the flash as the only light that clips (other lamps off, or a shorter exposure)"
@@ -501,12 +513,14 @@ def _hit(d, c):
 MAX_DOUBT_DEG = 0.5
 
 
-def _direction_doubt(px: np.ndarray, fit, fov_deg) -> float:
-    """How far (degrees) the flash's direction — the mean reflected direction over the largest
-    clipped blob — moves between the circle found and the circles it cannot rule out: its own
-    fit moved by 2 standard errors (centre and radius, each way) and the rival outlines."""
+def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None) -> float:
+    """How far (degrees) the flash's direction — the mean reflected direction over its
+    highlight ``blob`` (default: the largest clipped blob) — moves between the circle found and
+    the circles it cannot rule out: its own fit moved by 2 standard errors (centre and radius,
+    each way) and the rival outlines."""
     h, w = px.shape[:2]
-    blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+    if blob is None:
+        blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
     ys, xs = np.nonzero(blob)
 
     def direction(cx, cy, r):
@@ -526,9 +540,43 @@ MARK_IN_STUDIO = (", or mark the ball in the studio: `graphkit serve GRAPH`, cli
                   "circle of its probe view onto the ball's outline and apply")
 
 
-def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) -> tuple[float, float, float]:
+#: a probe with more of its pixels clipped is over-exposed: the backdrop or a lit wall clips, and
+#: its reflection around the flash's highlight is clipped too (the varied tune probe tv14: with
+#: the true circle given, 5.9° off at 8 % clipped; the others ≤ 1 %)
+OVEREXPOSED = 0.05
+
+
+def _overexposed(share: float) -> str:
+    return (f"the probe is over-exposed: {100 * share:.0f}% of its pixels are clipped (at its maximum "
+            f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
+
+
+def _refuse_if_overexposed(px: np.ndarray):
+    """BadInput (exit 2) for a probe over ``OVEREXPOSED`` clipped, the ball's circle given or not."""
+    share = float((px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)).mean())
+    if OVEREXPOSED < share < 0.98:
+        raise BadInput("probe", _overexposed(share))
+
+
+def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None, port: str = "probe"):
+    """BadInput (exit 2) when the found ball's uncertainty (:func:`_direction_doubt`) moves the
+    flash's direction by more than ``MAX_DOUBT_DEG``."""
+    doubt = _direction_doubt(px, fit, fov_deg, blob)
+    if doubt <= MAX_DOUBT_DEG:
+        return
+    why = fit.reason if fit.rivals else (
+        f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
+        f"found ({fit.summary()})")
+    raise BadInput(port, f"cannot find the mirror ball with confidence: {why}; give centre_x, centre_y "
+                         f"and radius (pixels){MARK_IN_STUDIO}")
+
+
+def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool,
+                         found: list | None = None) -> tuple[float, float, float]:
     """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
-    why it is not sure and which params to give."""
+    why it is not sure and which params to give.  ``found`` (a mirror ball): a list that
+    receives the fit, the direction's doubt then left to the caller, who knows the flash's
+    highlight; without it the doubt is checked on the largest clipped blob."""
     from .ballfind import find_ball
 
     what = "mirror ball" if highlight else "white ball"
@@ -536,19 +584,15 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool) ->
     share = float(clipped.mean())
     fit = find_ball(px, fov_deg, highlight=highlight)
     if highlight and (fit.confident or fit.rivals):
-        doubt = _direction_doubt(px, fit, fov_deg)
-        if doubt <= MAX_DOUBT_DEG:
-            return fit.cx, fit.cy, fit.r
-        why = fit.reason if fit.rivals else (
-            f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
-            f"found ({fit.summary()})")
-        raise BadInput(port, f"cannot find the {'mirror ball'} with confidence: {why}; give centre_x, centre_y "
-                             f"and radius (pixels){MARK_IN_STUDIO}")
+        if found is None:
+            _refuse_if_doubtful(px, fit, fov_deg, port=port)
+        else:
+            found.append(fit)
+        return fit.cx, fit.cy, fit.r
     if fit.confident:
         return fit.cx, fit.cy, fit.r
-    if highlight and 0.05 < share < 0.98:  # (a flat image is all 'at its maximum')
-        why = (f"the probe is over-exposed: {100 * share:.0f}% of its pixels are clipped (at its maximum "
-               f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
+    if highlight and OVEREXPOSED < share < 0.98:  # (a flat image is all 'at its maximum')
+        why = _overexposed(share)
     else:
         why = fit.reason
     params = f"centre_x, centre_y and radius (pixels){MARK_IN_STUDIO}" if port == "probe" else \
