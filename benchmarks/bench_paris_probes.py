@@ -1,9 +1,12 @@
 """Per-probe table of automatic mirror-ball finding on the varied probe set (issue 26 item 7).
 
-    .venv/bin/python benchmarks/bench_paris_probes.py [--half tune|check|both] [--cache DIR]
+    .venv/bin/python benchmarks/bench_paris_probes.py [--half tune|check|holdout|both] [--cache DIR]
+        [--scale K] [--n N]
 
 Renders nodes/paris/data/varied_probes.py's probes (``--cache``: keeps the renders as .npy in
-DIR and reuses them), runs ProbeLight without the ball's circle (``find_ball`` inside) and
+DIR and reuses them; ``--scale``: each at K× its width and height, the same scene with K× the
+pixels across the ball — 3 gives 1152×864 to 1536×1152 px, as real probe photos have; ``--n``:
+probes per half, default 12; ``holdout``: a third set drawn like the check half), runs ProbeLight without the ball's circle (``find_ball`` inside) and
 prints, per probe: the true and the found radius, the centre error, the direction error of
 the flash (degrees; against make_probes.truth), or the refusal (exit 2) with its reason; then
 the same with the true circle given (as a person marking the ball would), and a summary of both
@@ -82,7 +85,7 @@ def main(argv=None):
     from nodes.paris.data.varied_probes import varied
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--half", default="both", choices=["tune", "check", "both"])
+    ap.add_argument("--half", default="both", choices=["tune", "check", "holdout", "both"])
     ap.add_argument("--cache", default=None)
     ap.add_argument("--scale", type=int, default=1,
                     help="render every probe at this many times its width and height (the ball as large a "

@@ -29,7 +29,11 @@ silhouette has:
    a step in every sector.  A cast shadow shows only the crescent the ball does not hide; an
    environment edge is closed but concentric and inside.
 5. **Choice**: among the closed circles (support ≥ ``MIN_SUPPORT``, gap ≤ ``MAX_GAP_DEG``,
-   radius ≥ ``MIN_RADIUS_PX``) that hold one of the clipped blobs (the flash's highlight), the
+   radius ≥ ``MIN_RADIUS_PX``; or partly closed but *tight*: edges within ``TIGHT_RMS_PX`` RMS
+   of the circle on ≥ ``TIGHT_SUPPORT`` of it, no gap over ``TIGHT_GAP_DEG`` — where the rim
+   reflects a backdrop as bright as beyond it, there is no step to see, while elsewhere the
+   silhouette is a sharp circle; on a high-resolution probe a wrong circle's edges scatter
+   more) that hold one of the clipped blobs (the flash's highlight), the
    outermost of each family (circles concentric with it or wholly inside it: edges of its own
    reflection, the flash's halo) is a ball; the family with the best support wins, and among
    families as well supported (within ``AMBIGUITY``) the one centred nearest the highlight
@@ -68,6 +72,9 @@ PEAKS_PER_RAY = 5        # edge points kept per ray (the strongest)
 MIN_RADIUS_PX = 12.0     # smaller circles are not taken for a ball (1 px off is ~10° of direction)
 SNAP_PX = 0.6            # after the sub-pixel fit, an edge is on the outline within this
 MAX_RMS_PX = 0.75        # a fit whose edges scatter more is not a circle
+TIGHT_RMS_PX = 0.5       # an outline not closed is still a ball when its edges lie this close to the circle …
+TIGHT_SUPPORT = 0.45     # … on at least this fraction of the sectors …
+TIGHT_GAP_DEG = 120.0    # … with no larger gap (its direction's doubt then decides: ProbeLight's bias bound)
 CENTRED_MARGIN = 0.15    # a ball whose centre is nearer the highlight by this (in radii) beats an equal rival
 LINE_RATIO = 3.0         # an outline whose cross-profile rises and falls back this many times more than it
                          # steps is a line on the backdrop (a printed ring), not a silhouette (see _line_profile)
@@ -181,7 +188,8 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot) -> BallFit:
     luminance of a mirror-ball photo, None for a white ball)."""
     where = " around the highlight" if spot is not None else ""
     cand = [(round(f.cx, 1), round(f.cy, 1), round(f.r, 1), round(f.support, 2)) for f in fits]
-    closed = [f for f in fits if f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG and f.r >= MIN_RADIUS_PX]
+    closed = [f for f in fits if (f.support >= MIN_SUPPORT and f.max_gap_deg <= MAX_GAP_DEG
+                                  or _tight(f.support, f.max_gap_deg, f.residual_px)) and f.r >= MIN_RADIUS_PX]
     if not closed:
         best = max(fits, key=lambda f: f.support, default=None)
         if best is None:
@@ -699,11 +707,16 @@ def _verdict(cx, cy, r, ok, inside, rms, w, h) -> BallFit:
                   in_frame=n_in)
     if n_in < MIN_IN_FRAME:
         fit.confident, fit.reason = False, f"only {100 * n_in:.0f}% of the ball's outline is inside the image"
-    elif sup < MIN_SUPPORT or gap > MAX_GAP_DEG:
+    elif (sup < MIN_SUPPORT or gap > MAX_GAP_DEG) and not _tight(sup, gap, rms):
         fit.confident, fit.reason = False, f"the outline is not closed ({fit.summary()})"
     elif rms > MAX_RMS_PX:
         fit.confident, fit.reason = False, f"the outline is not a circle ({fit.summary()})"
     return fit
+
+
+def _tight(sup, gap, rms) -> bool:
+    """A partly closed outline whose edges lie tightly on the circle (see TIGHT_RMS_PX)."""
+    return sup >= TIGHT_SUPPORT and gap <= TIGHT_GAP_DEG and rms <= TIGHT_RMS_PX
 
 
 def _ring_fraction(mask, c, gap_px, width):

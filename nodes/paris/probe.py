@@ -29,7 +29,9 @@ class ProbeLight(Node):
       rim brighter or darker than a mirror's rim can be (a disc or band printed around the
       ball: a mirror's rim reflects the backdrop beyond its outline), or
       the circle's standard error ×2 or a rival outline moving the flash's direction by more
-      than ``MAX_DOUBT_DEG``) the node refuses and asks for the three params, which a person
+      than ``MAX_DOUBT_DEG``, or, for an outline whose edges scatter over ``CLEAN_RMS_PX``, a
+      bias of ``BIAS_PER_RMS`` × that scatter moving it by more than ``MAX_BIAS_DEG``: the ball
+      too small in the photo for its outline's precision) the node refuses and asks for the three params, which a person
       may mark in the studio (its live view, :class:`nodes.paris.studio_view.ProbeView`).
     * **Direction**: every ball pixel sees the direction reflected about its normal.  With the
       view direction as the pole of the ball's frame, a normal at (θ_h, φ_h) reflects the view
@@ -518,21 +520,13 @@ def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = Non
     highlight ``blob`` (default: the largest clipped blob) — moves between the circle found and
     the circles it cannot rule out: its own fit moved by 2 standard errors (centre and radius,
     each way) and the rival outlines."""
-    h, w = px.shape[:2]
     if blob is None:
         blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
-    ys, xs = np.nonzero(blob)
-
-    def direction(cx, cy, r):
-        d = reflected_directions(xs + 0.5, ys + 0.5, cx, cy, r, w, h, fov_deg).mean(0)
-        return d / np.linalg.norm(d)
-
-    d0 = direction(fit.cx, fit.cy, fit.r)
     s = 2 * fit.sigma_px if np.isfinite(fit.sigma_px) else 0.0
     others = [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in
               ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
     others += list(fit.rivals)
-    return max(float(np.degrees(np.arccos(np.clip(direction(*c) @ d0, -1, 1)))) for c in others)
+    return _moved_by(px, blob, fov_deg, (fit.cx, fit.cy, fit.r), others)
 
 
 #: the refusal's pointer to the studio's probe view (nodes/paris/studio_view.py ProbeView)
@@ -558,15 +552,59 @@ def _refuse_if_overexposed(px: np.ndarray):
         raise BadInput("probe", _overexposed(share))
 
 
+def _bias_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray) -> float:
+    """How far (degrees) the flash's direction moves when the found circle's centre moves by
+    ``BIAS_PER_RMS`` × the fit's residual (8 ways) or its radius by as much: the edges found may
+    follow a neighbouring edge of the rim's reflection along a whole side, a bias that the
+    standard error (residual / √points) does not show."""
+    b = BIAS_PER_RMS * fit.residual_px
+    moves = [(b * np.cos(a), b * np.sin(a), 0.0) for a in np.arange(8) * np.pi / 4] + [(0, 0, b), (0, 0, -b)]
+    return _moved_by(px, blob, fov_deg, (fit.cx, fit.cy, fit.r),
+                     [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in moves])
+
+
+def _moved_by(px: np.ndarray, blob: np.ndarray, fov_deg, circle, others) -> float:
+    """The most (degrees) the mean reflected direction over ``blob`` moves from ``circle`` to
+    any of the ``others`` (cx, cy, r)."""
+    h, w = px.shape[:2]
+    ys, xs = np.nonzero(blob)
+
+    def direction(cx, cy, r):
+        d = reflected_directions(xs + 0.5, ys + 0.5, cx, cy, r, w, h, fov_deg).mean(0)
+        return d / np.linalg.norm(d)
+
+    d0 = direction(*circle)
+    return max(float(np.degrees(np.arccos(np.clip(direction(*c) @ d0, -1, 1)))) for c in others)
+
+
+#: a found outline whose edges scatter more than this (RMS, px) about it may follow an edge of the
+#: rim's reflection along a whole side: its centre may then be off by up to ``BIAS_PER_RMS`` × that
+#: residual (tune half of varied_probes.py at 1–3× its size: the ball's fits with residuals up to
+#: 0.3 px were within 1.3× of it from the true centre; above, up to 2.3×, where the standard
+#: error said 10× less) …
+CLEAN_RMS_PX = 0.3
+BIAS_PER_RMS = 2.5
+#: … and the flash's direction may move by at most this much (degrees) for it: the 1° a found
+#: direction may be off, less 0.25° for the highlight's own error
+MAX_BIAS_DEG = 0.75
+
+
 def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None, port: str = "probe"):
     """BadInput (exit 2) when the found ball's uncertainty (:func:`_direction_doubt`) moves the
-    flash's direction by more than ``MAX_DOUBT_DEG``."""
+    flash's direction by more than ``MAX_DOUBT_DEG``, or a bias of ``BIAS_PER_RMS`` × its
+    residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`)."""
     doubt = _direction_doubt(px, fit, fov_deg, blob)
-    if doubt <= MAX_DOUBT_DEG:
+    if blob is None:
+        blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+    bias = _bias_doubt(px, fit, fov_deg, blob) if CLEAN_RMS_PX < fit.residual_px < np.inf else 0.0
+    if doubt <= MAX_DOUBT_DEG and bias <= MAX_BIAS_DEG:
         return
-    why = fit.reason if fit.rivals else (
+    why = fit.reason if fit.rivals and doubt > MAX_DOUBT_DEG else (
         f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
-        f"found ({fit.summary()})")
+        f"found ({fit.summary()})" if doubt > MAX_DOUBT_DEG else
+        f"the outline found ({fit.summary()}) may be off by {BIAS_PER_RMS} × its residual along a side, "
+        f"which moves the flash's direction by {bias:.1f}° (more than {MAX_BIAS_DEG}°): the ball is too small "
+        f"in the photo for its outline's precision (a larger ball or a sharper outline is found)")
     raise BadInput(port, f"cannot find the mirror ball with confidence: {why}; give centre_x, centre_y "
                          f"and radius (pixels){MARK_IN_STUDIO}")
 

@@ -26,7 +26,11 @@ from .make_probes import ProbeSpec
 ENVS = ("city", "courtyard", "forest", "interior", "night", "studio", "sunrise", "sunset")
 HALVES = {"tune": dict(seed0=0, textures=("brick", "grass", "camera", "coffee"), sizes=((384, 288), (448, 336))),
           "check": dict(seed0=1000, textures=("gravel", "chelsea", "rocket", "astronaut", "moon"),
-                        sizes=((400, 300), (512, 384)))}
+                        sizes=((400, 300), (512, 384))),
+          # drawn as the check half, from other seeds: read once, for the final numbers of a change
+          # whose rules were set on the tune half (the check half having been read before)
+          "holdout": dict(seed0=2000, textures=("gravel", "chelsea", "rocket", "astronaut", "moon"),
+                          sizes=((400, 300), (512, 384)))}
 N_PER_HALF = 12
 SPP = 4
 
