@@ -82,6 +82,7 @@ MIN_REFLECTANCE = 0.5    # a mirror ball's reflectance at grazing incidence is a
                          # a metal's rises towards 1 at grazing)
 NOT_MIRROR = 0.7         # an outline whose rim a mirror could not show on this fraction of its sectors is not a
                          # mirror ball's (see _unreflected)
+HIGHLIGHT_SEED_SIZES = (0.07, 0.11, 0.17, 0.26)   # radii (of the frame's smaller side) tried around the highlight
 SEED_PX = 320           # the Hough transforms run on the image brought to this size
 _NOISE = 1.0             # the pixel noise σ of the stabilised image (stabilise: unit by construction)
 
@@ -147,6 +148,11 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     g = stabilise(lum)
     spots = _highlights(lum) if highlight else []
     seeds = _seeds(g, spots)
+    if spots:
+        # a flash by the lens lights the ball near its middle: circles of several sizes around
+        # the highlight too (the rim is often too faint for the Hough transforms)
+        m = min(h, w)
+        seeds += [(spots[0][0], spots[0][1], f * m) for f in HIGHLIGHT_SEED_SIZES if f * m >= MIN_RADIUS_PX]
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
     fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
