@@ -29,7 +29,7 @@ def _angle(a, b):
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
-def _probe(lamps=(), flash=True, band=0.0) -> Image:
+def _probe(lamps=(), flash=True, band=0.0, band_deg=25.0) -> Image:
     """An ambient of 0.02, the flash's highlight (4° wide, peak 40, clipped at 1) and other
     lamps' highlights ``(direction, width in degrees)`` as bright; ``band``: a lit wall's
     reflection as bright as the clip, a band 5° wide running from the flash's highlight 25°
@@ -40,7 +40,7 @@ def _probe(lamps=(), flash=True, band=0.0) -> Image:
     for ldir, width in ([(FLASH, 4.0)] if flash else []) + list(lamps):
         img += 40.0 * np.exp(-(np.degrees(np.arccos(np.clip(d @ ldir, -1, 1))) / width) ** 2)
     along = d[..., 0] - FLASH[0]
-    img += band * ((along > 0) & (along < np.sin(np.radians(25))) & (np.abs(d[..., 1] - FLASH[1]) < 0.045))
+    img += band * ((along > 0) & (along < np.sin(np.radians(band_deg))) & (np.abs(d[..., 1] - FLASH[1]) < 0.045))
     img[(xx - CX) ** 2 + (yy - CY) ** 2 > R * R] = 0.0
     return Image(np.repeat(np.clip(img, 0, 1)[..., None], 3, 2).astype(np.float32))
 
@@ -97,7 +97,21 @@ def test_highlight_joined_with_other_light_refused(monkeypatch):
     with pytest.raises(BadInput, match="not round"):
         _light(img)
     monkeypatch.setattr(probe_mod, "MAX_HIGHLIGHT_SPREAD", np.inf)
-    assert _angle(_light(img).direction, FLASH) > 2.0            # what the rule keeps from coming back
+    monkeypatch.setattr(probe_mod, "MAX_HIGHLIGHT_EXTENT", np.inf)
+    assert _angle(_light(img).direction, FLASH) > 2.0            # what the rules keep from coming back
+
+
+def test_short_joined_light_refused_by_its_reach(monkeypatch):
+    """A lit wall's clipped reflection joined to the flash's disc along 15° only (ProbeLight 9):
+    the blob's second moment stays under the bound (1.20 × a disc's) but its farthest pixel is
+    1.41 disc radii from its mean (a disc's: 1.0; the varied tune probes' flash discs 1.00–1.19,
+    tv28's joined one 1.29–1.41, 2.6–3.0° off): refused; without the reach bound it comes back
+    about 2° off, the tv28 case (and the only highlight, so no lamp rule applies)."""
+    img = _probe(band=1.0, band_deg=15.0)
+    with pytest.raises(BadInput, match="reach 1.4"):
+        _light(img)
+    monkeypatch.setattr(probe_mod, "MAX_HIGHLIGHT_EXTENT", np.inf)
+    assert _angle(_light(img).direction, FLASH) > 1.5
 
 
 def _turn_y(deg):

@@ -51,7 +51,9 @@ class ProbeLight(Node):
       subtend at 0.4 m or at ``ball_position_m``'s distance; or at ``flash_offset_m``, within
       ``max_disagreement_deg``), and only if it is round on the sphere of directions (not the
       flash's joined with other clipped light, ``MAX_HIGHLIGHT_SPREAD``); none or several
-      there, or one not round, is refused.  The direction is returned in the probe camera's
+      there, or one not round, is refused.  Any highlight taken, the only one too, must be
+      round so (``_round_or_refuse``: its second moment, and its reach from its mean within
+      ``MAX_HIGHLIGHT_EXTENT`` radii of a disc of its solid angle).  The direction is returned in the probe camera's
       frame (OpenCV: x right, y down, z forward), pointing towards the light.  A light on the
       far side of the subject (direction with z > 0, away from the camera) is refused.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
@@ -84,7 +86,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "8"
+    version = "9"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
@@ -371,11 +373,11 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
 
     lab, n = ndimage.label(sat)
     if n <= 1:
-        return sat
+        return _round_or_refuse(sat, dirs, "the clipped highlight")
     sizes = ndimage.sum(sat, lab, index=np.arange(1, n + 1))
     order = np.argsort(-sizes, kind="stable")   # largest first; of equal ones the first labelled
     if sizes[order[1]] < max(3, OTHER_HIGHLIGHT * sizes[order[0]]):
-        return lab == 1 + order[0]
+        return _round_or_refuse(lab == 1 + order[0], dirs, "the largest clipped highlight")
     blobs = [lab == 1 + i for i in order if sizes[i] >= 3]
     means = [dirs[b].mean(0) / np.linalg.norm(dirs[b].mean(0)) for b in blobs]
     off = [float(np.degrees(np.arccos(np.clip(m @ prior, -1, 1)))) for m in means]
@@ -392,14 +394,36 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
                                 f"from where {basis} would be seen) and {len(fit) or 'none'} within "
                                 f"{bound_deg:.1f}° of it: which one is the flash is unclear; give flash_offset_m "
                                 f"and ball_position_m (metres, camera frame) if the flash is elsewhere, or {retake}")
-    blob = blobs[fit[0]]
-    spread = _spread(dirs, blob, means[fit[0]])
-    if spread > MAX_HIGHLIGHT_SPREAD:
-        raise BadInput("probe", f"the one clipped highlight near where {basis} would be seen ({int(blob.sum())} px "
-                                f"at {off[fit[0]]:.1f}°) is not round (spread {spread:.2f} × a disc's, more than "
-                                f"{MAX_HIGHLIGHT_SPREAD}): the flash's highlight is joined with other clipped light, "
-                                f"its direction unknown; {retake}")
+    return _round_or_refuse(blobs[fit[0]], dirs, f"the one clipped highlight near where {basis} would be seen "
+                                                 f"({int(blobs[fit[0]].sum())} px at {off[fit[0]]:.1f}°)")
+
+
+def _round_or_refuse(blob: np.ndarray, dirs: np.ndarray, what: str) -> np.ndarray:
+    """``blob`` if it is a disc on the sphere of directions — its second moment at most
+    ``MAX_HIGHLIGHT_SPREAD`` × a disc's, and its farthest pixel from its mean direction at most
+    ``MAX_HIGHLIGHT_EXTENT`` × the radius of a disc of its solid angle — else BadInput: the
+    flash's clipped disc joined with other clipped light (a lit wall's reflection beside it
+    pulls the mean).  Blobs under 5 px are too coarse to tell and are taken."""
+    if blob.sum() < 5:
+        return blob
+    mean = dirs[blob].mean(0)
+    mean /= np.linalg.norm(mean)
+    spread = _spread(dirs, blob, mean)
+    extent = _extent(dirs, blob, mean)
+    if spread > MAX_HIGHLIGHT_SPREAD or extent > MAX_HIGHLIGHT_EXTENT:
+        raise BadInput("probe", f"{what} is not round (spread {spread:.2f} × a disc's, bound {MAX_HIGHLIGHT_SPREAD}; "
+                                f"reach {extent:.2f} × a disc's radius, bound {MAX_HIGHLIGHT_EXTENT}): the flash's "
+                                "highlight is joined with other clipped light, its direction unknown; take the probe "
+                                "with the flash as the only light that clips (other lamps off, or a shorter exposure)")
     return blob
+
+
+def _extent(dirs: np.ndarray, blob: np.ndarray, mean: np.ndarray) -> float:
+    """The blob's farthest pixel from ``mean`` over the angular radius of a disc of its solid
+    angle (1 for a disc; a disc with a crescent of other light joined to it reaches further)."""
+    omega = float(solid_angles(dirs)[blob].sum())
+    disc = np.arccos(np.clip(1 - omega / (2 * np.pi), -1, 1))
+    return float(np.arccos(np.clip(dirs[blob] @ mean, -1, 1)).max() / max(disc, 1e-12))
 
 
 def _spread(dirs: np.ndarray, blob: np.ndarray, mean: np.ndarray) -> float:
@@ -420,6 +444,10 @@ MIN_BALL_DISTANCE_M = 0.4
 #: ellipse (tuned on the tune half of varied_probes.py: flash discs 0.97–1.10, the flash's
 #: joined with a lit wall's clipped reflection 1.40 and 1.46)
 MAX_HIGHLIGHT_SPREAD = 1.25
+#: … and reach at most this far from its mean direction, in radii of a disc of its solid angle (the
+#: tune half of varied_probes.py at 1–3× its size: flash discs 1.00–1.19; tv28's, joined with a
+#: lit ceiling's clipped reflection, 1.29–1.41 and 2.6–3.0° off)
+MAX_HIGHLIGHT_EXTENT = 1.25
 
 
 #: the most the halo's excess-weighted mean may move the clipped blob's direction (degrees); a
