@@ -573,9 +573,15 @@ def _overexposed(share: float) -> str:
             f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
 
 
+def _clipped_share(px: np.ndarray) -> float:
+    """The fraction of the photo's pixels on the plateau of its maximum (clipped)."""
+    return float((px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)).mean())
+
+
 def _refuse_if_overexposed(px: np.ndarray):
-    """BadInput (exit 2) for a probe over ``OVEREXPOSED`` clipped, the ball's circle given or not."""
-    share = float((px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)).mean())
+    """BadInput (exit 2) for a probe over ``OVEREXPOSED`` clipped, the ball's circle given or not
+    (a flat image, all 'at its maximum', is left to the other checks)."""
+    share = _clipped_share(px)
     if OVEREXPOSED < share < 0.98:
         raise BadInput("probe", _overexposed(share))
 
@@ -621,18 +627,21 @@ def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = 
     """BadInput (exit 2) when the found ball's uncertainty (:func:`_direction_doubt`) moves the
     flash's direction by more than ``MAX_DOUBT_DEG``, or a bias of ``BIAS_PER_RMS`` × its
     residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`)."""
-    doubt = _direction_doubt(px, fit, fov_deg, blob)
     if blob is None:
         blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+    doubt = _direction_doubt(px, fit, fov_deg, blob)
     bias = _bias_doubt(px, fit, fov_deg, blob) if CLEAN_RMS_PX < fit.residual_px < np.inf else 0.0
     if doubt <= MAX_DOUBT_DEG and bias <= MAX_BIAS_DEG:
         return
-    why = fit.reason if fit.rivals and doubt > MAX_DOUBT_DEG else (
-        f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
-        f"found ({fit.summary()})" if doubt > MAX_DOUBT_DEG else
-        f"the outline found ({fit.summary()}) may be off by {BIAS_PER_RMS} × its residual along a side, "
-        f"which moves the flash's direction by {bias:.1f}° (more than {MAX_BIAS_DEG}°): the ball is too small "
-        f"in the photo for its outline's precision (a larger ball or a sharper outline is found)")
+    if doubt > MAX_DOUBT_DEG and fit.rivals:
+        why = fit.reason
+    elif doubt > MAX_DOUBT_DEG:
+        why = (f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with the outline "
+               f"found ({fit.summary()})")
+    else:
+        why = (f"the outline found ({fit.summary()}) may be off by {BIAS_PER_RMS} × its residual along a side, "
+               f"which moves the flash's direction by {bias:.1f}° (more than {MAX_BIAS_DEG}°): the ball is too "
+               f"small in the photo for its outline's precision (a larger ball or a sharper outline is found)")
     raise BadInput(port, f"cannot find the mirror ball with confidence: {why}; give centre_x, centre_y "
                          f"and radius (pixels){MARK_IN_STUDIO}")
 
@@ -646,8 +655,6 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool,
     from .ballfind import find_ball
 
     what = "mirror ball" if highlight else "white ball"
-    clipped = px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)   # the plateau of a clipped photo
-    share = float(clipped.mean())
     fit = find_ball(px, fov_deg, highlight=highlight)
     if highlight and (fit.confident or fit.rivals):
         if found is None:
@@ -657,6 +664,7 @@ def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool,
         return fit.cx, fit.cy, fit.r
     if fit.confident:
         return fit.cx, fit.cy, fit.r
+    share = _clipped_share(px)
     if highlight and OVEREXPOSED < share < 0.98:  # (a flat image is all 'at its maximum')
         why = _overexposed(share)
     else:
