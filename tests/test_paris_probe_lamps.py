@@ -122,7 +122,7 @@ def _turn_y(deg):
 def test_perspective_prior_is_towards_the_lens():
     """A perspective probe with the ball 21.5° off the camera's axis: the flash is looked for
     around the direction from the ball to the lens, not around −z (where the lamp is here)."""
-    w, h, fov, cx, cy, r = 320, 240, 40.0, 290.0, 120.0, 25.0
+    w, h, fov, cx, cy, r = 640, 480, 40.0, 580.0, 240.0, 50.0
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
     d = reflected_directions(xx, yy, cx, cy, r, w, h, fov)
     f = 0.5 * h / np.tan(np.radians(fov / 2))

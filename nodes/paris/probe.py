@@ -55,7 +55,10 @@ class ProbeLight(Node):
       round so (``_round_or_refuse``: its second moment, and its reach from its mean within
       ``MAX_HIGHLIGHT_EXTENT`` radii of a disc of its solid angle).  The direction is returned in the probe camera's
       frame (OpenCV: x right, y down, z forward), pointing towards the light.  A light on the
-      far side of the subject (direction with z > 0, away from the camera) is refused.
+      far side of the subject (direction with z > 0, away from the camera) is refused.  A
+      clipped highlight is placed to about ``HIGHLIGHT_PX`` (0.3 px) only: where that moves the
+      direction by more than ``MAX_HIGHLIGHT_DOUBT_DEG`` (1°: a ball under ~35 px in radius) the
+      node refuses, the circle found or given, and says how large the ball must be in the photo.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
       ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
       value": the flash is the unit of the photo) unless a ``white`` matte-ball photo of the
@@ -86,7 +89,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "9"
+    version = "10"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
@@ -153,6 +156,9 @@ class ProbeLight(Node):
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
             _refuse_if_doubtful(px, found[0], fov_deg, sat)
+        if _clipped(px, inside):
+            # found or given: a clipped highlight is placed to a fraction of a pixel only
+            _refuse_if_coarse(sat, cx, cy, r, w, h, fov_deg)
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -555,6 +561,39 @@ def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = Non
               ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
     others += list(fit.rivals)
     return _moved_by(px, blob, fov_deg, (fit.cx, fit.cy, fit.r), others)
+
+
+#: a clipped highlight's place on the ball is known to about this many pixels (its pixels'
+#: quantisation, the camera's noise at its edge; the tune half of varied_probes.py at 1–3× its
+#: size with the true circle given, where a pixel spans 2° or more at the highlight: the flash's
+#: direction within 0.29 px of the ball's image for 90 % of the probes, 0.39 px at most) …
+HIGHLIGHT_PX = 0.3
+#: … and that may move the flash's direction by at most this much (degrees; the tune half's
+#: answers over 1° had 3.8–6.0° per pixel at the highlight: 19–29 px balls)
+MAX_HIGHLIGHT_DOUBT_DEG = 1.0
+
+
+def degrees_per_pixel(u: float, v: float, cx, cy, r, w, h, fov_deg=None) -> float:
+    """How many degrees of reflected direction one pixel spans at (u, v) on the ball (the mean of
+    a step along x and along y): 2/(r·cos(θ/2)) radians at the centre of an orthographic ball."""
+    d = reflected_directions(np.array([u, u + 1.0, u]), np.array([v, v, v + 1.0]), cx, cy, r, w, h, fov_deg)
+    return float(np.mean([np.degrees(np.arccos(np.clip(d[0] @ d[i], -1, 1))) for i in (1, 2)]))
+
+
+def _refuse_if_coarse(blob: np.ndarray, cx, cy, r, w, h, fov_deg):
+    """BadInput (exit 2) when the ball is too small in the photo for the flash's direction: the
+    highlight placed to ``HIGHLIGHT_PX`` moves the direction by more than
+    ``MAX_HIGHLIGHT_DOUBT_DEG`` — whether the circle is found or given."""
+    ys, xs = np.nonzero(blob)
+    per_px = degrees_per_pixel(float(xs.mean()) + 0.5, float(ys.mean()) + 0.5, cx, cy, r, w, h, fov_deg)
+    doubt = HIGHLIGHT_PX * per_px
+    if doubt <= MAX_HIGHLIGHT_DOUBT_DEG:
+        return
+    raise BadInput("probe", f"the ball is too small in the photo for the flash's direction: at its highlight one "
+                            f"pixel spans {per_px:.1f}° of direction and a highlight is placed to about "
+                            f"{HIGHLIGHT_PX} px, so the direction is uncertain by {doubt:.1f}° (more than "
+                            f"{MAX_HIGHLIGHT_DOUBT_DEG}°); take the probe with the ball larger in the frame (a "
+                            f"radius of at least {r * doubt / MAX_HIGHLIGHT_DOUBT_DEG:.0f} px; it is {r:.0f} px)")
 
 
 #: the refusal's pointer to the studio's probe view (nodes/paris/studio_view.py ProbeView)

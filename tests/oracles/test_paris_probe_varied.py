@@ -55,7 +55,7 @@ def test_check_half_found_or_refused(record_property):
 def _at(half, name, scale):
     from nodes.paris.data.varied_probes import varied
 
-    return next(s for s in varied(half, n=48, scale=scale) if s.name == f"{name}x{scale}")
+    return next(s for s in varied(half, n=48, scale=scale) if s.name == (f"{name}x{scale}" if scale > 1 else name))
 
 
 @pytest.mark.parametrize("name", ["tv16", "tv40"])
@@ -111,3 +111,39 @@ def test_two_rival_outlines_refused():
     assert "two closed outlines" in refusal.message and "centre_x, centre_y and radius" in refusal.message
     direction, refusal = _auto(_two_discs(0.05, 0.25), None)
     assert direction is None and "a disc or band on the backdrop" in refusal.message
+
+
+def _given(img, spec):
+    """ProbeLight with the true circle given (as a person marking the ball gives it)."""
+    from nodes.paris.data import make_probes as mp
+
+    t = mp.truth(spec)
+    params = ProbeLight.Params(fov_deg=spec.fov_deg, centre_x=t["centre_x"], centre_y=t["centre_y"],
+                               radius=t["radius"])
+    try:
+        return ProbeLight(params).compute(probe=Image(img))["light"].direction, None
+    except BadInput as e:
+        return None, e
+
+
+def test_small_ball_refused_even_with_its_circle(monkeypatch):
+    """tv43 (a 19-px ball, its flash's clipped highlight 26 px): with the true circle given one
+    pixel spans 6° at the highlight, and ProbeLight 9 answered 1.90° off with exit 0.  ProbeLight
+    10 refuses it (the highlight placed to 0.3 px moves the direction by 1.8°), and with that
+    bound off it comes back over 1° off again; the same scene at 2× (a 38-px ball, 3° per pixel)
+    is answered within 1°."""
+    from nodes.paris import probe as probe_mod
+    from nodes.paris.data import make_probes as mp
+
+    spec = _at("tune", "tv43", 1)
+    img = mp.render(spec)
+    direction, refusal = _given(img, spec)
+    assert direction is None and refusal.port == "probe", direction
+    assert "too small in the photo for the flash's direction" in refusal.message and "at least" in refusal.message
+    big = _at("tune", "tv43", 2)
+    direction, refusal = _given(mp.render(big), big)
+    assert refusal is None, refusal.message
+    assert _angle(direction, mp.truth(big)["direction"]) <= MAX_ERR_DEG
+    monkeypatch.setattr(probe_mod, "MAX_HIGHLIGHT_DOUBT_DEG", 1e9)
+    direction, refusal = _given(img, spec)
+    assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
