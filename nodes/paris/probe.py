@@ -59,6 +59,8 @@ class ProbeLight(Node):
       clipped highlight is placed to about ``HIGHLIGHT_PX`` (0.3 px) only: where that moves the
       direction by more than ``MAX_HIGHLIGHT_DOUBT_DEG`` (1°: a ball under ~35 px in radius) the
       node refuses, the circle found or given, and says how large the ball must be in the photo.
+      An unclipped highlight must stand ``MIN_HIGHLIGHT_Z`` noise levels above the circle's
+      median (a circle with no ball in it holds only noise: refused).
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
       ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
       value": the flash is the unit of the photo) unless a ``white`` matte-ball photo of the
@@ -152,6 +154,8 @@ class ProbeLight(Node):
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
         _refuse_if_overexposed(px)
+        if not _clipped(px, inside):
+            _refuse_if_faint(lum[inside])
         sat = _flash_highlight(sat, dirs, *self._flash_prior(cx, cy, r, w, h, fov_deg))
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
@@ -561,6 +565,25 @@ def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = Non
               ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
     others += list(fit.rivals)
     return _moved_by(px, blob, fov_deg, (fit.cx, fit.cy, fit.r), others)
+
+
+#: an unclipped highlight must stand this many noise levels (1.4826 × the median absolute
+#: deviation of the ball's luminance) above the ball's median: the varied set's circles with no
+#: ball in them (tv31, tv46: a dark floor's noise) 6–8, make_probes' HDR probes ~2·10⁴
+MIN_HIGHLIGHT_Z = 20.0
+
+
+def _refuse_if_faint(lum: np.ndarray):
+    """BadInput (exit 2) when the brightest pixel in the circle is no more than noise above the
+    rest of it (``MIN_HIGHLIGHT_Z``): the circle holds no flash's highlight, perhaps no ball."""
+    med = float(np.median(lum))
+    noise = 1.4826 * float(np.median(np.abs(lum - med)))
+    z = (float(lum.max()) - med) / max(noise, 1e-12 * max(abs(float(lum.max())), 1e-30))
+    if z < MIN_HIGHLIGHT_Z:
+        raise BadInput("probe", f"no highlight stands out in the ball's circle: its brightest pixel is {z:.1f} noise "
+                                f"levels above its median (a flash's reflection stands hundreds; bound "
+                                f"{MIN_HIGHLIGHT_Z:.0f}): is the circle on the mirror ball, and is the flash "
+                                f"reflected in it?")
 
 
 #: a clipped highlight's place on the ball is known to about this many pixels (its pixels'
