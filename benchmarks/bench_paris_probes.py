@@ -6,7 +6,8 @@
 Renders nodes/paris/data/varied_probes.py's probes (``--cache``: keeps the renders as .npy in
 DIR and reuses them; ``--scale``: each at K× its width and height, the same scene with K× the
 pixels across the ball — 3 gives 1152×864 to 1536×1152 px, as real probe photos have; ``--n``:
-probes per half, default 12; ``holdout``: a third set drawn like the check half), runs ProbeLight without the ball's circle (``find_ball`` inside) and
+probes per half, default 12; ``holdout``: a third set drawn like the check half; ``--unclipped``:
+rendered as HDR probes, nothing clipped), runs ProbeLight without the ball's circle (``find_ball`` inside) and
 prints, per probe: the true and the found radius, the centre error, the direction error of
 the flash (degrees; against make_probes.truth), or the refusal (exit 2) with its reason; then
 the same with the true circle given (as a person marking the ball would), and a summary of both
@@ -15,6 +16,7 @@ per half.  CPU seconds of the finding.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import os
 import sys
@@ -91,6 +93,8 @@ def main(argv=None):
                     help="render every probe at this many times its width and height (the ball as large a "
                          "share of the frame, more pixels across it: 3 gives 1152×864 to 1536×1152 px)")
     ap.add_argument("--n", type=int, default=None, help="probes per half (default: varied_probes.N_PER_HALF)")
+    ap.add_argument("--unclipped", action="store_true",
+                    help="render the probes unclipped (HDR: clip=False), the flash's highlight and the lamps' kept")
     a = ap.parse_args(argv)
     halves = ["tune", "check"] if a.half == "both" else [a.half]
     print("| half | probe | r true (px) | r found | centre err (px) | direction err, found (°) | "
@@ -99,6 +103,8 @@ def main(argv=None):
     for half in halves:
         rows = []
         for spec in varied(half, **({'n': a.n} if a.n else {}), scale=a.scale):
+            if a.unclipped:
+                spec = dataclasses.replace(spec, clip=False)
             rows.append(run_probe(spec, probe_image(spec, a.cache)))
             print(_fmt(rows[-1], half), flush=True)
         for what, key in (("found", "err_deg"), ("answered with the true circle given", "given_deg")):

@@ -60,7 +60,9 @@ class ProbeLight(Node):
       direction by more than ``MAX_HIGHLIGHT_DOUBT_DEG`` (1°: a ball under ~35 px in radius) the
       node refuses, the circle found or given, and says how large the ball must be in the photo.
       An unclipped highlight must stand ``MIN_HIGHLIGHT_Z`` noise levels above the circle's
-      median (a circle with no ball in it holds only noise: refused).
+      median (a circle with no ball in it holds only noise: refused); on an unclipped (HDR) probe
+      another light's reflection may outshine the flash's, so when several lights reach
+      ``HDR_HIGHLIGHT`` of the peak the flash's is chosen among them as among clipped ones.
     * **Colour**: the hue from the unsaturated halo around the highlight (its excess over the
       ambient level), normalised to luminance 1; ``intensity`` = 1 (the paper's "arbitrary
       value": the flash is the unit of the photo) unless a ``white`` matte-ball photo of the
@@ -91,7 +93,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "10"
+    version = "11"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
@@ -154,9 +156,17 @@ class ProbeLight(Node):
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
         _refuse_if_overexposed(px)
+        prior = self._flash_prior(cx, cy, r, w, h, fov_deg)
         if not _clipped(px, inside):
             _refuse_if_faint(lum[inside])
-        sat = _flash_highlight(sat, dirs, *self._flash_prior(cx, cy, r, w, h, fov_deg))
+            # an unclipped (HDR) probe: another light's reflection may outshine the flash's, so
+            # the flash's is chosen among the lights reaching HDR_HIGHLIGHT of the peak, as among
+            # clipped highlights (one such light: the same as before)
+            blob = _flash_highlight_hdr(px, inside, dirs, peak, prior)
+            if blob is not None:
+                peak = float(px[blob].max())
+                sat = blob & (px.max(-1) >= p.saturation * peak)
+        sat = _flash_highlight(sat, dirs, *prior)
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
             _refuse_if_doubtful(px, found[0], fov_deg, sat)
@@ -372,7 +382,8 @@ def solid_angles(dirs: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.cross(np.gradient(dirs, axis=1), np.gradient(dirs, axis=0)), axis=-1)
 
 
-def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound_deg: float, basis: str) -> np.ndarray:
+def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound_deg: float, basis: str,
+                     kind: str = "clipped") -> np.ndarray:
     """The flash's highlight: the one clipped blob on the ball, or the largest when the others
     are specks (under ``OTHER_HIGHLIGHT`` of its size or under 3 px).  When another light (a
     lamp, a lit backdrop) clips as well, the one highlight (≥ 3 px) seen within ``bound_deg`` of
@@ -383,11 +394,11 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
 
     lab, n = ndimage.label(sat)
     if n <= 1:
-        return _round_or_refuse(sat, dirs, "the clipped highlight")
+        return _round_or_refuse(sat, dirs, f"the {kind} highlight")
     sizes = ndimage.sum(sat, lab, index=np.arange(1, n + 1))
     order = np.argsort(-sizes, kind="stable")   # largest first; of equal ones the first labelled
     if sizes[order[1]] < max(3, OTHER_HIGHLIGHT * sizes[order[0]]):
-        return _round_or_refuse(lab == 1 + order[0], dirs, "the largest clipped highlight")
+        return _round_or_refuse(lab == 1 + order[0], dirs, f"the largest {kind} highlight")
     blobs = [lab == 1 + i for i in order if sizes[i] >= 3]
     means = [dirs[b].mean(0) / np.linalg.norm(dirs[b].mean(0)) for b in blobs]
     off = [float(np.degrees(np.arccos(np.clip(m @ prior, -1, 1)))) for m in means]
@@ -400,12 +411,30 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
                      for i in range(min(len(blobs), 6))) + (", …" if len(blobs) > 6 else "")
     retake = "take the probe with the flash as the only light that clips (other lamps off, or a shorter exposure)"
     if len(fit) != 1:
-        raise BadInput("probe", f"the ball shows {len(blobs)} clipped highlights of 3 px or more ({seen}; angles "
+        raise BadInput("probe", f"the ball shows {len(blobs)} {kind} highlights of 3 px or more ({seen}; angles "
                                 f"from where {basis} would be seen) and {len(fit) or 'none'} within "
                                 f"{bound_deg:.1f}° of it: which one is the flash is unclear; give flash_offset_m "
                                 f"and ball_position_m (metres, camera frame) if the flash is elsewhere, or {retake}")
-    return _round_or_refuse(blobs[fit[0]], dirs, f"the one clipped highlight near where {basis} would be seen "
+    return _round_or_refuse(blobs[fit[0]], dirs, f"the one {kind} highlight near where {basis} would be seen "
                                                  f"({int(blobs[fit[0]].sum())} px at {off[fit[0]]:.1f}°)")
+
+
+#: on an unclipped (HDR) probe, a light whose reflection reaches this fraction of the ball's peak
+#: is a highlight that may be the flash's (the varied check probe cv03 rendered unclipped: a
+#: lamp's reflection peaks at 199, the flash's at 141; ProbeLight 10 took the lamp, 55.7° off)
+HDR_HIGHLIGHT = 0.1
+
+
+def _flash_highlight_hdr(px, inside, dirs, peak, prior) -> np.ndarray | None:
+    """The flash's highlight on an unclipped probe when several lights reach ``HDR_HIGHLIGHT``
+    of the ball's peak (chosen by :func:`_flash_highlight`, which refuses when it cannot tell),
+    else None (the brightest is the flash's)."""
+    from scipy import ndimage
+
+    bright = inside & (px.max(-1) >= HDR_HIGHLIGHT * peak)
+    if ndimage.label(bright)[1] <= 1:
+        return None
+    return _flash_highlight(bright, dirs, *prior, kind="bright")
 
 
 def _round_or_refuse(blob: np.ndarray, dirs: np.ndarray, what: str) -> np.ndarray:

@@ -154,7 +154,8 @@ def test_circle_without_a_ball_refused(monkeypatch):
     so the sets stay the same), so the true circle holds only the dark floor's noise; ProbeLight
     9 read its brightest noise as the flash, 22° off with exit 0.  Its brightest pixel stands 6
     noise levels above the circle's median (a flash's reflection: thousands): refused now, and
-    with that bound off it answers far off again."""
+    with that bound off (and the choice among an unclipped probe's highlights, which may refuse
+    the noise's blobs as not round) it answers far off again."""
     from nodes.paris import probe as probe_mod
     from nodes.paris.data import make_probes as mp
 
@@ -164,5 +165,27 @@ def test_circle_without_a_ball_refused(monkeypatch):
     assert direction is None and refusal.port == "probe", direction
     assert "no highlight stands out" in refusal.message
     monkeypatch.setattr(probe_mod, "MIN_HIGHLIGHT_Z", 0.0)
+    monkeypatch.setattr(probe_mod, "_flash_highlight_hdr", lambda *a: None)
     direction, refusal = _given(img, spec)
     assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > 5 * MAX_ERR_DEG
+
+
+def test_lamp_brighter_than_the_flash_on_an_unclipped_probe(monkeypatch):
+    """cv03 rendered unclipped (an HDR probe): a lamp's reflection peaks at 199, the flash's at
+    141, 55.7° apart.  ProbeLight 10 took the brightest for the flash, 55° off with exit 0, the
+    true circle given; ProbeLight 11 chooses among the lights reaching HDR_HIGHLIGHT of the peak
+    as among clipped ones (the one near the lens): within 1°, and far off with that choice off."""
+    import dataclasses
+
+    from nodes.paris import probe as probe_mod
+    from nodes.paris.data import make_probes as mp
+
+    spec = dataclasses.replace(_at("check", "cv03", 1), clip=False)
+    img = mp.render(spec)
+    assert float(img.max()) > 100      # unclipped: the flash's and the lamp's peaks are kept
+    direction, refusal = _given(img, spec)
+    assert refusal is None, refusal.message
+    assert _angle(direction, mp.truth(spec)["direction"]) <= MAX_ERR_DEG
+    monkeypatch.setattr(probe_mod, "_flash_highlight_hdr", lambda *a: None)
+    direction, refusal = _given(img, spec)
+    assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > 30
