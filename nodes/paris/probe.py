@@ -157,7 +157,8 @@ class ProbeLight(Node):
                                     "(is the flash reflected in the ball?)")
         _refuse_if_overexposed(px)
         prior = self._flash_prior(cx, cy, r, w, h, fov_deg)
-        if not _clipped(px, inside):
+        clipped = _clipped(px, inside)
+        if not clipped:
             _refuse_if_faint(lum[inside])
             # an unclipped (HDR) probe: another light's reflection may outshine the flash's, so
             # the flash's is chosen among the lights reaching HDR_HIGHLIGHT of the peak, as among
@@ -170,7 +171,7 @@ class ProbeLight(Node):
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
             _refuse_if_doubtful(px, found[0], fov_deg, sat)
-        if _clipped(px, inside):
+        if clipped:
             # found or given: a clipped highlight is placed to a fraction of a pixel only
             _refuse_if_coarse(sat, cx, cy, r, w, h, fov_deg)
         ldir = dirs[sat].mean(0)
@@ -421,7 +422,9 @@ def _flash_highlight(sat: np.ndarray, dirs: np.ndarray, prior: np.ndarray, bound
 
 #: on an unclipped (HDR) probe, a light whose reflection reaches this fraction of the ball's peak
 #: is a highlight that may be the flash's (the varied check probe cv03 rendered unclipped: a
-#: lamp's reflection peaks at 199, the flash's at 141; ProbeLight 10 took the lamp, 55.7° off)
+#: lamp's reflection peaks at 199, the flash's at 141; ProbeLight 10 took the lamp, 55.7° off.
+#: Set from that check probe — any fraction under 0.7 tells them apart — and read on the tune and
+#: holdout sets rendered unclipped: no answer changed there)
 HDR_HIGHLIGHT = 0.1
 
 
