@@ -26,15 +26,18 @@ def _pyramid_sizes(h: int, w: int) -> list[tuple[int, int]]:
 
 
 def _blur(x: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian blur; a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
+    """Gaussian blur (:func:`nodes.common.filters.gaussian_blur`: the same bytes on every CPU);
+    a wide one on an image shrunk so that σ is 4 px there, then enlarged."""
     import cv2
+
+    from .filters import gaussian_blur
 
     f = max(1, int(sigma // 4))
     if f == 1:
-        return cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT).reshape(x.shape)
+        return gaussian_blur(x, sigma).reshape(x.shape)
     h, w = x.shape[:2]
     small = cv2.resize(x, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
-    small = cv2.GaussianBlur(small, (0, 0), sigma / f, borderType=cv2.BORDER_REFLECT)
+    small = gaussian_blur(small, sigma / f)
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR).reshape(x.shape)
 
 

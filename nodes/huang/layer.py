@@ -164,7 +164,7 @@ class CosmeticMap(Node):
     is removed: thickness × (1 − exclude).
     """
 
-    version = "1"
+    version = "2"
     inputs = {"regions": In(Mask, "one region per layer, bottom layer first", variadic=True, min_items=1),
               "exclude": In(Mask, "no cosmetic here (e.g. eyes)", optional=True)}
     outputs = {"thickness": Out(Image, "H×W×n layer thicknesses, mm")}
@@ -187,9 +187,9 @@ class CosmeticMap(Node):
         def soft(a):
             a = np.clip(a, 0, 1).astype(np.float32)
             if p.feather_px > 0:
-                import cv2
+                from nodes.common.filters import gaussian_blur   # (the same bytes on every CPU)
 
-                a = cv2.GaussianBlur(a, (0, 0), p.feather_px, borderType=cv2.BORDER_REFLECT)
+                a = gaussian_blur(a, p.feather_px)
             return a
 
         t = np.stack([soft(m.alpha) * np.float32(d) for m, d in zip(regions, p.thickness_mm)], axis=-1)

@@ -121,7 +121,7 @@ class CompositeFace(Node):
     """
 
     studio_view = "nodes.paris.studio_view:CompositeView"  # graphkit serve: move the light, see the photo
-    version = "3"  # 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
+    version = "4"  # 4: blurred through SciPy (the same bytes on every CPU; 3 used OpenCV, whose AVX2 and AVX-512 kernels round differently); 2: the change of light filled on a grid coarser by σ // 4 (the same at ≤ 8 px)
     # 3: the pyramid blends on the face's box widened by its coarsest level's reach (blend_region);
     #    the change of light filled on a grid coarser by σ // 2
     inputs = {"photo": In(Image, "the input photograph (linear RGB)", channels=3),

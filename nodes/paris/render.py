@@ -560,7 +560,7 @@ class Render(Node):
     A mesh behind, across or beside the camera, or a point light inside the mesh, is refused.
     """
 
-    version = "6"  # 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows); 6: environment shadows from a visibility basis (environment_basis)
+    version = "7"  # 7: the mouth's smooth fill blurred through SciPy (the same bytes on every CPU); 3: mouth from the photo's detail under smooth shading; antialias; 4: environment lights' shadow maps sized by their share of the light; 5: only the dominant environment lights cast shadows (environment_shadows); 6: environment shadows from a visibility basis (environment_basis)
     studio_view = "nodes.paris.studio_view:FaceView"  # graphkit serve: WebGL2 relighting
     inputs = {"mesh": In(Mesh, "face mesh (world coordinates)", finite=True),
               "camera": In(Camera, "the camera to render from"),
