@@ -18,7 +18,9 @@ Seen at stop 37 on four tune probes at 3× refused by find_ball as "no closed ci
 even on tv00 whose rim the eye does not see; (2) circles 0.5–11 px from the true centre, 3–7 px
 too large (search CPU 0.9–1.2 s); but from them the
 sub-pixel fit stays "not closed" (support 0.07–0.51): it looks for noise-significant steps, and
-the rim has none.  A fit on the cue itself is the step not taken.
+the rim has none.  A fit on the cue itself is the step not taken.  Stop 38 took a related one:
+``ballfind._Outline`` polishes a circle on the radial gradient summed round the outline
+(benchmarks/bench_paris_outline_polish.py).
 """
 from __future__ import annotations
 

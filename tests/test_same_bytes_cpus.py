@@ -23,6 +23,7 @@ PROBE = textwrap.dedent("""
     from nodes.common.filters import gaussian_blur
     from nodes.huang.layer import CosmeticMap
     from nodes.io.filters import Blur
+    from nodes.paris import ballfind
 
     def h(x):
         return hashlib.sha1(np.ascontiguousarray(x).tobytes()).hexdigest()[:16]
@@ -38,6 +39,17 @@ PROBE = textwrap.dedent("""
            "Blur": h(px(Blur(Blur.Params(sigma_px=3.3)).compute(image=Image(img)))),
            "CosmeticMap": h(px(CosmeticMap(CosmeticMap.Params(thickness_mm=[0.01], feather_px=2.5))
                                .compute(regions=[Mask(w)])))}
+    # a mirror ball's outline polished (ballfind._Outline) on a noisy synthetic probe
+    yy, xx = np.mgrid[0:240, 0:320] + 0.5
+    d = np.hypot(xx - 150.3, yy - 118.7)
+    probe = np.where(d < 61.0, 0.25 + 0.1 * np.cos(xx / 7.0), 0.35) + rng.normal(0, 0.01, d.shape)
+    probe[(xx - 150) ** 2 + (yy - 118) ** 2 < 9] = 1.0
+    probe = np.repeat(np.clip(probe, 0, 1)[..., None], 3, 2).astype(np.float32)
+    g = ballfind.stabilise(ballfind.luminance(probe))
+    o = ballfind._Outline(g, None)
+    out["outline"] = repr(o.polish((152.0, 117.0, 59.0)))
+    fit = ballfind.find_ball(probe, None)
+    out["find_ball"] = repr((fit.cx, fit.cy, fit.r, fit.confident))
     if "--planted" in sys.argv:      # OpenCV's own float blur, for the planted check
         import cv2
         out["cv2_blur"] = h(cv2.GaussianBlur(img, (0, 0), 2.7, borderType=cv2.BORDER_REFLECT))

@@ -24,6 +24,14 @@ silhouette has:
    gradient; the points are fitted with outlier rejection — a circle (orthographic) or, given
    the vertical field of view, the cone of rays tangent to the sphere (its axis gives the
    projected centre, its half-angle the radius in ProbeLight's convention).  Iterated.
+   Where that fit does not close, the outline is **polished** (:class:`_Outline`): the circle
+   (cone) along which the radial gradient of the stabilised image, averaged over each sector, is
+   strongest is searched from the candidate and from the fit — the rim's step, summed round the
+   whole outline, stands out where no single sector's does, and the nearest edge a sector fit
+   takes may be one of the reflection just inside.  Its support and residual are read from the
+   edges about it; ProbeLight then bounds its direction by the residual as for a scattered fit
+   (``probe.BIAS_PER_RMS``), and a polished outline whose rim is darker than a mirror's can be
+   on ``MAX_DARKER_SHARE`` of it (the edge of the ball's cast shadow along a side) is not taken.
 4. **Support**: the fraction of sectors (inside the frame) with a significant step on the
    fitted outline (within ``SNAP_PX``), and the largest gap.  A silhouette is a closed edge:
    a step in every sector.  A cast shadow shows only the crescent the ball does not hide; an
@@ -42,7 +50,7 @@ silhouette has:
    ``rivals`` (ProbeLight weighs them by the flash directions they give).
 
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
-when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found, when the outline found is a thin
+when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found (looked for on the image stabilised by :func:`noise_curve`'s ``isotonic`` noise level), when the outline found is a thin
 line with the same level on both sides (a ring drawn on the backdrop, :func:`_line_profile`), when its rim is
 brighter or darker than a mirror's rim can be (a disc or band printed on the backdrop, :func:`_unreflected`), when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
@@ -113,6 +121,7 @@ class BallFit:
     sigma_px: float = float("inf")
     candidates: list = field(default_factory=list)
     rivals: list = field(default_factory=list)
+    polished: bool = False
 
     def __iter__(self):  # cx, cy, r, fit = find_ball(...)
         return iter((self.cx, self.cy, self.r, self))
@@ -145,7 +154,8 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     clipped = chmax >= (1 - 1e-3) * max(float(chmax.max()), 1e-12)
     if h < 16 or w < 16:
         return BallFit(0, 0, 0, False, f"the image is {w}×{h} px: too small to find a ball in")
-    g = stabilise(lum)
+    curve = noise_curve(lum)
+    g = stabilise(lum, curve=curve)
     spots = _highlights(lum) if highlight else []
     seeds = _seeds(g, spots)
     if spots:
@@ -155,8 +165,8 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
         seeds += [(spots[0][0], spots[0][1], f * m) for f in HIGHLIGHT_SEED_SIZES if f * m >= MIN_RADIUS_PX]
     if not seeds:
         return BallFit(0, 0, 0, False, "no ball: no circular edge in the image")
-    fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg)
-    return _choose(fits, lum if highlight else None, g, clipped, spots[0] if spots else None)
+    fits = _fits(lum, g, _candidates(g, seeds, spots), fov_deg, curve, mirror=highlight)
+    return _choose(fits, lum if highlight else None, g, clipped, spots[0] if spots else None, curve)
 
 
 def _candidates(g, seeds, spots) -> list[dict]:
@@ -173,11 +183,12 @@ def _candidates(g, seeds, spots) -> list[dict]:
     return loose
 
 
-def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
+def _fits(lum, g, circles, fov_deg, curve=None, mirror=True) -> list[BallFit]:
     """Steps 3–4: the circles fitted sub-pixel, the best supported of twins kept."""
     fits: list[BallFit] = []
+    outline = _Outline(g, fov_deg, curve, mirror)
     for c in circles:
-        f = _subpixel(lum, g, _NOISE, c, fov_deg)
+        f = _subpixel(lum, g, _NOISE, c, fov_deg, outline)
         if not np.isfinite(f.residual_px):
             continue
         twin = [i for i, o in enumerate(fits) if _same(f, o)]
@@ -188,7 +199,7 @@ def _fits(lum, g, circles, fov_deg) -> list[BallFit]:
     return fits
 
 
-def _choose(fits: list[BallFit], lum, g, clipped, spot) -> BallFit:
+def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None) -> BallFit:
     """Step 5: the ball among the fitted circles, with why it may not be (``spot``: the
     flash's highlight (x, y), the largest clipped blob, or None; ``lum``: the linear
     luminance of a mirror-ball photo, None for a white ball)."""
@@ -213,7 +224,7 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot) -> BallFit:
             balls.append(f)
     best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, fits, lum, g, clipped)
+    doubt = _doubt(best, fits, lum, g, clipped, curve)
     if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
@@ -244,7 +255,7 @@ def _off_centre(f: BallFit, spot) -> float:
     return float(np.hypot(spot[0] - f.cx, spot[1] - f.cy) / max(f.r, 1e-9))
 
 
-def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped) -> str:
+def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped, curve=None) -> str:
     """Why ``best``, while its own fit is confident, may not be the ball ('' if nothing speaks
     against it): clipped pixels just outside it, a rim that is not a mirror's (``lum``: the
     linear luminance of a mirror-ball photo, :func:`_unreflected`), or a fainter circle around it (among the
@@ -262,13 +273,22 @@ def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped) -> str:
         return (f"the outline found ({best.summary()}) is a thin line with the same level on both sides "
                 f"(it rises {ridge:.0f} noise σ and steps {step:.1f}): a ring on the backdrop, not the ball's edge")
     if lum is not None:
-        share, way = _unreflected(lum, best)
+        share, way = _unreflected(lum, best, curve=curve)
         if share >= NOT_MIRROR:
             return (f"just inside the outline found ({best.summary()}) the image is {way} than a mirror ball's rim "
                     f"can be on {100 * share:.0f}% of it (a mirror's rim reflects the backdrop beyond its outline): "
                     "a disc or band on the backdrop, not the ball's edge")
-    outer = [(f.r, f.support) for f in fits if f.r > best.r + 2 and _concentric(f, best) and f.support >= LOOSE_SUPPORT]
-    outer += _outer_edges(g, best)
+    around = [f for f in fits if f.r > best.r + 2 and _concentric(f, best)]
+    if lum is not None:
+        # on the image stabilised by the honest noise level (noise_curve's isotonic fit): with
+        # the lower envelope, a render's smooth bright reflections can set the noise of its
+        # backdrop several times too low, and every circle round the ball then has "edges"
+        # (tv24x3: on 70–90 % of every circle 5 px to 1.4 radii out; 4–13 % with the honest level)
+        g = stabilise(lum, isotonic=True)
+        around = [(f.r, _support(g, _NOISE, f.cx, f.cy, f.r)[0]) for f in around]
+    else:
+        around = [(f.r, f.support) for f in around]
+    outer = [(r, sup) for r, sup in around if sup >= LOOSE_SUPPORT] + _outer_edges(g, best)
     if not outer:
         return ""
     r, sup = max(outer, key=lambda o: o[1])
@@ -295,7 +315,7 @@ def _line_profile(g, f: BallFit) -> tuple[float, float]:
     return float(np.median(ridge)), float(np.median(np.abs(out - inn)))
 
 
-def _unreflected(lum, f: BallFit) -> tuple[float, str]:
+def _unreflected(lum, f: BallFit, both=False, curve=None) -> tuple:
     """(fraction, "brighter" or "darker"): the share of the 8° sectors of the outline ``f``
     (inside the frame) whose rim — the band 1–2 px inside — a mirror ball could not show.  At
     its silhouette a mirror ball's reflected rays graze it: the rim shows the backdrop *beyond*
@@ -309,22 +329,31 @@ def _unreflected(lum, f: BallFit) -> tuple[float, str]:
     every sector breaks the bound.  A true rim may reflect backdrop from further out, brighter
     or darker (a checked backdrop's squares, another lamp's light): up to 33 % of the sectors
     on the tune probes (make_probes' TUNING, found; varied_probes' tune half, true circle), 38 %
-    on the CHECK probes (found; read after choosing ``NOT_MIRROR``)."""
-    x, sg = noise_curve(lum)
+    on the CHECK probes (found; read after choosing ``NOT_MIRROR``).  ``both``: (brighter
+    share, darker share) instead; ``curve``: :func:`noise_curve` of ``lum``, if known."""
+    x, sg = curve if curve is not None else noise_curve(lum)
     ts = np.arange(f.r - 2, 2 * f.r + 1 + 1e-9, 0.5)
     prof, _, valid = _polar(lum, f.cx, f.cy, ts)
     prof, valid = _sectors(prof, valid)
     rim, out = ts <= f.r - 1, ts >= f.r + 1
     ok = valid[:, rim].all(1) & (valid[:, out].sum(1) >= 4)
     if not ok.any():
-        return 0.0, ""
+        return (0.0, 0.0) if both else (0.0, "")
     a = prof[ok][:, rim].mean(1)
     beyond = np.where(valid[ok][:, out], prof[ok][:, out], np.nan)
     # the rim band's noise: one pixel's σ over the ~0.14 r pixels of an 8° arc
     tol = 3.0 * np.interp(a, x, sg) / np.sqrt(max(0.14 * f.r, 1.0))
     brighter = float(np.mean(a > np.nanmax(beyond, 1) + tol))
     darker = float(np.mean(a < MIN_REFLECTANCE * np.nanmin(beyond, 1) - tol))
+    if both:
+        return brighter, darker
     return max((brighter, "brighter"), (darker, "darker"))
+
+
+def _darker_share(lum, f, curve=None) -> float:
+    """The share of ``f``'s sectors whose rim is darker than a mirror's can be
+    (:func:`_unreflected`)."""
+    return _unreflected(lum, f, both=True, curve=curve)[1] if f.r > 2 else 0.0
 
 
 def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:
@@ -341,11 +370,18 @@ def _outer_edges(g, best: BallFit) -> list[tuple[float, float]]:
 
 # ---------------------------------------------------------------------------------------------
 
-def noise_curve(lum, bins=24, min_count=30):
+def noise_curve(lum, bins=24, min_count=30, isotonic=False):
     """(levels, σ) of the pixel noise of a linear image against brightness: the robust spread
     (MAD) of 2×2 second differences in brightness bins spaced evenly in log, made non-
     decreasing by its lower envelope (the noise of a camera grows with the signal; texture only
-    inflates a bin).  The clipped plateau is left out."""
+    inflates a bin).  The clipped plateau is left out.
+
+    ``isotonic``: made non-decreasing instead by the nearest non-decreasing curve weighted by the
+    bins' pixel counts.  The lower envelope lets a few smooth bright pixels set the noise of every
+    darker level: on a render, whose Monte Carlo noise does not grow with the signal, a mirror
+    ball's smooth bright reflections (0.1 % of tv42x3's pixels) set its backdrop's noise 7 × too
+    low.  The finder's thresholds (``EDGE_SNR``, the supports) were set with the envelope, so it
+    stays the default; :func:`_doubt` looks for circles round the ball with the isotonic one."""
     from scipy import ndimage
 
     d = (lum[1:, 1:] - lum[1:, :-1] - lum[:-1, 1:] + lum[:-1, :-1]) / 2.0   # σ of one pixel
@@ -359,26 +395,32 @@ def noise_curve(lum, bins=24, min_count=30):
     hi = max(float(lev.max()), lo * 1.001)
     edges = np.geomspace(lo, hi, bins + 1)
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
-    x, sg = [], []
+    x, sg, n = [], [], []
     for b in range(bins):
         sel = idx == b
         if sel.sum() >= min_count:
             x.append(float(np.median(lev[sel])))
             sg.append(1.4826 * float(np.median(np.abs(d[sel]))))
+            n.append(int(sel.sum()))
     if not x:
         sg0 = max(1.4826 * float(np.median(np.abs(d))), 1e-12)
         return np.array([0.0, max(top, 1e-12)]), np.full(2, sg0)
-    x, sg = np.array(x), np.array(sg)
-    sg = np.minimum.accumulate(sg[::-1])[::-1]                 # lower non-decreasing envelope
+    x, sg, n = np.array(x), np.array(sg), np.array(n, float)
+    if isotonic:
+        from scipy.optimize import isotonic_regression
+
+        sg = isotonic_regression(sg, weights=n).x            # nearest non-decreasing, by pixel count
+    else:
+        sg = np.minimum.accumulate(sg[::-1])[::-1]                 # lower non-decreasing envelope
     sg = np.maximum(sg, 1e-4 * max(float(np.percentile(lum, 99.5)), 1e-12))
     return x, sg
 
 
-def stabilise(lum):
+def stabilise(lum, isotonic=False, curve=None):
     """Brightness transformed so that the pixel noise has unit σ at every level:
     T(x) = ∫ dx / σ(x) with σ from :func:`noise_curve` (a generalised Anscombe transform;
     monotone, so edges stay edges and a step's height in T is its height in noise σ)."""
-    x, sg = noise_curve(lum)
+    x, sg = curve if curve is not None else noise_curve(lum, isotonic=isotonic)
     grid = np.concatenate([[0.0], np.geomspace(max(x[0] * 1e-3, 1e-12), max(float(lum.max()), x[-1]) * 1.01, 512)])
     sgrid = np.interp(grid, x, sg)
     t = np.concatenate([[0.0], np.cumsum(np.diff(grid) * 0.5 * (1 / sgrid[1:] + 1 / sgrid[:-1]))])
@@ -625,12 +667,19 @@ def _contains(outer, inner):
     return _concentric(outer, inner) or np.hypot(ox - ix, oy - iy) + ir <= orr + 1.0
 
 
-def _subpixel(lum, g, noise, c, fov_deg):
-    """Sub-pixel silhouette: per sector of rays, the steepest point of the (sector-averaged)
-    linear luminance profile within 1.5 px of the circle (parabolic peak of the gradient);
-    robust circle (or cone) fit; iterated from the candidate circle."""
+def _subpixel(lum, g, noise, c, fov_deg, outline=None):
+    """Sub-pixel silhouette, in two passes.  (a) Per sector of rays, the steepest point of the
+    (sector-averaged) linear luminance profile within 1.5 px of the circle (parabolic peak of
+    the gradient); robust circle (or cone) fit; iterated from the candidate circle.  (b) The
+    outline polished (:class:`_Outline`): from the candidate and from (a), the circle (cone)
+    along which the stabilised image's radial gradient is strongest, sector by sector — the
+    rim's step, averaged round the whole outline, stands out of the noise where no single
+    sector's does, and the nearest edge of (a) may be one of the reflection just inside.  Its
+    support, gap and residual are read from the edges about the polished outline.  (b) is
+    taken where (a) is not confident (where it is, its answers are kept as they were)."""
     h, w = lum.shape
     cx, cy, r = _xyr(c)
+    good = np.zeros(0, bool)
     for it in range(8):
         te, ang, inside = _sector_edges(lum, g, noise, cx, cy, r, it)
         good = np.isfinite(te)
@@ -642,15 +691,185 @@ def _subpixel(lum, g, noise, c, fov_deg):
         cx, cy, r = nc
         if moved < 0.01 and it > 0:
             break
-    if good.sum() < 8:
-        return BallFit(float(cx), float(cy), float(r), False, "too few edge points on the outline")
-    rms = float(np.sqrt(np.mean(res[keep] ** 2)))
-    # support: sectors (inside the frame) whose edge is on the fitted outline and significant
-    _, _, on = _support(g, noise, cx, cy, r)
-    res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
-    fit = _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
-    fit.sigma_px = rms * np.sqrt(2.0 / max(int(keep.sum()), 1))
-    return fit
+    if good.sum() >= 8:
+        rms = float(np.sqrt(np.mean(res[keep] ** 2)))
+        # support: sectors (inside the frame) whose edge is on the fitted outline and significant
+        _, _, on = _support(g, noise, cx, cy, r)
+        res = _residual(ex, ey, (cx, cy, r), w, h, fov_deg)
+        fit = _verdict(cx, cy, r, on & good & (np.abs(res) <= SNAP_PX), inside, rms, w, h)
+        fit.sigma_px = rms * np.sqrt(2.0 / max(int(keep.sum()), 1))
+        if fit.confident:
+            return fit
+    else:
+        fit = BallFit(float(cx), float(cy), float(r), False, "too few edge points on the outline")
+    # (b) where (a) does not close, the polished outline
+    outline = outline if outline is not None else _Outline(g, fov_deg)
+    starts = [_xyr(c)] + ([(cx, cy, r)] if good.sum() >= 8 and np.all(np.isfinite((cx, cy, r))) else [])
+    polished = max((outline.polish(s) for s in starts), key=outline.score)
+    if outline.score(polished) <= 0:
+        return fit
+    p = outline.verdict(g, noise, polished, w, h)
+    p.polished = True
+    if p.confident and outline.mirror:
+        dk = _darker_share(lum, p, outline.curve)
+        if dk >= MAX_DARKER_SHARE:
+            p.confident = False
+            p.reason = (f"just inside the outline found ({p.summary()}) the image is darker than a mirror ball's rim "
+                        f"can be on {100 * dk:.0f}% of it (a mirror's rim reflects the backdrop beyond its outline): "
+                        "the edge of the ball's cast shadow, not its silhouette")
+    return p if p.confident or p.support >= fit.support else fit
+
+
+#: a sector's radial gradient (stabilised image: noise σ per pixel) counts up to this in the
+#: outline's score, so that a few sectors against a bright lamp or a deep shadow do not outweigh
+#: the rest of the outline
+SCORE_CAP = 3.0
+#: a polished outline (mirror ball) whose rim — the band 1–2 px inside — is darker than a mirror's
+#: rim can be (:func:`_unreflected`) on this share of its sectors follows a cast shadow's edge
+#: along a side: not taken.  Set on the tune half at 3×: tv25 (27 %, 2.4 px off: 5.4° with exit 0
+#: without it) and tv33 (18 %, 1.3 px off: 1.1°); the true circles there 0 % and 16 % or less
+MAX_DARKER_SHARE = 0.1
+#: the polishing search's steps (px): centre and radius each way, halving
+POLISH_STEPS_PX = (2.0, 1.0, 0.5, 0.25, 0.125)
+
+
+class _Outline:
+    """A ball's outline scored on an image: the mean over the 8° sectors inside the frame of the
+    sector-averaged radial gradient |∇g·n| (capped at ``SCORE_CAP``) along the outline of the
+    circle (cx, cy, r) — with ``fov_deg``, of the cone tangent to the sphere whose projected
+    centre and radius they are (ProbeLight's convention) — on the stabilised image ``g``
+    smoothed by a 1-px Gaussian.  Averaging the rim's step along the whole outline finds it where
+    it is a fraction of the noise in every sector (benchmarks/bench_paris_outline_polish.py:
+    varied_probes' tune half at 3×, from 2 px off, within 0.35 px of the true circle on 7 of 12
+    probes, 0.55–0.78 px on two; on a stronger outline beside the rim on three, 1.4–3.6 px off)."""
+
+    def __init__(self, g, fov_deg, curve=None, mirror=True):
+        from scipy import ndimage
+
+        from nodes.common.filters import gaussian_blur   # (SciPy: the same bytes on every CPU)
+
+        self.curve, self.mirror = curve, mirror
+        gb = gaussian_blur(np.asarray(g, np.float32), 1.0)
+        self.gx = ndimage.sobel(gb, axis=1, mode="reflect") / np.float32(8)
+        self.gy = ndimage.sobel(gb, axis=0, mode="reflect") / np.float32(8)
+        self.h, self.w = g.shape
+        self.fov_deg = fov_deg
+
+    def points(self, c, n=N_RAYS):
+        """(x, y, nx, ny): n points of the outline of c and their outward unit normals."""
+        x, y, nx, ny = self.points_many([c], n)
+        return x[0], y[0], nx[0], ny[0]
+
+    def points_many(self, cs, n=N_RAYS):
+        """:meth:`points` of several circles → arrays (circles, n)."""
+        cs = np.asarray(cs, float).reshape(-1, 3)
+        cx, cy, r = cs[:, :1], cs[:, 1:2], cs[:, 2:3]
+        phi = np.arange(n) * 2 * np.pi / n
+        if self.fov_deg is None:
+            x, y = cx + r * np.cos(phi), cy + r * np.sin(phi)
+        else:
+            f = 0.5 * self.h / np.tan(np.radians(self.fov_deg) / 2)
+            a = np.stack([(cs[:, 0] - 0.5 * self.w) / f, (cs[:, 1] - 0.5 * self.h) / f, np.ones(len(cs))], 1)
+            dist = np.linalg.norm(a, axis=1, keepdims=True)
+            a = a / dist
+            al = np.arctan(cs[:, 2:3] / (f * dist))
+            # e1 = y × a, e2 = a × e1: an orthonormal frame about the cone's axis
+            e1 = np.stack([a[:, 2], np.zeros(len(cs)), -a[:, 0]], 1)
+            e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+            e2 = np.cross(a, e1)
+            cp, sp = np.cos(phi)[None, :, None], np.sin(phi)[None, :, None]
+            d = np.cos(al)[:, :, None] * a[:, None] + np.sin(al)[:, :, None] * (cp * e1[:, None] + sp * e2[:, None])
+            x = f * d[..., 0] / d[..., 2] + 0.5 * self.w
+            y = f * d[..., 1] / d[..., 2] + 0.5 * self.h
+        nx, ny = x - cx, y - cy
+        nn = np.maximum(np.hypot(nx, ny), 1e-9)
+        return x, y, nx / nn, ny / nn
+
+    def sectors(self, c, offsets=(0.0,)):
+        """(sector-averaged ∇g·n at each offset (px) along the normal, (sectors, offsets);
+        sectors inside the frame)."""
+        from scipy import ndimage
+
+        x, y, nx, ny = self.points(c)
+        o = np.asarray(offsets, float)[None]
+        xs, ys = x[:, None] + o * nx[:, None], y[:, None] + o * ny[:, None]
+        valid = ((xs >= 1) & (xs <= self.w - 2) & (ys >= 1) & (ys <= self.h - 2)).all(1)
+        vx = ndimage.map_coordinates(self.gx, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
+        vy = ndimage.map_coordinates(self.gy, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
+        s = vx * nx[:, None] + vy * ny[:, None]
+        n_sec = len(x) // RAYS_PER_SECTOR
+        return (s.reshape(n_sec, RAYS_PER_SECTOR, -1).mean(1),
+                valid.reshape(n_sec, RAYS_PER_SECTOR).all(1))
+
+    def scores(self, cs) -> np.ndarray:
+        """:meth:`score` of several circles, sampled together."""
+        from scipy import ndimage
+
+        cs = [tuple(c) for c in cs]
+        ok = np.array([bool(np.all(np.isfinite(c))) and c[2] >= 2 for c in cs])
+        out = np.zeros(len(cs))
+        if not ok.any():
+            return out
+        x, y, nx, ny = (v.ravel() for v in self.points_many([c for c, k in zip(cs, ok) if k]))
+        vx = ndimage.map_coordinates(self.gx, [y - 0.5, x - 0.5], order=1, mode="nearest")
+        vy = ndimage.map_coordinates(self.gy, [y - 0.5, x - 0.5], order=1, mode="nearest")
+        valid = (x >= 1) & (x <= self.w - 2) & (y >= 1) & (y <= self.h - 2)
+        n_sec = N_RAYS // RAYS_PER_SECTOR
+        sec = np.abs((vx * nx + vy * ny).reshape(-1, n_sec, RAYS_PER_SECTOR).mean(2))
+        v = valid.reshape(-1, n_sec, RAYS_PER_SECTOR).all(2)
+        sc = np.where(v, np.minimum(sec, SCORE_CAP), 0.0).sum(1) / np.maximum(v.sum(1), 1)
+        out[ok] = np.where(v.mean(1) >= MIN_IN_FRAME, sc, 0.0)
+        return out
+
+    def score(self, c) -> float:
+        return float(self.scores([c])[0])
+
+    def polish(self, c):
+        """The local maximum of :meth:`score` from c (centre and radius searched each way in
+        steps of ``POLISH_STEPS_PX``)."""
+        best = np.array(c, float)
+        fb = self.score(best)
+        moves = np.vstack([np.eye(3), -np.eye(3)])
+        for step in POLISH_STEPS_PX:
+            for _ in range(200):
+                cand = best[None] + moves * step
+                fs = self.scores(cand)
+                i = int(np.argmax(fs))
+                if fs[i] <= fb + 1e-9:
+                    break
+                best, fb = cand[i], fs[i]
+        return tuple(float(v) for v in best)
+
+    def verdict(self, g, noise, c, w, h) -> BallFit:
+        """The polished outline c with its support (sectors whose significant step lies within
+        ``SNAP_PX`` of it), largest gap, and residual (RMS offset along the normal of each
+        sector's steepest point within 1.5 px, outliers over 3 MAD out)."""
+        ts = np.arange(-2.0, 2.0 + 1e-9, 0.25)
+        s, inside = self.sectors(c, ts)
+        a = np.abs(s)
+        band = np.abs(ts) <= 1.5
+        k = np.argmax(np.where(band[None], a, -1), axis=1)
+        kk = np.clip(k, 1, len(ts) - 2)
+        rows = np.arange(len(a))
+        gm, g0, gp = a[rows, kk - 1], a[rows, kk], a[rows, kk + 1]
+        den = gm - 2 * g0 + gp
+        off = np.where(den < 0, 0.5 * (gm - gp) / np.where(den == 0, 1, den), 0.0)
+        e = ts[kk] + np.clip(off, -1, 1) * (ts[1] - ts[0])
+        _, _, on = _support(g, noise, *c)
+        good = inside & on
+        keep = good.copy()
+        for _ in range(5):
+            if keep.sum() < 3:
+                break
+            mad = 1.4826 * np.median(np.abs(e[keep])) + 0.05
+            new = good & (np.abs(e) < max(3 * mad, 0.3))
+            if new.sum() < 3 or np.array_equal(new, keep):
+                break
+            keep = new
+        rms = float(np.sqrt(np.mean(e[keep] ** 2))) if keep.any() else float("inf")
+        fit = _verdict(c[0], c[1], c[2], good & (np.abs(e) <= SNAP_PX), inside, rms, w, h)
+        fit.sigma_px = rms * np.sqrt(2.0 / max(int(keep.sum()), 1))
+        return fit
 
 
 def _sector_edges(lum, g, noise, cx, cy, r, it):

@@ -93,7 +93,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "11"
+    version = "12"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",
@@ -709,7 +709,10 @@ def _moved_by(px: np.ndarray, blob: np.ndarray, fov_deg, circle, others) -> floa
 #: rim's reflection along a whole side: its centre may then be off by up to ``BIAS_PER_RMS`` × that
 #: residual (tune half of varied_probes.py at 1–3× its size: the ball's fits with residuals up to
 #: 0.3 px were within 1.3× of it from the true centre; above, up to 2.3×, where the standard
-#: error said 10× less) …
+#: error said 10× less) — and so may a *polished* outline (``ballfind._Outline``: the strongest
+#: circle near where the sector fit did not close), however small its residual: a stronger edge
+#: beside the rim pulls it along a side (varied check half at 2×: cv13x2, 0.26 px off with a small
+#: residual, 1.12° with exit 0 under the standard error alone) …
 CLEAN_RMS_PX = 0.3
 BIAS_PER_RMS = 2.5
 #: … and the flash's direction may move by at most this much (degrees) for it: the 1° a found
@@ -720,11 +723,13 @@ MAX_BIAS_DEG = 0.75
 def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None, port: str = "probe"):
     """BadInput (exit 2) when the found ball's uncertainty (:func:`_direction_doubt`) moves the
     flash's direction by more than ``MAX_DOUBT_DEG``, or a bias of ``BIAS_PER_RMS`` × its
-    residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`)."""
+    residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`; for an outline whose edges
+    scatter over ``CLEAN_RMS_PX``, and for every polished one)."""
     if blob is None:
         blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
     doubt = _direction_doubt(px, fit, fov_deg, blob)
-    bias = _bias_doubt(px, fit, fov_deg, blob) if CLEAN_RMS_PX < fit.residual_px < np.inf else 0.0
+    bias = _bias_doubt(px, fit, fov_deg, blob) if (CLEAN_RMS_PX < fit.residual_px or fit.polished) and \
+        fit.residual_px < np.inf else 0.0
     if doubt <= MAX_DOUBT_DEG and bias <= MAX_BIAS_DEG:
         return
     if doubt > MAX_DOUBT_DEG and fit.rivals:
