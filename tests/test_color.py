@@ -1,4 +1,6 @@
-"""nodes.common.color's local CIELAB gives colour-science's bits."""
+"""nodes.common.color's local CIELAB gives colour-science's values, to the last bits: the two
+multiply the sRGB → XYZ matrices in another order of BLAS calls, which round alike on an AVX-512
+machine (the same bits there) and up to 1.2e-13 apart (L*, a*, b* ≈ 0–100) on an AVX2 one."""
 import warnings
 
 import numpy as np
@@ -15,4 +17,6 @@ def test_lab_same_bits_as_colour():
     for x in (rng.random((50000, 3)) * 2, rng.random((5000, 3)) ** 6, rng.random((7, 4, 3)),
               np.zeros((2, 3)), np.eye(3)):
         want = colour.XYZ_to_Lab(linear_srgb_to_xyz(x), white)
-        assert np.array_equal(linear_srgb_to_lab(x), want)
+        got = linear_srgb_to_lab(x)
+        assert got.shape == want.shape
+        assert np.abs(got - want).max() <= 1e-12, np.abs(got - want).max()
