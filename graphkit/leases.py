@@ -19,7 +19,8 @@ processes, Dask workers on other machines) compute each key once and ``cache gc`
   finished (a run that meets one looks the record up and does not wait), and ``cache gc``
   removes it.  A lease whose expiry has passed
   (its owner died, or lost the store for a whole ttl) is broken by the next run that wants it,
-  which says once what it waits for.  Where a file system has no exclusive create, the lease is
+  which says once what it waits for; so is at once one whose owner ran on this machine (its host
+  name) and is gone (:func:`dead_here`).  Where a file system has no exclusive create, the lease is
   written and read back after a pause (a documented weaker mode: two runs may then both win and
   compute a key twice, never a wrong result).  Expiry times are the owner's clock: the machines
   sharing a cache must agree on the time within a few seconds (NTP).
@@ -79,7 +80,27 @@ def read_lease(fs, path: str) -> dict | None:
 
 
 def alive(cur: dict | None) -> bool:
-    return bool(cur) and cur.get("expires", 0) >= time.time()
+    """Whether a lease's owner may still hold it: its expiry has not passed, and it is not known
+    dead — an owner on this machine whose process is gone (:func:`dead_here`) is not waited for."""
+    return bool(cur) and cur.get("expires", 0) >= time.time() and not dead_here(cur)
+
+
+def dead_here(cur: dict) -> bool:
+    """Whether the lease was written by a process of this machine (its host name) that no longer
+    runs: a run killed here, or one that finished and left its key's lease (finished, see the
+    module docstring) before that key's record went to quarantine.  A live process with that pid
+    (a reused one), another user's, or another host's owner: not known dead (the ttl decides).  Two
+    machines sharing a host name would at worst compute a key twice, never a wrong result."""
+    pid = cur.get("pid")
+    if cur.get("host") != socket.gethostname() or not isinstance(pid, int) or pid <= 0 or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # (PermissionError: it runs, as another user)
+        return False
+    return False
 
 
 class Lease:
@@ -183,7 +204,8 @@ class Lease:
             if self.done is not None and self.done():
                 return  # a finished lease left behind: nothing to wait for, nothing held
             cur = self._read()
-            if not said and self.on_wait is not None and cur is not None:
+            if not said and self.on_wait is not None and cur is not None and (cur == {} or alive(cur)):
+                # (one expired, or whose owner is known dead, is broken below: nothing to wait for)
                 said = True
                 self.on_wait(cur, self.ttl)
             self._break_if_stale(cur)

@@ -107,6 +107,8 @@ def test_a_forged_output_digest_is_damage_on_s3(s3, url, tmp_path, write, digest
     s3.put(rk, b"GKREC1 " + xxhash.xxh3_128_hexdigest(body).encode() + b"\n" + body)
     r = gk(s3, "run", g, "--cache", url, "--out", tmp_path / "o")
     assert r.returncode == 0 and "not one" in r.stderr, r.stderr
+    # the key's lease, left finished by the first run (gone), is not waited for
+    assert "waits for lease" not in r.stderr, r.stderr
     assert gk(s3, "cache", "gc", "--cache", url, "--max-size", "0").returncode == 0
     assert s3.keys("other/") == {"other/notes.txt": b"not the cache's"}
 
@@ -258,6 +260,26 @@ def test_a_dead_owners_lease_costs_seconds_and_the_wait_is_said_once(s3, url, tm
     assert len(said) == 1 and "node x" in said[0] and f"{kx}.lock" in said[0] and "gone:4242" in said[0], r.stderr
     assert "10 s" in said[0]
     assert 8 < took < 25, took
+
+
+def test_a_lease_of_a_process_gone_from_this_machine_is_not_waited_for(s3, url, tmp_path, write):
+    """The same lease as above, but its owner ran on this machine (its host name) and its process
+    is gone: broken at once, no wait said (a lease of another host's owner waits, above)."""
+    import socket
+
+    g = write("g.yaml", TWO)
+    m = run_ok(s3, g, url, tmp_path / "o")["nodes"]
+    assert gk(s3, "cache", "gc", "--cache", url, "--max-size", "0").returncode == 0
+    kx = m["x"]["key"]
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    lease = f"{url.split('/', 2)[2]}/locks/{kx[:2]}/{kx}.lock"
+    s3.put(lease.split("/", 1)[1], json.dumps({"token": "dead", "host": socket.gethostname(),
+                                               "pid": int(gone.stdout), "expires": time.time() + 10}).encode())
+    t = time.monotonic()
+    r = gk(s3, "run", g, "--cache", url, "--out", tmp_path / "o")
+    took = time.monotonic() - t
+    assert r.returncode == 0 and "waits for lease" not in r.stderr, r.stderr
+    assert took < 6, took
 
 
 def test_a_slow_owner_that_renews_is_never_broken(s3, url):
