@@ -30,6 +30,32 @@ def _auto(img, fov_deg):
         return None, e
 
 
+def _found_once(monkeypatch):
+    """From here on, ProbeLight's ball finder answers an image as it did the first time while
+    its settings stay the same (a later call that changes only ProbeLight's own checks skips a
+    3–5 s search at 3×).  → {image key: its fit}."""
+    import copy
+    import hashlib
+
+    from nodes.paris import ballfind
+
+    find, seen = ballfind.find_ball, {}
+
+    def once(px, fov_deg=None, highlight=True):
+        # the image's values (ProbeLight passes float64, a test the render's float32: the finder
+        # reads both as float64), the arguments and the finder's settings (a test that changes
+        # one of its constants, or its stabilise, gets a new search)
+        settings = tuple((n, repr(v)) for n, v in sorted(vars(ballfind).items()) if n.isupper())
+        key = (hashlib.sha1(np.ascontiguousarray(px, np.float64)).hexdigest(), px.shape, fov_deg, highlight,
+               settings, ballfind.stabilise)
+        if key not in seen:
+            seen[key] = find(px, fov_deg, highlight=highlight)
+        return copy.deepcopy(seen[key])
+
+    monkeypatch.setattr(ballfind, "find_ball", once)
+    return seen
+
+
 def test_check_half_found_or_refused(record_property):
     from nodes.paris.data import make_probes as mp
     from nodes.paris.data.varied_probes import varied
@@ -58,11 +84,12 @@ def _at(half, name, scale):
     return next(s for s in varied(half, n=48, scale=scale) if s.name == (f"{name}x{scale}" if scale > 1 else name))
 
 
-@pytest.mark.parametrize("name", ["tv16", "tv40"])
+@pytest.mark.parametrize("name", ["tv40"])
 def test_found_at_three_times_the_size(name):
-    """The same scenes rendered at 3× (1152×864 and 1344×1008 px; balls of 116 and 156 px):
-    the ball is found — an outline partly closed (edges on 78 % of it) but tight on the circle
-    (residual 0.2 px), its direction's bias bound under 0.75° — within 1° (0.04° and 0.08°)."""
+    """The same scene rendered at 3× (1344×1008 px; a ball of 156 px): the ball is found — an
+    outline partly closed (edges on 78 % of it) but tight on the circle (residual 0.2 px), its
+    direction's bias bound under 0.75° — within 1° (0.08°; tv16 at 3×, the same case, 0.04°:
+    benchmarks/bench_paris_probes.py)."""
     from nodes.paris.data import make_probes as mp
 
     spec = _at("tune", name, 3)
@@ -82,6 +109,7 @@ def test_biased_outline_refused(monkeypatch):
 
     spec = _at("tune", "tv02", 2)
     img = mp.render(spec)
+    _found_once(monkeypatch)
     direction, refusal = _auto(img, spec.fov_deg)
     assert direction is None and refusal.port == "probe", direction
     assert "too small in the photo" in refusal.message and "centre_x, centre_y and radius" in refusal.message
@@ -203,6 +231,7 @@ def test_outline_polished_where_the_sector_fit_does_not_close(monkeypatch):
 
     spec = _at("tune", "tv08", 3)
     img = mp.render(spec)
+    _found_once(monkeypatch)
     fit = ballfind.find_ball(img, spec.fov_deg)
     assert fit.confident and fit.polished, fit.reason
     direction, refusal = _auto(img, spec.fov_deg)
@@ -226,6 +255,7 @@ def test_polished_outline_along_a_cast_shadow_refused(monkeypatch):
 
     spec = _at("tune", "tv25", 3)
     img = mp.render(spec)
+    _found_once(monkeypatch)
     direction, refusal = _auto(img, spec.fov_deg)
     assert direction is None and refusal.port == "probe", direction
     assert "cast shadow" in refusal.message and "centre_x, centre_y and radius" in refusal.message
@@ -270,6 +300,7 @@ def test_polished_outline_bounded_by_its_residual(monkeypatch):
 
     spec = _at("check", "cv13", 2)
     img = mp.render(spec)
+    _found_once(monkeypatch)
     fit = ballfind.find_ball(img, spec.fov_deg)
     assert fit.confident and fit.polished and fit.residual_px <= probe_mod.CLEAN_RMS_PX, fit.summary()
     direction, refusal = _auto(img, spec.fov_deg)

@@ -139,7 +139,7 @@ def test_bad_inputs(renders):
 # --- through the pipeline: ReflectanceMap → ShininessFromSaturation (issue 11 item 5) -----------
 PIPE_SIZE = 512
 PIPE_D = 100.0                # camera → sphere centre, in sphere radii (a far pinhole)
-PIPE_EXPONENTS = (5, 10, 15, 30, 60, 120, 150)
+PIPE_EXPONENTS = (5, 15, 60, 150)   # (the map-level test above: 5–150 in six steps)
 RED_CLIP_GAIN = 1.4           # light × 1.4: the red channel clips at the highlight, green and blue not
 
 
