@@ -86,8 +86,11 @@ def _refused(img, flash, why):
 
 
 def _taken_without(img, flash, monkeypatch):
-    """With the mirror-rim rule off, ``img``'s outline is taken and answered more than 1° off."""
+    """With the mirror-rim rule off, ``img``'s outline is taken and answered more than 1° off
+    (and with the cast-shadow veto off: a dark disc's rim, darker all round, is refused by it
+    too once NOT_MIRROR no longer takes it, ProbeLight 13)."""
     monkeypatch.setattr(ballfind, "NOT_MIRROR", 2.0)
+    monkeypatch.setattr(ballfind, "MAX_DARKER_SHARE", 2.0)
     direction, _ = _auto(img)
     assert direction is not None and _angle(direction, flash) > 1.0
 

@@ -27,7 +27,8 @@ class ProbeLight(Node):
       it is not sure (no closed outline, a poor fit, the ball cut by the frame, an outline that
       is a thin line on the backdrop rather than a step (a printed ring around the ball), a
       rim brighter or darker than a mirror's rim can be (a disc or band printed around the
-      ball: a mirror's rim reflects the backdrop beyond its outline), or
+      ball: a mirror's rim reflects the backdrop beyond its outline), a rim darker than that on
+      a side (``ballfind.MAX_DARKER_SHARE``: the edge of the ball's cast shadow), or
       the circle's standard error ×2 or a rival outline moving the flash's direction by more
       than ``MAX_DOUBT_DEG``, or, for an outline whose edges scatter over ``CLEAN_RMS_PX``, a
       bias of ``BIAS_PER_RMS`` × that scatter moving it by more than ``MAX_BIAS_DEG``: the ball
@@ -93,7 +94,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "12"
+    version = "13"
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",

@@ -308,3 +308,23 @@ def test_polished_outline_bounded_by_its_residual(monkeypatch):
     monkeypatch.setattr(probe_mod, "_bias_doubt", lambda *a, **k: 0.0)
     direction, refusal = _auto(img, spec.fov_deg)
     assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
+
+
+def test_sector_fit_along_a_cast_shadow_refused(monkeypatch):
+    """tv33 at 1× (a 45-px ball, its cast shadow beside it): the sector fit closes with a small
+    residual (0.20 px) 0.53 px off the true centre, along the shadow's edge on one side, and the
+    flash came back 1.31° off with exit 0 (ProbeLight 7–12).  Inside that outline the image is
+    darker than a mirror's rim can be on 20 % of it — the veto that ProbeLight 12 applied to
+    polished outlines only, ProbeLight 13 to every mirror-ball outline: refused, naming the
+    params; with the veto off it comes back over 1° off again."""
+    from nodes.paris import ballfind
+    from nodes.paris.data import make_probes as mp
+
+    spec = _at("tune", "tv33", 1)
+    img = mp.render(spec)
+    direction, refusal = _auto(img, spec.fov_deg)
+    assert direction is None and refusal.port == "probe", direction
+    assert "cast shadow" in refusal.message and "centre_x, centre_y and radius" in refusal.message
+    monkeypatch.setattr(ballfind, "MAX_DARKER_SHARE", 1.01)
+    direction, refusal = _auto(img, spec.fov_deg)
+    assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
