@@ -878,8 +878,7 @@ class _Outline:
         for _ in range(5):
             if keep.sum() < 3:
                 break
-            mad = 1.4826 * np.median(np.abs(e[keep])) + 0.05
-            new = good & (np.abs(e) < max(3 * mad, 0.3))
+            new = _inliers(e, good, keep)
             if new.sum() < 3 or np.array_equal(new, keep):
                 break
             keep = new
@@ -922,6 +921,13 @@ def _sector_edges(lum, g, noise, cx, cy, r, it):
     return te, ang, inside
 
 
+def _inliers(res, good, keep):
+    """The ``good`` points whose residual is within 3 MAD (of those in ``keep``; at least 0.3
+    px) — one step of the outlier loops of :func:`_robust_fit` and :meth:`_Outline.verdict`."""
+    mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
+    return good & (np.abs(res) < max(3 * mad, 0.3))
+
+
 def _robust_fit(ex, ey, good, w, h, fov_deg):
     """Circle (or cone) through the ``good`` edge points, refitted without the outliers
     (over 3 MAD, at least 0.3 px) up to 5 times → (circle, residuals, points kept)."""
@@ -929,8 +935,7 @@ def _robust_fit(ex, ey, good, w, h, fov_deg):
     for _ in range(5):
         nc = _fit(ex[keep], ey[keep], w, h, fov_deg)
         res = _residual(ex, ey, nc, w, h, fov_deg)
-        mad = 1.4826 * np.median(np.abs(res[keep])) + 0.05
-        new = good & (np.abs(res) < max(3 * mad, 0.3))
+        new = _inliers(res, good, keep)
         if new.sum() < 8 or np.array_equal(new, keep):
             break
         keep = new
