@@ -5,7 +5,8 @@ import warnings
 
 import numpy as np
 
-from nodes.common.color import linear_srgb_to_lab, linear_srgb_to_xyz
+from nodes.common.color import (linear_srgb_to_lab, linear_srgb_to_xyz, linear_to_codes, linear_to_srgb,
+                                srgb_codes_to_linear, srgb_to_linear)
 
 
 def test_lab_same_bits_as_colour():
@@ -20,3 +21,60 @@ def test_lab_same_bits_as_colour():
         got = linear_srgb_to_lab(x)
         assert got.shape == want.shape
         assert np.abs(got - want).max() <= 1e-12, np.abs(got - want).max()
+
+
+def _values():
+    rng = np.random.default_rng(5)
+    edge = np.array([0.0, -0.0, 1e-12, 0.0031308, np.nextafter(0.0031308, 1), 0.04045, 0.0031308 * 12.92,
+                     np.nextafter(0.0031308 * 12.92, 1), 0.5, 1.0, 1.5, 40.0, -0.01, -2.0])
+    return [edge, rng.random(100000), rng.random(100000) ** 8, rng.random((30, 40, 3)) * 3,
+            rng.random((7, 5, 3)).astype(np.float32), (rng.random(5000) * 2 - 1).astype(np.float32)]
+
+
+def test_srgb_transfer_functions_same_bits_as_colour():
+    """The sRGB EOTF and its inverse, written out for speed, give colour-science's values to the
+    last bit on every kind of input (both segments, the knee, negatives, float32 and float64)."""
+    warnings.filterwarnings("ignore", message='"Matplotlib" related API features')
+    import colour
+
+    for x in _values():
+        for ours, theirs in ((srgb_to_linear, colour.models.eotf_sRGB),
+                             (linear_to_srgb, colour.models.eotf_inverse_sRGB)):
+            want = np.asarray(theirs(np.asarray(x, np.float64)), np.float32)
+            got = ours(x)
+            assert got.dtype == np.float32 and got.shape == want.shape
+            assert np.array_equal(got, want, equal_nan=True), (ours.__name__, np.abs(got - want).max())
+
+
+def test_srgb_codes_decode_as_colour():
+    """Every 8- and 16-bit code decodes to colour-science's EOTF of code / (2**bits − 1)."""
+    warnings.filterwarnings("ignore", message='"Matplotlib" related API features')
+    import colour
+
+    for bits, dtype in ((8, np.uint8), (16, np.uint16)):
+        codes = np.arange(1 << bits).astype(dtype).reshape(-1, 1)
+        top = np.float32((1 << bits) - 1)
+        want = np.asarray(colour.models.eotf_sRGB(np.asarray(codes.astype(np.float32) / top, np.float64)),
+                          np.float32)
+        got = srgb_codes_to_linear(codes, bits)
+        assert got.dtype == np.float32 and np.array_equal(got, want)
+    assert srgb_codes_to_linear(np.array([[[0, 255, 128]]], np.uint8)).shape == (1, 1, 3)
+
+
+def test_codes_as_colour_encodes_and_rounds():
+    """linear_to_codes gives the codes of colour-science's inverse EOTF, clipped and rounded —
+    8 and 16 bits, sRGB or linear (masks), float32 and float64 in, over the chunk size."""
+    warnings.filterwarnings("ignore", message='"Matplotlib" related API features')
+    import colour
+
+    rng = np.random.default_rng(8)
+    xs = _values() + [rng.random((700, 300, 3)) * 1.2 - 0.1]
+    for x in xs:
+        lin = np.clip(x, 0, None)
+        for srgb in (True, False):
+            enc = np.asarray(colour.models.eotf_inverse_sRGB(np.asarray(lin, np.float64)), np.float32) if srgb else lin
+            enc = np.clip(enc, 0.0, 1.0)
+            for bits, top, dtype in ((8, 255, np.uint8), (16, 65535, np.uint16)):
+                want = np.round(enc * top).astype(dtype)
+                got = linear_to_codes(x, bits, srgb)
+                assert got.dtype == dtype and np.array_equal(got, want), (bits, srgb, x.dtype)

@@ -125,6 +125,57 @@ def test_eye_highlights_are_additive_specular():
         Render(Render.Params(eye_highlights="on")).compute(mesh=m, camera=CAM, material=MAT, lights=[light])
 
 
+@pytest.mark.parametrize("ortho", [False, True])
+def test_eye_rays_are_cast_only_where_the_eyes_project(monkeypatch, ortho):
+    """The cornea hits are looked for only in the box each eye's sphere projects into (a
+    12-megapixel photo's eyes are a few thousand of its pixels): the same image, bit for bit,
+    as rays through every pixel, with an eye half out of the frame as well."""
+    from nodes.paris import render
+
+    cam = CAM if not ortho else Camera(width=96, height=96, projection="orthographic", pixels_per_m=160.0,
+                                       cx=48, cy=48, metres_per_unit=0.25)
+    m = _sphere(4)
+    eyes = [[-0.3, -0.2, 3.05], [0.3, -0.2, 3.05]] if not ortho else [[-0.3, -0.2, 3.05], [1.17, -0.2, 3.7]]
+    light = Light(direction=(0.3, -0.2, -1))
+    R = Render(Render.Params(shadows=False, clamp=False, eyes=eyes, mm_per_unit=40.0, eye_shininess=50,
+                             eye_specular=2.0))
+    counted = []
+    real = render._sphere_pixels
+    monkeypatch.setattr(render, "_sphere_pixels", lambda *a: counted.append(len(real(*a))) or real(*a))
+    monkeypatch.setattr(render, "_GEOMETRY", {})
+    boxed = R.compute(mesh=m, camera=cam, material=MAT, lights=[light])["image"].pixels
+    assert len(counted) == 2 and max(counted) < cam.width * cam.height / 8, counted
+    monkeypatch.setattr(render, "_sphere_pixels", lambda camera, c, r: np.arange(camera.width * camera.height))
+    monkeypatch.setattr(render, "_GEOMETRY", {})
+    every = R.compute(mesh=m, camera=cam, material=MAT, lights=[light])["image"].pixels
+    assert np.array_equal(boxed, every)
+    plain = Render(Render.Params(shadows=False, clamp=False)).compute(mesh=m, camera=cam, material=MAT,
+                                                                       lights=[light])["image"].pixels
+    assert (np.abs(boxed - plain).max(-1) > 0.05).sum() >= 5   # the eyes' highlights are there
+
+
+def test_the_eye_box_holds_every_pixel_whose_ray_meets_the_sphere():
+    """_sphere_pixels against rays through every pixel centre, for spheres anywhere in front of
+    a perspective and an orthographic camera (half out of the frame, near the camera)."""
+    from nodes.paris.render import _sphere_pixels
+
+    ortho = Camera(width=96, height=80, projection="orthographic", pixels_per_m=160.0, cx=40, cy=44,
+                   metres_per_unit=0.25)
+    rng = np.random.default_rng(1)
+    for cam in (CAM, ortho):
+        yy, xx = np.divmod(np.arange(cam.width * cam.height), cam.width)
+        o, d = cam.rays(np.stack([xx + 0.5, yy + 0.5], 1))
+        for _ in range(40):
+            c = np.array([rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(1.0, 6.0)])
+            r = rng.uniform(0.02, 0.4)
+            oc = o - c
+            bq = np.sum(d * oc, 1)
+            hit = (bq ** 2 - (np.sum(oc * oc, 1) - r * r) > 0) & (-bq > 0)
+            box = _sphere_pixels(cam, c, r)
+            assert np.isin(np.nonzero(hit)[0], box).all()
+            assert len(box) <= 4 * hit.sum() + 8 * (2 * r * 160 / c[2] + 4) + 40
+
+
 def test_shadeface_looks_up_the_map_by_normal():
     from nodes.paris import sphere
 

@@ -118,3 +118,34 @@ def test_astronaut_with_facemesh():
     forehead[ys.min() - 5:] = 0
     dark = forehead.astype(bool) & (photo.mean(-1) < 90)
     assert dark.sum() > 50 and m[dark].mean() < 0.1
+
+
+def test_the_face_box_gives_the_whole_photo_answer():
+    """SkinSegment looks only at the face's box (a face is a few per cent of a phone photo):
+    the exclusions dilated there and the skin found there are the whole photo's, bit for bit —
+    an exclusion outside the face still reaching into it, a face at the photo's border."""
+    from scipy import ndimage
+
+    from nodes.paris.skin import _segment, excluded_region, segment
+
+    rng = np.random.default_rng(2)
+    h, w = 120, 160
+    for k in range(6):
+        face = np.zeros((h, w), bool)
+        y0, x0 = (0, 0) if k == 0 else (rng.integers(0, 60), rng.integers(0, 90))
+        face[y0:y0 + 50, x0:x0 + 60] = True
+        ex = np.zeros((h, w), bool)
+        ex[y0 + 52:y0 + 56, x0 + 10:x0 + 30] = True          # just below the face: reaches in
+        ex[y0 + 20:y0 + 25, x0 + 20:x0 + 40] = True          # inside
+        ex[rng.random((h, w)) > 0.995] = True                # clipped specks anywhere
+        margin = 0.1
+        got = excluded_region([Mask(ex.astype(np.float32))], face, h, w, margin)
+        r = int(round(margin * 60))
+        yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+        whole = ndimage.binary_dilation(ndimage.binary_fill_holes(ex), structure=(yy ** 2 + xx ** 2) <= r * r)
+        assert np.array_equal(got & face, whole & face) and not (got & ~face).any(), k
+        assert (got & face).any()
+        rgb = rng.uniform(0.05, 0.6, (h, w, 3)) * np.array([1.0, 0.7, 0.55])
+        learn = face & ~whole
+        want = _segment(rgb, learn, learn, 3.0, 3.0, 50)
+        assert np.array_equal(segment(rgb, learn, learn, 3.0, 3.0, 50), want) and want.any()

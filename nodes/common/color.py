@@ -1,4 +1,6 @@
-"""Colour conversions used across the node library, through colour-science.
+"""Colour conversions used across the node library: colour-science's, or (where its wrappers
+cost several times the arithmetic on a many-megapixel photo) its formulas step for step, with
+the same bits (tests/test_color.py holds them to colour-science's).
 
 Images inside graphs are linear RGB with sRGB/Rec.709 primaries (tag ``lin_srgb``); these
 helpers decode and encode at the edges (file I/O) and convert for perceptual distances.
@@ -13,18 +15,74 @@ import numpy as np
 warnings.filterwarnings("ignore", message='"Matplotlib" related API features are not available')
 
 
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] → linear (IEC 61966-2-1 EOTF), float32."""
-    import colour
+#: colour-science's eotf_sRGB switches to the linear segment at eotf_inverse_sRGB(0.0031308)
+_V_KNEE = 0.0031308 * 12.92
+#: elements converted at a time: float64 temporaries of 512 KiB stay in the cache and in the heap
+#: (a 12-megapixel image's whole-size temporaries are 290 MB each, every one fresh pages)
+_CHUNK = 1 << 16
 
-    return np.asarray(colour.models.eotf_sRGB(np.asarray(x, np.float64)), np.float32)
+
+def _elementwise(fn, x) -> np.ndarray:
+    """fn (float64 → float64, element by element) over x in chunks → float32 of x's shape."""
+    x = np.asarray(x)
+    flat = x.reshape(-1)
+    out = np.empty(flat.shape, np.float32)
+    with np.errstate(invalid="ignore"):
+        for i in range(0, flat.size, _CHUNK):
+            out[i:i + _CHUNK] = fn(flat[i:i + _CHUNK].astype(np.float64))
+    return out.reshape(x.shape)
+
+
+def _eotf(v):
+    return np.where(_V_KNEE >= v, v / 12.92, np.power((v + 0.055) / 1.055, 2.4))
+
+
+def _eotf_inverse(v):
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] → linear (IEC 61966-2-1 EOTF), float32.
+
+    colour-science's ``eotf_sRGB`` step for step (the same bits, tests/test_color.py), without
+    its domain-scale and safe-power wrappers, which cost 5 × the arithmetic on a photo (4.2 s
+    against 0.8 s for a 12-megapixel one), in chunks.  8-bit codes: :func:`srgb_codes_to_linear`."""
+    return _elementwise(_eotf, x)
+
+
+def srgb_codes_to_linear(codes: np.ndarray, bits: int = 8) -> np.ndarray:
+    """Integer sRGB codes (0 … 2**bits − 1) → linear float32: :func:`srgb_to_linear` of
+    ``codes / (2**bits − 1)`` (in float32, as a decoder divides), through a table of every code."""
+    top = (1 << bits) - 1
+    table = srgb_to_linear(np.arange(top + 1, dtype=np.float32) / np.float32(top))
+    return table[np.asarray(codes)]
 
 
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    """Linear values → sRGB-encoded (inverse EOTF), float32; values are not clipped."""
-    import colour
+    """Linear values → sRGB-encoded (inverse EOTF), float32; values are not clipped.
 
-    return np.asarray(colour.models.eotf_inverse_sRGB(np.asarray(x, np.float64)), np.float32)
+    colour-science's ``eotf_inverse_sRGB`` step for step (the same bits, tests/test_color.py),
+    in chunks: 0.4 s against colour's 4.9 s for a 12-megapixel image."""
+    return _elementwise(_eotf_inverse, x)
+
+
+def linear_to_codes(x: np.ndarray, bits: int = 8, srgb: bool = True) -> np.ndarray:
+    """Linear values → integer codes of a file or a display (uint8, or uint16 for ``bits`` 16):
+    clipped below at 0, sRGB-encoded (:func:`linear_to_srgb`; not with ``srgb=False``: masks),
+    clipped to [0, 1], scaled and rounded — ``np.round(np.clip(linear_to_srgb(np.clip(x, 0,
+    None)), 0, 1) * 255)``, the same bits, in chunks (one pass over a 12-megapixel image instead
+    of six whole-size temporaries)."""
+    x = np.asarray(x)
+    flat = x.reshape(-1)
+    dtype, top = (np.uint16, 65535) if bits == 16 else (np.uint8, 255)
+    out = np.empty(flat.shape, dtype)
+    with np.errstate(invalid="ignore"):
+        for i in range(0, flat.size, _CHUNK):
+            v = np.clip(flat[i:i + _CHUNK], 0, None)
+            if srgb:
+                v = _eotf_inverse(v.astype(np.float64)).astype(np.float32)
+            out[i:i + _CHUNK] = np.round(np.clip(v, 0.0, 1.0) * top).astype(dtype)
+    return out.reshape(x.shape)
 
 
 def linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:

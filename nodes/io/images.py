@@ -64,17 +64,13 @@ def encode_image(pixels: np.ndarray, ext: str, bits: int = 16, metadata: dict | 
     above 65504 into Inf: callers check the range first (SaveImage does)."""
     import OpenImageIO as oiio
 
-    from nodes.common.color import linear_to_srgb
+    from nodes.common.color import linear_to_codes
 
     ext = ext.lower()
     h, w, c = pixels.shape
     if ext in (".png", ".jpg", ".jpeg"):
-        lin = np.clip(pixels, 0, None)
-        enc = np.clip(linear_to_srgb(lin) if srgb else lin, 0.0, 1.0)
-        if ext == ".png" and bits == 16:
-            data, fmt = np.round(enc * 65535).astype(np.uint16), "uint16"
-        else:
-            data, fmt = np.round(enc * 255).astype(np.uint8), "uint8"
+        b = 16 if ext == ".png" and bits == 16 else 8
+        data, fmt = linear_to_codes(pixels, b, srgb), ("uint16" if b == 16 else "uint8")
     elif ext == ".exr":
         data, fmt = np.ascontiguousarray(pixels, np.float32), ("half" if bits == 16 else "float")
     else:

@@ -89,7 +89,7 @@ class LoadPhoto(BuiltinFiles, Node):
             return v
 
     def compute(self):
-        from nodes.common.color import srgb_to_linear
+        from nodes.common.color import srgb_codes_to_linear
 
         p = self.params
         path = self.resolve_file("path", p.path, self.ctx.base_dir)
@@ -102,7 +102,7 @@ class LoadPhoto(BuiltinFiles, Node):
         if p.response is not None:
             lin = np.asarray(p.response, np.float32)[codes]
         else:
-            lin = srgb_to_linear(codes.astype(np.float32) / 255.0)
+            lin = srgb_codes_to_linear(codes)
         clipped = (codes == CLIP_CODE).any(axis=2)
         n = int(clipped.sum())
         if n:

@@ -823,14 +823,15 @@ class Render(Node):
                                        "is not a mediapipe face mesh; set the `eyes` param")
             return None
         centres, axes, R = info
-        H, W = camera.height, camera.width
-        # rays through every pixel centre (perspective or orthographic)
-        yy, xx = np.divmod(np.arange(H * W), W)
-        o, d = camera.rays(np.stack([xx + 0.5, yy + 0.5], 1))
         depth = s.raster.depth.ravel()
         C, fwd = camera.position, camera.forward
         hits = []
         for c, a in zip(centres, axes):
+            # rays through the pixel centres (perspective or orthographic) of the box the
+            # sphere projects into: a 12-megapixel photo's eyes are a few thousand of them
+            idx = _sphere_pixels(camera, c, R)
+            yy, xx = np.divmod(idx, camera.width)
+            o, d = camera.rays(np.stack([xx + 0.5, yy + 0.5], 1))
             oc = o - c
             bq = np.sum(d * oc, 1)
             disc = bq ** 2 - (np.sum(oc * oc, 1) - R * R)
@@ -839,9 +840,9 @@ class Render(Node):
             X = o + d * t[:, None]
             hit &= (t > 0) & (np.sum((X - c) * a, 1) >= 0)
             zc = (X - C) @ fwd
-            hit &= zc <= depth + R * 0.35  # the cap shows where it is not behind the eyelids
+            hit &= zc <= depth[idx] + R * 0.35  # the cap shows where it is not behind the eyelids
             if hit.any():
-                hits.append((np.nonzero(hit)[0], X[hit], (X[hit] - c) / R, -d[hit]))
+                hits.append((idx[hit], X[hit], (X[hit] - c) / R, -d[hit]))
         return hits
 
     def _eyes(self, hits: list, lights) -> tuple[np.ndarray, np.ndarray]:
@@ -859,6 +860,26 @@ class Render(Node):
                 _, spec = phong.lobes(n, ldir, v, p.eye_shininess)
                 out[at] += p.eye_specular * L * spec[:, None]
         return idx, out
+
+
+def _sphere_pixels(camera: Camera, centre, radius: float) -> np.ndarray:
+    """Flat indices (row-major, ascending) of the pixels whose centres lie in the box that the
+    sphere (``centre``, ``radius``) projects into, a pixel wider each way: the corners of the
+    cube about the sphere bound its image when they are all in front of the camera; otherwise
+    every pixel."""
+    H, W = camera.height, camera.width
+    corners = np.asarray(centre, np.float64) + radius * np.array(
+        [[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], np.float64)
+    xy, z = camera.project(corners)
+    if camera.orthographic or (z > 0).all():
+        x0, y0 = np.floor(xy.min(0)).astype(int) - 1
+        x1, y1 = np.ceil(xy.max(0)).astype(int) + 1
+        x0, x1, y0, y1 = max(x0, 0), min(x1, W - 1), max(y0, 0), min(y1, H - 1)
+        if x0 > x1 or y0 > y1:
+            return np.zeros(0, np.int64)
+        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+        return (yy * W + xx).ravel().astype(np.int64)
+    return np.arange(H * W, dtype=np.int64)
 
 
 class _Geometry(NamedTuple):

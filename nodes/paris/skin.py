@@ -85,8 +85,12 @@ class SkinSegment(Node):
 
 
 def excluded_region(masks: list[Mask], face: np.ndarray, h: int, w: int, margin: float) -> np.ndarray:
-    """Union of the masks, holes filled, dilated by ``margin`` × the face's size."""
+    """Union of the masks, holes filled, dilated by ``margin`` × the face's size — within the
+    face's bounding box (it is taken from the face: a phone photo's clipped-pixel mask spans 12
+    megapixels, the face a few per cent of them), False outside it."""
     from scipy import ndimage
+
+    from nodes.common.blend import bounding_box
 
     out = np.zeros((h, w), bool)
     for m in masks:
@@ -97,10 +101,20 @@ def excluded_region(masks: list[Mask], face: np.ndarray, h: int, w: int, margin:
     ys, xs = np.nonzero(face)
     size = max(np.ptp(ys), np.ptp(xs)) + 1 if ys.size else max(h, w)
     r = int(round(margin * size))
+    box = bounding_box(face) if ys.size else (slice(0, h), slice(0, w))
     if r > 0:
+        # the dilation of the box r pixels wider, kept within the box: there it is the whole image's
+        wide = bounding_box(face, pad=r) if ys.size else box
         yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-        out = ndimage.binary_dilation(out, structure=(yy ** 2 + xx ** 2) <= r * r)
-    return out
+        grown = ndimage.binary_dilation(out[wide], structure=(yy ** 2 + xx ** 2) <= r * r)
+        inner = (slice(box[0].start - wide[0].start, box[0].stop - wide[0].start),
+                 slice(box[1].start - wide[1].start, box[1].stop - wide[1].start))
+        kept = grown[inner]
+    else:
+        kept = out[box]
+    res = np.zeros((h, w), bool)
+    res[box] = kept
+    return res
 
 
 def features(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -145,10 +159,22 @@ def robust_gaussian(x: np.ndarray, max_sigma: float, iters: int = 20) -> tuple[n
 
 
 def segment(rgb, learn, where, max_sigma, dark_sigma, min_pixels):
-    """Boolean skin mask inside ``where`` from a model learned on ``learn`` pixels (or None)."""
-    uv, lstar = features(rgb)
+    """Boolean skin mask inside ``where`` from a model learned on ``learn`` pixels (or None).
+    Only the box holding both is looked at (a face is a small part of a phone's 12 megapixels)."""
     if learn.sum() < min_pixels:
         return None
+    ys, xs = np.nonzero(learn | where)
+    box = (slice(int(ys.min()), int(ys.max()) + 1), slice(int(xs.min()), int(xs.max()) + 1))
+    out = np.zeros(where.shape, bool)
+    got = _segment(rgb[box], learn[box], where[box], max_sigma, dark_sigma, min_pixels)
+    if got is None:
+        return None
+    out[box] = got
+    return out
+
+
+def _segment(rgb, learn, where, max_sigma, dark_sigma, min_pixels):
+    uv, lstar = features(rgb)
     luv_learn = uv[learn]
     l_learn = lstar[learn]
     # learn chromaticity on the pixels of ordinary brightness (no highlight, no deep shadow)

@@ -115,10 +115,9 @@ def detect_landmarks(rgb_linear: np.ndarray, confidence: float) -> np.ndarray | 
     """Linear RGB float image → mediapipe landmarks (468×3 normalised x, y, z) or None."""
     mp = mediapipe()
 
-    from nodes.common.color import linear_to_srgb
+    from nodes.common.color import linear_to_codes
 
-    srgb = np.clip(linear_to_srgb(np.clip(rgb_linear, 0, None)), 0, 1)
-    u8 = np.ascontiguousarray(np.round(srgb * 255).astype(np.uint8))
+    u8 = np.ascontiguousarray(linear_to_codes(rgb_linear))
     with native_logs_filtered(), mp.solutions.face_mesh.FaceMesh(
             static_image_mode=True, max_num_faces=1, refine_landmarks=False,
             min_detection_confidence=confidence) as fm:
