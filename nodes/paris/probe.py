@@ -138,7 +138,12 @@ class ProbeLight(Node):
         fov_deg = self._probe_fov(camera)
         found = []
         cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg, found=found)
-        yy, xx = np.mgrid[0:h, 0:w]
+        # what follows reads only the ball's pixels (and their neighbours, for solid angles):
+        # the box round it, 2 px wider — a 20-megapixel probe's ball is a few megapixels
+        full = px
+        box = _ball_box(cx, cy, r, w, h)
+        px = px[box]
+        yy, xx = np.mgrid[box]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
         if inside.sum() < 50:
@@ -156,7 +161,7 @@ class ProbeLight(Node):
         if peak < 3.0 * max(med, 1e-12) and lum[sat].max() < 3.0 * med:
             raise BadInput("probe", "no highlight on the ball: its brightest pixels are less than 3× its median "
                                     "(is the flash reflected in the ball?)")
-        _refuse_if_overexposed(px)
+        _refuse_if_overexposed(full)
         prior = self._flash_prior(cx, cy, r, w, h, fov_deg)
         clipped = _clipped(px, inside)
         if not clipped:
@@ -169,12 +174,15 @@ class ProbeLight(Node):
                 peak = float(px[blob].max())
                 sat = blob & (px.max(-1) >= p.saturation * peak)
         sat = _flash_highlight(sat, dirs, *prior)
+        if found or clipped:
+            whole = np.zeros((h, w), bool)   # (the highlight's pixels at their place in the photo)
+            whole[box] = sat
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
-            _refuse_if_doubtful(px, found[0], fov_deg, sat)
+            _refuse_if_doubtful(full, found[0], fov_deg, whole)
         if clipped:
             # found or given: a clipped highlight is placed to a fraction of a pixel only
-            _refuse_if_coarse(sat, cx, cy, r, w, h, fov_deg)
+            _refuse_if_coarse(whole, cx, cy, r, w, h, fov_deg)
         ldir = dirs[sat].mean(0)
         ldir /= np.linalg.norm(ldir)
         if ldir[2] > 0:
@@ -228,7 +236,7 @@ class ProbeLight(Node):
         cls = np.zeros((h, w, 3), np.float32)
         circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
         for name, m in (("ball", circle), ("ambient", ring), ("halo", halo), ("saturated", sat)):
-            cls[m] = CLASS_COLOURS[name]
+            cls[box][m] = CLASS_COLOURS[name]
         return {"light": light, "classes": Image(cls)}
 
     def _ball(self, px, port, cx, cy, r, fov_deg=None, found: list | None = None):
@@ -340,13 +348,14 @@ class ProbeLight(Node):
         h, w = px.shape[:2]
         found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
-        yy, xx = np.mgrid[0:h, 0:w]
+        box = _ball_box(cx, cy, r, w, h)
+        yy, xx = np.mgrid[box]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
         n = ball_normals(u[inside], v[inside], cx, cy, r, w, h, fov_deg)
         ndl = n @ ldir
         lit = ndl > 0.05  # the lit side: Phong diffuse k·(n·l) + ambient a
-        ndl, lum = ndl[lit], px[inside][lit] @ _Y
+        ndl, lum = ndl[lit], px[box][inside][lit] @ _Y
         if np.ptp(ndl) < 0.1:
             raise BadInput("white", "the white ball shows too little variation of the flash's incidence")
         a = np.column_stack([ndl, np.ones_like(ndl)])
@@ -354,6 +363,17 @@ class ProbeLight(Node):
         if k <= 0:
             raise BadInput("white", "the white ball is not lit by the flash found on the probe")
         return float(k / p.white_albedo)
+
+
+def _ball_box(cx, cy, r, w, h) -> tuple[slice, slice]:
+    """The rows and columns of the pixels within 2 px of the ball's circle (clipped to the
+    image): every pixel ProbeLight reads, with the neighbours its solid angles' central
+    differences take, so that its answer is the whole image's."""
+    x0, x1 = max(int(np.floor(cx - r)) - 2, 0), min(int(np.ceil(cx + r)) + 3, w)
+    y0, y1 = max(int(np.floor(cy - r)) - 2, 0), min(int(np.ceil(cy + r)) + 3, h)
+    if x0 >= x1 or y0 >= y1:
+        return slice(0, 0), slice(0, 0)
+    return slice(y0, y1), slice(x0, x1)
 
 
 def robust_mean(x: np.ndarray) -> np.ndarray:

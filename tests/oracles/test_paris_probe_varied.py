@@ -44,10 +44,10 @@ def _found_once(monkeypatch):
     def once(px, fov_deg=None, highlight=True):
         # the image's values (ProbeLight passes float64, a test the render's float32: the finder
         # reads both as float64), the arguments and the finder's settings (a test that changes
-        # one of its constants, or its stabilise, gets a new search)
+        # one of its constants, its stabilise or its noise_curve, gets a new search)
         settings = tuple((n, repr(v)) for n, v in sorted(vars(ballfind).items()) if n.isupper())
         key = (hashlib.sha1(np.ascontiguousarray(px, np.float64)).hexdigest(), px.shape, fov_deg, highlight,
-               settings, ballfind.stabilise)
+               settings, ballfind.stabilise, ballfind.noise_curve)
         if key not in seen:
             seen[key] = find(px, fov_deg, highlight=highlight)
         return copy.deepcopy(seen[key])
@@ -282,8 +282,8 @@ def test_no_fainter_circle_in_the_backdrop_noise(monkeypatch):
     direction, refusal = _auto(img, spec.fov_deg)
     assert refusal is None, refusal.message
     assert _angle(direction, mp.truth(spec)["direction"]) <= MAX_ERR_DEG
-    stabilise = ballfind.stabilise
-    monkeypatch.setattr(ballfind, "stabilise", lambda lum, isotonic=False, curve=None: stabilise(lum, curve=curve))
+    noise_curve = ballfind.noise_curve
+    monkeypatch.setattr(ballfind, "noise_curve", lambda lum, isotonic=False, **kw: noise_curve(lum, **kw))
     direction, refusal = _auto(img, spec.fov_deg)
     assert direction is None and "fainter circle" in refusal.message
 
