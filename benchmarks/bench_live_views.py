@@ -15,6 +15,11 @@ included (see benchmarks/bench_studio.py for those).  The CPU time of the proces
 threads) is printed too: on a shared machine other jobs inflate the wall time, not that.
 
     .venv/bin/python benchmarks/bench_live_views.py [--n 20] [--size 1024] [--views makeup,blush,composite]
+        [--preview-max-px N]
+
+At sizes over ``CompositeView.PREVIEW_MAX_PX`` (1.5 MP) the composite view makes its frames on
+the photo reduced by a whole factor (``--size 3024``: 1008×1008); ``--preview-max-px 0`` makes
+them at the full size, the peer.
 """
 from __future__ import annotations
 
@@ -35,10 +40,14 @@ class Studio:
     def __init__(self, run, size: int):
         self.graph, self.run, self.size = run.graph, run, size
         self.photo = run.value("photo.image").pixels.shape[:2]  # both graphs' LoadImage
+        self.kept = {}
 
     def input_values(self, node: str) -> dict:
-        vals = self.graph.nodes[node].map_inputs(lambda src, port: self.run.value(f"{src}.{port}"))
-        return {k: resized(v, self.photo, self.size) for k, v in vals.items()}
+        # resized once (the studio's values are the run's, not made again per frame)
+        if node not in self.kept:
+            vals = self.graph.nodes[node].map_inputs(lambda src, port: self.run.value(f"{src}.{port}"))
+            self.kept[node] = {k: resized(v, self.photo, self.size) for k, v in vals.items()}
+        return dict(self.kept[node])
 
 
 def resized(v, shape, size: int):
@@ -90,6 +99,8 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--cache", default=os.environ.get("GRAPHKIT_CACHE", str(ROOT / ".graphkit-cache")))
     ap.add_argument("--views", default="makeup,blush,composite", help="which views, comma-separated")
+    ap.add_argument("--preview-max-px", type=int, default=None,
+                    help="the composite view's CompositeView.PREVIEW_MAX_PX (0: frames at the photo's full size)")
     args = ap.parse_args()
     views = args.views.split(",")
     from graphkit.api import run_graph
@@ -108,6 +119,8 @@ def main() -> int:
     if "composite" in views:  # the light of `full_top` moved, the whole photo relit
         from nodes.paris.studio_view import CompositeView
 
+        if args.preview_max_px is not None:
+            CompositeView.PREVIEW_MAX_PX = args.preview_max_px or 1 << 62
         face = Studio(run_graph(ROOT / "graphs" / "face_relight.yaml", cache=args.cache, outputs=["portrait_top"]),
                       args.size)
         bench("composite (CompositeFace 'portrait_top', Render 'full_top')", CompositeView(face, "portrait_top"),

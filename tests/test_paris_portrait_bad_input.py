@@ -98,14 +98,9 @@ def test_a_mesh_that_does_not_overlap_the_photo(tmp_path, case):
     assert "LoadMesh" in listed and "CompositeFace" not in listed and "SaveImage" not in listed, listed
 
 
-def test_composite_live_view_moves_the_light(tmp_path):
-    """CompositeView: a slider move re-renders the Render feeding `relit` with its first light at
-    the new angles and composites it (the frame is Render + CompositeFace on that light); letting
-    go sets that MakeLight's angles; a `relit` not from a Render is refused naming the port."""
-    from graphkit import BadInput
+def _composite_view(tmp_path):
+    """CompositeView on PORTRAIT's `portrait`, after a run: (the view, the run, the studio)."""
     from graphkit.api import run_graph
-    from nodes.paris.composite import CompositeFace
-    from nodes.paris.render import MakeLight, Render
     from nodes.paris.studio_view import CompositeView
 
     for f in DATA.iterdir():
@@ -128,7 +123,18 @@ def test_composite_live_view_moves_the_light(tmp_path):
 
                 return yaml.safe_load(PORTRAIT)
 
-    view = CompositeView(Studio, "portrait")
+    return CompositeView(Studio, "portrait"), run, Studio
+
+
+def test_composite_live_view_moves_the_light(tmp_path):
+    """CompositeView: a slider move re-renders the Render feeding `relit` with its first light at
+    the new angles and composites it (the frame is Render + CompositeFace on that light); letting
+    go sets that MakeLight's angles; a `relit` not from a Render is refused naming the port."""
+    from graphkit import BadInput
+    from nodes.paris.composite import CompositeFace
+    from nodes.paris.render import MakeLight, Render
+
+    view, run, Studio = _composite_view(tmp_path)
     assert [s["value"] for s in view.data()["sliders"]] == [30.0, 0.0]
     got = view.frame({"azimuth": -20.0, "elevation": 15.0}).pixels
     given = Studio.input_values("relit")
@@ -143,3 +149,40 @@ def test_composite_live_view_moves_the_light(tmp_path):
     run.graph.nodes["portrait"].inputs["relit"] = ("photo", "image")
     with pytest.raises(BadInput, match="relit"):
         view.frame({"azimuth": 0.0})
+
+
+def test_composite_live_view_previews_a_large_photo_reduced(tmp_path, monkeypatch):
+    """A photo over CompositeView.PREVIEW_MAX_PX (a phone's 12 megapixels) is previewed reduced by
+    a whole factor — the face rendered through the camera reduced alike, the photo's k×k blocks
+    averaged — so that a slider keeps up; the frame is Render + CompositeFace at that size, and
+    looks like the full-size result reduced (over 30 dB), not like the light before."""
+    from nodes.paris.composite import CompositeFace
+    from nodes.paris.render import MakeLight, Render
+    from graphkit import Image
+    from nodes.paris.studio_view import CompositeView, reduce_image, reduced_camera
+
+    view, run, Studio = _composite_view(tmp_path)
+    photo = run.value("photo.image").pixels
+    h, w = photo.shape[:2]
+    monkeypatch.setattr(CompositeView, "PREVIEW_MAX_PX", (h // 2) * (w // 2))
+    assert "reduced 2×" in view.data()["note"]
+    got = view.frame({"azimuth": -20.0, "elevation": 15.0}).pixels
+    assert got.shape[:2] == (h // 2, w // 2)
+    given = Studio.input_values("relit")
+    lamp = MakeLight(MakeLight.Params(azimuth_deg=-20.0, elevation_deg=15.0)).compute(camera=given["camera"])
+    small = reduced_camera(given["camera"], 2)
+    assert (small.width, small.height) == (w // 2, h // 2) and small.cx == pytest.approx(given["camera"].cx / 2)
+    r = Render(run.graph.nodes["relit"].params).compute(**{**given, "camera": small, "lights": [lamp]})
+    want = CompositeFace(CompositeFace.Params()).compute(photo=Image(reduce_image(photo, 2)), relit=r["image"],
+                                                         coverage=r["coverage"])["image"].pixels
+    assert np.array_equal(got, want)
+    full = Render(run.graph.nodes["relit"].params).compute(**{**given, "lights": [lamp]})
+    whole = CompositeFace(CompositeFace.Params()).compute(photo=run.value("photo.image"), relit=full["image"],
+                                                          coverage=full["coverage"])["image"].pixels
+    ref = reduce_image(whole, 2)
+
+    def psnr(a, b):
+        return 10 * np.log10(1.0 / np.mean((np.clip(a, 0, 1) - np.clip(b, 0, 1)) ** 2))
+
+    before = reduce_image(run.value("portrait.image").pixels, 2)
+    assert psnr(got, ref) > 30 and psnr(got, ref) > psnr(before, ref) + 6, (psnr(got, ref), psnr(before, ref))

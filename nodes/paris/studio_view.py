@@ -247,8 +247,15 @@ class CompositeView(LiveView):
     the Render that feeds ``relit`` is moved (azimuth and elevation about the photo camera's
     axis, MakeLight's convention).  Each move re-renders the face with that light (Render keeps
     its light-independent work between calls) and composites it (CompositeFace keeps its
-    feather and fill plan), on the server: the frame is the node's own output.  Letting go sets
-    the angles of the MakeLight that gives that light, when one does."""
+    feather and fill plan), on the server: the frame is the node's own output — for a photo
+    over ``PREVIEW_MAX_PX``, its output on the photo reduced by a whole factor (the face rendered
+    through the camera reduced alike, feather and scale in pixels alike), so that a phone's
+    12 megapixels follow a slider too.  Letting go sets the angles of the MakeLight that gives
+    that light, when one does, and the graph then runs at full size."""
+
+    #: the most pixels a frame is made on (a 12-megapixel phone photo: 1344×1008, a third of
+    #: its width); benchmarks/bench_live_views.py --views composite --size N
+    PREVIEW_MAX_PX = 1_500_000
 
     title = "the whole photograph relit"
     js = "composite_view.js"
@@ -277,7 +284,17 @@ class CompositeView(LiveView):
              "description": "towards the image's right, about the photo camera's axis"},
             {"key": "elevation", "label": "light elevation (°)", "min": -60.0, "max": 80.0, "step": 1.0,
              "value": el, "description": "up, about the photo camera's axis"}],
-            "note": "preview: Render with the first light moved, then this node, on the whole photo"}
+            "note": "preview: Render with the first light moved, then this node, on the whole photo"
+                    + (f" (reduced {self._factor()}× for the preview; letting go runs it at full size)"
+                       if self._factor() > 1 else "")}
+
+    def _factor(self) -> int:
+        """The whole factor the photo is reduced by for frames (1: its own size)."""
+        try:
+            h, w = self.inputs()["photo"].pixels.shape[:2]
+        except Exception:  # noqa: BLE001 - not computed yet: the note says so later
+            return 1
+        return preview_factor(h, w, self.PREVIEW_MAX_PX)
 
     def frame(self, values: dict):
         from .render import MakeLight, Render
@@ -292,10 +309,22 @@ class CompositeView(LiveView):
                                            elevation_deg=float(values.get("elevation", el)),
                                            color=old.color, intensity=old.intensity, ambient=old.ambient)
                           ).compute(camera=given["camera"])
+        photo, params = self.inputs()["photo"], None
+        n = preview_factor(*photo.pixels.shape[:2], self.PREVIEW_MAX_PX)
+        if n > 1:
+            photo, given = self._reduced(photo, n), {**given, "camera": reduced_camera(given["camera"], n)}
+            p = self.params
+            params = p.model_copy(update={"feather": p.feather and p.feather / n, "scale": p.scale and p.scale / n})
         r = Render(self.studio.graph.nodes[render].params).compute(
             **{**{k: v for k, v in given.items() if v is not None}, "lights": [light, *given["lights"][1:]]})
-        photo = self.inputs()["photo"]
-        return self.compute(photo=photo, relit=r["image"], coverage=r["coverage"])["image"]
+        return self.compute(params=params, photo=photo, relit=r["image"], coverage=r["coverage"])["image"]
+
+    def _reduced(self, photo, k: int):
+        """The photo reduced ``k`` times (kept while the run's photo is the same object)."""
+        kept = getattr(self, "_kept", None)
+        if kept is None or kept[0] is not photo or kept[1] != k:
+            self._kept = kept = (photo, k, type(photo)(reduce_image(photo.pixels, k), photo.colorspace))
+        return kept[2]
 
     def commit(self, values: dict) -> list[dict]:
         _, light = self._source()
@@ -304,6 +333,33 @@ class CompositeView(LiveView):
         az, el = self._angles()
         return (self.change(light, "azimuth_deg", float(values.get("azimuth", az)))
                 + self.change(light, "elevation_deg", float(values.get("elevation", el))))
+
+
+def preview_factor(h: int, w: int, max_px: int) -> int:
+    """The smallest whole factor that brings an h×w image to at most ``max_px`` pixels."""
+    k = 1
+    while (h // k) * (w // k) > max_px:
+        k += 1
+    return k
+
+
+def reduce_image(px: np.ndarray, k: int) -> np.ndarray:
+    """The mean of each k×k block (OpenCV's INTER_AREA at a whole factor; the rows and columns
+    past the last whole block dropped)."""
+    if k == 1:
+        return px
+    import cv2
+
+    h, w = px.shape[0] // k, px.shape[1] // k
+    a = cv2.resize(np.ascontiguousarray(px[:h * k, :w * k]), (w, h), interpolation=cv2.INTER_AREA)
+    return a.reshape((h, w) + px.shape[2:])
+
+
+def reduced_camera(camera, k: int):
+    """The camera of an image reduced ``k`` times by :func:`reduce_image`: pixel (x, y) of the
+    reduced image is (k·x, k·y) of the original (continuous coordinates)."""
+    w, h = camera.width // k, camera.height // k
+    return camera.reframed(w, h, 1.0 / k, (k * w / 2.0, k * h / 2.0))
 
 
 class ProbeView(LiveView):
