@@ -252,11 +252,45 @@ def test_param_change_over_the_websocket(server):
         assert answer(c, 2)["ok"] is False
         gen = s.api("/api/state")["run"]["gen"]
         c.send(json.dumps({"type": "params", "id": 3, "changes": [{"node": "gain", "param": "stops", "value": 1}]}))
-        assert answer(c, 3) == {"type": "params", "id": 3, "ok": True, "errors": []}
-        st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen and x["run"]["status"] == "ok" else None)(
+        got = answer(c, 3)
+        assert got == {"type": "params", "id": 3, "ok": True, "errors": [], "gen": got["gen"]} and got["gen"] > gen
+        st = wait_for(lambda: (lambda x: x if x["run"]["gen"] >= got["gen"] and x["run"]["status"] == "ok" else None)(
             s.api("/api/state")), 60, "the run of the change")
         assert st["run"]["computed"] == ["gain", "save"]
         assert next(n for n in st["nodes"] if n["name"] == "gain")["params"]["stops"] == 1.0
+
+
+def test_an_edit_shows_its_run_as_running_at_once(browser, server):
+    """When the page's param change is answered, the status already shows the run that change
+    started, as running — not the last run's "ok" until the new run's first event (a user read
+    that "ok" as the edit's result) — and an older run's state is not shown after it."""
+    ctx, errors = browser
+    s, _ = server()
+    page = open_page(ctx, s)
+    wait_run(page)
+    click_node(page, "gain")
+    page.wait_for_selector('#node-panel .ctl[data-param="stops"] input[type=range]')
+    gen = run_status(page)[1]
+    # what the status shows just after the page has handled the params answer (a macrotask
+    # after it: the answer's promise and what follows it in the page have run by then)
+    page.evaluate("""() => {
+      window.seen = [];
+      const ws = studio.ws, handle = ws.onmessage;
+      ws.onmessage = ev => {
+        handle(ev);
+        const m = typeof ev.data === 'string' ? JSON.parse(ev.data) : {};
+        if (m.type === 'params') setTimeout(() => { const e = document.getElementById('run-status');
+          window.seen.push([m.gen, e.dataset.status, +e.dataset.gen]); }, 0);
+      };
+    }""")
+    page.fill('#node-panel .ctl[data-param="stops"] input[type=range]', "1")
+    wait_run(page, after_gen=gen)
+    seen = wait_for(lambda: page.evaluate("window.seen"), what="the params answer")
+    new, status, shown = seen[0]
+    assert new > gen and shown == new and status in ("running", "ok"), seen   # ("ok": the new run's)
+    status, shown = run_status(page)
+    assert status == "ok" and shown >= new
+    assert not errors
 
 
 def test_out_of_range_value_shows_the_schema_error(browser, server, tmp_path):

@@ -145,9 +145,11 @@ class Studio:
         """Apply param changes ``[{"node": name or None, "param": p, "value": v}]``.
 
         Returns ``{"ok": True}`` or ``{"ok": False, "errors": [...]}`` (the loader's messages,
-        ``file:line:col: error: …``, as ``graphkit run`` prints them).  A change that makes a
-        valid graph invalid is not applied; on a graph that is already invalid it is (so its
-        errors can be fixed one by one)."""
+        ``file:line:col: error: …``, as ``graphkit run`` prints them), with ``"gen"``: the number
+        of the run the change started, when it started one (a page then shows that run as
+        running at once, not the last run's "ok" until the new run's first event).  A change
+        that makes a valid graph invalid is not applied; on a graph that is already invalid it
+        is (so its errors can be fixed one by one)."""
         with self._lock:
             try:
                 doc = self.doc.with_params([(c.get("node"), c["param"], c.get("value")) for c in changes])
@@ -160,12 +162,13 @@ class Studio:
                 return {"ok": False, "errors": errors}
             self._load(doc, (g, errors))  # loaded once: the same text gives the same graph
             run = self.graph is not None and self.autorun
+            gen = None
             if run:  # the new state goes out from the run, once its first preview on show has
                 self._state_due = True  # (or STATE_DUE_S in), so the run starts at once
-                self.request_run()
+                gen = self.request_run()
         if not run:
             self.emit({"type": "state", "state": self.state()})
-        return {"ok": not errors, "errors": errors}
+        return {"ok": not errors, "errors": errors, **({"gen": gen} if gen is not None else {})}
 
     # the loader's messages an edit may leave behind: a graph being built has unfed inputs and unset params
     _UNFINISHED = ("missing required input", "missing required param")

@@ -68,6 +68,9 @@ function render(state) {
 }
 
 function showRun(run) {
+  // a run older than the one this page's last edit started is not shown: its "ok" would read
+  // as the edit's result (set_params answers with the new run's number)
+  if ((run?.gen ?? 0) < (studio.awaitGen ?? 0)) return;
   const el = $('run-status');
   const st = run?.status || 'idle';
   el.className = 'status ' + st;
@@ -371,6 +374,10 @@ async function pump() {
       for (const b of batch) b.ctl?.error(text);
       log(text);
     } else studio.lastError = null;
+    if (res.ok && res.gen) {  // the run this edit started: shown as running from now on
+      studio.awaitGen = Math.max(studio.awaitGen ?? 0, res.gen);
+      showRun({ status: 'running', gen: res.gen });
+    }
   } finally {
     sending = false;
     if (pending.size) pump();
@@ -457,6 +464,7 @@ function connect() {
   };
   ws.onclose = () => {
     $('run-status').textContent = 'disconnected';
+    studio.awaitGen = 0;  // a restarted studio numbers its runs from 1 again
     for (const w of paramsWaiters.values()) w({ ok: false, error: 'disconnected' });
     paramsWaiters.clear();
     setTimeout(connect, 1000);
