@@ -22,22 +22,24 @@ _V_KNEE = 0.0031308 * 12.92
 _CHUNK = 1 << 16
 
 
-def _elementwise(fn, x) -> np.ndarray:
-    """fn (float64 → float64, element by element) over x in chunks → float32 of x's shape."""
+def _elementwise(fn, x, dtype=np.float32) -> np.ndarray:
+    """fn (element by element) over x's values in chunks of ``_CHUNK`` → ``dtype`` of x's shape."""
     x = np.asarray(x)
     flat = x.reshape(-1)
-    out = np.empty(flat.shape, np.float32)
+    out = np.empty(flat.shape, dtype)
     with np.errstate(invalid="ignore"):
         for i in range(0, flat.size, _CHUNK):
-            out[i:i + _CHUNK] = fn(flat[i:i + _CHUNK].astype(np.float64))
+            out[i:i + _CHUNK] = fn(flat[i:i + _CHUNK])
     return out.reshape(x.shape)
 
 
 def _eotf(v):
+    v = v.astype(np.float64)
     return np.where(_V_KNEE >= v, v / 12.92, np.power((v + 0.055) / 1.055, 2.4))
 
 
 def _eotf_inverse(v):
+    v = v.astype(np.float64)
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * np.power(v, 1 / 2.4) - 0.055)
 
 
@@ -72,17 +74,15 @@ def linear_to_codes(x: np.ndarray, bits: int = 8, srgb: bool = True) -> np.ndarr
     clipped to [0, 1], scaled and rounded — ``np.round(np.clip(linear_to_srgb(np.clip(x, 0,
     None)), 0, 1) * 255)``, the same bits, in chunks (one pass over a 12-megapixel image instead
     of six whole-size temporaries)."""
-    x = np.asarray(x)
-    flat = x.reshape(-1)
     dtype, top = (np.uint16, 65535) if bits == 16 else (np.uint8, 255)
-    out = np.empty(flat.shape, dtype)
-    with np.errstate(invalid="ignore"):
-        for i in range(0, flat.size, _CHUNK):
-            v = np.clip(flat[i:i + _CHUNK], 0, None)
-            if srgb:
-                v = _eotf_inverse(v.astype(np.float64)).astype(np.float32)
-            out[i:i + _CHUNK] = np.round(np.clip(v, 0.0, 1.0) * top).astype(dtype)
-    return out.reshape(x.shape)
+
+    def codes(v):
+        v = np.clip(v, 0, None)
+        if srgb:
+            v = _eotf_inverse(v).astype(np.float32)
+        return np.round(np.clip(v, 0.0, 1.0) * top).astype(dtype)
+
+    return _elementwise(codes, x, dtype)
 
 
 def linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:

@@ -279,20 +279,22 @@ class CompositeView(LiveView):
 
     def data(self) -> dict:
         az, el = self._angles()
+        k = self._factor()
         return {"sliders": [
             {"key": "azimuth", "label": "light azimuth (°)", "min": -90.0, "max": 90.0, "step": 1.0, "value": az,
              "description": "towards the image's right, about the photo camera's axis"},
             {"key": "elevation", "label": "light elevation (°)", "min": -60.0, "max": 80.0, "step": 1.0,
              "value": el, "description": "up, about the photo camera's axis"}],
             "note": "preview: Render with the first light moved, then this node, on the whole photo"
-                    + (f" (reduced {self._factor()}× for the preview; letting go runs it at full size)"
-                       if self._factor() > 1 else "")}
+                    + (f" (reduced {k}× for the preview; letting go runs it at full size)" if k > 1 else "")}
 
     def _factor(self) -> int:
         """The whole factor the photo is reduced by for frames (1: its own size)."""
+        from graphkit.studio.views import NotReady
+
         try:
             h, w = self.inputs()["photo"].pixels.shape[:2]
-        except Exception:  # noqa: BLE001 - not computed yet: the note says so later
+        except NotReady:  # not computed yet: the note says so once it is
             return 1
         return preview_factor(h, w, self.PREVIEW_MAX_PX)
 
