@@ -65,6 +65,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nodes.common.color import channel_max
+
 #: linear sRGB → luminance Y
 _Y = np.array([0.2126, 0.7152, 0.0722])
 N_RAYS = 180
@@ -151,7 +153,9 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     """
     lum = luminance(px)
     h, w = lum.shape
-    chmax = np.asarray(px, np.float64).max(-1) if np.ndim(px) == 3 else lum
+    # (the channels' maximum in the photo's own type, then float64: the same values as the
+    # maximum of a float64 copy, without a copy of a many-megapixel photo)
+    chmax = np.asarray(channel_max(px), np.float64) if np.ndim(px) == 3 else lum
     clipped = chmax >= (1 - 1e-3) * max(float(chmax.max()), 1e-12)
     if h < 16 or w < 16:
         return BallFit(0, 0, 0, False, f"the image is {w}×{h} px: too small to find a ball in")

@@ -22,13 +22,16 @@ def check_rgb(image: Image, port: str, grey: bool = False) -> None:
         raise BadInput(port, f"needs an RGB image ({need} channels), got {image.channels}")
 
 
-def rgb_pixels(image: Image, port: str, grey: bool = False) -> np.ndarray:
+def rgb_pixels(image: Image, port: str, grey: bool = False, float64: bool = True) -> np.ndarray:
     """The image's RGB as float64 H×W×3 (:func:`check_rgb`; a grey image repeated), refused
-    when a value is NaN or infinite."""
+    when a value is NaN or infinite.  ``float64=False``: in the image's own float type, not
+    copied (a caller that reads a many-megapixel photo only in part converts that part)."""
     from graphkit.types import finite_or_message
 
     check_rgb(image, port, grey)
-    px = np.asarray(image.pixels, np.float64)
+    px = np.asarray(image.pixels)
+    if float64 or px.dtype.kind != "f":
+        px = np.asarray(px, np.float64)
     px = np.repeat(px, 3, 2) if px.shape[2] == 1 else px[..., :3]
     problem = finite_or_message(px)
     if problem:

@@ -7,6 +7,8 @@ import numpy as np
 
 from graphkit import BadInput, Camera, Field, Image, In, Light, Node, Out
 
+from nodes.common.color import channel_max
+
 from .checks import rgb_pixels
 
 #: linear sRGB → luminance Y (Rec. 709 / sRGB primaries, D65)
@@ -133,16 +135,16 @@ class ProbeLight(Node):
 
     def compute(self, probe: Image, white: Image | None = None, camera: Camera | None = None):
         p = self.params
-        px = rgb_pixels(probe, "probe", grey=True)
-        h, w = px.shape[:2]
+        # the whole photo in its own float type (a 20-megapixel probe in float64 is half a GB):
+        # the finder and the whole-photo checks take it so; what follows reads only the ball's
+        # pixels (and their neighbours, for solid angles), the box round it 2 px wider, in float64
+        full = rgb_pixels(probe, "probe", grey=True, float64=False)
+        h, w = full.shape[:2]
         fov_deg = self._probe_fov(camera)
         found = []
-        cx, cy, r = self._ball(px, "probe", p.centre_x, p.centre_y, p.radius, fov_deg, found=found)
-        # what follows reads only the ball's pixels (and their neighbours, for solid angles):
-        # the box round it, 2 px wider — a 20-megapixel probe's ball is a few megapixels
-        full = px
+        cx, cy, r = self._ball(full, "probe", p.centre_x, p.centre_y, p.radius, fov_deg, found=found)
         box = _ball_box(cx, cy, r, w, h)
-        px = px[box]
+        px = np.asarray(full[box], np.float64)
         yy, xx = np.mgrid[box]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
@@ -152,7 +154,7 @@ class ProbeLight(Node):
         peak = px[inside].max()
         if peak <= 0:
             raise BadInput("probe", "the ball is black: no highlight")
-        sat = inside & (px.max(-1) >= p.saturation * peak)
+        sat = inside & (channel_max(px) >= p.saturation * peak)
         lum = px @ _Y
         med = float(np.median(lum[inside]))
         if sat.sum() > p.max_saturated * inside.sum():
@@ -172,7 +174,7 @@ class ProbeLight(Node):
             blob = _flash_highlight_hdr(px, inside, dirs, peak, prior)
             if blob is not None:
                 peak = float(px[blob].max())
-                sat = blob & (px.max(-1) >= p.saturation * peak)
+                sat = blob & (channel_max(px) >= p.saturation * peak)
         sat = _flash_highlight(sat, dirs, *prior)
         if found or clipped:
             whole = np.zeros((h, w), bool)   # (the highlight's pixels at their place in the photo)
@@ -214,7 +216,7 @@ class ProbeLight(Node):
                 # the clipped blob's direction, not move it (an unclipped highlight's excess
                 # dwarfs such light, and its few top pixels alone are quantised)
                 shift = np.degrees(np.arccos(np.clip(ref @ ldir, -1, 1)))
-                if shift <= MAX_HALO_SHIFT_DEG or not _clipped(px, inside):
+                if shift <= MAX_HALO_SHIFT_DEG or not clipped:
                     ldir = ref
         ring = unsat & (delta > rho_h) & (delta <= rho_h + p.ring_deg)
         if ring.sum() < 10:
@@ -344,18 +346,19 @@ class ProbeLight(Node):
 
     def _white_intensity(self, white: Image, ldir: np.ndarray, circle=None, fov_deg=None) -> float:
         p = self.params
-        px = rgb_pixels(white, "white", grey=True)
+        px = rgb_pixels(white, "white", grey=True, float64=False)
         h, w = px.shape[:2]
         found = circle if circle is not None else _find_ball_or_refuse(px, "white", fov_deg, highlight=False)
         cx, cy, r = found
         box = _ball_box(cx, cy, r, w, h)
+        px = np.asarray(px[box], np.float64)
         yy, xx = np.mgrid[box]
         u, v = xx + 0.5, yy + 0.5
         inside = (u - cx) ** 2 + (v - cy) ** 2 <= (p.edge_margin * r) ** 2
         n = ball_normals(u[inside], v[inside], cx, cy, r, w, h, fov_deg)
         ndl = n @ ldir
         lit = ndl > 0.05  # the lit side: Phong diffuse k·(n·l) + ambient a
-        ndl, lum = ndl[lit], px[box][inside][lit] @ _Y
+        ndl, lum = ndl[lit], px[inside][lit] @ _Y
         if np.ptp(ndl) < 0.1:
             raise BadInput("white", "the white ball shows too little variation of the flash's incidence")
         a = np.column_stack([ndl, np.ones_like(ndl)])
@@ -455,7 +458,7 @@ def _flash_highlight_hdr(px, inside, dirs, peak, prior) -> np.ndarray | None:
     else None (the brightest is the flash's)."""
     from scipy import ndimage
 
-    bright = inside & (px.max(-1) >= HDR_HIGHLIGHT * peak)
+    bright = inside & (channel_max(px) >= HDR_HIGHLIGHT * peak)
     if ndimage.label(bright)[1] <= 1:
         return None
     return _flash_highlight(bright, dirs, *prior, kind="bright")
@@ -534,8 +537,8 @@ def _largest_component(m: np.ndarray) -> np.ndarray:
 
 def _clipped(px: np.ndarray, inside: np.ndarray) -> bool:
     """The ball's highlight is clipped: three or more pixels at its peak value."""
-    peak = px[inside].max()
-    return int(np.sum(px[inside].max(-1) >= peak * (1 - 1e-6))) >= 3
+    m = channel_max(px)[inside]
+    return int(np.sum(m >= m.max() * (1 - 1e-6))) >= 3
 
 
 def _halo_edge(delta, lum, unsat, rho_s, base, level):
@@ -612,7 +615,8 @@ def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = Non
     the circles it cannot rule out: its own fit moved by 2 standard errors (centre and radius,
     each way) and the rival outlines."""
     if blob is None:
-        blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+        m = _channel_max(px)
+        blob = _largest_component(m >= 0.98 * float(m.max()))
     s = 2 * fit.sigma_px if np.isfinite(fit.sigma_px) else 0.0
     others = [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in
               ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
@@ -688,9 +692,16 @@ def _overexposed(share: float) -> str:
             f"value), so the ball and its highlight cannot be told apart (lower the exposure)")
 
 
+def _channel_max(px: np.ndarray) -> np.ndarray:
+    """Each pixel's largest channel, float64 (of a float32 photo: the maximum taken in float32,
+    then widened — the same values as of a float64 copy, without copying the photo)."""
+    return np.asarray(channel_max(px), np.float64)
+
+
 def _clipped_share(px: np.ndarray) -> float:
     """The fraction of the photo's pixels on the plateau of its maximum (clipped)."""
-    return float((px.max(-1) >= (1 - 1e-3) * max(float(px.max()), 1e-12)).mean())
+    m = _channel_max(px)
+    return float((m >= (1 - 1e-3) * max(float(m.max()), 1e-12)).mean())
 
 
 def _refuse_if_overexposed(px: np.ndarray):
@@ -747,7 +758,8 @@ def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = 
     residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`; for an outline whose edges
     scatter over ``CLEAN_RMS_PX``, and for every polished one)."""
     if blob is None:
-        blob = _largest_component(px.max(-1) >= 0.98 * float(px.max()))
+        m = _channel_max(px)
+        blob = _largest_component(m >= 0.98 * float(m.max()))
     doubt = _direction_doubt(px, fit, fov_deg, blob)
     bias = _bias_doubt(px, fit, fov_deg, blob) if (CLEAN_RMS_PX < fit.residual_px or fit.polished) and \
         fit.residual_px < np.inf else 0.0

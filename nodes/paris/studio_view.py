@@ -410,7 +410,7 @@ class ProbeView(LiveView):
         p = self.params
         node = self.gnode.cls(p)
         try:
-            px = rgb_pixels(v["probe"], "probe", grey=True)
+            px = rgb_pixels(v["probe"], "probe", grey=True, float64=False)
             c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(v.get("camera")))
             return [float(x) for x in c], "given" if p.radius is not None else "found", ""
         except BadInput as e:
