@@ -5,7 +5,7 @@
 Each graph is opened with `graphkit serve`, run through the cache (the first time takes
 minutes: FaceMesh, fits, radiosity), a node with a live view is selected, and the page is
 saved as docs/studio_<graph>.png.  ``--probe-view``: only docs/studio_probe_view.png, ProbeLight's
-view on the sample capture's probe (which the finder refuses) with the ball marked by hand.
+view on a varied probe the finder refuses, the ball marked by hand and snapped to its outline.
 """
 from __future__ import annotations
 
@@ -74,13 +74,15 @@ def main():
 
 def probe_view(ctx, tmp: Path):
     """ProbeLight's view (nodes/paris/probe_view.js) on a varied Mitsuba probe the finder refuses
-    (nodes/paris/data/varied_probes.py, tune tv01, 384×288, ~2 s to render): the refusal, and
-    the true circle (make_probes.truth) typed in with the direction ProbeLight gives for it."""
+    (nodes/paris/data/varied_probes.py, tune tv01 at 3×, 1152×864): the refusal, a circle typed
+    in as a hand would mark it (the true circle of make_probes.truth 2.5 px right, 1.5 px up,
+    1.5 px larger), then "Snap to outline": the snapped circle, its note and the direction
+    ProbeLight gives for it."""
     from nodes.io.images import encode_image
     from nodes.paris.data.make_probes import render, truth
     from nodes.paris.data.varied_probes import varied
 
-    spec = varied("tune", 2)[1]
+    spec = varied("tune", 2, scale=3)[1]
     (tmp / "probe.exr").write_bytes(encode_image(render(spec), ".exr", 16))
     t = truth(spec)
     g = tmp / "probe_mark.yaml"
@@ -102,9 +104,15 @@ outputs: {{classes: save.file}}
         click_node(page, "probe")
         page.wait_for_selector(".probe-view .probe-reason", timeout=60_000)
         n = page.get_attribute(".probe-readout", "data-frames")
+        hand = {"centre_x": t["centre_x"] + 2.5, "centre_y": t["centre_y"] - 1.5, "radius": t["radius"] + 1.5}
         for k in ("centre_x", "centre_y", "radius"):
-            page.fill(f'.probe-view input[data-key="{k}"]', f"{t[k]:.2f}")
-        page.wait_for_function("n => +document.querySelector('.probe-readout').dataset.frames > n + 2", arg=int(n))
+            page.fill(f'.probe-view input[data-key="{k}"]', f"{hand[k]:.2f}")
+        page.wait_for_function("n => +document.querySelector('.probe-readout').dataset.frames > n + 1", arg=int(n))
+        n = page.get_attribute(".probe-readout", "data-frames")
+        page.click(".probe-snap")
+        page.wait_for_function("() => document.querySelector('.probe-snapped').dataset.sure !== undefined",
+                               timeout=60_000)
+        page.wait_for_function("n => +document.querySelector('.probe-readout').dataset.frames > n", arg=int(n))
         page.wait_for_timeout(500)
         out = ROOT / "docs" / "studio_probe_view.png"
         page.locator("#view-panel").screenshot(path=str(out))

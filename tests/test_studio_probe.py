@@ -42,11 +42,16 @@ outputs:
 
 def probelight_direction(cx, cy, r):
     """The flash direction ProbeLight gives on the sample probe with this circle."""
+    return probelight_direction_of(ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr", cx, cy, r)
+
+
+def probelight_direction_of(path, cx, cy, r):
+    """The flash direction ProbeLight gives on the probe file ``path`` with this circle."""
     from graphkit import Image
     from nodes.io.images import read_image
     from nodes.paris.probe import ProbeLight
 
-    px, _ = read_image(str(ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr"))
+    px, _ = read_image(str(path))
     out = ProbeLight(ProbeLight.Params(centre_x=cx, centre_y=cy, radius=r)).compute(probe=Image(px))
     return np.array(out["light"].direction)
 
@@ -142,6 +147,26 @@ def test_the_view_starts_from_the_circle_probelight_found(tmp_path):
         assert np.allclose([d["circle"][k] for k in ("centre_x", "centre_y", "radius")], [CX, CY, R], atol=0.5)
     finally:
         st.close()
+
+
+def test_snap_in_process_gives_the_outline_and_how_far_to_trust_it(studio):
+    """frame() with ``snap`` answers ProbeLight's snap_outline near the circle (no direction):
+    on the sample probe, from the starting guess 3.5 px too large, a circle within 1 px of the
+    ball, not sure, and why; the circle keyed by the node's params, to 1/100 px."""
+    from nodes.io.images import read_image
+    from nodes.paris.probe import snap_outline
+    from nodes.paris.studio_view import ProbeView
+
+    st, _ = studio
+    v = ProbeView(st, "probe")
+    values = {"centre_x": 64.0, "centre_y": 64.0, "radius": 32.0}
+    f = v.frame({**values, "snap": True})
+    px, _ = read_image(str(ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr"))
+    want = snap_outline(px, (64.0, 64.0, 32.0))
+    assert f["snap"]["circle"] == dict(zip(("centre_x", "centre_y", "radius"), (round(x, 2) for x in want["circle"])))
+    assert np.hypot(f["snap"]["circle"]["centre_x"] - 64.0, f["snap"]["circle"]["centre_y"] - 64.0) < 1.0
+    assert f["snap"]["sure"] is False and f["snap"]["reason"] == want["reason"] != ""
+    assert "direction" not in f
 
 
 def ws_commit(s, values, save, want_id=1):
@@ -263,6 +288,64 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
         st = wait_for(lambda: (lambda x: x if x["run"]["gen"] > gen and x["run"]["status"] != "running" else None)(
             s.api("/api/state")), 60, "the run after apply")
         assert st["run"]["status"] == "ok" and not st["graph"]["dirty"]
+        assert not errors, errors
+    finally:
+        ctx.close()
+        b.close()
+        s.stop()
+
+
+def test_snap_a_circle_dragged_off_the_ball_in_the_browser(pw, tmp_path):
+    """A probe whose ball ProbeLight finds (tests/test_paris_probe_ring.py's, 320×240): at 4:1
+    the circle is dragged 3 px right and 2 px up and 1.5 px larger, "Snap to outline" brings it
+    back to within 0.1 px of the ball's circle, says it is sure, and the readout is ProbeLight's
+    direction for the snapped numbers; "Undo" puts the dragged circle back."""
+    from nodes.io.images import encode_image
+    from test_paris_probe_ring import CX, CY, R, _flash, _probe
+
+    (tmp_path / "probe.exr").write_bytes(encode_image(_probe(_flash(20.0)).pixels, ".exr", 32))
+    p = tmp_path / "g.yaml"
+    p.write_text(GRAPH.replace("${params.data}/probe.exr", "probe.exr"))
+    s = Server(p, tmp_path, plugins=None)
+    b, ctx = browser_page(pw)
+    errors = []
+    ctx.on("weberror", lambda e: errors.append(str(e.error)))
+    try:
+        page = ctx.new_page()
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.goto(s.url)
+        wait_graph(page)
+        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 60, "the run")
+        click_node(page, "probe")
+        page.wait_for_selector("#view-body .probe-view .probe-snap")
+        page.wait_for_function("() => document.querySelector('.probe-photo').naturalWidth === 320")
+        page.select_option(".probe-zoom", "4")
+        wait_for(lambda: page.evaluate("() => document.querySelector('.probe-photo').getBoundingClientRect().width")
+                 == 1280, 10, "the photo at 4:1")
+
+        def fields():
+            return [float(page.input_value(f'.probe-view input[data-key="{k}"]'))
+                    for k in ("centre_x", "centre_y", "radius")]
+
+        wait_for(lambda: np.allclose(fields(), [CX, CY, R], atol=0.5), 10, "the circle found")
+        found = fields()
+        drag(page, ".probe-handle-centre", 12, -8)
+        wait_for(lambda: np.allclose(fields()[:2], [found[0] + 3, found[1] - 2], atol=0.01), 10, "the centre dragged")
+        drag(page, ".probe-handle-radius", 6, 0)
+        wait_for(lambda: abs(fields()[2] - (found[2] + 1.5)) < 0.3, 10, "the radius dragged")
+        dragged = fields()
+        page.click(".probe-snap")
+        wait_for(lambda: "snapped" in page.inner_text(".probe-snapped"), 30, "the snap")
+        assert page.get_attribute(".probe-snapped", "data-sure") == "true", page.inner_text(".probe-snapped")
+        assert "snapped to the ball's outline" in page.inner_text(".probe-snapped")
+        snapped = fields()
+        assert np.hypot(snapped[0] - CX, snapped[1] - CY) < 0.1 and abs(snapped[2] - R) < 0.1, snapped
+        want = probelight_direction_of(tmp_path / "probe.exr", *snapped)
+        text = f"flash direction (probe camera (x right, y down, z forward) frame): ({', '.join(f'{x:.4f}' for x in want)})"
+        wait_for(lambda: page.inner_text(".probe-readout") == text, 10, "ProbeLight's direction for the snapped circle")
+        page.click(".probe-undo")
+        wait_for(lambda: fields() == dragged, 10, "the dragged circle back")
+        assert page.inner_text(".probe-snapped").strip() == ""
         assert not errors, errors
     finally:
         ctx.close()

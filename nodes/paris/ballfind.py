@@ -175,6 +175,75 @@ def find_ball(px: np.ndarray, fov_deg: float | None = None, highlight: bool = Tr
     return _choose(fits, lum if highlight else None, g, clipped, spots[0] if spots else None, curve, binned)
 
 
+#: :func:`snap` looks for the outline within this share of the radius of the circle marked …
+SNAP_REACH = 0.1
+#: … and this many pixels more (a circle dragged by hand at the photo's full view is a few px off)
+SNAP_REACH_PX = 4.0
+#: the snap's starts: the circle marked, then its radius changed by these shares of the reach
+SNAP_RADII = (0.0, -0.5, 0.5)
+
+
+def snap(px: np.ndarray, circle, fov_deg: float | None = None) -> BallFit:
+    """The mirror ball's outline near a circle marked by hand (``circle``: cx, cy, r in pixels,
+    ProbeLight's convention): step 3 of :func:`find_ball` (:func:`_subpixel`, the sector fit and
+    where it does not close the polished outline) started from that circle, with its verdict —
+    ``confident`` when the outline closes (step 4's support and gap, or tight) and is a mirror's
+    rim (not a line nor a disc on the backdrop, :func:`_not_a_rim`), ``reason`` otherwise.  A
+    person has said which circle is the ball, so the finder's choice among candidates (step 5)
+    is not made.  The fit starts from the circle marked and from it a little smaller and larger
+    (``SNAP_RADII``) and must end within ``SNAP_REACH`` × r + ``SNAP_REACH_PX`` of it (farther,
+    it followed another edge: not taken; none within: the circle marked comes back, not
+    confident, its ``residual_px`` infinite, saying so).
+
+    Only the circle's neighbourhood is read (its noise measured there): a camera's 21-megapixel
+    probe snaps in about a second.  benchmarks/bench_paris_snap.py: circles 3 px off on the
+    varied probes at 3× (1.6–6.7° off), the snapped direction's error and how often it is sure."""
+    cx, cy, r = (float(v) for v in circle)
+    px = np.asarray(px)
+    h, w = px.shape[:2]
+    if not (np.all(np.isfinite((cx, cy, r))) and r >= MIN_RADIUS_PX):
+        return BallFit(cx, cy, r, False, f"the circle marked (radius {r:.1f} px) is too small to snap to "
+                                         f"(at least {MIN_RADIUS_PX:.0f} px)")
+    reach = SNAP_REACH * r + SNAP_REACH_PX
+
+    def around(m):
+        return (slice(min(max(int(np.floor(cy - m)), 0), h), min(max(int(np.ceil(cy + m)) + 1, 0), h)),
+                slice(min(max(int(np.floor(cx - m)), 0), w), min(max(int(np.ceil(cx + m)) + 1, 0), w)))
+
+    # the sector profiles and the polish reach 4 px past the outline, the gradients 5 px more;
+    # the mirror-rim checks read the backdrop out to a radius beyond it (_unreflected)
+    box, wide = around(r + reach + 12.0), around(2 * (r + reach) + 4.0)
+    if min(px[box].shape[:2]) < 16:
+        return BallFit(cx, cy, r, False, "the circle marked is not on the photo")
+    # the photo's size for the geometry (the cone's principal point, what is in the frame), its
+    # pixels only round the circle (np.zeros: the rest of a large photo is never touched)
+    lum, g = np.zeros((h, w)), np.zeros((h, w))
+    lum[wide] = luminance(px[wide])
+    curve = noise_curve(lum[box])
+    g[box] = stabilise(lum[box], curve=curve)
+    outline = _Outline(g, fov_deg, curve, mirror=True, box=box)
+    # from the circle marked and from circles a little smaller and larger (a circle dragged off
+    # centre crosses the outline: part of it lies inside, on the reflection's edges)
+    fits = []
+    for dr in SNAP_RADII:
+        f = _subpixel(lum, g, _NOISE, {"cx": cx, "cy": cy, "r": r + dr * reach}, fov_deg, outline)
+        if np.all(np.isfinite((f.cx, f.cy, f.r))) and np.hypot(f.cx - cx, f.cy - cy) + abs(f.r - r) <= reach:
+            fits.append(f)
+            if f.confident:
+                break
+    if not fits:
+        # every fit ended on another edge: the circle marked is kept, with no outline
+        return BallFit(cx, cy, r, False, f"no outline within {reach:.1f} px of the circle marked (the fit went "
+                                         f"to another edge: {f.summary()})")
+    fit = max(fits, key=lambda f: (f.confident, f.support, -f.residual_px))
+    not_rim = _not_a_rim(fit, lum, g, curve) if fit.confident else ""
+    if not_rim:
+        fit.confident, fit.reason = False, not_rim
+    elif not fit.confident and not fit.reason:
+        fit.reason = f"the outline near the circle marked is not closed ({fit.summary()})"
+    return fit
+
+
 def _candidates(g, seeds, spots) -> list[dict]:
     """Steps 1–2: the distinct circles near the seeds with loose support (holding one of the
     highlight ``spots`` when there are any)."""
@@ -274,16 +343,9 @@ def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped, curve=None, binn
     if ring > 0.2:
         return (f"{100 * ring:.0f}% of the pixels just outside the outline found ({best.summary()}) "
                 "are clipped: the ball's silhouette may be lost in them (over-exposed)")
-    ridge, step = _line_profile(g, best)
-    if ridge >= EDGE_SNR and ridge > LINE_RATIO * step:
-        return (f"the outline found ({best.summary()}) is a thin line with the same level on both sides "
-                f"(it rises {ridge:.0f} noise σ and steps {step:.1f}): a ring on the backdrop, not the ball's edge")
-    if lum is not None:
-        share, way = _unreflected(lum, best, curve=curve)
-        if share >= NOT_MIRROR:
-            return (f"just inside the outline found ({best.summary()}) the image is {way} than a mirror ball's rim "
-                    f"can be on {100 * share:.0f}% of it (a mirror's rim reflects the backdrop beyond its outline): "
-                    "a disc or band on the backdrop, not the ball's edge")
+    not_rim = _not_a_rim(best, lum, g, curve)
+    if not_rim:
+        return not_rim
     around = [f for f in fits if f.r > best.r + 2 and _concentric(f, best)]
     if lum is not None:
         # on the image stabilised by the honest noise level (noise_curve's isotonic fit): with
@@ -300,6 +362,23 @@ def _doubt(best: BallFit, fits: list[BallFit], lum, g, clipped, curve=None, binn
     r, sup = max(outer, key=lambda o: o[1])
     return (f"a fainter circle of radius {r:.1f} px (edge on {100 * sup:.0f}%) surrounds "
             f"the outline found (radius {best.r:.1f} px): which one is the ball is unclear")
+
+
+def _not_a_rim(f: BallFit, lum, g, curve=None) -> str:
+    """Why the outline ``f`` is not a mirror ball's silhouette ('' if nothing says so): a thin
+    line with the same level on both sides (:func:`_line_profile`), or just inside it an image
+    brighter or darker than a mirror's rim can be (:func:`_unreflected`; ``lum`` None: not asked)."""
+    ridge, step = _line_profile(g, f)
+    if ridge >= EDGE_SNR and ridge > LINE_RATIO * step:
+        return (f"the outline found ({f.summary()}) is a thin line with the same level on both sides "
+                f"(it rises {ridge:.0f} noise σ and steps {step:.1f}): a ring on the backdrop, not the ball's edge")
+    if lum is not None:
+        share, way = _unreflected(lum, f, curve=curve)
+        if share >= NOT_MIRROR:
+            return (f"just inside the outline found ({f.summary()}) the image is {way} than a mirror ball's rim "
+                    f"can be on {100 * share:.0f}% of it (a mirror's rim reflects the backdrop beyond its outline): "
+                    "a disc or band on the backdrop, not the ball's edge")
+    return ""
 
 
 def _line_profile(g, f: BallFit) -> tuple[float, float]:
@@ -782,15 +861,23 @@ class _Outline:
     varied_probes' tune half at 3×, from 2 px off, within 0.35 px of the true circle on 7 of 12
     probes, 0.55–0.78 px on two; on a stronger outline beside the rim on three, 1.4–3.6 px off)."""
 
-    def __init__(self, g, fov_deg, curve=None, mirror=True):
+    def __init__(self, g, fov_deg, curve=None, mirror=True, box=None):
+        """``box`` (rows, columns slices): the gradients only there, zero elsewhere (an outline
+        looked for near a circle of a many-megapixel photo; the box's last 5 px are its own
+        border's, not the photo's)."""
         from scipy import ndimage
 
         from nodes.common.filters import gaussian_blur   # (SciPy: the same bytes on every CPU)
 
         self.curve, self.mirror = curve, mirror
-        gb = gaussian_blur(np.asarray(g, np.float32), 1.0)
-        self.gx = ndimage.sobel(gb, axis=1, mode="reflect") / np.float32(8)
-        self.gy = ndimage.sobel(gb, axis=0, mode="reflect") / np.float32(8)
+        gb = gaussian_blur(np.asarray(g if box is None else g[box], np.float32), 1.0)
+        gx = ndimage.sobel(gb, axis=1, mode="reflect") / np.float32(8)
+        gy = ndimage.sobel(gb, axis=0, mode="reflect") / np.float32(8)
+        if box is None:
+            self.gx, self.gy = gx, gy
+        else:
+            self.gx, self.gy = np.zeros(g.shape, np.float32), np.zeros(g.shape, np.float32)
+            self.gx[box], self.gy[box] = gx, gy
         self.h, self.w = g.shape
         self.fov_deg = fov_deg
 

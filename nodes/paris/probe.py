@@ -678,7 +678,7 @@ def _refuse_if_coarse(blob: np.ndarray, cx, cy, r, w, h, fov_deg):
 
 #: the refusal's pointer to the studio's probe view (nodes/paris/studio_view.py ProbeView)
 MARK_IN_STUDIO = (", or mark the ball in the studio: `graphkit serve GRAPH`, click this node, drag the "
-                  "circle of its probe view onto the ball's outline and apply")
+                  "circle of its probe view onto the ball's outline (or near it, then \"Snap to outline\") and apply")
 
 
 #: a probe with more of its pixels clipped is over-exposed: the backdrop or a lit wall clips, and
@@ -752,17 +752,56 @@ BIAS_PER_RMS = 2.5
 MAX_BIAS_DEG = 0.75
 
 
+def outline_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None) -> tuple[float, float]:
+    """How far (degrees) the flash's direction may move with the outline ``fit`` (a
+    :class:`~nodes.paris.ballfind.BallFit`): (by its standard error and rivals,
+    :func:`_direction_doubt`; by a bias along a side, :func:`_bias_doubt` — for an outline whose
+    edges scatter over ``CLEAN_RMS_PX`` and for every polished one, else 0), measured on the
+    flash's highlight ``blob`` (default: the largest clipped blob inside the outline)."""
+    if blob is None:
+        h, w = px.shape[:2]
+        box = _ball_box(fit.cx, fit.cy, fit.r, w, h)
+        yy, xx = np.mgrid[box]
+        m = _channel_max(px[box])
+        inside = (xx + 0.5 - fit.cx) ** 2 + (yy + 0.5 - fit.cy) ** 2 <= fit.r ** 2
+        blob = np.zeros((h, w), bool)
+        if inside.any():
+            blob[box] = _largest_component(inside & (m >= 0.98 * float(m[inside].max())))
+    doubt = _direction_doubt(px, fit, fov_deg, blob)
+    bias = _bias_doubt(px, fit, fov_deg, blob) if (CLEAN_RMS_PX < fit.residual_px or fit.polished) and \
+        fit.residual_px < np.inf else 0.0
+    return doubt, bias
+
+
+def snap_outline(px: np.ndarray, circle, fov_deg=None) -> dict:
+    """The mirror ball's outline near a circle marked by hand (:func:`nodes.paris.ballfind.snap`)
+    and how far to trust it: ``circle`` (cx, cy, r; None where no outline could be fitted at
+    all), ``doubt_deg`` (the most the flash's direction may move with it, :func:`outline_doubt`),
+    ``sure`` — the fit closes with a mirror's rim and its doubt is within what ProbeLight takes
+    from its own finder (``MAX_DOUBT_DEG``, ``MAX_BIAS_DEG``) — ``summary`` and ``reason`` (what
+    makes it unsure, '' when sure).  The studio's probe view ("Snap to outline")."""
+    from .ballfind import snap
+
+    fit = snap(px, circle, fov_deg)
+    if not (np.isfinite(fit.residual_px) and np.all(np.isfinite((fit.cx, fit.cy, fit.r)))):
+        return {"circle": None, "sure": False, "summary": fit.summary(), "reason": fit.reason, "doubt_deg": None}
+    doubt, bias = outline_doubt(px, fit, fov_deg)
+    reason = fit.reason
+    if not reason and bias > MAX_BIAS_DEG:
+        reason = (f"the outline may be off by {BIAS_PER_RMS} × its residual along a side, which moves the "
+                  f"flash's direction by {bias:.1f}° (more than {MAX_BIAS_DEG}°)")
+    elif not reason and doubt > MAX_DOUBT_DEG:
+        reason = f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with it"
+    return {"circle": (float(fit.cx), float(fit.cy), float(fit.r)), "sure": not reason, "summary": fit.summary(),
+            "reason": reason, "doubt_deg": round(float(max(doubt, bias)), 2)}
+
+
 def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None, port: str = "probe"):
     """BadInput (exit 2) when the found ball's uncertainty (:func:`_direction_doubt`) moves the
     flash's direction by more than ``MAX_DOUBT_DEG``, or a bias of ``BIAS_PER_RMS`` × its
     residual by more than ``MAX_BIAS_DEG`` (:func:`_bias_doubt`; for an outline whose edges
     scatter over ``CLEAN_RMS_PX``, and for every polished one)."""
-    if blob is None:
-        m = _channel_max(px)
-        blob = _largest_component(m >= 0.98 * float(m.max()))
-    doubt = _direction_doubt(px, fit, fov_deg, blob)
-    bias = _bias_doubt(px, fit, fov_deg, blob) if (CLEAN_RMS_PX < fit.residual_px or fit.polished) and \
-        fit.residual_px < np.inf else 0.0
+    doubt, bias = outline_doubt(px, fit, fov_deg, blob)
     if doubt <= MAX_DOUBT_DEG and bias <= MAX_BIAS_DEG:
         return
     if doubt > MAX_DOUBT_DEG and fit.rivals:

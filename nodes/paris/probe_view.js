@@ -8,7 +8,8 @@ const KEYS = ['centre_x', 'centre_y', 'radius'];
 const HOW = {
   given: 'the circle given in the graph',
   found: 'the circle ProbeLight found',
-  guess: 'a starting guess: drag the circle onto the ball\'s outline (centre and radius handles), then apply',
+  guess: 'a starting guess: drag the circle onto the ball\'s outline (centre and radius handles), or near it and ' +
+         'press "Snap to outline", then apply',
 };
 
 function node(tag, attrs = {}, ns = null) {
@@ -60,6 +61,16 @@ export function mount(el, api) {
     row.append(lab, f);
     return row;
   });
+  // snap: the outline fitted near the circle (ProbeView._snap), undone by "Undo"
+  const snapRow = node('div', { class: 'preview-head' });
+  const snapBtn = node('button', { class: 'probe-snap', style: 'white-space:nowrap', title: 'fit the ball\'s outline near this circle (a few pixels off ' +
+                                   'is fine) and move the circle onto it' });
+  snapBtn.textContent = 'Snap to outline';
+  const undoBtn = node('button', { class: 'probe-undo', title: 'put back the circle as it was before the snap' });
+  undoBtn.textContent = 'Undo';
+  undoBtn.disabled = true;
+  const snapNote = node('span', { class: 'dim probe-snapped' });
+  snapRow.append(snapBtn, ' ', undoBtn, ' ', snapNote);
   const readout = node('div', { class: 'probe-readout', 'data-frames': '0' });
   const applyRow = node('div', { class: 'preview-head' });
   const file = node('input', { type: 'text', value: api.data.file, class: 'probe-file',
@@ -68,7 +79,7 @@ export function mount(el, api) {
   apply.textContent = 'Apply';
   const applied = node('span', { class: 'dim probe-applied' });
   applyRow.append(apply, ' to ', file, applied);
-  root.append(status, hint, tools, scroll, ...rows, readout, applyRow);
+  root.append(status, hint, tools, scroll, ...rows, snapRow, readout, applyRow);
   el.append(root);
 
   function loadPhoto() {
@@ -134,12 +145,52 @@ export function mount(el, api) {
     update();
   }
 
+  let before = null;
+  snapBtn.addEventListener('click', async () => {
+    snapBtn.disabled = true;
+    snapNote.className = 'dim probe-snapped';
+    snapNote.textContent = ' snapping…';
+    try {
+      const was = { ...values };
+      const { url, info } = await api.frame({ ...values, snap: true });
+      if (url) URL.revokeObjectURL(url);
+      const s = info.snap;
+      if (info.error || !s || !s.circle) {
+        snapNote.className = 'node-msg probe-snapped';
+        snapNote.textContent = ` not snapped: ${info.error || (s && s.reason) || 'no outline near the circle'}`;
+        return;
+      }
+      before = was;
+      undoBtn.disabled = false;
+      Object.assign(values, s.circle);
+      snapNote.className = s.sure ? 'dim probe-snapped' : 'node-msg probe-snapped';
+      snapNote.dataset.sure = String(s.sure);
+      snapNote.textContent = s.sure ? ` snapped to the ball's outline: ${s.summary}; the direction within ` +
+        `${s.doubt_deg.toFixed(2)}°` :
+        ` snapped, not sure: ${s.reason} — compare the circle with the ball's outline at 4:1 or more, or undo`;
+      changed(true);
+    } finally {
+      snapBtn.disabled = false;
+    }
+  });
+  undoBtn.addEventListener('click', () => {
+    if (!before) return;
+    Object.assign(values, before);
+    before = null;
+    undoBtn.disabled = true;
+    snapNote.textContent = '';
+    delete snapNote.dataset.sure;
+    changed(true);
+  });
+
   apply.addEventListener('click', async () => {
     applied.textContent = ' applying…';
     const r = await api.commit({ ...values }, file.value);
     applied.textContent = r.ok ? ` written to ${r.saved}` : ` not applied: ${(r.errors || []).map(e => e.text).join('; ')}`;
   });
   zoom.addEventListener('change', setZoom);
+  // the handles keep their size on screen when the pane or the window is resized
+  if (window.ResizeObserver) new ResizeObserver(() => draw()).observe(svg);
   expo.addEventListener('change', loadPhoto);
   img.addEventListener('load', draw);
   loadPhoto();

@@ -374,6 +374,9 @@ class ProbeView(LiveView):
     Dragging it or typing its numbers asks
     :meth:`frame` for the flash direction ProbeLight computes with ``centre_x``,
     ``centre_y``, ``radius`` given (the node's own compute, on the server), or its message.
+    "Snap to outline" asks it (``snap`` in the values) for the ball's outline fitted near the
+    circle (:func:`nodes.paris.probe.snap_outline`: a circle dragged a few pixels off comes back
+    to a fraction of a pixel where the outline closes), and how far to trust it.
     "Apply" writes the three params into the graph (or the graph params they are bound to)
     and saves the graph file, after the node accepted the circle."""
 
@@ -434,9 +437,25 @@ class ProbeView(LiveView):
 
     def frame(self, values: dict):
         given = self.inputs()
+        if values.get("snap"):
+            return {"image": np.zeros((1, 1, 3), np.float32), "snap": self._snap(values, given)}
         light = self.compute(params=self._params(values), **given)["light"]
         frame = "world" if given.get("camera") is not None else "probe camera (x right, y down, z forward)"
         return {"image": np.zeros((1, 1, 3), np.float32), "direction": _vec(light.direction), "frame": frame}
+
+    def _snap(self, values: dict, given: dict) -> dict:
+        """:func:`nodes.paris.probe.snap_outline` near the circle of ``values``, its circle
+        keyed by the node's params (rounded to 1/100 px, as "Apply" writes them)."""
+        from .checks import rgb_pixels
+        from .probe import snap_outline
+
+        p = self._params(values)
+        node = self.gnode.cls(p)
+        px = rgb_pixels(given["probe"], "probe", grey=True, float64=False)
+        out = snap_outline(px, (p.centre_x, p.centre_y, p.radius), node._probe_fov(given.get("camera")))
+        if out["circle"] is not None:
+            out["circle"] = dict(zip(self.KEYS, (round(float(v), 2) for v in out["circle"])))
+        return out
 
     def commit(self, values: dict) -> list[dict]:
         p = self._params(values)
