@@ -8,6 +8,7 @@ into the graph file (comments kept) through the studio's edit and save path.  Th
 refuses bad circles with ProbeLight's own messages and writes nothing then."""
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -213,6 +214,28 @@ def pw():
         yield p
 
 
+@contextlib.contextmanager
+def probe_page(pw, graph, tmp_path, status):
+    """The studio on ``graph`` in a headless Chromium page, its run ended with ``status``, the
+    ProbeLight node clicked: (page, the page's errors, the server)."""
+    s = Server(graph, tmp_path, plugins=None)
+    b, ctx = browser_page(pw)
+    errors = []
+    ctx.on("weberror", lambda e: errors.append(str(e.error)))
+    try:
+        page = ctx.new_page()
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.goto(s.url)
+        wait_graph(page)
+        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == status, 60, "the run")
+        click_node(page, "probe")
+        yield page, errors, s
+    finally:
+        ctx.close()
+        b.close()
+        s.stop()
+
+
 def drag(page, sel, dx, dy):
     """A real mouse drag of the SVG handle ``sel`` by (dx, dy) screen pixels."""
     h = page.locator(sel)
@@ -234,17 +257,7 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
     (comments and order kept), `graphkit validate` accepts it and the re-run succeeds."""
     p = tmp_path / "g.yaml"
     p.write_text(GRAPH)
-    s = Server(p, tmp_path, plugins=None)
-    b, ctx = browser_page(pw)
-    errors = []
-    ctx.on("weberror", lambda e: errors.append(str(e.error)))
-    try:
-        page = ctx.new_page()
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.goto(s.url)
-        wait_graph(page)
-        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "failed", 60, "the run")
-        click_node(page, "probe")
+    with probe_page(pw, p, tmp_path, "failed") as (page, errors, s):
         page.wait_for_selector("#view-body .probe-view .probe-reason")
         assert "ProbeLight refused: " in page.inner_text(".probe-reason")
         assert "mark the ball in the studio" in page.inner_text(".probe-reason")
@@ -289,10 +302,6 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
             s.api("/api/state")), 60, "the run after apply")
         assert st["run"]["status"] == "ok" and not st["graph"]["dirty"]
         assert not errors, errors
-    finally:
-        ctx.close()
-        b.close()
-        s.stop()
 
 
 def test_snap_a_circle_dragged_off_the_ball_in_the_browser(pw, tmp_path):
@@ -306,17 +315,7 @@ def test_snap_a_circle_dragged_off_the_ball_in_the_browser(pw, tmp_path):
     (tmp_path / "probe.exr").write_bytes(encode_image(_probe(_flash(20.0)).pixels, ".exr", 32))
     p = tmp_path / "g.yaml"
     p.write_text(GRAPH.replace("${params.data}/probe.exr", "probe.exr"))
-    s = Server(p, tmp_path, plugins=None)
-    b, ctx = browser_page(pw)
-    errors = []
-    ctx.on("weberror", lambda e: errors.append(str(e.error)))
-    try:
-        page = ctx.new_page()
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.goto(s.url)
-        wait_graph(page)
-        wait_for(lambda: page.eval_on_selector("#run-status", "e => e.dataset.status") == "ok", 60, "the run")
-        click_node(page, "probe")
+    with probe_page(pw, p, tmp_path, "ok") as (page, errors, _):
         page.wait_for_selector("#view-body .probe-view .probe-snap")
         page.wait_for_function("() => document.querySelector('.probe-photo').naturalWidth === 320")
         page.select_option(".probe-zoom", "4")
@@ -347,7 +346,3 @@ def test_snap_a_circle_dragged_off_the_ball_in_the_browser(pw, tmp_path):
         wait_for(lambda: fields() == dragged, 10, "the dragged circle back")
         assert page.inner_text(".probe-snapped").strip() == ""
         assert not errors, errors
-    finally:
-        ctx.close()
-        b.close()
-        s.stop()
