@@ -5,7 +5,9 @@ varied set's size (``--scales``, default 6 and 12: 2688×2016 = 5.4 MP and 5376�
 ``--cache`` keeps the renders, minutes each at 12×), then ProbeLight in a fresh process per
 run, the ball found (``find_ball`` inside) and its true circle given: CPU and wall seconds, the
 process's peak resident memory (and what the loaded image alone held), the flash direction's
-error against make_probes.truth.  ``--peer DIR``: the same runs with another checkout's code
+error against make_probes.truth; with the circle given, also the median of 5 more computes
+in the same process with the circle moved 0.3 px each (a drag step in the studio's probe view,
+which runs ProbeLight's compute).  ``--peer DIR``: the same runs with another checkout's code
 (e.g. a worktree of main), alternated with this one's.
 
 Run:  .venv/bin/python benchmarks/bench_paris_probe_mp.py [--scales 6,12] [--cache DIR] [--peer DIR]
@@ -42,7 +44,17 @@ try:
     err, why = _angle(light.direction, t["direction"]), ""
 except BadInput as e:
     err, why = None, e.message
-print(json.dumps({"cpu": time.process_time() - c0, "wall": time.perf_counter() - w0, "err": err, "refused": why,
+cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+steps = []
+if mode == "given":
+    # the studio's probe view dragged: the same compute with the circle moved 0.3 px a step
+    probe = Image(img)
+    for i in range(1, 6):
+        w1 = time.perf_counter()
+        ProbeLight(ProbeLight.Params(fov_deg=spec.fov_deg, **{**kw, "centre_x": kw["centre_x"] + 0.3 * i})).compute(
+            probe=probe)
+        steps.append(time.perf_counter() - w1)
+print(json.dumps({"cpu": cpu, "wall": wall, "err": err, "refused": why, "step": sorted(steps)[2] if steps else None,
                   "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, "image_gb": loaded / 1e6,
                   "size": f"{img.shape[1]}x{img.shape[0]}"}))
 """
@@ -67,14 +79,16 @@ def main(argv=None) -> int:
     if a.cache:
         os.makedirs(a.cache, exist_ok=True)
     roots = [("this", ROOT)] + ([("peer", Path(a.peer).resolve())] if a.peer else [])
-    print("| code | probe | size | circle | CPU s | wall s | peak GB (image alone) | error ° |\n|---|---|---|---|---|---|---|---|")
+    print("| code | probe | size | circle | CPU s | wall s | peak GB (image alone) | error ° | drag step s |\n"
+          "|---|---|---|---|---|---|---|---|---|")
     for k in [int(x) for x in a.scales.split(",")]:
         for mode in ("given", "found"):
             for name, root in roots:
                 r = run(root, os.path.abspath(a.cache) if a.cache else "", a.probe, k, mode)
                 err = f"{r['err']:.3f}" if r["err"] is not None else f"exit 2 ({r['refused'][:60]})"
+                step = "—" if r.get("step") is None else f"{r['step']:.2f}"
                 print(f"| {name} | {a.probe}x{k} | {r['size']} | {mode} | {r['cpu']:.1f} | {r['wall']:.1f} | "
-                      f"{r['peak_gb']:.2f} ({r['image_gb']:.2f}) | {err} |", flush=True)
+                      f"{r['peak_gb']:.2f} ({r['image_gb']:.2f}) | {err} | {step} |", flush=True)
     return 0
 
 
