@@ -8,6 +8,8 @@ candidates) and says whether to trust it.  Synthetic orthographic probes of
 tests/test_paris_probe_ring.py (a faint silhouette: the rim reflects the backdrop × 0.8); the
 varied Mitsuba probes: benchmarks/bench_paris_snap.py.
 """
+import re
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,27 @@ def test_the_sample_probes_ball_is_snapped_but_not_sure():
     out = snap_outline(px, (64.0, 64.0, 32.0))
     assert out["circle"] is not None and np.hypot(out["circle"][0] - 64.0, out["circle"][1] - 64.0) < 1.0
     assert not out["sure"] and out["reason"]
+
+
+def test_a_circle_given_off_the_outline_is_noticed_in_a_run(probe):
+    """ProbeLight with a circle given 3 px off (in a run: a cache key, a notice reader): the
+    circle is used as given (the same light as without the check), and one notice names the
+    outline's circle and how far the direction moves; the true circle, no notice; a live view's
+    frame (no key), no check."""
+    from graphkit.node import Context
+
+    def run(c, key="k"):
+        told = []
+        out = ProbeLight(ProbeLight.Params(centre_x=c[0], centre_y=c[1], radius=c[2]),
+                         Context(key=key, tell=told.append)).compute(probe=probe)
+        return out["light"], told
+
+    c = _marked(3.0)[0]
+    light, told = run(c)
+    assert light == run(c, key="")[0]
+    assert len(told) == 1 and "is off the ball's outline fitted near it" in told[0], told
+    m = re.search(r"fitted near it \(centre \(([\d.]+), ([\d.]+)\), radius ([\d.]+) px;.* moves by ([\d.]+)°", told[0])
+    assert np.allclose([float(m[1]), float(m[2]), float(m[3])], [CX, CY, R], atol=0.1), told[0]
+    assert float(m[4]) > 5.0
+    assert run((CX, CY, R))[1] == []
+    assert run(c, key="")[1] == []

@@ -235,6 +235,8 @@ class ProbeLight(Node):
         if energy is not None:
             energy /= p.ball_reflectance
         light = self._light(ldir, color, ambient_refl / p.ball_reflectance, energy, white_k, camera)
+        if not found and self.ctx.key:
+            self._notice_if_off_outline(full, (cx, cy, r), fov_deg, box, sat)
         cls = np.zeros((h, w, 3), np.float32)
         circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
         for name, m in (("ball", circle), ("ambient", ring), ("halo", halo), ("saturated", sat)):
@@ -252,6 +254,27 @@ class ProbeLight(Node):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
         return _find_ball_or_refuse(px, port, fov_deg, highlight=True, found=found)
+
+    def _notice_if_off_outline(self, full, circle, fov_deg, box, sat) -> None:
+        """A circle given by hand (or read off an image viewer) a few pixels off moves the flash's
+        direction by degrees, and nothing shows it: where the ball's outline fitted near it
+        (:func:`snap_outline`) is sure and its circle moves the direction over the flash's
+        highlight ``sat`` (in ``box``) by more than ``MAX_DOUBT_DEG``, a notice says so, with that
+        circle.  The circle given is kept: it is the user's.  In a run only (a live view's frames,
+        outside the engine — ``ctx.key`` empty — have no one to tell)."""
+        out = snap_outline(full, circle, fov_deg)
+        if not out["sure"]:
+            return
+        whole = np.zeros(full.shape[:2], bool)
+        whole[box] = sat
+        moved = _moved_by(full, whole, fov_deg, circle, [out["circle"]])
+        if moved > MAX_DOUBT_DEG:
+            (cx, cy, r), (sx, sy, sr) = circle, out["circle"]
+            self.ctx.notice(
+                f"the circle given (centre ({cx:.2f}, {cy:.2f}), radius {r:.2f} px) is off the ball's outline "
+                f"fitted near it (centre ({sx:.2f}, {sy:.2f}), radius {sr:.2f} px; {out['summary']}): with that "
+                f"circle the flash's direction moves by {moved:.1f}°; check centre_x, centre_y and radius (the "
+                "studio's probe view snaps a circle to the outline)")
 
     def _flash_prior(self, cx, cy, r, w, h, fov_deg) -> tuple[np.ndarray, float, str]:
         """Where the flash's highlight is expected when several lights clip on the ball: the
