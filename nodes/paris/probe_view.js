@@ -63,8 +63,9 @@ export function mount(el, api) {
   });
   // snap: the outline fitted near the circle (ProbeView._snap), undone by "Undo"
   const snapRow = node('div', { class: 'preview-head' });
-  const snapBtn = node('button', { class: 'probe-snap', style: 'white-space:nowrap', title: 'fit the ball\'s outline near this circle (a few pixels off ' +
-                                   'is fine) and move the circle onto it' });
+  const snapBtn = node('button', { class: 'probe-snap', style: 'white-space:nowrap',
+                                   title: 'fit the ball\'s outline near this circle (a few pixels off is fine) ' +
+                                          'and move the circle onto it' });
   snapBtn.textContent = 'Snap to outline';
   const undoBtn = node('button', { class: 'probe-undo', title: 'put back the circle as it was before the snap' });
   undoBtn.textContent = 'Undo';
@@ -169,6 +170,9 @@ export function mount(el, api) {
         `${s.doubt_deg.toFixed(2)}°` :
         ` snapped, not sure: ${s.reason} — compare the circle with the ball's outline at 4:1 or more, or undo`;
       changed(true);
+    } catch (e) {
+      snapNote.className = 'node-msg probe-snapped';
+      snapNote.textContent = ` not snapped: ${e}`;
     } finally {
       snapBtn.disabled = false;
     }
