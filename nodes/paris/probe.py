@@ -632,14 +632,10 @@ def _hit(d, c):
 MAX_DOUBT_DEG = 0.5
 
 
-def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None) -> float:
+def _direction_doubt(px: np.ndarray, fit, fov_deg, blob: np.ndarray) -> float:
     """How far (degrees) the flash's direction — the mean reflected direction over its
-    highlight ``blob`` (default: the largest clipped blob) — moves between the circle found and
-    the circles it cannot rule out: its own fit moved by 2 standard errors (centre and radius,
-    each way) and the rival outlines."""
-    if blob is None:
-        m = _channel_max(px)
-        blob = _largest_component(m >= 0.98 * float(m.max()))
+    highlight ``blob`` — moves between the circle found and the circles it cannot rule out: its
+    own fit moved by 2 standard errors (centre and radius, each way) and the rival outlines."""
     s = 2 * fit.sigma_px if np.isfinite(fit.sigma_px) else 0.0
     others = [(fit.cx + dx, fit.cy + dy, fit.r + dr) for dx, dy, dr in
               ((s, 0, 0), (-s, 0, 0), (0, s, 0), (0, -s, 0), (0, 0, s / np.sqrt(2)), (0, 0, -s / np.sqrt(2)))]
@@ -810,13 +806,14 @@ def snap_outline(px: np.ndarray, circle, fov_deg=None) -> dict:
         return {"circle": None, "sure": False, "summary": fit.summary(), "reason": fit.reason, "doubt_deg": None}
     doubt, bias = outline_doubt(px, fit, fov_deg)
     reason = fit.reason
-    if not reason and bias > MAX_BIAS_DEG:
+    if not reason and not bias <= MAX_BIAS_DEG:   # (NaN, no highlight to measure it on: not sure)
         reason = (f"the outline may be off by {BIAS_PER_RMS} × its residual along a side, which moves the "
                   f"flash's direction by {bias:.1f}° (more than {MAX_BIAS_DEG}°)")
-    elif not reason and doubt > MAX_DOUBT_DEG:
+    elif not reason and not doubt <= MAX_DOUBT_DEG:
         reason = f"the flash's direction is uncertain by {doubt:.1f}° (more than {MAX_DOUBT_DEG}°) with it"
+    worst = max(doubt, bias)
     return {"circle": (float(fit.cx), float(fit.cy), float(fit.r)), "sure": not reason, "summary": fit.summary(),
-            "reason": reason, "doubt_deg": round(float(max(doubt, bias)), 2)}
+            "reason": reason, "doubt_deg": round(float(worst), 2) if np.isfinite(worst) else None}
 
 
 def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = None, port: str = "probe"):
