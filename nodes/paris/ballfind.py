@@ -197,7 +197,7 @@ def snap(px: np.ndarray, circle, fov_deg: float | None = None) -> BallFit:
 
     Only the circle's neighbourhood is read (its noise measured there): a camera's 21-megapixel
     probe snaps in about a second.  benchmarks/bench_paris_snap.py: circles 3 px off on the
-    varied probes at 3× (1.6–6.7° off), the snapped direction's error and how often it is sure."""
+    varied probes at 3× (1.4–6.4° off), the snapped direction's error and how often it is sure."""
     cx, cy, r = (float(v) for v in circle)
     px = np.asarray(px)
     h, w = px.shape[:2]
