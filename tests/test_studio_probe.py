@@ -1,8 +1,8 @@
 """The studio's probe view (nodes/paris/studio_view.py ProbeView + probe_view.js): where
 ProbeLight refuses to find the mirror ball, a person marks it.  The sample capture's probe
 (nodes/paris/data/sample_capture, 128², ball at (64, 64) radius 28.45) is refused by the finder
-(a uniform environment: only the highlight stands out), so the view starts from a guess and
-shows the refusal; the circle is dragged in real headless Chromium (Debian's), the direction
+(a uniform environment: its rim a thin line, not a mirror's), so the view starts from the
+circle the finder was not sure of and shows the refusal; the circle is dragged in real headless Chromium (Debian's), the direction
 readout is ProbeLight's own, and "apply" writes the graph params the node's circle is bound to
 into the graph file (comments kept) through the studio's edit and save path.  The server side
 refuses bad circles with ProbeLight's own messages and writes nothing then."""
@@ -41,9 +41,12 @@ outputs:
 """
 
 
+SAMPLE_PROBE = ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr"
+
+
 def probelight_direction(cx, cy, r):
     """The flash direction ProbeLight gives on the sample probe with this circle."""
-    return probelight_direction_of(ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr", cx, cy, r)
+    return probelight_direction_of(SAMPLE_PROBE, cx, cy, r)
 
 
 def probelight_direction_of(path, cx, cy, r):
@@ -70,17 +73,24 @@ def studio(tmp_path):
 
 
 def test_probe_view_refuses_bad_circles_with_probelights_messages(studio):
-    """In process: the view starts from a guess and says why ProbeLight refused; frame() is
-    ProbeLight's compute with the circle given (its direction, bit for bit), and a circle it
-    cannot use is refused with its own message (its Params' for a radius ≤ 0, its compute's for a
-    circle off the image); commit() checks the circle before it gives any change."""
+    """In process: the view starts from the finder's best circle and says why ProbeLight
+    refused; frame() is ProbeLight's compute with the circle given (its direction, bit for bit),
+    and a circle it cannot use is refused with its own message (its Params' for a radius ≤ 0, its
+    compute's for a circle off the image); commit() checks the circle before it gives any change."""
     from graphkit import BadInput
+    from nodes.io.images import read_image
+    from nodes.paris import ballfind
     from nodes.paris.studio_view import ProbeView
 
     st, _ = studio
     v = ProbeView(st, "probe")
     d = v.data()
-    assert d["how"] == "guess" and d["circle"] == {"centre_x": 64.0, "centre_y": 64.0, "radius": 32.0}
+    # the finder's best circle, which it refused (a thin line, not a mirror's rim): the start
+    best = ballfind.find_ball(read_image(str(SAMPLE_PROBE))[0])
+    assert not best.confident
+    assert d["how"] == "best" and d["circle"] == {"centre_x": round(best.cx, 2), "centre_y": round(best.cy, 2),
+                                                  "radius": round(best.r, 2)}
+    assert np.hypot(best.cx - 64.0, best.cy - 64.0) < 1.0
     assert "cannot find the mirror ball with confidence" in d["reason"]
     assert "mark the ball in the studio" in d["reason"]  # the refusal points to this view
     assert (d["width"], d["height"], d["probe"]) == (128, 128, {"node": "probe_photo", "port": "image"})
@@ -162,7 +172,7 @@ def test_snap_in_process_gives_the_outline_and_how_far_to_trust_it(studio):
     v = ProbeView(st, "probe")
     values = {"centre_x": 64.0, "centre_y": 64.0, "radius": 32.0}
     f = v.frame({**values, "snap": True})
-    px, _ = read_image(str(ROOT / "nodes" / "paris" / "data" / "sample_capture" / "probe.exr"))
+    px, _ = read_image(str(SAMPLE_PROBE))
     want = snap_outline(px, (64.0, 64.0, 32.0))
     assert f["snap"]["circle"] == dict(zip(("centre_x", "centre_y", "radius"), (round(x, 2) for x in want["circle"])))
     assert np.hypot(f["snap"]["circle"]["centre_x"] - 64.0, f["snap"]["circle"]["centre_y"] - 64.0) < 1.0
@@ -250,11 +260,15 @@ def drag(page, sel, dx, dy):
 
 
 def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
-    """The refused probe in the page: the refusal shown, the whole photo at full size; at 4:1 a
+    """The refused probe in the page: the refusal shown, the whole photo at full size, the circle
+    the finder refused to start from (then (64, 64, 32) typed in); at 4:1 a
     drag of the centre handle by (+8, −4) screen px moves the centre by exactly (+2, −1) probe
     px, one of the radius handle by −14 px makes the radius 28.5; the readout is ProbeLight's
     direction for that circle (a radius typed < 0: ProbeLight's message); Apply writes ball_x/ball_y/ball_radius into the graph file
     (comments and order kept), `graphkit validate` accepts it and the re-run succeeds."""
+    from nodes.io.images import read_image
+    from nodes.paris import ballfind
+
     p = tmp_path / "g.yaml"
     p.write_text(GRAPH)
     with probe_page(pw, p, tmp_path, "failed") as (page, errors, s):
@@ -274,8 +288,16 @@ def test_mark_the_ball_in_the_browser_and_apply(pw, tmp_path):
             return [float(page.input_value(f'.probe-view input[data-key="{k}"]'))
                     for k in ("centre_x", "centre_y", "radius")]
 
-        first, n = readout(0)
-        assert fields() == [64.0, 64.0, 32.0]
+        readout(0)
+        best = ballfind.find_ball(read_image(str(SAMPLE_PROBE))[0])
+        assert fields() == [round(best.cx, 2), round(best.cy, 2), round(best.r, 2)]  # the finder's best
+        assert "not sure of" in page.inner_text(".probe-view .dim")
+        for k, x in (("centre_x", 64), ("centre_y", 64), ("radius", 32)):  # a circle to drag from
+            page.fill(f'.probe-view input[data-key="{k}"]', str(x))
+        first = probelight_direction(64.0, 64.0, 32.0)
+        first = f"flash direction (probe camera (x right, y down, z forward) frame): ({', '.join(f'{x:.4f}' for x in first)})"
+        wait_for(lambda: page.inner_text(".probe-readout") == first, 10, "the direction for the typed circle")
+        n = int(page.get_attribute(".probe-readout", "data-frames"))
         drag(page, ".probe-handle-centre", 8, -4)
         wait_for(lambda: fields()[:2] == [66.0, 63.0], 10, "the centre moved by (+2, -1) px")
         drag(page, ".probe-handle-radius", -14, 0)

@@ -243,17 +243,18 @@ class ProbeLight(Node):
             cls[box][m] = CLASS_COLOURS[name]
         return {"light": light, "classes": Image(cls)}
 
-    def _ball(self, px, port, cx, cy, r, fov_deg=None, found: list | None = None):
+    def _ball(self, px, port, cx, cy, r, fov_deg=None, found: list | None = None, best: list | None = None):
         """(cx, cy, r) given or found; ``found``: a list that receives the finder's fit, whose
         doubt the caller then checks on the flash's own highlight (:func:`_refuse_if_doubtful`);
-        without it the doubt is checked here on the largest clipped blob."""
+        without it the doubt is checked here on the largest clipped blob.  ``best``: a list that
+        receives the finder's fit even when it refuses it."""
         given = [x is not None for x in (cx, cy, r)]
         if all(given):
             return float(cx), float(cy), float(r)
         if any(given):
             raise BadInput("centre_x" if cx is None else "centre_y" if cy is None else "radius",
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
-        return _find_ball_or_refuse(px, port, fov_deg, highlight=True, found=found)
+        return _find_ball_or_refuse(px, port, fov_deg, highlight=True, found=found, best=best)
 
     def _notice_if_off_outline(self, full, circle, fov_deg, box, sat) -> None:
         """A circle given by hand (or read off an image viewer) a few pixels off moves the flash's
@@ -838,15 +839,18 @@ def _refuse_if_doubtful(px: np.ndarray, fit, fov_deg, blob: np.ndarray | None = 
 
 
 def _find_ball_or_refuse(px: np.ndarray, port: str, fov_deg, highlight: bool,
-                         found: list | None = None) -> tuple[float, float, float]:
+                         found: list | None = None, best: list | None = None) -> tuple[float, float, float]:
     """The ball found by :func:`nodes.paris.ballfind.find_ball`, or BadInput (exit 2) saying
     why it is not sure and which params to give.  ``found`` (a mirror ball): a list that
     receives the fit, the direction's doubt then left to the caller, who knows the flash's
-    highlight; without it the doubt is checked on the largest clipped blob."""
+    highlight; without it the doubt is checked on the largest clipped blob.  ``best``: a list
+    that receives the finder's fit, sure or not (the studio's probe view starts from it)."""
     from .ballfind import find_ball
 
     what = "mirror ball" if highlight else "white ball"
     fit = find_ball(px, fov_deg, highlight=highlight)
+    if best is not None:
+        best.append(fit)
     if highlight and (fit.confident or fit.rivals):
         if found is None:
             _refuse_if_doubtful(px, fit, fov_deg, port=port)

@@ -10,6 +10,8 @@ const HOW = {
   found: 'the circle ProbeLight found',
   guess: 'a starting guess: drag the circle onto the ball\'s outline (centre and radius handles), or near it and ' +
          'press "Snap to outline", then apply',
+  best: 'the circle ProbeLight found but was not sure of: check it against the ball\'s outline, press "Snap to ' +
+        'outline" or drag it (centre and radius handles), then apply',
 };
 
 function node(tag, attrs = {}, ns = null) {
@@ -25,7 +27,7 @@ export function mount(el, api) {
   const status = node('div', { class: api.data.reason ? 'node-msg probe-reason' : 'dim' });
   status.textContent = api.data.reason ? `ProbeLight refused: ${api.data.reason}` : HOW[api.data.how];
   const hint = node('div', { class: 'dim' });
-  if (api.data.reason) hint.textContent = HOW.guess;
+  if (api.data.reason) hint.textContent = HOW[api.data.how] || HOW.guess;
 
   // zoom and exposure of the photo
   const tools = node('div', { class: 'preview-head' });

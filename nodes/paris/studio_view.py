@@ -407,16 +407,24 @@ class ProbeView(LiveView):
 
     def _start(self, v: dict, w: int, h: int):
         """(circle, how, refusal): the circle given in the graph or found by the node's own
-        finder, else ProbeLight's refusal and a starting guess (the frame's middle)."""
+        finder, else ProbeLight's refusal and a starting circle: the finder's best, which it
+        was not sure of ("best": often within a snap of the ball, e.g. its outline closed on
+        too little of it), or where it had none in the frame the frame's middle ("guess")."""
+        from .ballfind import MIN_RADIUS_PX
         from .checks import rgb_pixels
 
         p = self.params
         node = self.gnode.cls(p)
+        best = []
         try:
             px = rgb_pixels(v["probe"], "probe", grey=True, float64=False)
-            c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(v.get("camera")))
+            c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(v.get("camera")), best=best)
             return [float(x) for x in c], "given" if p.radius is not None else "found", ""
         except BadInput as e:
+            f = best[0] if best else None
+            if f is not None and np.all(np.isfinite((f.cx, f.cy, f.r))) and f.r >= MIN_RADIUS_PX \
+                    and 0 <= f.cx <= w and 0 <= f.cy <= h:
+                return [round(float(f.cx), 2), round(float(f.cy), 2), round(float(f.r), 2)], "best", str(e)
             return [w / 2, h / 2, min(w, h) / 4], "guess", str(e)
 
     def _params(self, values: dict):
