@@ -9,10 +9,13 @@ run), ProbeLight's direction with it (the hand's error) and with the snapped cir
 error; degrees against make_probes.truth, ProbeLight with the circle given in both), whether
 snap_outline is sure of it and the doubt it states, and the snap's seconds.  The summary: how
 many directions are within 1° by hand and snapped, how many snaps are sure and the largest error
-among those.  ``--big``: also the snap's seconds on one probe at 6× and 12× (5.4 and 21.7 MP).
+among those.  ``--from-finder``: the probes ProbeLight refuses only, each snapped from the
+circle the studio's probe view starts from after the refusal (the finder's best, not sure of it)
+— the flow a user meets: open the view, press Snap — with "by hand" that circle's error.
+``--big``: also the snap's seconds on one probe at 6× and 12× (5.4 and 21.7 MP).
 
     .venv/bin/python benchmarks/bench_paris_snap.py [--half tune|check|holdout] [--scale 3] [--off 3]
-        [--n N] [--cache DIR] [--big]
+        [--n N] [--cache DIR] [--big] [--from-finder]
 """
 from __future__ import annotations
 
@@ -45,13 +48,26 @@ def _err(d, truth):
     return f"exit 2 ({d[:30]})" if isinstance(d, str) else _angle(d, truth)
 
 
-def row(spec, img, off, rng) -> dict:
+def finders_start(spec, img):
+    """The circle the studio's probe view starts from where it is the finder's best, which it
+    was not sure of (nodes.paris.studio_view.probe_start "best"), else None."""
+    from graphkit import Image
+    from nodes.paris.probe import ProbeLight
+    from nodes.paris.studio_view import probe_start
+
+    circle, how, _ = probe_start(ProbeLight(ProbeLight.Params(fov_deg=spec.fov_deg)), Image(img))
+    return circle if how == "best" else None
+
+
+def row(spec, img, off, rng, start=None) -> dict:
     from nodes.paris.data.make_probes import truth
     from nodes.paris.probe import snap_outline
 
     t = truth(spec)
     a = rng.uniform(0, 2 * np.pi)
     hand = (t["centre_x"] + off * np.cos(a), t["centre_y"] + off * np.sin(a), t["radius"] + rng.choice([-1, 1]) * off / 2)
+    if start is not None:
+        hand = start
     t0 = time.perf_counter()
     out = snap_outline(img, hand, spec.fov_deg)
     secs = time.perf_counter() - t0
@@ -78,20 +94,28 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=None)
     ap.add_argument("--cache", default=None, help="keep the renders here (.npy) and reuse them")
     ap.add_argument("--big", action="store_true", help="also time the snap at 6× and 12× (tune probe tv40)")
+    ap.add_argument("--from-finder", action="store_true",
+                    help="the probes ProbeLight refuses, snapped from the circle the studio starts from (the "
+                         "finder's best, not sure) instead of a hand's circle: 'by hand' is then that circle")
     a = ap.parse_args(argv)
     rng = np.random.default_rng(1)
     print("| probe | r (px) | by hand (°) | snapped: centre err (px) | snapped (°) | sure | doubt stated (°) | s | "
           "why not sure |\n|---|---|---|---|---|---|---|---|---|")
     rows = []
     for spec in varied(a.half, **({"n": a.n} if a.n else {}), scale=a.scale):
-        rows.append(row(spec, probe_image(spec, a.cache), a.off, rng))
+        img = probe_image(spec, a.cache)
+        start = finders_start(spec, img) if a.from_finder else None
+        if a.from_finder and start is None:
+            continue   # found by ProbeLight, or no circle of the finder's to start from
+        rows.append(row(spec, img, a.off, rng, start))
         r = rows[-1]
         print(f"| {r['probe']} | {r['r']:.1f} | {_f(r['hand'])} | {_f(r['ce'])} | {_f(r['snapped'])} | "
               f"{'yes' if r['sure'] else 'no'} | {_f(r['doubt'])} | {r['s']:.2f} | {r['why'][:90]} |", flush=True)
     num = [r for r in rows if isinstance(r["snapped"], float)]
     hand = [r for r in rows if isinstance(r["hand"], float)]
     sure = [r for r in num if r["sure"]]
-    print(f"\n{a.half} at {a.scale}×, circles {a.off:g} px off: by hand {sum(r['hand'] <= 1 for r in hand)}/{len(rows)} "
+    what = "from the finder's circle where ProbeLight refuses" if a.from_finder else f"circles {a.off:g} px off"
+    print(f"\n{a.half} at {a.scale}×, {what}: by hand {sum(r['hand'] <= 1 for r in hand)}/{len(rows)} "
           f"within 1° (median {np.median([r['hand'] for r in hand]):.2f}°); snapped {sum(r['snapped'] <= 1 for r in num)}"
           f"/{len(rows)} (median {np.median([r['snapped'] for r in num]):.2f}°); sure {len(sure)}/{len(rows)}, the "
           f"largest error among them {max((r['snapped'] for r in sure), default=float('nan')):.2f}°; snap median "

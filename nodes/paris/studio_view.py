@@ -364,6 +364,30 @@ def reduced_camera(camera, k: int):
     return camera.reframed(w, h, 1.0 / k, (k * w / 2.0, k * h / 2.0))
 
 
+def probe_start(node, probe, camera=None) -> tuple[list, str, str]:
+    """(circle, how, refusal) the probe view starts from, for ProbeLight ``node`` on the photo
+    ``probe``: the circle given in the graph ("given") or found by the node's own finder
+    ("found"), else ProbeLight's refusal and the finder's best circle, which it was not sure
+    of ("best": often within a snap of the ball — its outline closed on too little of it, or its
+    bias bound), or where it had none in the frame the frame's middle ("guess")."""
+    from .ballfind import MIN_RADIUS_PX
+    from .checks import rgb_pixels
+
+    p = node.params
+    h, w = probe.pixels.shape[:2]
+    best = []
+    try:
+        px = rgb_pixels(probe, "probe", grey=True, float64=False)
+        c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(camera), best=best)
+        return [float(x) for x in c], "given" if p.radius is not None else "found", ""
+    except BadInput as e:
+        f = best[0] if best else None
+        if f is not None and np.all(np.isfinite((f.cx, f.cy, f.r))) and f.r >= MIN_RADIUS_PX \
+                and 0 <= f.cx <= w and 0 <= f.cy <= h:
+            return [round(float(f.cx), 2), round(float(f.cy), 2), round(float(f.r), 2)], "best", str(e)
+        return [w / 2, h / 2, min(w, h) / 4], "guess", str(e)
+
+
 class ProbeView(LiveView):
     """The studio's live view of ProbeLight: the mirror ball marked by hand where the node
     refuses to find it (or to check the circle it found).  The page shows the whole probe
@@ -406,26 +430,8 @@ class ProbeView(LiveView):
                 "exposure": exposure, "file": os.path.basename(self.studio.path)}
 
     def _start(self, v: dict, w: int, h: int):
-        """(circle, how, refusal): the circle given in the graph or found by the node's own
-        finder, else ProbeLight's refusal and a starting circle: the finder's best, which it
-        was not sure of ("best": often within a snap of the ball, e.g. its outline closed on
-        too little of it), or where it had none in the frame the frame's middle ("guess")."""
-        from .ballfind import MIN_RADIUS_PX
-        from .checks import rgb_pixels
-
-        p = self.params
-        node = self.gnode.cls(p)
-        best = []
-        try:
-            px = rgb_pixels(v["probe"], "probe", grey=True, float64=False)
-            c = node._ball(px, "probe", p.centre_x, p.centre_y, p.radius, node._probe_fov(v.get("camera")), best=best)
-            return [float(x) for x in c], "given" if p.radius is not None else "found", ""
-        except BadInput as e:
-            f = best[0] if best else None
-            if f is not None and np.all(np.isfinite((f.cx, f.cy, f.r))) and f.r >= MIN_RADIUS_PX \
-                    and 0 <= f.cx <= w and 0 <= f.cy <= h:
-                return [round(float(f.cx), 2), round(float(f.cy), 2), round(float(f.r), 2)], "best", str(e)
-            return [w / 2, h / 2, min(w, h) / 4], "guess", str(e)
+        """(circle, how, refusal): :func:`probe_start` of the node on its inputs."""
+        return probe_start(self.gnode.cls(self.params), v["probe"], v.get("camera"))
 
     def _params(self, values: dict):
         """The node's Params with the circle of ``values`` (checked as the graph's are)."""
