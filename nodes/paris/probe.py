@@ -176,9 +176,8 @@ class ProbeLight(Node):
                 peak = float(px[blob].max())
                 sat = blob & (channel_max(px) >= p.saturation * peak)
         sat = _flash_highlight(sat, dirs, *prior)
-        if found or clipped:
-            whole = np.zeros((h, w), bool)   # (the highlight's pixels at their place in the photo)
-            whole[box] = sat
+        whole = np.zeros((h, w), bool)   # (the highlight's pixels at their place in the photo)
+        whole[box] = sat
         if found:
             # the ball was found: how far its uncertainty moves this highlight's direction
             _refuse_if_doubtful(full, found[0], fov_deg, whole)
@@ -236,7 +235,7 @@ class ProbeLight(Node):
             energy /= p.ball_reflectance
         light = self._light(ldir, color, ambient_refl / p.ball_reflectance, energy, white_k, camera)
         if not found and self.ctx.key:
-            self._notice_if_off_outline(full, (cx, cy, r), fov_deg, box, sat)
+            self._notice_if_off_outline(full, (cx, cy, r), fov_deg, whole)
         cls = np.zeros((h, w, 3), np.float32)
         circle = (u - cx) ** 2 + (v - cy) ** 2 <= r * r
         for name, m in (("ball", circle), ("ambient", ring), ("halo", halo), ("saturated", sat)):
@@ -256,18 +255,16 @@ class ProbeLight(Node):
                            "give all of centre_x, centre_y and radius, or none (the ball is then found)")
         return _find_ball_or_refuse(px, port, fov_deg, highlight=True, found=found, best=best)
 
-    def _notice_if_off_outline(self, full, circle, fov_deg, box, sat) -> None:
+    def _notice_if_off_outline(self, full, circle, fov_deg, whole) -> None:
         """A circle given by hand (or read off an image viewer) a few pixels off moves the flash's
         direction by degrees, and nothing shows it: where the ball's outline fitted near it
         (:func:`snap_outline`) is sure and its circle moves the direction over the flash's
-        highlight ``sat`` (in ``box``) by more than ``MAX_DOUBT_DEG``, a notice says so, with that
-        circle.  The circle given is kept: it is the user's.  In a run only (a live view's frames,
-        outside the engine — ``ctx.key`` empty — have no one to tell)."""
+        highlight ``whole`` (a mask of the photo) by more than ``MAX_DOUBT_DEG``, a notice says
+        so, with that circle.  The circle given is kept: it is the user's.  In a run only (a live
+        view's frames, outside the engine — ``ctx.key`` empty — have no one to tell)."""
         out = snap_outline(full, circle, fov_deg)
         if not out["sure"]:
             return
-        whole = np.zeros(full.shape[:2], bool)
-        whole[box] = sat
         moved = _moved_by(full, whole, fov_deg, circle, [out["circle"]])
         if moved > MAX_DOUBT_DEG:
             (cx, cy, r), (sx, sy, sr) = circle, out["circle"]

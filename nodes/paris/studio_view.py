@@ -420,7 +420,7 @@ class ProbeView(LiveView):
         if key not in self._start_memo:
             if len(self._start_memo) > 8:
                 self._start_memo.clear()
-            self._start_memo[key] = self._start(v, w, h)
+            self._start_memo[key] = probe_start(self.gnode.cls(self.params), v["probe"], v.get("camera"))
         circle, how, reason = self._start_memo[key]
         # the photo shown with its median at mid grey (an HDR probe's level is anything)
         med = float(np.median(v["probe"].pixels.reshape(h, w, -1).mean(-1)))
@@ -428,10 +428,6 @@ class ProbeView(LiveView):
         return {"probe": {"node": src, "port": sport}, "width": int(w), "height": int(h),
                 "circle": dict(zip(self.KEYS, circle)), "how": how, "reason": reason,
                 "exposure": exposure, "file": os.path.basename(self.studio.path)}
-
-    def _start(self, v: dict, w: int, h: int):
-        """(circle, how, refusal): :func:`probe_start` of the node on its inputs."""
-        return probe_start(self.gnode.cls(self.params), v["probe"], v.get("camera"))
 
     def _params(self, values: dict):
         """The node's Params with the circle of ``values`` (checked as the graph's are)."""
