@@ -222,27 +222,46 @@ def _main(argv) -> int:
         return e.exit_code
     except (KeyboardInterrupt, BrokenPipeError):
         raise
-    except RecursionError:
+    except Exception as e:  # noqa: BLE001 - told apart in _report: one line, not a traceback
+        if _interrupted(e):
+            raise KeyboardInterrupt from None
+        return _report(e)
+
+
+def _interrupted(e: BaseException) -> bool:
+    """Whether an exception is a Ctrl-C in disguise: Python wraps what a class's ``__set_name__``
+    raises in a RuntimeError (3.11: a SIGINT during pydantic's import reads "Error calling
+    __set_name__ …"), a C extension's import turns it into an ImportError (numpy's)."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return bool(_INTERRUPTED)
+
+
+def _report(e: Exception) -> int:
+    """One line on stderr for what reached the top, and its exit code."""
+    if isinstance(e, RecursionError):
         print("graphkit: input nested too deeply (over Python's recursion limit)", file=sys.stderr)
         return 2
-    except ImportError as e:  # the environment lacks a package (e.g. s3fs for --cache s3://)
-        if _INTERRUPTED:  # numpy's import interrupted by Ctrl-C surfaces as an ImportError
-            raise KeyboardInterrupt from None
+    if isinstance(e, ImportError):  # the environment lacks a package (e.g. s3fs for --cache s3://)
         print(f"graphkit: a required Python package is missing: {_import_message(e)}", file=sys.stderr)
         return 2
-    except MemoryError:
+    if isinstance(e, MemoryError):
         print("graphkit: out of memory", file=sys.stderr)
         return 2
-    except OSError as e:  # the disk or the OS refused (full, read-only, permissions)
+    if isinstance(e, OSError):  # the disk or the OS refused (full, read-only, permissions)
         where = f"{e.filename}: " if e.filename else ""
         print(f"graphkit: {where}{e.strerror or e}", file=sys.stderr)
         return 2
-    except Exception as e:  # noqa: BLE001 - a bug in graphkit itself: one line, not a traceback
-        if os.environ.get("GRAPHKIT_TRACEBACK"):
-            raise
-        print(f"graphkit: internal error: {type(e).__name__}: {e} (set GRAPHKIT_TRACEBACK=1 for details)",
-              file=sys.stderr)
-        return 1
+    # a bug in graphkit itself: one line, not a traceback
+    if os.environ.get("GRAPHKIT_TRACEBACK"):
+        raise e
+    print(f"graphkit: internal error: {type(e).__name__}: {e} (set GRAPHKIT_TRACEBACK=1 for details)",
+          file=sys.stderr)
+    return 1
 
 
 def _check_no_nul(args) -> None:

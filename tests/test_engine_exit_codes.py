@@ -172,6 +172,48 @@ def test_ctrl_c_during_start_up_imports_is_exit_130(tmp_path, write, module, for
     assert "Traceback" not in r.stderr and r.stderr.strip() == "graphkit: interrupted", r.stderr[-2000:]
 
 
+@pytest.mark.parametrize("disguise", ["set_name", "chained", "after_sigint"])
+def test_ctrl_c_in_disguise_is_exit_130(monkeypatch, capsys, disguise):
+    """A Ctrl-C can reach main as another exception: Python 3.11 wraps what a class's
+    `__set_name__` raises in a RuntimeError (a SIGINT during pydantic's import, seen on CI as
+    "internal error: RuntimeError: Error calling __set_name__ …", exit 1), a library may chain it,
+    a C extension may replace it (numpy's import: an ImportError) once the handler saw the signal."""
+    from graphkit import cli
+
+    class Field:
+        def __set_name__(self, owner, name):
+            raise KeyboardInterrupt
+
+    def boom(args):
+        if disguise == "set_name":  # the real thing: 3.11 gives RuntimeError, 3.12+ the interrupt
+            type("DecoratorInfos", (), {"validators": Field()})
+        elif disguise == "chained":
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as e:
+                raise ValueError("a library's own error") from e
+        else:
+            cli._INTERRUPTED.append(2)
+            raise ImportError("numpy's C extension failed to import")
+
+    monkeypatch.setattr(cli, "_dispatch", boom)
+    monkeypatch.setattr(cli, "_INTERRUPTED", [])
+    assert cli.main(["nodes"]) == 130
+    assert capsys.readouterr().err.strip() == "graphkit: interrupted"
+
+
+def test_an_internal_error_is_exit_1_without_a_signal(monkeypatch, capsys):
+    from graphkit import cli
+
+    def boom(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(cli, "_dispatch", boom)
+    monkeypatch.setattr(cli, "_INTERRUPTED", [])
+    assert cli.main(["nodes"]) == 1
+    assert "internal error: RuntimeError: a bug" in capsys.readouterr().err
+
+
 def test_ctrl_c_in_the_first_fifth_of_a_second(tmp_path, write):
     """Real SIGINTs 0–200 ms into `main` (which used to spend its first ~0.4 s importing numpy,
     pydantic, … with no handler): always exit 130, never a traceback.  What runs before `main`
