@@ -13,7 +13,7 @@ import re
 import sys
 from pathlib import Path
 
-from .errors import GraphkitError, UsageError
+from .errors import GraphkitError, UsageError, interrupt_in
 from .memory import tune_malloc
 from .nodeinfo import node_info, type_name
 
@@ -218,6 +218,8 @@ def _main(argv) -> int:
     except GraphkitError as e:
         from .errors import GraphError
 
+        if _interrupted(e):  # e.g. a node's module whose import a Ctrl-C broke: "cannot import …"
+            raise KeyboardInterrupt from None
         print(str(e) if isinstance(e, GraphError) else f"graphkit: {e}", file=sys.stderr)
         return e.exit_code
     except (KeyboardInterrupt, BrokenPipeError):
@@ -229,16 +231,10 @@ def _main(argv) -> int:
 
 
 def _interrupted(e: BaseException) -> bool:
-    """Whether an exception is a Ctrl-C in disguise: Python wraps what a class's ``__set_name__``
-    raises in a RuntimeError (3.11: a SIGINT during pydantic's import reads "Error calling
-    __set_name__ …"), a C extension's import turns it into an ImportError (numpy's)."""
-    seen = set()
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return bool(_INTERRUPTED)
+    """Whether an error is a Ctrl-C in disguise: the interrupt in its chain
+    (:func:`~graphkit.errors.interrupt_in`), or any error after the handler saw a SIGINT (a C
+    extension's import turns it into an ImportError: numpy's)."""
+    return interrupt_in(e) or bool(_INTERRUPTED)
 
 
 def _report(e: Exception) -> int:

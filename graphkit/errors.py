@@ -12,6 +12,19 @@ class GraphkitError(Exception):
     exit_code = 2
 
 
+def interrupt_in(e: BaseException | None) -> bool:
+    """Whether a Ctrl-C (KeyboardInterrupt) is ``e`` or in its chain of causes: Python 3.11 wraps
+    what a class's ``__set_name__`` raises in a RuntimeError (a SIGINT during pydantic's import
+    reads "Error calling __set_name__ …"), and the engine names the node or plugin it broke."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 class Diagnostic:
     """One problem at a place in a graph file.
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
-from .errors import GraphkitError
+from .errors import GraphkitError, interrupt_in
 from .node import Backend, Node
 
 NUMPY = "numpy"
@@ -198,6 +198,8 @@ def _add_entry_points(reg: Registry) -> None:
             try:
                 obj = ep.load()
             except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the rest
+                if interrupt_in(exc):  # a Ctrl-C during its import: not a broken plugin
+                    raise KeyboardInterrupt from None
                 reg.problems.append(
                     f"plugin '{provider}' ({ep.value}) failed to load and was skipped: "
                     f"{type(exc).__name__}: {exc}"
@@ -211,6 +213,8 @@ def _add_env_plugin(reg: Registry, spec: str) -> None:
     try:
         obj = _import_target(spec)
     except Exception as exc:  # noqa: BLE001
+        if interrupt_in(exc):
+            raise KeyboardInterrupt from None
         reg.problems.append(f"GRAPHKIT_PLUGINS: '{spec}' failed to import: {type(exc).__name__}: {exc}")
         return
     provider = f"GRAPHKIT_PLUGINS:{spec}"

@@ -172,12 +172,14 @@ def test_ctrl_c_during_start_up_imports_is_exit_130(tmp_path, write, module, for
     assert "Traceback" not in r.stderr and r.stderr.strip() == "graphkit: interrupted", r.stderr[-2000:]
 
 
-@pytest.mark.parametrize("disguise", ["set_name", "chained", "after_sigint"])
+@pytest.mark.parametrize("disguise", ["set_name", "chained", "after_sigint", "node_import", "node_failed"])
 def test_ctrl_c_in_disguise_is_exit_130(monkeypatch, capsys, disguise):
     """A Ctrl-C can reach main as another exception: Python 3.11 wraps what a class's
     `__set_name__` raises in a RuntimeError (a SIGINT during pydantic's import, seen on CI as
     "internal error: RuntimeError: Error calling __set_name__ …", exit 1), a library may chain it,
-    a C extension may replace it (numpy's import: an ImportError) once the handler saw the signal."""
+    a C extension may replace it (numpy's import: an ImportError) once the handler saw the signal;
+    the engine names the node whose import or compute it broke (exit 2, exit 1), the interrupt as
+    the cause."""
     from graphkit import cli
 
     class Field:
@@ -192,9 +194,18 @@ def test_ctrl_c_in_disguise_is_exit_130(monkeypatch, capsys, disguise):
                 raise KeyboardInterrupt
             except KeyboardInterrupt as e:
                 raise ValueError("a library's own error") from e
-        else:
+        elif disguise == "after_sigint":
             cli._INTERRUPTED.append(2)
             raise ImportError("numpy's C extension failed to import")
+        else:  # the registry and the runner name what failed, the interrupt as the cause
+            from graphkit.errors import GraphkitError, NodeFailed
+
+            try:
+                type("DecoratorInfos", (), {"validators": Field()})
+            except BaseException as e:
+                if disguise == "node_import":
+                    raise GraphkitError(f"cannot import Relight from nodes.paris: {e}") from e
+                raise NodeFailed("relight", "Relight", e) from e
 
     monkeypatch.setattr(cli, "_dispatch", boom)
     monkeypatch.setattr(cli, "_INTERRUPTED", [])

@@ -52,6 +52,24 @@ def test_broken_plugin_is_reported_and_the_rest_load(tmp_path, write):
     assert "'broken' failed to import: ImportError: needs libfoo" in r.stderr
 
 
+def test_a_ctrl_c_during_a_plugins_import_is_not_a_broken_plugin(tmp_path, write):
+    """A Ctrl-C that lands while a class body of the plugin is set up reaches the registry as a
+    RuntimeError on Python 3.11 ("Error calling __set_name__"); it used to be reported as a broken
+    plugin, skipped, and the run went on.  Now the run ends as interrupted: exit 130."""
+    (tmp_path / "slow.py").write_text(textwrap.dedent("""
+        class Field:
+            def __set_name__(self, owner, name):
+                raise KeyboardInterrupt  # what a SIGINT here looks like
+        class Model:
+            validators = Field()
+    """))
+    g = write("g.yaml", "graphkit: 1\nnodes:\n  c: {type: Const}\n")
+    r = graphkit("run", g, "--cache", tmp_path / "c", "--out", tmp_path / "o",
+                 env=plugin_env(tmp_path, "slow", "enginenodes"))
+    assert r.returncode == 130, r.stderr
+    assert r.stderr.strip() == "graphkit: interrupted" and not (tmp_path / "o").exists(), r.stderr
+
+
 def test_nodes_command_describes_a_node():
     r = graphkit("nodes", "RatioImage")
     assert r.returncode == 0
