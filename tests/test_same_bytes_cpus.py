@@ -78,3 +78,26 @@ def test_same_bytes_with_opencv_kernels_off():
     # the check can fail: OpenCV's own float blur differs between the two
     assert planted[0] != planted[1], "cv2.GaussianBlur gave the same bytes with its AVX2/FMA3 kernels off"
     assert on == off, {k: (on[k], off[k]) for k in on if on[k] != off[k]}
+
+
+def test_the_recorders_pin_holds_opencvs_ipp_to_its_avx2_kernels():
+    """OpenCV's wheels carry Intel's IPP, which chooses its kernels by the CPU itself and does not
+    read ``OPENCV_CPU_DISABLE``: on an Intel Xeon with AVX-512 it ran its AVX-512 kernels (k0),
+    and ``cv2.resize``'s bilinear enlargement of float32 (SmoothFill, so CompositeFace's portraits)
+    gave other bytes than the AVX2 ones (l9) that the digests of tests/data/main_digests.json were
+    recorded with on AMD EPYCs.  The recorder's ``PINNED_ENV`` (which tests/test_same_bytes.py
+    runs under) holds IPP to l9, whatever this machine would pick."""
+    import pytest
+
+    from test_same_bytes import _x86_64_v3
+
+    if not _x86_64_v3():
+        pytest.skip(reason="IPP's AVX2 kernels (l9) need an x86-64-v3 CPU; test_same_bytes skips here too")
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import record_digests, cv2; "
+            "print(cv2.ipp.useIPP(), cv2.ipp.getIppVersion())")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OPENCV_", "NPY_", "OPENBLAS_"))}
+    r = subprocess.run([sys.executable, "-c", code, os.path.join(ROOT, "tests", "data")], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    used, version = r.stdout.strip().split(" ", 1)
+    assert used == "False" or "(l9)" in version, f"the recorder's pin left OpenCV's IPP on {version!r}"

@@ -21,7 +21,13 @@ those libraries to their x86-64-v3 (AVX2 + FMA) kernels through ``PINNED_ENV``, 
 anything imports numpy: every x86-64-v3 CPU, Intel or AMD, computes the same bytes then.
 Checked on main: the pinned run on an AVX-512 AMD EPYC gives the same bytes as an unpinned run
 under ``qemu-x86_64 -cpu Haswell`` (an AVX2 CPU; blush and makeup, every node and file), and as
-a second pinned run (every graph).  mediapipe's FaceMesh (TFLite) gave the same landmarks there
+a second pinned run (every graph).  OpenCV's wheels also carry Intel's IPP, which picks its own
+kernels by the CPU and does not read ``OPENCV_CPU_DISABLE``: on an Intel Xeon with AVX-512
+(Sapphire Rapids) it ran its AVX-512 kernels (k0) where the AMD EPYCs ran its AVX2 ones (l9),
+and ``cv2.resize``'s bilinear enlargement of float32 (SmoothFill's outward blurs, so
+CompositeFace's portraits in face_relight, face_environment and face_soft_shadows) gave other
+last bits; ``OPENCV_IPP=avx2`` holds it to l9 (checked there: every graph the same bytes as
+recorded, and under ``qemu-x86_64 -cpu Haswell`` the same SmoothFill bytes).  mediapipe's FaceMesh (TFLite) gave the same landmarks there
 too.
 
 A glob sweep passes the absolute path of each file it matches as a param (makeup_batch's
@@ -45,6 +51,7 @@ PINNED_ENV = {
     "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL",  # numpy 2.x dispatch groups above x86-64-v3
     "OPENBLAS_CORETYPE": "Haswell",
     "OPENCV_CPU_DISABLE": "AVX512F,AVX512-SKX,AVX512-COMMON,AVX512-ICL,AVX512-CLX,AVX512-CNL",
+    "OPENCV_IPP": "avx2",  # the Intel IPP inside OpenCV's wheels: its AVX2 kernels (l9), not k0 (AVX-512)
 }
 os.environ.update(PINNED_ENV)  # before numpy is imported (graphkit is imported inside functions)
 
