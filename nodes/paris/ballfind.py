@@ -53,7 +53,9 @@ silhouette has:
 The result says how sure it is (:class:`BallFit`); ``confident`` is False (with ``reason``)
 when no closed circle is found, when two unrelated closed circles compete (``rivals``), when a fainter concentric circle surrounds the one found (looked for on the image stabilised by :func:`noise_curve`'s ``isotonic`` noise level), when the outline found is a thin
 line with the same level on both sides (a ring drawn on the backdrop, :func:`_line_profile`), when its rim is
-brighter or darker than a mirror's rim can be (a disc or band printed on the backdrop, :func:`_unreflected`), when the pixels just
+brighter or darker than a mirror's rim can be (a disc or band printed on the backdrop, :func:`_unreflected`), when
+a better supported closed outline off its centre and nearer the highlight lies inside it (the ball inside
+its cast shadow's soft outline, :func:`_shadow_around`), when the pixels just
 outside it are clipped (the silhouette may be lost in them), when the fit is poor, or when
 the ball is mostly outside the frame.  Tuned on the TUNING probes of
 ``nodes/paris/data/make_probes.py`` and the tune half of ``varied_probes.py``; checked on their
@@ -299,7 +301,7 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None, binned=None)
             balls.append(f)
     best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, fits, lum, g, clipped, curve, binned)
+    doubt = _doubt(best, fits, lum, g, clipped, curve, binned) or _shadow_around(best, closed, spot)
     if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
@@ -310,6 +312,29 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None, binned=None)
     if doubt:
         best.confident, best.reason = False, doubt
     return best
+
+
+def _shadow_around(best: BallFit, closed: list[BallFit], spot) -> str:
+    """Why ``best``, the outermost closed outline, may be the ball's cast shadow around it ('' if
+    nothing says so): inside it, off its centre by over ``SHADOW_OFFSET`` of its radius, a closed
+    outline better supported by ``AMBIGUITY`` whose centre is nearer the flash's highlight (a
+    flash beside the lens casts the ball's shadow on the backdrop a little aside: a larger disc
+    whose soft edge closes round the ball, tv37 at 6×, 9° off with exit 0 without this)."""
+    if not best.confident or spot is None:
+        return ""
+    for f in closed:
+        if (f is not best and f.r < best.r and _contains(best, f)
+                and np.hypot(f.cx - best.cx, f.cy - best.cy) > SHADOW_OFFSET * best.r
+                and f.support >= best.support + AMBIGUITY and _off_centre(f, spot) < _off_centre(best, spot)):
+            return (f"a closed outline inside the one found ({best.summary()}), better supported and off its "
+                    f"centre — radius {f.r:.1f} px at ({f.cx:.1f}, {f.cy:.1f}), edge on {100 * f.support:.0f}% —: "
+                    "the outer one may be the ball's cast shadow round it")
+    return ""
+
+
+#: an outline inside the outermost closed one, off its centre by more than this share of its
+#: radius, is not an edge of the ball's own reflection but may be the ball (``_shadow_around``)
+SHADOW_OFFSET = 0.05
 
 
 def _rank(balls: list[BallFit], spot) -> tuple[BallFit, list[BallFit]]:

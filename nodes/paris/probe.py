@@ -96,7 +96,7 @@ class ProbeLight(Node):
     ambient ring, grey the rest of the ball.  Units: pixels, degrees, linear RGB.
     """
 
-    version = "13"
+    version = "14"  # 14: a cast shadow's outline closing round the ball refused (ballfind._shadow_around)
     studio_view = "nodes.paris.studio_view:ProbeView"  # graphkit serve: mark the ball by hand
     inputs = {"probe": In(Image, "photo of a mirror ball lit by the flash, linear RGB"),
               "white": In(Image, "photo of a matte white ball under the same flash (intensity calibration)",

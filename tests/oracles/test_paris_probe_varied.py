@@ -328,3 +328,24 @@ def test_sector_fit_along_a_cast_shadow_refused(monkeypatch):
     monkeypatch.setattr(ballfind, "MAX_DARKER_SHARE", 1.01)
     direction, refusal = _auto(img, spec.fov_deg)
     assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
+
+
+def test_cast_shadow_closing_round_the_ball_refused(monkeypatch):
+    """tv37 at 6× (2304×1728 px, a 258-px ball; a flash beside the lens casts the ball's shadow on
+    the grey backdrop a little aside): the shadow's soft edge closes round the ball, a circle of
+    303 px 25 px off its centre, and as the outermost closed outline it was taken for the ball —
+    the flash came back 9.3° off with exit 0 (its penumbra is 12 px wide here, so the band just
+    inside that outline is not darker than a mirror's rim can be: the cast-shadow veto of 1–3×
+    does not see it).  Inside it lies the ball's own outline, closed on every sector and centred
+    on the flash's highlight: refused, naming the params; without that check, 9° off again."""
+    from nodes.paris import ballfind
+    from nodes.paris.data import make_probes as mp
+
+    spec = _at("tune", "tv37", 6)
+    img = mp.render(spec)
+    direction, refusal = _auto(img, spec.fov_deg)
+    assert direction is None and refusal.port == "probe", direction
+    assert "cast shadow round it" in refusal.message and "centre_x, centre_y and radius" in refusal.message
+    monkeypatch.setattr(ballfind, "SHADOW_OFFSET", 10.0)  # no inner outline is that far off centre
+    direction, refusal = _auto(img, spec.fov_deg)
+    assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
