@@ -323,11 +323,11 @@ def _shadow_around(best: BallFit, closed: list[BallFit], spot) -> str:
     if not best.confident or spot is None:
         return ""
     for f in closed:
-        if (f is not best and f.r < best.r and _contains(best, f)
+        if (f.r < best.r and _contains(best, f)
                 and np.hypot(f.cx - best.cx, f.cy - best.cy) > SHADOW_OFFSET * best.r
                 and f.support >= best.support + AMBIGUITY and _off_centre(f, spot) < _off_centre(best, spot)):
             return (f"a closed outline inside the one found ({best.summary()}), better supported and off its "
-                    f"centre — radius {f.r:.1f} px at ({f.cx:.1f}, {f.cy:.1f}), edge on {100 * f.support:.0f}% —: "
+                    f"centre (radius {f.r:.1f} px at ({f.cx:.1f}, {f.cy:.1f}), edge on {100 * f.support:.0f}%): "
                     "the outer one may be the ball's cast shadow round it")
     return ""
 
