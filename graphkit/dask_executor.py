@@ -127,7 +127,7 @@ def _connect(scheduler: str | None, jobs: int, timeout: float):
     if scheduler is None:
         cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)  # graphkit speaks for its own cluster
         return Client(cluster, set_as_default=False), cluster
     kw = {}
     if scheduler.endswith(".json"):  # a scheduler file (dask scheduler --scheduler-file)
@@ -275,3 +275,37 @@ def _run(client, session: Session, order: list[str], token: str, progress: Progr
     except BaseException:
         client.cancel(list(futs.values()), force=True)
         raise
+    for line in _workers_lost(client, token):
+        progress.notice(line)
+
+
+def _workers_lost(client, token: str) -> list[str]:
+    """One notice for each Dask worker that left the cluster unasked while it held this run's
+    tasks (killed, out of memory, crashed): the scheduler ran them again elsewhere, and the run
+    says so in its own words instead of the workers' logged tracebacks."""
+
+    def lost(dask_scheduler, token):  # runs on the scheduler: only plain strings come back
+        found = []  # (events can hold objects its comms cannot send, e.g. a WorkerState)
+        for _, msg in dask_scheduler.get_events("all"):
+            if isinstance(msg, dict) and msg.get("action") == "remove-worker" and not msg.get("expected"):
+                ours = [sorted(str(k)[: -len(token) - 1] for k in msg.get(f) or () if str(k).endswith(f"-{token}"))
+                        for f in ("processing-tasks", "lost-computed-tasks")]
+                if any(ours):
+                    found.append((str(msg.get("worker", "?")), *ours))
+        return found
+
+    try:  # a nested function: cloudpickle sends it by value, the scheduler need not import graphkit
+        found = client.run_on_scheduler(lost, token=token)
+    except Exception:  # noqa: BLE001 - a report only; the run's results stand
+        return []
+    lines = []
+    for worker, running, held in found:
+        what = []
+        if running:
+            more = f" and {len(running) - 3} more" if len(running) > 3 else ""
+            what.append(f"its tasks {', '.join(running[:3])}{more} (running or queued there) went to another worker")
+        if held:
+            what.append(f"{len(held)} finished result(s) it held were read again")
+        lines.append(f"notice: Dask worker {worker} left during the run (killed, out of memory or crashed): "
+                     + "; ".join(what))
+    return lines

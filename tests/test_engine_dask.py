@@ -1,5 +1,6 @@
 """The same graph on a real Dask scheduler and workers (loopback) gives the same bytes."""
 import json
+import re
 
 from conftest import graphkit
 
@@ -59,6 +60,7 @@ import pytest  # noqa: E402
 
 from conftest import SUPPORT, engine_env  # noqa: E402
 from graphkit import run_graph  # noqa: E402
+from graphkit.executor import Progress  # noqa: E402
 from graphkit.errors import UsageError  # noqa: E402
 
 PLUGINS = "enginenodes,sweepnodes"
@@ -157,9 +159,18 @@ def test_a_killed_worker_s_task_is_retried(tmp_path, cluster, reg):
     wait_workers(cluster)
     g = {"graphkit": 1, "nodes": {"k": {"type": "KillWorker", "params": {"marker": str(tmp_path / "m"), "value": 3}},
                                   "s": {"type": "Sum", "inputs": {"xs": ["k.out"]}}}}
-    r = run_graph(g, cache=tmp_path / "c", registry=reg, executor="dask", scheduler=cluster.scheduler_address)
+    notices = []
+
+    class Notices(Progress):
+        def notice(self, message):
+            notices.append(message)
+
+    r = run_graph(g, cache=tmp_path / "c", registry=reg, executor="dask", scheduler=cluster.scheduler_address,
+                  progress=Notices())
     assert (tmp_path / "m").exists()  # the first attempt ran, and its worker died
     np.testing.assert_array_equal(r.value("s.out"), np.full(4, 3.0))
+    lost = [m for m in notices if "left during the run" in m]  # said once, in graphkit's words, naming the node
+    assert len(lost) == 1 and re.search(r"its tasks (.*, )?k(,| and| \()", lost[0]), notices
 
 
 def test_a_task_that_keeps_killing_workers_is_a_node_failure(tmp_path, write, cluster):
