@@ -111,7 +111,9 @@ class BallFit:
     ``in_frame``: fraction of the outline inside the image; ``sigma_px``: standard error of
     the centre (``residual_px`` over the kept edge points); ``candidates``: the circles
     weighed, after their sub-pixel fit (cx, cy, r, support); ``rivals``: (cx, cy, r) of other
-    closed outlines that may as well be the ball, when only they speak against it.
+    closed outlines that may as well be the ball, when only they speak against it; ``start``:
+    where not confident, (cx, cy, r) of a circle likelier to be the ball than this one, for a
+    person to start from (the ball's own outline inside its cast shadow's: :func:`_shadow_around`).
     """
 
     cx: float
@@ -127,6 +129,7 @@ class BallFit:
     candidates: list = field(default_factory=list)
     rivals: list = field(default_factory=list)
     polished: bool = False
+    start: tuple | None = None
 
     def __iter__(self):  # cx, cy, r, fit = find_ball(...)
         return iter((self.cx, self.cy, self.r, self))
@@ -301,7 +304,11 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None, binned=None)
             balls.append(f)
     best, rivals = _rank(balls, spot)
     best.candidates = cand
-    doubt = _doubt(best, fits, lum, g, clipped, curve, binned) or _shadow_around(best, closed, spot)
+    doubt = _doubt(best, fits, lum, g, clipped, curve, binned)
+    if not doubt:
+        doubt, inner = _shadow_around(best, closed, spot)
+        if inner is not None:
+            best.start = (inner.cx, inner.cy, inner.r)
     if rivals and not doubt:
         # only rivals speak against it: a caller may still weigh them (ProbeLight: by the
         # directions they give)
@@ -314,22 +321,22 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None, binned=None)
     return best
 
 
-def _shadow_around(best: BallFit, closed: list[BallFit], spot) -> str:
+def _shadow_around(best: BallFit, closed: list[BallFit], spot) -> tuple[str, BallFit | None]:
     """Why ``best``, the outermost closed outline, may be the ball's cast shadow around it ('' if
-    nothing says so): inside it, off its centre by over ``SHADOW_OFFSET`` of its radius, a closed
+    nothing says so), and the outline inside it that may be the ball (None): inside it, off its centre by over ``SHADOW_OFFSET`` of its radius, a closed
     outline better supported by ``AMBIGUITY`` whose centre is nearer the flash's highlight (a
     flash beside the lens casts the ball's shadow on the backdrop a little aside: a larger disc
     whose soft edge closes round the ball, tv37 at 6×, 9° off with exit 0 without this)."""
     if not best.confident or spot is None:
-        return ""
+        return "", None
     for f in closed:
         if (f.r < best.r and _contains(best, f)
                 and np.hypot(f.cx - best.cx, f.cy - best.cy) > SHADOW_OFFSET * best.r
                 and f.support >= best.support + AMBIGUITY and _off_centre(f, spot) < _off_centre(best, spot)):
             return (f"a closed outline inside the one found ({best.summary()}), better supported and off its "
                     f"centre (radius {f.r:.1f} px at ({f.cx:.1f}, {f.cy:.1f}), edge on {100 * f.support:.0f}%): "
-                    "the outer one may be the ball's cast shadow round it")
-    return ""
+                    "the outer one may be the ball's cast shadow round it"), f
+    return "", None
 
 
 #: an outline inside the outermost closed one, off its centre by more than this share of its

@@ -369,7 +369,9 @@ def probe_start(node, probe, camera=None) -> tuple[list, str, str]:
     ``probe``: the circle given in the graph ("given") or found by the node's own finder
     ("found"), else ProbeLight's refusal and the finder's best circle, which it was not sure
     of ("best": often within a snap of the ball — its outline closed on too little of it, or its
-    bias bound), or where it had none in the frame the frame's middle ("guess")."""
+    bias bound; where the finder names a likelier circle inside it, the ball's own outline
+    inside its cast shadow's, that one), or where it had none in the frame the frame's middle
+    ("guess")."""
     from .ballfind import MIN_RADIUS_PX
     from .checks import rgb_pixels
 
@@ -382,9 +384,9 @@ def probe_start(node, probe, camera=None) -> tuple[list, str, str]:
         return [float(x) for x in c], "given" if p.radius is not None else "found", ""
     except BadInput as e:
         f = best[0] if best else None
-        if f is not None and np.all(np.isfinite((f.cx, f.cy, f.r))) and f.r >= MIN_RADIUS_PX \
-                and 0 <= f.cx <= w and 0 <= f.cy <= h:
-            return [round(float(f.cx), 2), round(float(f.cy), 2), round(float(f.r), 2)], "best", str(e)
+        c = (f.start or (f.cx, f.cy, f.r)) if f is not None else None
+        if c is not None and np.all(np.isfinite(c)) and c[2] >= MIN_RADIUS_PX and 0 <= c[0] <= w and 0 <= c[1] <= h:
+            return [round(float(x), 2) for x in c], "best", str(e)
         return [w / 2, h / 2, min(w, h) / 4], "guess", str(e)
 
 

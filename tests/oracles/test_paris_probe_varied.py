@@ -337,15 +337,22 @@ def test_cast_shadow_closing_round_the_ball_refused(monkeypatch):
     the flash came back 9.3° off with exit 0 (its penumbra is 12 px wide here, so the band just
     inside that outline is not darker than a mirror's rim can be: the cast-shadow veto of 1–3×
     does not see it).  Inside it lies the ball's own outline, closed on every sector and centred
-    on the flash's highlight: refused, naming the params; without that check, 9° off again."""
+    on the flash's highlight: refused, naming the params; without that check, 9° off again.  The
+    studio's probe view starts from the ball's own outline, not the shadow's (within 1 px)."""
     from nodes.paris import ballfind
     from nodes.paris.data import make_probes as mp
+    from nodes.paris.studio_view import probe_start
 
     spec = _at("tune", "tv37", 6)
     img = mp.render(spec)
+    _found_once(monkeypatch)
     direction, refusal = _auto(img, spec.fov_deg)
     assert direction is None and refusal.port == "probe", direction
     assert "cast shadow round it" in refusal.message and "centre_x, centre_y and radius" in refusal.message
+    circle, how, reason = probe_start(ProbeLight(ProbeLight.Params(fov_deg=spec.fov_deg)), Image(img))
+    t = mp.truth(spec)
+    assert how == "best" and "cast shadow round it" in reason, (how, reason)
+    assert np.hypot(circle[0] - t["centre_x"], circle[1] - t["centre_y"]) <= 1 and abs(circle[2] - t["radius"]) <= 1, (circle, t)
     monkeypatch.setattr(ballfind, "SHADOW_OFFSET", 10.0)  # no inner outline is that far off centre
     direction, refusal = _auto(img, spec.fov_deg)
     assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > MAX_ERR_DEG
