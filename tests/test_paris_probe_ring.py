@@ -145,3 +145,34 @@ def test_the_balls_rim_is_a_mirrors():
         share, way = ballfind._unreflected(ballfind.luminance(px), fit)
         assert share == 1.0 and way == ("darker" if disc[3] < 0 else "brighter"), (disc, share, way)
     assert 0.38 < ballfind.NOT_MIRROR < 1.0
+
+
+def test_highlight_blobs_and_noise_bins_are_scipys_numbers():
+    """ballfind._highlights reads each clipped blob's centroid in its own box and counts blobs by
+    bincount, noise_bins takes its two percentiles in one call: the same numbers, bit for bit,
+    as scipy's center_of_mass/sum over the whole image and two np.percentile calls (a photo of
+    blobs of every size, ties in size included, touching the frame's edges, on noise)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    h, w = 480, 640
+    lum = rng.uniform(0, 0.5, (h, w))
+    yy, xx = np.mgrid[:h, :w]
+    for cx, cy, r in [(0, 0, 9), (639, 200, 14), (320, 240, 30), (100, 400, 5), (500, 60, 5), (250, 479, 3),
+                      *[(x, y, rng.uniform(1, 12)) for x, y in rng.uniform([0, 0], [w, h], (12, 2))]]:
+        lum[np.hypot(xx - cx, yy - cy) <= r] = 1.0
+    for max_blobs in (1, 8, 40):
+        m = lum >= 0.98
+        lab, n = ndimage.label(m)
+        idx = np.arange(1, n + 1)
+        top = idx[np.argsort(-ndimage.sum(m, lab, index=idx))[:max_blobs]]
+        ref = [(float(x) + 0.5, float(y) + 0.5) for y, x in ndimage.center_of_mass(m, lab, top)]
+        assert ballfind._highlights(lum, max_blobs=max_blobs) == ref
+    lev = ndimage.uniform_filter(lum, 2)[1:, 1:]
+    lev = lev[lev < 0.98]
+    x, _, _ = ballfind.noise_bins(lum)
+    lo = max(float(np.percentile(lev, 0.5)), 1e-4 * max(float(np.percentile(lev, 99.5)), 1e-12), 1e-12)
+    edges = np.geomspace(lo, max(float(lev.max()), lo * 1.001), 25)
+    idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, 23)
+    first = np.flatnonzero(np.bincount(idx, minlength=24) >= 30)[0]
+    assert x[0] == float(np.median(lev[idx == first]))

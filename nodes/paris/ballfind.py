@@ -529,7 +529,8 @@ def noise_bins(lum, bins=24, min_count=30):
     d, lev = d[flat], lev[flat]
     if d.size < min_count:
         return np.array([0.0, max(top, 1e-12)]), np.full(2, max(1e-4 * top, 1e-12)), None
-    lo = max(float(np.percentile(lev, 0.5)), 1e-4 * max(float(np.percentile(lev, 99.5)), 1e-12), 1e-12)
+    p_lo, p_hi = np.percentile(lev, [0.5, 99.5])  # one partition for both (the same values as two calls)
+    lo = max(float(p_lo), 1e-4 * max(float(p_hi), 1e-12), 1e-12)
     hi = max(float(lev.max()), lo * 1.001)
     edges = np.geomspace(lo, hi, bins + 1)
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
@@ -576,10 +577,18 @@ def _highlights(lum, max_blobs=8):
     if n == 0:
         return []
     idx = np.arange(1, n + 1)
-    sizes = ndimage.sum(m, lab, index=idx)
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)[1:].astype(np.float64)  # ndimage.sum's counts
     top = idx[np.argsort(-sizes)[:max_blobs]]
-    cyx = ndimage.center_of_mass(m, lab, top)
-    return [(float(x) + 0.5, float(y) + 0.5) for y, x in cyx]
+    # each blob's centroid read in its own box (ndimage.center_of_mass over the whole photo took
+    # 1.2 s at 21.7 MP): sums of integer coordinates, exact in float64, so the same values
+    boxes = ndimage.find_objects(lab, max_label=int(top.max()))
+    out = []
+    for k in top:
+        by, bx = boxes[k - 1]
+        ys, xs = np.nonzero(lab[by, bx] == k)
+        out.append((float((xs.sum() + bx.start * len(xs)) / sizes[k - 1]) + 0.5,
+                    float((ys.sum() + by.start * len(ys)) / sizes[k - 1]) + 0.5))
+    return out
 
 
 def _holds(c, spots):
