@@ -288,7 +288,8 @@ def _workers_lost(client, token: str) -> list[str]:
         found = []  # (events can hold objects its comms cannot send, e.g. a WorkerState)
         for _, msg in dask_scheduler.get_events("all"):
             if isinstance(msg, dict) and msg.get("action") == "remove-worker" and not msg.get("expected"):
-                ours = [sorted(str(k)[: -len(token) - 1] for k in msg.get(f) or () if str(k).endswith(f"-{token}"))
+                ours = [sorted(str(k)[: -len(token) - 1] for k in msg.get(f) or ()
+                               if str(k).endswith(f"-{token}"))
                         for f in ("processing-tasks", "lost-computed-tasks")]
                 if any(ours):
                     found.append((str(msg.get("worker", "?")), *ours))

@@ -323,10 +323,11 @@ def _choose(fits: list[BallFit], lum, g, clipped, spot, curve=None, binned=None)
 
 def _shadow_around(best: BallFit, closed: list[BallFit], spot) -> tuple[str, BallFit | None]:
     """Why ``best``, the outermost closed outline, may be the ball's cast shadow around it ('' if
-    nothing says so), and the outline inside it that may be the ball (None): inside it, off its centre by over ``SHADOW_OFFSET`` of its radius, a closed
-    outline better supported by ``AMBIGUITY`` whose centre is nearer the flash's highlight (a
-    flash beside the lens casts the ball's shadow on the backdrop a little aside: a larger disc
-    whose soft edge closes round the ball, tv37 at 6×, 9° off with exit 0 without this)."""
+    nothing says so), and the outline inside it that may be the ball (else None): inside it, off
+    its centre by over ``SHADOW_OFFSET`` of its radius, a closed outline better supported by
+    ``AMBIGUITY`` whose centre is nearer the flash's highlight (a flash beside the lens casts the
+    ball's shadow on the backdrop a little aside: a larger disc whose soft edge closes round the
+    ball, tv37 at 6×, 9° off with exit 0 without this)."""
     if not best.confident or spot is None:
         return "", None
     for f in closed:
