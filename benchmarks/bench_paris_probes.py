@@ -12,6 +12,18 @@ prints, per probe: the true and the found radius, the centre error, the directio
 the flash (degrees; against make_probes.truth), or the refusal (exit 2) with its reason; then
 the same with the true circle given (as a person marking the ball would), and a summary of both
 per half.  CPU seconds of the finding.
+
+``--bias``: what ProbeLight's bias bound (``probe.BIAS_PER_RMS`` × the outline's residual may be a
+shift along a side; refused where that moves the flash by over ``MAX_BIAS_DEG``) costs and what it
+saves: per probe whose ball the finder is sure of, the direction error with the bound off and the
+bias the bound measured (degrees, at ``BIAS_PER_RMS``); then, per half, how many would be answered
+and the largest error with the bound's factor scaled to 2.0 and 1.5 (the bias scales with the factor
+to first order).
+
+``--halo``: what the halo's refinement of a clipped highlight does (``probe.MAX_HALO_SHIFT_DEG``):
+per probe, with the true circle given, how far the halo's excess-weighted mean moves the clipped
+blob's direction and the direction error with the refinement always, never, and under ProbeLight
+14's bound (kept up to 1°); then, per half, the largest and the mean error under that bound and now.
 """
 from __future__ import annotations
 
@@ -47,7 +59,49 @@ def probe_image(spec, cache: str | None):
     return img
 
 
-def run_probe(spec, img) -> dict:
+def _bias_row(img, fit, fov_deg) -> dict:
+    """With the bias bound off: the direction error's ingredients (see ``--bias``)."""
+    from unittest import mock
+
+    from graphkit import BadInput, Image
+    from nodes.paris import probe as pm
+
+    out = {"bias_deg": None, "unbound_light": None}
+    if not fit.confident:
+        return out
+    out["bias_deg"] = pm.outline_doubt(img, fit, fov_deg)[1]
+    with mock.patch.object(pm, "MAX_BIAS_DEG", np.inf):
+        try:
+            out["unbound_light"] = pm.ProbeLight(pm.ProbeLight.Params(fov_deg=fov_deg)).compute(
+                probe=Image(img))["light"]
+        except BadInput:
+            pass
+    return out
+
+
+def _halo_row(spec, img, t) -> dict:
+    """With the true circle given: the halo's shift of the blob's direction, the direction error
+    with the refinement always (bound off), never (the blob alone) and under ProbeLight 14's 1°
+    bound (see ``--halo``)."""
+    from unittest import mock
+
+    from graphkit import BadInput, Image
+    from nodes.paris import probe as pm
+
+    d = {}
+    for name, bound, refine in (("refined", np.inf, True), ("blob", np.inf, False), ("old", 1.0, True)):
+        try:
+            with mock.patch.object(pm, "MAX_HALO_SHIFT_DEG", bound):
+                d[name] = pm.ProbeLight(pm.ProbeLight.Params(
+                    fov_deg=spec.fov_deg, centre_x=t["centre_x"], centre_y=t["centre_y"], radius=t["radius"],
+                    refine_with_halo=refine)).compute(probe=Image(img))["light"].direction
+        except BadInput:
+            return {"halo_shift_deg": None, "refined_deg": None, "blob_deg": None, "old_bound_deg": None}
+    return {"halo_shift_deg": _angle(d["refined"], d["blob"]), "refined_deg": _angle(d["refined"], t["direction"]),
+            "blob_deg": _angle(d["blob"], t["direction"]), "old_bound_deg": _angle(d["old"], t["direction"])}
+
+
+def run_probe(spec, img, bias=False, halo=False) -> dict:
     """ProbeLight on one probe, found and given: a row of the table."""
     from graphkit import BadInput, Image
     from nodes.paris.ballfind import find_ball
@@ -72,6 +126,13 @@ def run_probe(spec, img) -> dict:
         row["given_deg"] = _angle(light.direction, t["direction"])
     except BadInput as e:
         row["given_deg"] = f"exit 2 ({e.message[:40]})"
+    if halo:
+        row.update(_halo_row(spec, img, t))
+    if bias:
+        b = _bias_row(img, fit, spec.fov_deg)
+        row["bias_deg"] = b["bias_deg"]
+        row["unbound_deg"] = None if b["unbound_light"] is None else _angle(b["unbound_light"].direction,
+                                                                            t["direction"])
     return row
 
 
@@ -79,8 +140,38 @@ def _fmt(row, half):
     err = "exit 2" if row["err_deg"] is None else f"{row['err_deg']:.2f}"
     given = row["given_deg"] if isinstance(row["given_deg"], str) else f"{row['given_deg']:.2f}"
     why = row["refused"][:110]
+    keys = [k for k in ("unbound_deg", "bias_deg", "halo_shift_deg", "refined_deg", "blob_deg", "old_bound_deg")
+            if k in row]
+    extra = " | ".join("—" if row[k] is None else f"{row[k]:.2f}" for k in keys) + " |" if keys else ""
     return (f"| {half} | {row['probe']} | {row['r_true']:.1f} | {row['r_found']:.1f} | {row['centre_err']:.2f} | "
-            f"{err} | {given} | {row['cpu_s']:.2f} | {why} |")
+            f"{err} | {given} | {row['cpu_s']:.2f} | {why} |" + (" " + extra if extra else ""))
+
+
+def _halo_summary(half, rows) -> list[str]:
+    """The errors, the true circle given, under ProbeLight 14's 1° bound for the halo's
+    refinement and as ProbeLight is now (``--halo``)."""
+    rows = [r for r in rows if r["halo_shift_deg"] is not None and isinstance(r["given_deg"], float)]
+    out = []
+    for what, key in (("under the old 1° bound", "old_bound_deg"), ("now", "given_deg")):
+        errs = [r[key] for r in rows]
+        out.append(f"{half}: the true circle given, the halo's refinement {what}: {len(errs)} answered, max error "
+                   f"{max(errs, default=float('nan')):.2f}°, mean {np.mean(errs) if errs else float('nan'):.3f}°, "
+                   f"{sum(e > 1.0 for e in errs)} over 1°")
+    return out
+
+
+def _bias_summary(half, rows) -> list[str]:
+    """Answered and the largest error with the bias bound's factor scaled (``--bias``)."""
+    from nodes.paris import probe as pm
+
+    out = []
+    for k in (pm.BIAS_PER_RMS, 2.0, 1.5):
+        errs = [r["unbound_deg"] for r in rows if r["unbound_deg"] is not None
+                and (r["bias_deg"] or 0.0) * k / pm.BIAS_PER_RMS <= pm.MAX_BIAS_DEG]
+        worst = max(errs, default=float("nan"))
+        out.append(f"{half}: bias bound at {k:g} × the residual: {len(errs)}/{len(rows)} answered, max error "
+                   f"{worst:.2f}°, {sum(e > 1.0 for e in errs)} over 1°")
+    return out
 
 
 def main(argv=None):
@@ -95,23 +186,37 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=None, help="probes per half (default: varied_probes.N_PER_HALF)")
     ap.add_argument("--unclipped", action="store_true",
                     help="render the probes unclipped (HDR: clip=False), the flash's highlight and the lamps' kept")
+    ap.add_argument("--bias", action="store_true",
+                    help="also the direction error with ProbeLight's bias bound off and the bias it measured, "
+                         "and what the bound's factor at 2.0 and 1.5 would answer")
+    ap.add_argument("--halo", action="store_true",
+                    help="also, the true circle given, the halo's shift of a clipped highlight's direction and "
+                         "the errors with and without the refinement")
     a = ap.parse_args(argv)
     halves = ["tune", "check"] if a.half == "both" else [a.half]
     print("| half | probe | r true (px) | r found | centre err (px) | direction err, found (°) | "
-          "err, true circle given (°) | find CPU s | refusal |\n|---|---|---|---|---|---|---|---|---|")
+          "err, true circle given (°) | find CPU s | refusal |"
+          + (" err, bias bound off (°) | bias measured (°) |" if a.bias else "")
+          + (" halo's shift (°) | err refined (°) | err blob only (°) | err, old 1° bound (°) |" if a.halo else "")
+          + "\n|---|---|---|---|---|---|---|---|---|" + ("---|---|" if a.bias else "")
+          + ("---|---|---|---|" if a.halo else ""))
     summary = []
     for half in halves:
         rows = []
         for spec in varied(half, **({'n': a.n} if a.n else {}), scale=a.scale):
             if a.unclipped:
                 spec = dataclasses.replace(spec, clip=False)
-            rows.append(run_probe(spec, probe_image(spec, a.cache)))
+            rows.append(run_probe(spec, probe_image(spec, a.cache), bias=a.bias, halo=a.halo))
             print(_fmt(rows[-1], half), flush=True)
         for what, key in (("found", "err_deg"), ("answered with the true circle given", "given_deg")):
             errs = [r[key] for r in rows if isinstance(r[key], float)]
             summary.append(f"{half}: {len(errs)}/{len(rows)} {what}, max error "
                            f"{max(errs) if errs else float('nan'):.2f}°, {sum(e > 1.0 for e in errs)} over 1°, "
                            f"{len(rows) - len(errs)} refused")
+        if a.bias:
+            summary += _bias_summary(half, rows)
+        if a.halo:
+            summary += _halo_summary(half, rows)
     print("\n".join(summary))
     return 0
 

@@ -219,6 +219,26 @@ def test_lamp_brighter_than_the_flash_on_an_unclipped_probe(monkeypatch):
     assert refusal is None and _angle(direction, mp.truth(spec)["direction"]) > 30
 
 
+def test_night_sky_in_the_halo_does_not_pull_a_clipped_highlight(monkeypatch):
+    """hv20 at 3× (holdout: a night sky and the flash-lit backdrop in the halo round a clipped
+    highlight), the true circle given: the halo's excess-weighted mean moves the clipped blob's
+    direction by 0.84°, to 0.83° off the flash (at 6×: 0.93°, 1.04° off with exit 0), under
+    ProbeLight 14's 1° bound for a refinement — where the blob itself is placed to 0.29°.
+    ProbeLight 15 lets the halo move it by max(MAX_HALO_SHIFT_DEG, that placement) only: the
+    blob's own direction, within the highlight's 0.25° share of the 1°; pulled with the old bound."""
+    from nodes.paris import probe as probe_mod
+    from nodes.paris.data import make_probes as mp
+
+    spec = _at("holdout", "hv20", 3)
+    img, truth = mp.render(spec), mp.truth(spec)["direction"]
+    direction, refusal = _given(img, spec)
+    assert refusal is None, refusal.message
+    assert _angle(direction, truth) <= 0.25
+    monkeypatch.setattr(probe_mod, "MAX_HALO_SHIFT_DEG", 1.0)
+    direction, refusal = _given(img, spec)
+    assert refusal is None and _angle(direction, truth) >= 0.5
+
+
 def test_outline_polished_where_the_sector_fit_does_not_close(monkeypatch):
     """tv08 at 3× (a 202-px ball on a grass backdrop): the rim's step is significant on half of
     the outline only, and the sector fit, taking in each sector the edge nearest the circle,
