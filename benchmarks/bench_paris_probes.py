@@ -59,21 +59,22 @@ def probe_image(spec, cache: str | None):
     return img
 
 
-def _bias_row(img, fit, fov_deg) -> dict:
-    """With the bias bound off: the direction error's ingredients (see ``--bias``)."""
+def _bias_row(img, fit, fov_deg, t) -> dict:
+    """With the bias bound off: the direction error and the bias the bound measured (degrees;
+    None where the finder is not sure of ``fit``, see ``--bias``)."""
     from unittest import mock
 
     from graphkit import BadInput, Image
     from nodes.paris import probe as pm
 
-    out = {"bias_deg": None, "unbound_light": None}
+    out = {"bias_deg": None, "unbound_deg": None}
     if not fit.confident:
         return out
     out["bias_deg"] = pm.outline_doubt(img, fit, fov_deg)[1]
     with mock.patch.object(pm, "MAX_BIAS_DEG", np.inf):
         try:
-            out["unbound_light"] = pm.ProbeLight(pm.ProbeLight.Params(fov_deg=fov_deg)).compute(
-                probe=Image(img))["light"]
+            light = pm.ProbeLight(pm.ProbeLight.Params(fov_deg=fov_deg)).compute(probe=Image(img))["light"]
+            out["unbound_deg"] = _angle(light.direction, t["direction"])
         except BadInput:
             pass
     return out
@@ -129,10 +130,7 @@ def run_probe(spec, img, bias=False, halo=False) -> dict:
     if halo:
         row.update(_halo_row(spec, img, t))
     if bias:
-        b = _bias_row(img, fit, spec.fov_deg)
-        row["bias_deg"] = b["bias_deg"]
-        row["unbound_deg"] = None if b["unbound_light"] is None else _angle(b["unbound_light"].direction,
-                                                                            t["direction"])
+        row.update(_bias_row(img, fit, spec.fov_deg, t))
     return row
 
 

@@ -550,7 +550,8 @@ MAX_HIGHLIGHT_EXTENT = 1.25
 #: and 6× (0.83° and 1.04° off with exit 0; the blob alone 0.01° and 0.12°), while on a small ball
 #: the blob alone is coarse and a refinement of 0.6° is one (make_probes' c_bottomleft_city, a
 #: 0.89° placement: refined 0.48°, the blob alone 0.94°; found, 0.83° and 1.33°).  Set on the tune
-#: half at 1–6×, held on the check and holdout halves: benchmarks/bench_paris_probes.py --halo
+#: half at 1–3×, read on the check and holdout halves at 1–6× (nodes/paris/README, ProbeLight 15):
+#: benchmarks/bench_paris_probes.py --halo
 MAX_HALO_SHIFT_DEG = 0.5
 #: … and never more than this (ProbeLight 14's bound: a blob placed more coarsely than
 #: MAX_HIGHLIGHT_DOUBT_DEG, 1°, is refused anyway)
